@@ -1,0 +1,154 @@
+"""The calibration: everything a correction needs, as in ``shared/OUTPUT_FORMAT.md``.
+
+Per leg k: the transducer offset ``w_o`` (report eq. 1, in ft_k), the leg weight
+``m_k g``, the leg CoM curve ``r_k(phi)`` in ft_k on a periodic grid, the
+rotation ``R_k = R_ftk^B`` (nominal rotation times the mounting error
+``R_tilde``) and ``p_prime_k``, the origin of ft_k relative to the CoM of the
+body without legs, in B axes (the report's ``p'_k`` up to that choice of
+reference point). ``com_body_m`` is that CoM in B, or None where the data
+cannot place it (models that free every transducer translation).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LegCalibration:
+    offset: np.ndarray                 # (6,) N, N*m in ft_k
+    leg_weight_N: float
+    com_phi: np.ndarray                # (G,) rad in [0, 2pi), increasing
+    com_xyz: np.ndarray                # (G, 3) m in ft_k; NaN where unsupported by data
+    rotation_to_body: np.ndarray       # (3, 3) ft_k -> B
+    position_from_com_m: np.ndarray    # (3,) m, B axes, relative to body-without-legs CoM
+    offset_se: np.ndarray | None = None
+    leg_weight_se_N: float | None = None
+    position_from_com_se_m: np.ndarray | None = None
+    com_xyz_se: np.ndarray | None = None
+
+    def com(self, phi: np.ndarray) -> np.ndarray:
+        """Leg CoM ``r_k(phi)`` in ft_k, (N, 3) m, by periodic linear interpolation of the grid."""
+        return periodic_interp(np.asarray(phi, float), self.com_phi, self.com_xyz)
+
+
+def periodic_interp(phi: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Interpolate ``values`` (G, d) given on the periodic ``grid`` (G,) at ``phi`` (N,)."""
+    x = np.mod(phi, 2 * np.pi)
+    xp = np.concatenate([grid, [grid[0] + 2 * np.pi]])
+    out = np.empty(x.shape + (values.shape[1],))
+    for j in range(values.shape[1]):
+        fp = np.concatenate([values[:, j], values[:1, j]])
+        out[..., j] = np.interp(x, xp, fp)
+    return out
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A finished (or true) calibration of a robot; serialised as ``calibration.json``."""
+
+    legs: dict[str, LegCalibration]
+    mass_kg: float
+    g: float
+    model: str = "full"
+    com_body_m: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def leg_names(self) -> tuple[str, ...]:
+        return tuple(self.legs)
+
+    @property
+    def body_weight_N(self) -> float:
+        """Weight of the body without legs: weighed total less the leg weights."""
+        return self.mass_kg * self.g - sum(l.leg_weight_N for l in self.legs.values())
+
+    def stacked(self, legs=None):
+        """(offsets (K,6), leg weights (K,), rotations (K,3,3), positions (K,3)) in leg order."""
+        legs = self.leg_names if legs is None else legs
+        L = [self.legs[k] for k in legs]
+        return (
+            np.stack([l.offset for l in L]),
+            np.array([l.leg_weight_N for l in L]),
+            np.stack([l.rotation_to_body for l in L]),
+            np.stack([l.position_from_com_m for l in L]),
+        )
+
+    def to_json_dict(self) -> dict:
+        def lst(a):
+            return None if a is None else np.where(np.isfinite(a), a, np.nan).tolist()
+
+        legs = {}
+        for k, l in self.legs.items():
+            d = {
+                "offset": lst(l.offset),
+                "offset_se": lst(l.offset_se),
+                "leg_weight_N": float(l.leg_weight_N),
+                "leg_weight_se_N": None if l.leg_weight_se_N is None else float(l.leg_weight_se_N),
+                "leg_com_grid": {"phi": lst(l.com_phi), "xyz": [[None if not np.isfinite(v) else float(v) for v in r] for r in l.com_xyz]},
+                "rotation_to_body": lst(l.rotation_to_body),
+                "position_from_com_m": lst(l.position_from_com_m),
+                "position_from_com_se_m": lst(l.position_from_com_se_m),
+            }
+            if l.com_xyz_se is not None:
+                d["leg_com_grid"]["xyz_se"] = [[None if not np.isfinite(v) else float(v) for v in r] for r in l.com_xyz_se]
+            legs[k] = d
+        return {
+            "model": self.model,
+            "legs": legs,
+            "com_body_m": lst(self.com_body_m),
+            "mass_kg": float(self.mass_kg),
+            "g": float(self.g),
+            **({"meta": self.meta} if self.meta else {}),
+        }
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json_dict(), indent=1, allow_nan=True))
+
+    @classmethod
+    def from_json_dict(cls, d: dict, *, mass_kg: float | None = None, g: float | None = None, source: str = "calibration") -> "Calibration":
+        def arr(x, shape=None):
+            if x is None:
+                return None
+            a = np.array([[np.nan if v is None else v for v in r] for r in x] if x and isinstance(x[0], list) else [np.nan if v is None else v for v in x], dtype=float)
+            if shape is not None and a.shape != shape:
+                raise ValueError(f"{source}: expected shape {shape}, got {a.shape}")
+            return a
+
+        if "legs" not in d:
+            raise ValueError(f"{source}: missing key 'legs'")
+        legs = {}
+        for k, l in d["legs"].items():
+            for key in ("offset", "leg_weight_N", "leg_com_grid", "rotation_to_body", "position_from_com_m"):
+                if key not in l:
+                    raise ValueError(f"{source}: legs.{k} is missing key '{key}'")
+            grid = l["leg_com_grid"]
+            legs[k] = LegCalibration(
+                offset=arr(l["offset"], (6,)),
+                leg_weight_N=float(l["leg_weight_N"]),
+                com_phi=arr(grid["phi"]),
+                com_xyz=arr(grid["xyz"]),
+                rotation_to_body=arr(l["rotation_to_body"], (3, 3)),
+                position_from_com_m=arr(l["position_from_com_m"], (3,)),
+                offset_se=arr(l.get("offset_se")),
+                leg_weight_se_N=l.get("leg_weight_se_N"),
+                position_from_com_se_m=arr(l.get("position_from_com_se_m")),
+                com_xyz_se=arr(grid.get("xyz_se")),
+            )
+        m = d.get("mass_kg", d.get("mass_true_kg", mass_kg))
+        gg = d.get("g", g)
+        if m is None or gg is None:
+            raise ValueError(f"{source}: mass_kg and g are needed (in the file or as arguments)")
+        com = d.get("com_body_m")
+        return cls(legs, float(m), float(gg), d.get("model", "truth"), None if com is None else arr(com, (3,)), d.get("meta", {}))
+
+    @classmethod
+    def load(cls, path: str | Path, **kw) -> "Calibration":
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: calibration file not found")
+        return cls.from_json_dict(json.loads(path.read_text()), source=str(path), **kw)
