@@ -1,0 +1,15 @@
+"""Shared test settings: hypothesis without wall-clock deadlines (CI has 2 shared cores); the sample path."""
+
+from hypothesis import settings
+
+settings.register_profile("ftcal", deadline=None, max_examples=60, derandomize=True)
+settings.load_profile("ftcal")
+
+import os
+from pathlib import Path
+
+# The sample dataset written by someone else lives in shared/ beside the clone (CI and
+# developers alike); FTCAL_SAMPLE points elsewhere if needed.
+SAMPLE = Path(os.environ.get("FTCAL_SAMPLE", Path(__file__).resolve().parents[2] / "shared" / "sample"))
+if not (SAMPLE / "dataset.toml").is_file():
+    raise RuntimeError(f"sample dataset not found at {SAMPLE}: set FTCAL_SAMPLE to shared/sample")
