@@ -1,0 +1,90 @@
+"""Run config validation and the correction of new recordings (against the sample's walk_truth)."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import SAMPLE
+from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.config import ConfigError, load_config
+from ftcal_nlp.correct import correct_file, main as correct_main
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "run.toml"
+    p.write_text(text)
+    return p
+
+
+def test_minimal_config(tmp_path):
+    cfg = load_config(_write(tmp_path, '[data]\nmanifest = "d/dataset.toml"\n[output]\ndir = "out"\n[diagnose]\nenabled = true\n'))
+    assert cfg.manifest == tmp_path / "d/dataset.toml" and cfg.output_dir == tmp_path / "out"
+    assert cfg.standing.model == "auto" and cfg.standing.solver == "ipopt" and cfg.standing.balance == "exact"
+    assert cfg.selection.folds == 5 and cfg.diagnose.enabled
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ('[output]\ndir = "o"\n', r"needs \[data\].manifest"),
+        ('[data]\nmanifest = "d.toml"\n', r"\[output\].dir"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nsolver = "snopt"\n', r"\[standing\].solver.*'ipopt', 'baseline'.*snopt"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nbalance = "approx"\n', r"\[standing\].balance"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[hanging]\nmetod = "nlp"\n', r"\[hanging\].*unknown key.*metod"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[selection]\nfolds = "five"\n', r"\[selection\].folds.*integer"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[diagnose]\nenabled = 1\n', r"\[diagnose\].enabled.*true or false"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nmin_steady_s = "long"\n', r"\[standing.poses\].min_steady_s.*number"),
+        ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[bogus]\n', r"unknown section.*bogus"),
+        ('[data\n', r"not valid TOML"),
+    ],
+)
+def test_config_errors_name_the_key(tmp_path, text, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(_write(tmp_path, text))
+
+
+def test_default_problem_config_is_valid():
+    from pathlib import Path
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "problems" / "bigant_sim.toml")
+    assert cfg.simulate is not None and cfg.standing.candidates == ("full", "rot6_trans1", "trans6", "trans1")
+
+
+@pytest.fixture(scope="module")
+def truth_calibration(tmp_path_factory):
+    d = json.loads((SAMPLE / "truth.json").read_text())
+    path = tmp_path_factory.mktemp("cal") / "calibration.json"
+    Calibration.from_json_dict(d, mass_kg=8.18, g=9.81).save(path)
+    return path
+
+
+def test_correction_of_sample_walk_matches_truth(truth_calibration):
+    # README of the sample: the true parameters leave 0.05 N / 0.011 N*m RMS per component (noise only)
+    out = correct_file(Calibration.load(truth_calibration), SAMPLE / "walk.csv")
+    truth = pd.read_csv(SAMPLE / "walk_truth.csv")
+    legs = ("FL", "ML", "HL", "FR", "MR", "HR")
+    err = np.stack([out[[f"{k}_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy() - truth[[f"{k}_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy() for k in legs], 1)
+    rms = np.sqrt((err**2).mean(axis=(0, 1)))
+    print("RMS error per component", rms)
+    assert np.all(rms[:3] < 1.5 * 0.05) and np.all(rms[3:] < 1.5 * 0.011)
+    # totals: the sum over feet, and the robot's weight while the robot walks quasi-statically
+    tot = out[[f"total_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy()
+    np.testing.assert_allclose(tot, sum(out[[f"{k}_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy() for k in legs), atol=1e-4)
+    assert abs(np.median(tot[:, 2]) - 8.18 * 9.81) < 3 * 0.05 * np.sqrt(6)
+
+
+def test_correct_cli_refuses_to_overwrite(truth_calibration, tmp_path, capsys):
+    out = tmp_path / "walk_corrected.csv"
+    assert correct_main([str(truth_calibration), str(SAMPLE / "walk.csv"), "-o", str(out)]) == 0
+    first = out.read_bytes()
+    assert correct_main([str(truth_calibration), str(SAMPLE / "walk.csv"), "-o", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == first
+
+
+def test_correct_cli_bad_recording(truth_calibration, tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    pd.read_csv(SAMPLE / "walk.csv").drop(columns=["qx"]).to_csv(bad, index=False)
+    assert correct_main([str(truth_calibration), str(bad), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "qx" in capsys.readouterr().err
