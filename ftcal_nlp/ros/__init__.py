@@ -1,0 +1,27 @@
+"""Real recordings in from ROS: bags + URDF -> the interchange format, and
+corrected ground wrenches back out as a bag.
+
+* :func:`ingest` / :func:`write_ingested`: map (:mod:`.mapfile`) -> dataset;
+* :func:`robot_from_urdf`: nominal transducer poses from a URDF (:mod:`.urdf`);
+* :func:`write_ground_wrench_bag`: one ``WrenchStamped`` topic per foot (:mod:`.bagio`).
+"""
+
+from .bagio import BagError, ground_wrench_bag_from_frame, read_wrench_topics, write_ground_wrench_bag
+from .ingest import IngestCounts, IngestResult, ingest, write_ingested
+from .mapfile import IngestMap, read_map
+from .urdf import fixed_pose, robot_from_urdf
+
+__all__ = [
+    "BagError",
+    "IngestCounts",
+    "IngestMap",
+    "IngestResult",
+    "fixed_pose",
+    "ground_wrench_bag_from_frame",
+    "ingest",
+    "read_map",
+    "read_wrench_topics",
+    "robot_from_urdf",
+    "write_ground_wrench_bag",
+    "write_ingested",
+]

@@ -1,0 +1,343 @@
+"""ROS bags -> interchange dataset (``DATA_FORMAT.md``), on one clock.
+
+For each ``[[recording]]`` of a map (:mod:`.mapfile`) the bag's streams
+(:mod:`.bagio`) are resampled (:mod:`.clock`) onto the *wrench clock*: the
+header stamps of the first leg's ``WrenchStamped`` topic. Per clock row
+
+* the other legs' readings are the nearest sample within half a wrench period
+  (``wrench_match = "linear"``: the chord between the bracketing samples, where
+  one lies within half a period); a row where one is missing is dropped and
+  counted per leg;
+* ``{leg}_phi = sign * (unwrap(position) - zero_rad)``, linear in time; rows
+  outside the joint stream's span or inside a joint gap longer than
+  ``[joints] max_gap_s`` are dropped and counted;
+* ``qw..qz`` (standing and walking only) is the slerp of the mocap orientation (``R_WB``; with
+  ``[body_pose] link`` the tracked link's ``R_WM R_BM^T``); outside the mocap
+  span or inside a gap longer than ``[body_pose] max_gap_s`` it is NaN
+  (tracking lost, as the format says), never bridged or extrapolated;
+* ``t`` is seconds since the session epoch, the earliest stamp of any stream
+  used in any bag of the map, so later recordings have larger ``t``.
+
+Readings are multiplied by ``wrench_sign`` and otherwise passed through: the
+format's reading is the wrench the leg exerts on the transducer, in ``ft_k``
+about its origin, offset included (report eq. 1).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..data import (
+    QUAT_COLUMNS,
+    WRENCH_COMPONENTS,
+    DataFormatError,
+    Dataset,
+    Recording,
+    hanging_pairs,
+    recording_from_frame,
+    recording_to_frame,
+    write_robot,
+)
+from .bagio import BagError, BagStreams, Stream, bag_topics, read_streams
+from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
+from .mapfile import IngestMap, RecordingSpec, read_map
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class IngestCounts:
+    """What resampling one bag kept and dropped (rows of the wrench clock).
+
+    Per-leg counts are independent (a row may be counted for several reasons);
+    ``n_rows`` is what the recording holds. ``clock_gaps`` estimates the
+    messages of the first leg (the clock) that never arrived: they leave no row.
+    """
+
+    name: str
+    bag: str
+    n_clock: int
+    n_rows: int
+    duplicate_stamps: int
+    clock_gaps: int = 0
+    unmatched_wrench: dict[str, int] = field(default_factory=dict)
+    joint_outside_span: dict[str, int] = field(default_factory=dict)
+    joint_gap: dict[str, int] = field(default_factory=dict)
+    nan_readings: int = 0
+    nan_orientation: int = 0
+    invalid_pose_samples: int = 0
+
+
+@dataclass(frozen=True)
+class IngestResult:
+    """A dataset built from a map's bags, with the counts and the session epoch (ns)."""
+
+    dataset: Dataset
+    counts: tuple[IngestCounts, ...]
+    epoch_ns: int
+    map: IngestMap
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def _check_topics(m: IngestMap, spec: RecordingSpec, topics: dict[str, str]) -> None:
+    """Every topic the map names is in the bag; errors name the map key."""
+    listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items()))
+    for k, t in m.wrench_topics.items():
+        if t not in topics:
+            raise BagError(f"{spec.bag}: topic '{t}' of map key [wrench_topics] {k} is not in the bag (topics: {listing})")
+    if m.joint_topic not in topics:
+        raise BagError(f"{spec.bag}: topic '{m.joint_topic}' of map key [joints] topic is not in the bag (topics: {listing})")
+    if spec.kind != "hanging" and m.pose_topic not in topics:
+        raise BagError(f"{spec.bag}: topic '{m.pose_topic}' of map key [body_pose] topic is not in the bag (topics: {listing}); "
+                       f"a {spec.kind} recording needs the body orientation")
+
+
+def _check_streams(m: IngestMap, spec: RecordingSpec, s: BagStreams) -> None:
+    for k, t in m.wrench_topics.items():
+        if len(s.wrench[t]) < 2:
+            raise BagError(f"{spec.bag}: topic '{t}' ([wrench_topics] {k}) has {len(s.wrench[t])} message(s); at least 2 are needed")
+        if m.check_frame_ids and m.transducer_links is not None:
+            link = m.transducer_links[k]
+            other = sorted(f for f in s.wrench[t].frame_ids if f and f != link)
+            if other:
+                raise BagError(
+                    f"{spec.bag}: topic '{t}' ([wrench_topics] {k}) is stamped in frame(s) {other}, but [transducer_links] {k} = '{link}'; "
+                    "readings must be in the transducer frame (fix the map or the driver, or set check_frame_ids = false if the frames are the same)"
+                )
+    for k, n in m.joint_names.items():
+        if n not in s.joints:
+            seen = sorted(s.joint_names_seen)
+            raise BagError(f"{spec.bag}: joint '{n}' of map key [joints] {k} never has a position on '{m.joint_topic}' (joint names seen: {seen})")
+        if len(s.joints[n]) < 2:
+            raise BagError(f"{spec.bag}: joint '{n}' ([joints] {k}) has fewer than 2 positions")
+    if spec.kind != "hanging" and (s.pose is None or len(s.pose) < 2):
+        raise BagError(f"{spec.bag}: topic '{m.pose_topic}' ([body_pose] topic) has fewer than 2 valid orientations")
+    if m.time_source == "header":
+        named = [(f"[wrench_topics] {k}", s.wrench[t]) for k, t in m.wrench_topics.items()]
+        named += [(f"[joints] {k}", s.joints[n]) for k, n in m.joint_names.items()]
+        named += [("[body_pose] topic", s.pose)] if s.pose is not None else []
+        for key, st in named:
+            if np.any(st.stamp_ns <= 0):
+                raise BagError(f"{spec.bag}: topic '{st.topic}' ({key}) has messages with zero header stamps; "
+                               "the publisher does not stamp them: set time_source = \"receive\" in the map to use bag receive times")
+
+
+def _stamps(st: Stream, m: IngestMap) -> np.ndarray:
+    return st.stamp_ns if m.time_source == "header" else st.receive_ns
+
+
+def _streams_used(m: IngestMap, s: BagStreams) -> list[Stream]:
+    out = [s.wrench[t] for t in m.wrench_topics.values()] + [s.joints[n] for n in m.joint_names.values()]
+    return out + ([s.pose] if s.pose is not None else [])
+
+
+# ----------------------------------------------------------------------------- resampling
+
+
+def _seconds(stamp_ns: np.ndarray, epoch_ns: int) -> np.ndarray:
+    # Subtract in integers first: float64 seconds since 1970 lose sub-microsecond detail.
+    return (np.asarray(stamp_ns, dtype=np.int64) - np.int64(epoch_ns)).astype(float) * 1e-9
+
+
+def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) -> tuple[pd.DataFrame, IngestCounts]:
+    """One bag's streams on its wrench clock, as a table with the format's columns.
+
+    Rows where a reading or a shaft angle is missing are left out; missing
+    orientation is NaN. Returns the table and what was dropped.
+    """
+    legs = m.legs
+    first = s.wrench[m.wrench_topics[legs[0]]]
+    clock_ns, w0, n_dup = sort_unique(_stamps(first, m), first.values)
+    t = _seconds(clock_ns, epoch_ns)
+    period = median_period(t)
+    dt = np.diff(t)
+    clock_gaps = int(np.sum(np.round(dt[dt > 1.5 * period] / period) - 1))
+    keep = np.ones(len(t), dtype=bool)
+    wrench = {legs[0]: w0}
+    unmatched = {}
+    for k in legs[1:]:
+        st = s.wrench[m.wrench_topics[k]]
+        sk, vk, _ = sort_unique(_seconds(_stamps(st, m), epoch_ns), st.values)
+        # A row has a reading of leg k when one of its samples lies within half a
+        # period; "linear" then takes the chord between the bracketing samples.
+        idx = match_nearest(t, sk, 0.5 * period)
+        miss = idx < 0
+        if m.wrench_match == "nearest":
+            wrench[k] = np.where(miss[:, None], np.nan, vk[np.maximum(idx, 0)])
+        else:
+            r = interp_linear(t, sk, vk)
+            miss |= r.missing
+            wrench[k] = r.values
+        unmatched[k] = int(miss.sum())
+        keep &= ~miss
+    outside, gap = {}, {}
+    phi = {}
+    for k in legs:
+        st = s.joints[m.joint_names[k]]
+        sj, pj, _ = sort_unique(_seconds(_stamps(st, m), epoch_ns), st.values[:, 0])
+        # Unwrap in the stream's own order, before resampling: a wrapped angle
+        # interpolated across the +-pi seam would sweep the whole circle.
+        pos = m.joint_sign[k] * (np.unwrap(pj) - m.joint_zero_rad[k])
+        r = interp_linear(t, sj, pos, m.joint_max_gap_s)
+        phi[k] = r.values[:, 0]
+        outside[k], gap[k] = int(r.outside.sum()), int(r.in_gap.sum())
+        keep &= ~r.missing
+    # NaN or infinite values inside a bag's messages (a driver's fault flag) drop the row too.
+    readings = np.concatenate([np.stack([phi[k] for k in legs], 1)] + [wrench[k] for k in legs], axis=1)
+    bad = keep & ~np.all(np.isfinite(readings), axis=1)
+    keep &= ~bad
+    quat = None
+    n_invalid_pose = 0
+    if s.pose is not None and len(s.pose) >= 1:
+        n_invalid_pose = s.pose.n_invalid
+        sp, qp, _ = sort_unique(_seconds(_stamps(s.pose, m), epoch_ns), s.pose.values)
+        if m.R_marker_to_body is not None:
+            qp = _right_multiply(qp, m.R_marker_to_body)
+        quat = slerp_quat(t, sp, qp, m.pose_max_gap_s).values[keep]
+    cols: dict[str, np.ndarray] = {"t": t[keep]}
+    for k in legs:
+        cols[f"{k}_phi"] = phi[k][keep]
+        w = m.wrench_sign[k] * wrench[k][keep]
+        for j, c in enumerate(WRENCH_COMPONENTS):
+            cols[f"{k}_{c}"] = w[:, j]
+    if quat is not None:
+        for j, c in enumerate(QUAT_COLUMNS):
+            cols[c] = quat[:, j]
+    df = pd.DataFrame(cols)
+    counts = IngestCounts(
+        name=spec.name,
+        bag=str(spec.bag),
+        n_clock=len(t),
+        n_rows=int(keep.sum()),
+        duplicate_stamps=n_dup,
+        clock_gaps=clock_gaps,
+        unmatched_wrench=unmatched,
+        joint_outside_span=outside,
+        joint_gap=gap,
+        nan_readings=int(bad.sum()),
+        nan_orientation=0 if quat is None else int(np.isnan(quat[:, 0]).sum()),
+        invalid_pose_samples=n_invalid_pose,
+    )
+    return df, counts
+
+
+def _right_multiply(q_wxyz: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Quaternions of ``R(q) R`` (constant right factor commutes with slerp)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]]) * Rotation.from_matrix(R)
+    return r.as_quat()[:, [3, 0, 1, 2]]
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def read_bags(m: IngestMap) -> list[BagStreams]:
+    """Read every bag of the map, checking topics, joints and frames against the map."""
+    out = []
+    for spec in m.recordings:
+        topics = bag_topics(spec.bag)
+        _check_topics(m, spec, topics)
+        s = read_streams(
+            spec.bag,
+            wrench_topics=m.wrench_topics.values(),
+            joint_topic=m.joint_topic,
+            joint_names=m.joint_names.values(),
+            # hanging recordings do without orientation (the format ignores it there)
+            pose_topic=m.pose_topic if spec.kind != "hanging" else None,
+        )
+        _check_streams(m, spec, s)
+        out.append(s)
+    return out
+
+
+def session_epoch_ns(m: IngestMap, streams: list[BagStreams]) -> int:
+    """The earliest stamp of any stream the map uses, over all its bags (ns)."""
+    return int(min(int(_stamps(st, m).min()) for s in streams for st in _streams_used(m, s) if len(st)))
+
+
+def ingest(map_or_path: IngestMap | str | Path) -> IngestResult:
+    """Read a map and its bags into a validated :class:`Dataset` (nothing written)."""
+    m = map_or_path if isinstance(map_or_path, IngestMap) else read_map(map_or_path)
+    streams = read_bags(m)
+    epoch = session_epoch_ns(m, streams)
+    recs: list[Recording] = []
+    counts = []
+    for spec, s in zip(m.recordings, streams):
+        df, c = resample(m, spec, s, epoch)
+        if len(df) < 2:
+            raise DataFormatError(f"{spec.bag}: only {len(df)} row(s) left on the wrench clock after alignment ({_summary(c)})")
+        # The format's own validation (units, monotonic t, NaN readings, unit quaternions).
+        rec = recording_from_frame(df, m.robot, name=spec.name, kind=spec.kind, gravity_body=spec.gravity_body, source=str(spec.bag))
+        if spec.kind != "hanging" and c.nan_orientation == c.n_rows:
+            log.warning("%s: no row has a body orientation (mocap never overlaps the wrench clock)", spec.bag)
+        log.info("%s -> %s: %s", spec.bag, spec.name, _summary(c))
+        recs.append(rec)
+        counts.append(c)
+    ds = Dataset(m.robot, tuple(recs), None)
+    hanging_pairs(ds.hanging)
+    return IngestResult(ds, tuple(counts), epoch, m)
+
+
+def _summary(c: IngestCounts) -> str:
+    parts = [f"{c.n_rows} of {c.n_clock} clock rows kept"]
+    for label, d in (("no matching reading", c.unmatched_wrench), ("outside joint span", c.joint_outside_span), ("in joint gap", c.joint_gap)):
+        nz = {k: v for k, v in d.items() if v}
+        if nz:
+            parts.append(f"{label}: {nz}")
+    if c.clock_gaps:
+        parts.append(f"about {c.clock_gaps} messages of the clock (first leg's wrench) missing")
+    if c.duplicate_stamps:
+        parts.append(f"{c.duplicate_stamps} duplicate clock stamps")
+    if c.nan_readings:
+        parts.append(f"{c.nan_readings} rows with NaN readings")
+    if c.nan_orientation:
+        parts.append(f"{c.nan_orientation} rows without orientation (NaN)")
+    if c.invalid_pose_samples:
+        parts.append(f"{c.invalid_pose_samples} invalid mocap samples ignored")
+    return "; ".join(parts)
+
+
+def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None = None, overwrite: bool = False) -> Path:
+    """Write the dataset (``dataset.toml``, ``robot.toml``, one file per bag); returns the manifest.
+
+    The manifest also holds, under keys the reader ignores, the bag of each
+    recording, its counts and the session epoch (``[ingest] epoch_ns``).
+    """
+    import tomli_w
+
+    fmt = fmt or result.map.fmt
+    if fmt not in ("csv", "parquet"):
+        raise ValueError(f"fmt must be 'csv' or 'parquet', got {fmt!r}")
+    folder = Path(folder)
+    manifest = folder / "dataset.toml"
+    if manifest.exists() and not overwrite:
+        raise FileExistsError(f"{manifest} exists; pass overwrite=True (--overwrite) to replace it")
+    folder.mkdir(parents=True, exist_ok=True)
+    ds = result.dataset
+    write_robot(ds.robot, folder / "robot.toml")
+    entries = []
+    for rec, c in zip(ds.recordings, result.counts):
+        fname = f"{rec.name}.{fmt}"
+        df = recording_to_frame(rec, ds.robot.legs)
+        if fmt == "parquet":
+            df.to_parquet(folder / fname, index=False)
+        else:
+            # 12 significant digits keep 1 us of t over a day-long session.
+            df.to_csv(folder / fname, index=False, float_format="%.12g")
+        e: dict = {"file": fname, "kind": rec.kind}
+        if rec.gravity_body is not None:
+            e["gravity_body"] = [float(x) for x in rec.gravity_body]
+        e["bag"] = str(Path(c.bag).resolve())
+        e["ingest_counts"] = {k: v for k, v in asdict(c).items() if k not in ("name", "bag")}
+        entries.append(e)
+    meta = {"map": str(result.map.path.resolve()), "epoch_ns": int(result.epoch_ns), "time_source": result.map.time_source}
+    manifest.write_bytes(tomli_w.dumps({"robot": "robot.toml", "recording": entries, "ingest": meta}).encode())
+    return manifest
