@@ -1,0 +1,148 @@
+"""Settings of the BigAnt simulator: one frozen dataclass, every knob with a realistic default.
+
+The defaults reproduce the experiment of the report (Wu & Revzen, Sec. I-B,
+III-A, IV-3): hanging in +-x and +-z with ten slow leg turns at 100 Hz, the
+3^6 grid of standing poses {0, +-36 deg} held 5 s each, and a quasi-static
+tripod walk on a 0.08 Hz Buehler clock turning ~9 deg per cycle; ATI Gamma
+noise; BigAnt's mass (8.18 kg) and Table II offsets and leg weights.
+
+``SimConfig.from_dict`` reads a TOML ``[simulate]`` table: keys are the field
+names, lists become tuples, an unknown key is an error naming the known ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Every setting of :func:`ftcal_nlp.sim.simulate` (SI units unless the name says otherwise)."""
+
+    seed: int = 0
+    rate_hz: float = 100.0
+    t0_s: float = 30.0                    # session time of the first sample
+    gap_s: float = 30.0                   # idle time between recordings
+
+    # hanging (report Sec. III-A)
+    hanging_cycles: float = 10.0          # leg turns per recording
+    hanging_cycle_s: float = 20.0         # nominal duration of one turn
+    hanging_speed_spread: float = 0.05    # each leg's speed differs by up to this fraction
+    hanging_tilt_deg: float = 2.0         # whole-robot hanging tilt, random axis per recording
+
+    # standing (report Sec. I-B)
+    pose_angles_deg: tuple = (-36.0, 0.0, 36.0)
+    n_poses: int | None = None            # None: whole grid; else a seeded random subset
+    pose_s: float = 5.0                   # time per pose, transition included
+    move_s: float = 0.3                   # shaft motion between poses
+    settle_s: float = 2.0                 # pose change -> start of the nominally steady part
+    transient_decay_per_s: float = 5.0    # envelope exp(-a t) of the overshoot
+    transient_freq_hz: float = 2.0        # its ringing frequency
+    heading_step_deg: float = 1.0         # feet shuffle the heading a little at each pose change
+    internal_force_N: float = 2.0         # size of friction-locked self-equilibrated foot forces
+    friction_mu: float = 0.5
+    max_tilt_deg: float = 5.0             # a pose needing more tilt than this has tipped over (grid poses need < 1 deg)
+
+    # walking (report Sec. IV-3)
+    walk_cycles: float = 2.0
+    walk_freq_hz: float = 0.08            # Buehler clock
+    walk_duty: float = 0.6                # stance fraction of a cycle
+    walk_sweep_deg: float = 57.3          # stance sweep of the shaft angle (+-half about 0)
+    walk_turn_deg_per_cycle: float = -9.0 # heading change per cycle (negative = right turn)
+    walk_internal_force_N: float = 1.5
+
+    # sensors
+    noise_force_N: float = 0.05
+    noise_torque_Nm: float = 0.003
+    mocap_jitter_deg: float = 0.05
+    mocap_dropout_rate: float = 0.03      # probability that a pose loses mocap through its steady part
+    mocap_blip_rate_hz: float = 0.01      # short tracking losses per second (standing and walking)
+    mocap_blip_s: tuple = (0.1, 1.0)      # their duration range
+
+    # robot truth
+    mass_kg: float = 8.18
+    g: float = 9.81
+    mounting_rot_deg: float = 1.5         # rms size of each transducer's mounting rotation error
+    mounting_trans_mm: float = 3.0        # rms size of each transducer's mounting translation error
+    leg_weight_spread_N: float = 0.05     # spread of leg weights about Table II
+    com_body_range_m: tuple = (0.025, 0.012, 0.02)  # body-without-legs CoM drawn uniformly within +- this
+    foot_stiffness_N_per_m: float = 15000.0  # compliant feet: ~1-4 mm compression, 3-6 feet loaded
+    toe_depth_m: float = 0.17             # foot below the hip at phi = 0
+    toe_depth_spread_mm: float = 1.0
+    toe_reach_m: float = 0.10             # foot x = -reach sin(phi)
+    toe_lift_m: float = 0.08              # foot raised by lift*((1 - cos phi)/2)^2
+
+    # effect injectors (issue 7): objects following ftcal_nlp.sim.effects.Injector
+    effects: tuple = ()
+
+    def __post_init__(self) -> None:
+        positive = ("rate_hz", "hanging_cycles", "hanging_cycle_s", "pose_s", "walk_freq_hz", "mass_kg", "g",
+                    "foot_stiffness_N_per_m", "toe_depth_m", "transient_decay_per_s", "transient_freq_hz")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SimConfig.{name} must be > 0, got {getattr(self, name)!r}")
+        nonneg = ("noise_force_N", "noise_torque_Nm", "mocap_jitter_deg", "mocap_dropout_rate", "mocap_blip_rate_hz",
+                  "walk_cycles", "gap_s", "move_s", "settle_s", "internal_force_N", "walk_internal_force_N",
+                  "mounting_rot_deg", "mounting_trans_mm", "hanging_tilt_deg")
+        for name in nonneg:
+            if getattr(self, name) < 0:
+                raise ValueError(f"SimConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 < self.walk_duty < 1:
+            raise ValueError(f"SimConfig.walk_duty must be in (0, 1), got {self.walk_duty}")
+        if self.move_s + self.settle_s >= self.pose_s:
+            raise ValueError(f"SimConfig: move_s + settle_s ({self.move_s + self.settle_s}) must be shorter than pose_s ({self.pose_s})")
+        if self.n_poses is not None and self.n_poses < 1:
+            raise ValueError(f"SimConfig.n_poses must be None or >= 1, got {self.n_poses}")
+        if not self.pose_angles_deg:
+            raise ValueError("SimConfig.pose_angles_deg must hold at least one angle")
+        if len(self.com_body_range_m) != 3 or len(self.mocap_blip_s) != 2:
+            raise ValueError("SimConfig.com_body_range_m needs 3 numbers and mocap_blip_s 2")
+        if not 0 <= self.mocap_dropout_rate <= 1:
+            raise ValueError(f"SimConfig.mocap_dropout_rate is a probability, got {self.mocap_dropout_rate}")
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], *, where: str = "[simulate]") -> "SimConfig":
+        """Build from a TOML table; lists become tuples; unknown keys are errors.
+
+        ``effects`` is a list of effect names resolved in
+        :data:`ftcal_nlp.sim.effects.EFFECTS` (or tables ``{name = ..., ...kwargs}``).
+        """
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(d) - set(known))
+        if unknown:
+            raise ValueError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(known)}")
+        kw: dict[str, Any] = {}
+        for key, value in d.items():
+            typ = str(known[key].type)
+            if key == "effects":
+                from .effects import make_effects
+
+                kw[key] = make_effects(value, where=f"{where}.effects")
+            elif typ == "tuple":
+                if not isinstance(value, (list, tuple)) or not all(_is_number(v) for v in value):
+                    raise ValueError(f"{where}: key '{key}' should be a list of numbers, got {value!r}")
+                kw[key] = tuple(float(v) for v in value)
+            elif typ.startswith("int"):
+                if not (isinstance(value, int) and not isinstance(value, bool)) and not (value is None and "None" in typ):
+                    raise ValueError(f"{where}: key '{key}' should be an integer, got {value!r}")
+                kw[key] = value
+            else:
+                if not _is_number(value):
+                    raise ValueError(f"{where}: key '{key}' should be a number, got {value!r}")
+                kw[key] = float(value)
+        return cls(**kw)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values (effects by name), e.g. for logging."""
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["effects"] = [getattr(e, "name", type(e).__name__) for e in self.effects]
+        return d
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
