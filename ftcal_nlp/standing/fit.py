@@ -1,0 +1,176 @@
+"""``fit_standing``: the standing stage from poses and a prior calibration (report Sec. III-B).
+
+Input: static poses (:mod:`.poses`), the calibration from hanging (offsets
+``w_o``, leg weights, leg CoM curves) and the robot (nominal transducer poses,
+weighed mass). Output: a :class:`StandingResult` whose ``calibration`` carries
+``rotation_to_body = R_k = R_tilde_k R_nominal_k``, ``position_from_com_m = p'_k``
+with standard errors, and ``com_body_m`` where the model determines it.
+
+``balance="exact"`` fits eq. (E) of physics.py (the legs' moving CoMs cancel
+exactly); ``balance="report"`` fits the report's eq. 9 (leg weights subtracted
+with the hanging CoM curves about a fixed point C). For ``report``, the p'_k
+estimated relative to C are moved to the body-without-legs CoM for the
+calibration with the mean leg configuration of the poses:
+``c_body^C = -sum_k m_k (R_k mean_p r_k(phi_pk) + p'_k) / M_b`` (C taken as the
+mean whole-robot CoM); the se are carried over unchanged.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..calibration import Calibration
+from ..models import ErrorModel, ModelContext, ModelSpec, OffsetsOnly, resolve
+from ..robot import Robot
+from .baseline import BaselineSettings, solve_baseline, to_model_x
+from .nlp import CompiledProblem, Solution, compile_problem
+from .poses import Poses
+from .problem import check_balance, features, knorm2, moments, to_world
+from .result import REL_EIG_TOL, StandingResult, physical, uncertainty
+
+SOLVERS = ("ipopt", "baseline")
+
+
+@dataclass
+class StandingProblem:
+    """One model and balance prepared for one robot and prior: spec and compiled functions."""
+
+    model: ErrorModel
+    ctx: ModelContext
+    spec: ModelSpec
+    balance: str
+    compiled: CompiledProblem
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+
+def check_inputs(poses: Poses, prior: Calibration, robot: Robot) -> None:
+    if tuple(poses.legs) != tuple(robot.legs):
+        raise ValueError(f"poses legs {poses.legs} differ from the robot's {robot.legs}")
+    missing = [k for k in robot.legs if k not in prior.legs]
+    if missing:
+        raise ValueError(f"prior calibration has no leg(s) {missing}")
+    off, w, _, _ = prior.stacked(robot.legs)
+    if not np.all(np.isfinite(off)) or not np.all(np.isfinite(w)):
+        raise ValueError("prior calibration: offsets and leg weights must be finite")
+    if poses.n == 0:
+        raise ValueError("no standing poses to fit")
+    if not (np.all(np.isfinite(poses.w_m)) and np.all(np.isfinite(poses.R_WB)) and np.all(np.isfinite(poses.phi))):
+        raise ValueError("standing poses: readings, shaft angles and orientations must be finite")
+
+
+def prepare(prior: Calibration, robot: Robot, model: str | ErrorModel = "full", balance: str = "exact", *,
+            fit_offsets: bool = False, verbose: bool = False) -> StandingProblem:
+    """Resolve the model (``fit_offsets``: the offsets-only model), build and compile it."""
+    check_balance(balance)
+    m = OffsetsOnly() if fit_offsets else resolve(model)
+    ctx = ModelContext(tuple(robot.legs), robot.nominal_rotations(), robot.nominal_positions(), prior)
+    spec = m.build(ctx)
+    spec.validate(ctx.K, f"error model {m.name!r}")
+    cp = compile_problem(spec, prior, ctx.legs, balance, model_name=m.name, verbose=verbose)
+    return StandingProblem(m, ctx, spec, balance, cp)
+
+
+def solve(problem: StandingProblem, xi: np.ndarray, solver: str = "ipopt", x0: np.ndarray | None = None,
+          baseline: BaselineSettings = BaselineSettings()) -> tuple[np.ndarray, Solution]:
+    """Minimise eq. 8 on features ``xi`` with ``solver``; returns the model's x and the solver record."""
+    if solver == "ipopt":
+        sol = problem.compiled.solve(moments(xi), x0)
+        return sol.x, sol
+    if solver == "baseline":
+        R, p, off, sol = solve_baseline(problem.model, problem.ctx, xi, problem.balance, baseline)
+        return to_model_x(problem.spec, problem.model, problem.ctx, R, p, off), sol
+    raise ValueError(f"unknown solver {solver!r}; known: {list(SOLVERS)}")
+
+
+def heldout_mse(problem: StandingProblem, x: np.ndarray, xi: np.ndarray) -> float:
+    """Mean K-norm squared residual per pose of ``xi`` at ``x``."""
+    return float(knorm2(xi @ problem.compiled.L(x).T).mean())
+
+
+def _report_to_body_com(prior: Calibration, legs, R: np.ndarray, p: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """``c_body`` relative to the fixed point C of eq. 9 (module docstring), B axes."""
+    m = np.array([prior.legs[k].leg_weight_N for k in legs])
+    r_mean = np.stack([prior.legs[k].com(phi[:, i]).mean(axis=0) for i, k in enumerate(legs)])
+    Mb = prior.mass_kg * prior.g - m.sum()
+    return -np.einsum("k,ki->i", m, np.einsum("kij,kj->ki", R, r_mean) + p) / Mb
+
+
+def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.ndarray, sol: Solution, solver: str, *,
+                rel_eig_tol: float = REL_EIG_TOL, covariance: str = "gauss_newton") -> StandingResult:
+    """Evaluate the fit at ``x``: residuals, uncertainty, undetermined directions, calibration."""
+    legs, K, prior = problem.ctx.legs, problem.ctx.K, problem.ctx.prior
+    phys = physical(problem.spec, x, legs)
+    unc = uncertainty(problem.compiled, x, xi, phys, rel_eig_tol=rel_eig_tol, covariance=covariance)
+    se = unc.se
+    rot_se = se[: 3 * K].reshape(K, 3)
+    p_se = se[3 * K : 6 * K].reshape(K, 3)
+    i = 6 * K
+    off_se = None
+    if phys.offsets is not None:
+        off_se = se[i : i + 6 * K].reshape(K, 6)
+        i += 6 * K
+    com_se = se[i : i + 3] if phys.com_body is not None else None
+    r_B = xi @ problem.compiled.L(x).T
+    residuals = to_world(r_B, poses.R_WB)
+    rss = float(knorm2(r_B).sum())
+
+    p_body, com = phys.p_prime, phys.com_body
+    if problem.balance == "report":
+        c_b = _report_to_body_com(prior, legs, phys.R, phys.p_prime, poses.phi)
+        p_body = phys.p_prime - c_b
+        com = None if com is None else com + c_b
+    if isinstance(problem.model, OffsetsOnly):
+        com = prior.com_body_m
+    new_legs = {}
+    for k, leg in enumerate(legs):
+        l = prior.legs[leg]
+        kept = np.all(np.isnan(p_se[k]))  # translations not estimated by this model: the prior's se stays
+        kw = dict(rotation_to_body=phys.R[k], position_from_com_m=p_body[k],
+                  position_from_com_se_m=l.position_from_com_se_m if kept else p_se[k])
+        if phys.offsets is not None:
+            kw.update(offset=phys.offsets[k], offset_se=off_se[k])
+        new_legs[leg] = replace(l, **kw)
+    meta = dict(prior.meta)
+    meta["standing"] = {
+        "model": problem.name, "balance": problem.balance, "solver": solver, "status": sol.status,
+        "n_poses": int(poses.n), "rss": rss, "dof": problem.spec.n_dof, "sigma": float(np.sqrt(unc.sigma2)),
+        "rotation_se_rad": {leg: rot_se[k].tolist() for k, leg in enumerate(legs)},
+        "unidentified": list(unc.unidentified),
+    }
+    cal = replace(prior, legs=new_legs, model=problem.name, com_body_m=None if com is None else np.asarray(com, float), meta=meta)
+    return StandingResult(
+        calibration=cal, rotations=phys.R, rotvec_se=rot_se, p_prime=phys.p_prime, p_prime_se=p_se,
+        com_body_m=None if com is None else np.asarray(com, float), residuals=residuals, rss=rss, dof=problem.spec.n_dof,
+        n_poses=int(poses.n), unidentified=unc.unidentified, solver_status=sol.status, solve_time_s=sol.solve_time_s,
+        model=problem.name, balance=problem.balance, solver=solver, legs=tuple(legs), R_nominal=problem.ctx.R_nominal,
+        com_body_se_m=com_se, offsets=phys.offsets, offsets_se=off_se, unidentified_params=unc.unidentified_params,
+        sigma2=unc.sigma2, eig_ratio=unc.eig_ratio, x=x, iterations=sol.iterations,
+    )
+
+
+def fit_standing(poses: Poses, prior: Calibration, robot: Robot, *, model: str | ErrorModel = "full", solver: str = "ipopt",
+                 balance: str = "exact", fit_offsets: bool = False, covariance: str = "gauss_newton",
+                 rel_eig_tol: float = REL_EIG_TOL, baseline: BaselineSettings = BaselineSettings(),
+                 verbose: bool = False) -> StandingResult:
+    """Fit the transducer-to-CoM transforms (or, ``fit_offsets=True``, the offsets alone) to standing poses.
+
+    ``model``: a registered name (``full``, ``rot6_trans1``, ``trans6``, ``trans1``), ``module:Class``,
+    ``file.py:Class`` or an ErrorModel (ignored when ``fit_offsets``); ``solver``: ``ipopt`` (exact SO(3)) or ``baseline`` (the report's
+    Cayley + alternating least squares); ``balance``: ``exact`` (eq. E) or ``report`` (eq. 9).
+    Raises :class:`SolverError` when the solver does not converge.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; known: {list(SOLVERS)}")
+    check_inputs(poses, prior, robot)
+    t0 = time.perf_counter()
+    problem = prepare(prior, robot, model, balance, fit_offsets=fit_offsets, verbose=verbose)
+    xi = features(poses.w_m, poses.phi, poses.R_WB, prior, robot.legs, balance)
+    x, sol = solve(problem, xi, solver, baseline=baseline)
+    res = make_result(problem, poses, xi, x, sol, solver, rel_eig_tol=rel_eig_tol, covariance=covariance)
+    return replace(res, total_time_s=time.perf_counter() - t0)

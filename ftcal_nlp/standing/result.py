@@ -1,0 +1,286 @@
+"""Standing-stage results: uncertainty at the optimum, identifiability, the result object.
+
+Uncertainty (Gauss-Newton at the optimum of eq. 8). With per-pose residual
+Jacobians ``J_p = d r_p / d x`` (6 x n) and the model's equations ``g_eq(x) = 0``,
+the admissible perturbations are ``dx = T t``, ``T`` an orthonormal basis of the
+null space of ``d g_eq / dx`` (for a 9-entry rotation: the tangent space of
+SO(3), 3 directions). In tangent coordinates
+
+    A = sum_p (J_p T)^T K (J_p T),     sigma^2 = RSS / (6P - d),     Cov_t = sigma^2 A^-1
+
+(``covariance="sandwich"``: ``A^-1 (sum_p g_p g_p^T) A^-1``, ``g_p = (J_p T)^T K r_p``,
+robust to unequal force/torque noise). Standard errors of what the model
+determines follow by the chain rule: rotations as rotation vectors ``delta_k``
+of ``R_k = exp([delta_k]) R_k*`` (B axes, rad), translations ``p'_k`` (m),
+offsets, ``com_body``.
+
+Identifiability. ``A`` is scaled to unit diagonal (parameters of different
+units compare) and its eigenvalues are taken relative to the largest; directions
+with ratio below ``rel_eig_tol`` (default 1e-8: a standard error 10^4 times the
+best-determined direction's, i.e. numerically singular) are not determined by
+the poses. They are named (the quantities they move, with weights), left out of
+the covariance (pseudo-inverse on the determined subspace), and every quantity
+they move gets se = inf. "Move" is judged in physical units (a direction's
+change of each quantity divided by 1 deg, 1 mm, 0.1 N or 0.01 N*m): quantities
+changing by at least 5 % of the direction's largest normalised change are
+flagged, so tiny couplings between units do not spread the flag. Typical cases: all p'_k along the vertical when every
+pose has the same tilt (sum of forces ~ M_b g z); 6K - 6 offset combinations in
+the offsets-only model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+import pandas as pd
+from scipy.linalg import null_space
+
+from ..calibration import Calibration
+from ..geometry import rotation_to_rotvec, unskew
+from .problem import K_DIAG, knorm2
+
+REL_EIG_TOL = 1e-5
+FLAG_FRACTION = 0.05
+# Physical scales used to compare how much an undetermined direction moves quantities of different units.
+_UNIT = {"rot": np.radians(1.0), "p_prime": 1e-3, "com_body": 1e-3, "w_o_f": 0.1, "w_o_t": 0.01}
+
+
+def _unit_scale(label: str) -> float:
+    head = label.split("[")[0].split(".")[0]
+    if head == "w_o":
+        return _UNIT["w_o_f"] if label.endswith(("fx", "fy", "fz")) else _UNIT["w_o_t"]
+    return _UNIT.get(head, 1.0)
+_WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+@dataclass(frozen=True)
+class Physical:
+    """The transforms a model's x gives: rotations (K,3,3), p' (K,3), offsets (K,6) | None, com (3,) | None,
+    and the Jacobian ``D`` of the stacked quantities (``labels``) w.r.t. x (rotations as rotation vectors)."""
+
+    R: np.ndarray
+    p_prime: np.ndarray
+    offsets: np.ndarray | None
+    com_body: np.ndarray | None
+    D: np.ndarray
+    labels: tuple[str, ...]
+
+
+def physical(spec, x: np.ndarray, legs) -> Physical:
+    """Evaluate the model's maps at ``x`` and their Jacobian (rotations on the tangent space)."""
+    K = len(legs)
+    parts = [ca.reshape(R.T, 9, 1) for R in spec.R] + [ca.reshape(p, 3, 1) for p in spec.p_prime]
+    if spec.offsets is not None:
+        parts += [ca.reshape(o, 6, 1) for o in spec.offsets]
+    if spec.com_body is not None:
+        parts.append(ca.reshape(spec.com_body, 3, 1))
+    v = ca.vertcat(*parts)
+    f = ca.Function("phys", [spec.x], [v, ca.jacobian(v, spec.x)])
+    val, jac = (np.array(a) for a in f(x))
+    val, n = val.ravel(), spec.x.numel()
+    jac = jac.reshape(-1, n)
+    R = val[: 9 * K].reshape(K, 3, 3)
+    dR = jac[: 9 * K].reshape(K, 3, 3, n)
+    # delta_k = unskew(dR_k R_k^T): left perturbation in B axes.
+    drot = unskew(np.moveaxis(np.einsum("kijn,klj->kiln", dR, R), -1, 1)).transpose(0, 2, 1).reshape(3 * K, n)
+    i = 9 * K
+    p = val[i : i + 3 * K].reshape(K, 3)
+    D = [drot, jac[i : i + 3 * K]]
+    labels = [f"rot[{k}].{c}" for k in legs for c in "xyz"] + [f"p_prime[{k}].{c}" for k in legs for c in "xyz"]
+    i += 3 * K
+    off = None
+    if spec.offsets is not None:
+        off = val[i : i + 6 * K].reshape(K, 6)
+        D.append(jac[i : i + 6 * K])
+        labels += [f"w_o[{k}].{c}" for k in legs for c in _WRENCH]
+        i += 6 * K
+    com = None
+    if spec.com_body is not None:
+        com = val[i : i + 3]
+        D.append(jac[i : i + 3])
+        labels += [f"com_body.{c}" for c in "xyz"]
+    return Physical(R, p, off, com, np.concatenate(D, axis=0), tuple(labels))
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    se: np.ndarray                 # (n_phys,) standard errors of Physical.labels; inf where undetermined
+    cov: np.ndarray                # (n_phys, n_phys) covariance (undetermined directions left out)
+    sigma2: float
+    eig_ratio: np.ndarray          # eigenvalues of the scaled information matrix / the largest
+    unidentified: tuple[str, ...]  # one description per undetermined direction
+    unidentified_params: tuple[str, ...]
+    dof: int
+
+
+def _describe(c: np.ndarray, labels, ratio: float, top: int = 12) -> tuple[str, np.ndarray]:
+    """Text of a direction: its largest components (``c`` already in normalised units), and the flagged ones."""
+    a = np.abs(c)
+    big = a >= FLAG_FRACTION * a.max()
+    idx = np.argsort(-a)[: min(top, int(big.sum()))]
+    cn = c / np.linalg.norm(c[big])
+    terms = " ".join(f"{cn[i]:+.2f} {labels[i]}" for i in idx)
+    more = f" (+{int(big.sum()) - len(idx)} more)" if big.sum() > len(idx) else ""
+    return f"{terms}{more} [eigenvalue ratio {max(ratio, 0.0):.1e}]", big
+
+
+def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_tol: float = REL_EIG_TOL,
+                covariance: str = "gauss_newton") -> Uncertainty:
+    """Standard errors and undetermined directions at the optimum ``x`` (module docstring)."""
+    if covariance not in ("gauss_newton", "sandwich"):
+        raise ValueError(f"covariance: expected 'gauss_newton' or 'sandwich', got {covariance!r}")
+    spec = cp.spec
+    n = spec.x.numel()
+    P = len(xi)
+    J = np.einsum("pj,ijn->pin", xi, cp.dL(x))  # (P, 6, n)
+    r = xi @ cp.L(x).T
+    eq = np.asarray(spec.lbg) == np.asarray(spec.ubg)
+    if eq.any():
+        G = np.array(ca.Function("G", [spec.x], [ca.jacobian(spec.g, spec.x)])(x)).reshape(-1, n)[eq]
+        T = null_space(G)
+    else:
+        T = np.eye(n)
+    d = T.shape[1]
+    Jt = J @ T
+    A = np.einsum("pin,i,pim->nm", Jt, K_DIAG, Jt)
+    rss = float(knorm2(r).sum())
+    sigma2 = rss / max(6 * P - d, 1)
+    s = np.sqrt(np.diag(A))
+    s = np.where(s > 0, s, 1.0)
+    As = A / np.outer(s, s)
+    lam, V = np.linalg.eigh(As)
+    ratio = lam / lam.max()
+    ok = ratio >= rel_eig_tol
+    Ainv = (V[:, ok] / lam[ok]) @ V[:, ok].T
+    if covariance == "gauss_newton":
+        Cs = sigma2 * Ainv
+    else:
+        g = np.einsum("pin,i,pi->pn", Jt, K_DIAG, r) / s
+        Cs = Ainv @ (g.T @ g) @ Ainv * P / max(P - d, 1)
+    Cx = T @ (Cs / np.outer(s, s)) @ T.T
+    D = phys.D
+    cov = D @ Cx @ D.T
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    descs, flagged = [], np.zeros(len(se), bool)
+    units = np.array([_unit_scale(l) for l in phys.labels])
+    for j in np.flatnonzero(~ok):
+        nx = T @ (V[:, j] / s)
+        c = (D @ nx) / units
+        if np.abs(c).max() <= 1e-9 * np.abs(nx).max():
+            # A redundancy of the parametrisation: the transforms do not move.
+            desc, _ = _describe(nx, spec.names or [f"x[{i}]" for i in range(n)], ratio[j])
+            descs.append("redundant parameters: " + desc)
+            continue
+        desc, big = _describe(c, phys.labels, ratio[j])
+        descs.append(desc)
+        flagged |= big
+    se = np.where(flagged, np.inf, se)
+    # quantities the model does not estimate (fixed at nominal or prior values) have no se
+    se = np.where(np.all(D == 0, axis=1), np.nan, se)
+    params = tuple(l for l, f in zip(phys.labels, flagged) if f)
+    return Uncertainty(se, cov, sigma2, ratio, tuple(descs), params, d)
+
+
+def _fmt(v: float, se: float | None) -> str:
+    if se is None or np.isnan(se):
+        return f"{v:.4g} (fixed)"
+    if not np.isfinite(se):
+        return f"{v:.4g} +- inf"
+    if se <= 0:
+        return f"{v:.4g} +- 0"
+    dec = max(0, int(-np.floor(np.log10(se))) + 1)
+    return f"{v:.{dec}f} +- {se:.{dec}f}"
+
+
+@dataclass(frozen=True)
+class StandingResult:
+    """Result of the standing stage (report Sec. III-B) for one model, balance and solver.
+
+    ``rotations`` (K, 3, 3) estimated ``R_k`` (ft_k -> B) = ``R_tilde_k R_nominal_k``;
+    ``rotvec_se`` (K, 3) rad, se of ``delta_k`` in ``R_k = exp([delta_k]) R_k*`` (B axes);
+    ``p_prime`` (K, 3) m: ft_k origin relative to the body-without-legs CoM, B axes
+    (for ``balance="report"``: relative to the fixed point C of eq. 9, converted in
+    ``calibration``); ``p_prime_se`` (K, 3); ``com_body_m`` (3,) in B or None;
+    se are inf where the poses do not determine a quantity and NaN where the model
+    does not estimate it (nominal or prior value kept);
+    ``residuals`` (P, 6) eq. (E) or (9) residual per pose in W axes (N, N*m);
+    ``rss`` the K-norm residual sum of squares; ``dof`` the model's degrees of freedom;
+    ``unidentified`` descriptions of directions the poses do not determine.
+    """
+
+    calibration: Calibration
+    rotations: np.ndarray
+    rotvec_se: np.ndarray
+    p_prime: np.ndarray
+    p_prime_se: np.ndarray
+    com_body_m: np.ndarray | None
+    residuals: np.ndarray
+    rss: float
+    dof: int
+    n_poses: int
+    unidentified: tuple[str, ...]
+    solver_status: str
+    solve_time_s: float
+    model: str = ""
+    balance: str = "exact"
+    solver: str = "ipopt"
+    legs: tuple[str, ...] = ()
+    R_nominal: np.ndarray | None = None
+    com_body_se_m: np.ndarray | None = None
+    offsets: np.ndarray | None = None
+    offsets_se: np.ndarray | None = None
+    unidentified_params: tuple[str, ...] = ()
+    sigma2: float = float("nan")
+    eig_ratio: np.ndarray | None = None
+    x: np.ndarray | None = field(default=None, repr=False)
+    iterations: int = -1
+    total_time_s: float = float("nan")   # compile + solve + uncertainty
+
+    @property
+    def rotation_errors(self) -> np.ndarray:
+        """``R_tilde_k = R_k R_nominal_k^T`` as rotation vectors (K, 3), rad."""
+        return rotation_to_rotvec(self.rotations @ np.swapaxes(self.R_nominal, 1, 2))
+
+    @property
+    def bic(self) -> float:
+        """``P ln(RSS/P) + DOF ln P`` (Sec. IV-2)."""
+        P = self.n_poses
+        return float(P * np.log(self.rss / P) + self.dof * np.log(P))
+
+    def table(self) -> pd.DataFrame:
+        """Table II-like: per leg, ``R_tilde`` (deg) and ``p'`` (mm) (and offsets if fitted), value +- se."""
+        rows: dict[str, list[str]] = {}
+        rv, rse = np.degrees(self.rotation_errors), np.degrees(self.rotvec_se)
+        for j, c in enumerate("xyz"):
+            rows[f"R_tilde {c} [deg]"] = [_fmt(rv[k, j], rse[k, j]) for k in range(len(self.legs))]
+        for j, c in enumerate("xyz"):
+            rows[f"p' {c} [mm]"] = [_fmt(1e3 * self.p_prime[k, j], 1e3 * self.p_prime_se[k, j]) for k in range(len(self.legs))]
+        if self.offsets is not None:
+            for j, c in enumerate(_WRENCH):
+                unit = "N" if j < 3 else "N*m"
+                rows[f"w_o {c} [{unit}]"] = [_fmt(self.offsets[k, j], self.offsets_se[k, j]) for k in range(len(self.legs))]
+        df = pd.DataFrame(rows, index=list(self.legs)).T
+        df.index.name = "parameter"
+        return df
+
+    def summary(self) -> str:
+        """Plain-text summary: model, fit statistics, table, CoM, undetermined directions."""
+        rms = np.sqrt((self.residuals**2).mean(axis=0))
+        lines = [
+            f"standing calibration: model {self.model!r}, {self.balance} balance, solver {self.solver} ({self.solver_status}, "
+            f"{self.solve_time_s * 1e3:.0f} ms)",
+            f"poses {self.n_poses}, DOF {self.dof}, RSS (K-norm) {self.rss:.5g}, BIC {self.bic:.2f}, sigma {np.sqrt(self.sigma2):.3g}",
+            "residual RMS fx fy fz [N] tx ty tz [N*m]: " + " ".join(f"{v:.3g}" for v in rms),
+            self.table().to_string(),
+        ]
+        if self.com_body_m is not None:
+            se = self.com_body_se_m if self.com_body_se_m is not None else np.full(3, np.nan)  # NaN: kept from the prior
+            lines.append("CoM of body without legs in B [mm]: " + ", ".join(_fmt(1e3 * v, 1e3 * s) for v, s in zip(self.com_body_m, se)))
+        else:
+            lines.append("CoM of body without legs: not identifiable with this model (every transducer translation free)")
+        if self.unidentified:
+            lines.append(f"{len(self.unidentified)} direction(s) not determined by the poses (se = inf):")
+            lines += [f"  {u}" for u in self.unidentified]
+        return "\n".join(lines)
