@@ -134,12 +134,12 @@ def _hanging_comparison(res: "RunResult") -> pd.DataFrame | None:
     for k in res.dataset.robot.legs:
         a, b = res.hanging.legs[k], res.hanging_baseline.legs[k]
         row = {"leg": k, "m g NLP [N]": a.leg_weight_N, "m g baseline [N]": b.leg_weight_N,
-               "|offset F| diff [N]": float(np.linalg.norm(np.asarray(a.offset[:3]) - b.offset[:3])),
-               "|offset T| diff [N*m]": float(np.linalg.norm(np.asarray(a.offset[3:]) - b.offset[3:]))}
+               "offset F diff norm [N]": float(np.linalg.norm(np.asarray(a.offset[:3]) - b.offset[:3])),
+               "offset T diff norm [N*m]": float(np.linalg.norm(np.asarray(a.offset[3:]) - b.offset[3:]))}
         if res.truth is not None:
             t = res.truth.legs[k]
-            row["|offset F err| NLP"] = float(np.linalg.norm(np.asarray(a.offset[:3]) - t.offset[:3]))
-            row["|offset F err| baseline"] = float(np.linalg.norm(np.asarray(b.offset[:3]) - t.offset[:3]))
+            row["offset F error norm NLP [N]"] = float(np.linalg.norm(np.asarray(a.offset[:3]) - t.offset[:3]))
+            row["offset F error norm baseline [N]"] = float(np.linalg.norm(np.asarray(b.offset[:3]) - t.offset[:3]))
         rows.append(row)
     return pd.DataFrame(rows)
 

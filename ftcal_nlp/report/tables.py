@@ -91,7 +91,7 @@ def truth_check(cal: Calibration, truth: Calibration, rotvec_se: dict[str, np.nd
         def row(group, err, se):
             err, se = np.atleast_1d(err), np.atleast_1d(se) if se is not None else None
             z = np.nanmax(np.abs(err) / se) if se is not None and np.all(np.isfinite(se)) and np.all(se > 0) else np.nan
-            recs.append({"leg": k, "parameter": group, "max |error|": float(np.nanmax(np.abs(err))), "max |error|/se": float(z)})
+            recs.append({"leg": k, "parameter": group, "max abs error": float(np.nanmax(np.abs(err))), "max abs error / se": float(z)})
 
         row("offset force [N]", l.offset[:3] - t.offset[:3], None if l.offset_se is None else l.offset_se[:3])
         row("offset torque [N*m]", l.offset[3:] - t.offset[3:], None if l.offset_se is None else l.offset_se[3:])
