@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .calibration import Calibration
 from .config import ConfigError, RunConfig, load_config
@@ -213,7 +214,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     try:
         cfg = load_config(args.config)
-        run(cfg, force=args.force)
+        # many small LAPACK calls: threaded BLAS only adds contention on a few cores
+        with threadpool_limits(limits=1):
+            run(cfg, force=args.force)
     except (ConfigError, DataFormatError, OutputExistsError, FileExistsError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

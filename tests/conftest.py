@@ -1,11 +1,17 @@
 """Shared test settings: hypothesis without wall-clock deadlines (CI has 2 shared cores); the sample path."""
 
-from hypothesis import settings
+import os
+
+# Multi-threaded BLAS on 2 shared cores makes the many small LAPACK calls of the
+# estimators 10-30x slower; it must be limited before numpy is first imported.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+from hypothesis import settings  # noqa: E402
 
 settings.register_profile("ftcal", deadline=None, max_examples=60, derandomize=True)
 settings.load_profile("ftcal")
 
-import os
 from pathlib import Path
 
 # The sample dataset written by someone else lives in shared/ beside the clone (CI and
