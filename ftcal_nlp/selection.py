@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm.auto import tqdm
 import pandas as pd
 
 from .calibration import Calibration
@@ -168,7 +169,7 @@ def select_models(poses: Poses, prior_calibration: Calibration, robot: Robot, ca
     xi = features(poses.w_m, poses.phi, poses.R_WB, prior_calibration, robot.legs, balance)
     P = poses.n
     scores, results = [], {}
-    for cand in candidates:
+    for cand in tqdm(candidates, desc="model selection", unit="model", disable=None, leave=False):
         t0 = time.perf_counter()
         problem = prepare(prior_calibration, robot, cand, balance, verbose=verbose)
         name = problem.name

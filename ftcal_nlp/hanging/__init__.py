@@ -31,6 +31,7 @@ import warnings
 from typing import Sequence
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from ..data import Recording
 from ..robot import Robot
@@ -73,7 +74,7 @@ def fit_hanging(
     pairs = check_recordings(recordings, robot)
     legs: dict[str, LegHangingResult] = {}
     cache: dict[tuple, HangingNLP] = {}
-    for leg in robot.legs:
+    for leg in tqdm(robot.legs, desc=f"hanging ({method})", unit="leg", disable=None, leave=False):
         if method == "nlp":
             problem = build_leg_problem(leg, recordings, robot, pairs, n_grid)
             legs[leg] = fit_leg_nlp(problem, smoothing=smoothing, nlp_cache=cache)
