@@ -22,6 +22,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from .standing.poses import PoseExtraction
+
 
 class ConfigError(ValueError):
     """A config file is invalid; the message names the file, the key and what was expected."""
@@ -36,20 +38,13 @@ class HangingSettings:
 
 
 @dataclass(frozen=True)
-class PoseSettings:
-    window_s: float = 0.31
-    deriv_threshold_N_s: float = 1.0
-    min_steady_s: float = 1.5
-
-
-@dataclass(frozen=True)
 class StandingSettings:
     model: str = "auto"              # "auto": the selected candidate; or a name / module:Class
     candidates: tuple[str, ...] = ("full", "rot6_trans1", "trans6", "trans1")
     solver: str = "ipopt"            # "ipopt" or "baseline"
     balance: str = "exact"           # "exact" or "report"
     compare_baseline: bool = True
-    poses: PoseSettings = field(default_factory=PoseSettings)
+    poses: PoseExtraction = field(default_factory=PoseExtraction)
 
 
 @dataclass(frozen=True)
@@ -176,7 +171,10 @@ def load_config(path: str | Path) -> RunConfig:
     standing_tbl = dict(d.get("standing", {}))
     poses_tbl = standing_tbl.pop("poses", {})
     standing = _build(StandingSettings, standing_tbl, f"{path} [standing]", "standing")
-    poses = _build(PoseSettings, poses_tbl, f"{path} [standing.poses]", "poses")
+    try:
+        poses = _build(PoseExtraction, poses_tbl, f"{path} [standing.poses]", "poses")
+    except ValueError as exc:  # PoseExtraction checks its own ranges
+        raise ConfigError(f"{path} [standing.poses]: {exc}") from exc
     from dataclasses import replace
 
     standing = replace(standing, poses=poses)

@@ -94,7 +94,7 @@ def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
     """Run the whole pipeline of ``cfg``; write every output into ``cfg.output_dir``."""
     from .correct import correct_recording
     from .hanging import fit_hanging
-    from .standing import PoseExtraction, extract_poses, fit_standing
+    from .standing import extract_poses, fit_standing
     from .standing.poses import Poses
 
     timings: dict[str, float] = {}
@@ -119,8 +119,7 @@ def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
         prior = hang.to_calibration(robot)
 
     with stage("poses", timings):
-        pe = PoseExtraction(**vars(cfg.standing.poses))
-        per_rec = [extract_poses(r, robot, pe) for r in ds.standing]
+        per_rec = [extract_poses(r, robot, cfg.standing.poses) for r in ds.standing]
         if not per_rec:
             raise DataFormatError(f"{cfg.manifest}: no standing recording; the transformation errors need standing poses")
         poses = Poses.concat(per_rec)

@@ -88,3 +88,10 @@ def test_correct_cli_bad_recording(truth_calibration, tmp_path, capsys):
     pd.read_csv(SAMPLE / "walk.csv").drop(columns=["qx"]).to_csv(bad, index=False)
     assert correct_main([str(truth_calibration), str(bad), "-o", str(tmp_path / "o.csv")]) == 2
     assert "qx" in capsys.readouterr().err
+
+
+def test_pose_thresholds_are_config_keys(tmp_path):
+    cfg = load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nderiv_threshold_N_s = 2.5\nmin_steady_s = 1.0\nderiv_norm = "total"\n'))
+    assert cfg.standing.poses.deriv_threshold_N_s == 2.5 and cfg.standing.poses.min_steady_s == 1.0 and cfg.standing.poses.deriv_norm == "total"
+    with pytest.raises(ConfigError, match=r"\[standing.poses\].*deriv_norm"):
+        load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nderiv_norm = "max"\n'))
