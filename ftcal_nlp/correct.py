@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
 
         legs = cal.leg_names + ("total",)
         wr = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy() for k in legs}
-        write_ground_wrench_bag(args.bag, df["t"].to_numpy(), wr)
+        write_ground_wrench_bag(args.bag, df["t"].to_numpy(), wr, overwrite=args.force)
         log.info("wrote bag %s", args.bag)
     return 0
 

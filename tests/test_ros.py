@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from ftcal_nlp.data import DataFormatError, read_dataset, read_recording, read_r
 from ftcal_nlp.ros import bagio
 from ftcal_nlp.ros.clock import interp_linear, match_nearest, slerp_quat
 from ftcal_nlp.ros.cli import main as cli_main
+from ftcal_nlp.ros.bagio import BagError
 from ftcal_nlp.ros.ingest import ingest, write_ingested
 from ftcal_nlp.ros.urdf import fixed_pose, load_urdf, robot_from_urdf
 
@@ -550,3 +552,299 @@ def test_ground_wrench_bag_round_trip(tmp_path, storage):
     np.testing.assert_array_equal(back["/gw/MR"][1], w["MR"])
     with pytest.raises(DataFormatError, match=r"missing column\(s\) \['total_tz'\]"):
         bagio.ground_wrench_bag_from_frame(tmp_path / "gw3", pd.DataFrame(cols).drop(columns="total_tz"), LEGS)
+
+
+# ----------------------------------------------------------------------------- fast decoding
+
+
+def _assert_same_streams(a: bagio.BagStreams, b: bagio.BagStreams):
+    assert a.topics == b.topics and sorted(a.wrench) == sorted(b.wrench) and sorted(a.joints) == sorted(b.joints)
+    assert a.joint_names_seen == b.joint_names_seen
+    pairs = [(a.wrench[t], b.wrench[t]) for t in a.wrench] + [(a.joints[n], b.joints[n]) for n in a.joints]
+    assert (a.pose is None) == (b.pose is None)
+    if a.pose is not None:
+        pairs.append((a.pose, b.pose))
+    for x, y in pairs:
+        assert x.topic == y.topic and x.frame_ids == y.frame_ids and x.n_invalid == y.n_invalid
+        np.testing.assert_array_equal(x.stamp_ns, y.stamp_ns)
+        np.testing.assert_array_equal(x.receive_ns, y.receive_ns)
+        np.testing.assert_array_equal(x.values, y.values)  # NaN == NaN here
+
+
+def _forbid_rosbags_reader(mp):
+    """Make reading messages through rosbags an error: the direct chunk reader must do it."""
+    def fail(*a, **k):
+        raise AssertionError("read through rosbags, not chunk by chunk")
+
+    mp.setattr(bagio, "_generic_source", fail)
+
+
+SESSION_TOPICS = dict(
+    wrench_topics=[f"/ft/{k}/wrench" for k in LEGS],
+    joint_topic="/joint_states",
+    joint_names=[f"leg_{k}_shaft" for k in LEGS] + ["head_pan"],
+    pose_topic="/mocap/bigant/pose",
+)
+
+
+def test_fast_decoder_equals_the_rosbags_deserialiser(session, monkeypatch):
+    """Every storage, batches of 97 messages (many flushes, several layouts each:
+    two joint publishers with different names, NaN poses)."""
+    monkeypatch.setattr(bagio, "FLUSH_EVERY", 97)
+    for bag, n_fl in (("hang_xpos", 300), ("hang_xneg", 299), ("standing.bag", 300)):  # hang_xneg lost one FL message
+        slow = bagio.read_streams(session["root"] / bag, fast=False, **SESSION_TOPICS)
+        with monkeypatch.context() as mp:
+            if bag != "hang_xpos":  # sqlite3 goes through rosbags; MCAP and ROS 1 chunks are read directly
+                _forbid_rosbags_reader(mp)
+            fast = bagio.read_streams(session["root"] / bag, **SESSION_TOPICS)
+        _assert_same_streams(fast, slow)
+        assert len(fast.wrench["/ft/FL/wrench"]) == n_fl
+
+
+def _odd_layouts_bag(path: Path, storage: str) -> None:
+    """One topic of each type whose messages have many layouts."""
+    ts = bagio.typestore_for(storage)
+    rng = np.random.default_rng(5)
+    n = 120
+    st = BASE_NS + 10_000_000 * np.arange(n)
+    # frame_id of varying length, then 40 distinct ones of equal length (more than MAX_LAYOUTS)
+    frames = [["ft_FL", "", "a_much_longer_frame_name_than_usual"][i % 3] if i < 60 else f"f{i:03d}" for i in range(n)]
+    w = rng.normal(size=(n, 6))
+    w[7] = np.nan
+    wmsgs = [bagio.wrench_stamped(ts, int(s), f, x) for s, f, x in zip(st, frames, w)]
+    JS = ts.types[bagio.JOINT_TYPE]
+    jmsgs = []
+    for i, s in enumerate(st):
+        names = [["a", "b"], ["b", "c", "long_joint_name"], ["a"]][i % 3]
+        if i % 10 == 4:  # velocity only: names, no positions
+            jmsgs.append(JS(header=bagio._header(ts, int(s), ""), name=names, position=np.zeros(0),
+                            velocity=np.ones(len(names)), effort=np.zeros(0)))
+        else:
+            jmsgs.append(bagio.joint_state(ts, int(s), names, rng.normal(size=len(names)), "j" * (i % 2)))
+    q = rng.normal(size=(n, 4))
+    q[3], q[9] = np.nan, 0.0
+    pmsgs = [bagio.pose_stamped(ts, int(s), "world" if i % 4 else "map", x, rng.normal(size=3)) for i, (s, x) in enumerate(zip(st, q))]
+    bagio.write_bag(path, [
+        bagio.TopicSeries("/w", bagio.WRENCH_TYPE, st + 1, wmsgs),
+        bagio.TopicSeries("/j", bagio.JOINT_TYPE, st + 2, jmsgs),
+        bagio.TopicSeries("/p", bagio.POSE_TYPE, st + 3, pmsgs),
+    ], storage=storage)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "ros1"])
+def test_fast_decoder_with_many_layouts(tmp_path, monkeypatch, storage):
+    from ftcal_nlp.ros import wire
+
+    path = tmp_path / ("odd.bag" if storage == "ros1" else "odd")
+    _odd_layouts_bag(path, storage)
+    kw = dict(wrench_topics=["/w"], joint_topic="/j", joint_names=["a", "b", "c", "long_joint_name", "d"], pose_topic="/p")
+    slow = bagio.read_streams(path, fast=False, **kw)
+    with monkeypatch.context() as mp:
+        _forbid_rosbags_reader(mp)
+        fast = bagio.read_streams(path, **kw)
+    _assert_same_streams(fast, slow)
+    assert len(fast.wrench["/w"]) == 120 and np.isnan(fast.wrench["/w"].values[7]).all()
+    assert len(fast.wrench["/w"].frame_ids) == 3 + 60
+    assert len(fast.joints["a"]) == 80 - 8 and "d" not in fast.joints  # velocity-only messages carry no angle
+    assert fast.joint_names_seen == {"a", "b", "c", "long_joint_name"}
+    assert fast.pose.n_invalid == 2 and len(fast.pose) == 118 and fast.pose.frame_ids == {"world", "map"}
+    # a layout the reference deserialiser disagrees with is not trusted: its rows take the slow path
+    calls = []
+    real_parse, real_slow = wire.parse_layout, wire.decode_slow
+
+    def wrong(raw, msgtype, cdr):
+        lay = real_parse(raw, msgtype, cdr)
+        return replace(lay, values_at=lay.values_at - 8) if msgtype == bagio.WRENCH_TYPE else lay
+
+    def counting(raws, rows, *a):
+        calls.append(len(rows))
+        return real_slow(raws, rows, *a)
+
+    monkeypatch.setattr(wire, "parse_layout", wrong)
+    monkeypatch.setattr(wire, "decode_slow", counting)
+    _assert_same_streams(bagio.read_streams(path, **kw), slow)
+    assert sum(calls) >= 120
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3", "ros1"])
+def test_encoded_messages_are_what_rosbags_deserialises(storage):
+    from ftcal_nlp.ros.wire import extract
+
+    ts = bagio.typestore_for(storage)
+    de = ts.deserialize_ros1 if storage == "ros1" else ts.deserialize_cdr
+    rng = np.random.default_rng(9)
+    stamps = BASE_NS + np.cumsum(rng.integers(1, 10**9, 5))
+    for typ, vals, names, frame in [
+        (bagio.WRENCH_TYPE, rng.normal(size=(5, 6)), None, "ft_FL"),
+        (bagio.POSE_TYPE, rng.normal(size=(5, 7)), None, "world"),
+        (bagio.JOINT_TYPE, rng.normal(size=(5, 3)), ["x", "yy", "zzz"], ""),
+    ]:
+        for raw, s, v in zip(bagio.encode_messages(storage, typ, stamps, frame, vals, names), stamps, vals):
+            stamp, f, got, nm = extract(de(raw, typ), typ)
+            assert stamp == s and f == frame and nm == (None if names is None else tuple(names))
+            np.testing.assert_array_equal(got, v)
+
+
+# ----------------------------------------------------------------------------- bad bags
+
+
+def _small(kind="hanging", n=60):
+    return _source("hang_xpos.csv", "hanging", 1000, n) if kind == "hanging" else _source("standing.parquet", "standing", 300, n)
+
+
+def _bag_with(tmp_path, edit, *, kind="hanging", storage="mcap", max_backward_s=None):
+    """A one-recording session of a short sample window, its topics edited by ``edit(series, rec, storage)``."""
+    from ftcal_nlp.ros.simbag import POSE_TOPIC, recording_series, session_map
+    from ftcal_nlp.ros.urdf import urdf_text
+
+    rec = _small(kind)
+    series = {s.topic: s for s in recording_series(rec, LEGS, storage, epoch_ns=BASE_NS)}
+    edit(series, rec, storage)
+    bag = tmp_path / ("rec.bag" if storage == "ros1" else "rec")
+    bagio.write_bag(bag, list(series.values()), storage=storage)
+    (tmp_path / "robot.urdf").write_text(urdf_text(read_robot(SAMPLE / "robot.toml")))
+    d = session_map(LEGS, 8.18, 9.81, [(bag.name, rec)])
+    if kind == "hanging":  # its opposite: the same bag, said to hang the other way (a map about topics, not physics)
+        d["recording"].append({**d["recording"][0], "name": "opposite", "gravity_body": [-1.0, 0.0, 0.0]})
+    if max_backward_s is not None:
+        d["max_backward_s"] = max_backward_s
+    assert POSE_TOPIC == d["body_pose"]["topic"]
+    return write_map(tmp_path / "map.toml", d)
+
+
+def _wrench_series(rec, storage, k, stamps, rows=None, recv=None):
+    rows = np.arange(rec.n) if rows is None else rows
+    msgs = bagio.encode_messages(storage, bagio.WRENCH_TYPE, stamps[rows], f"ft_{k}", rec.wrench[k][rows])
+    return bagio.TopicSeries(f"/ft/{k}/wrench", bagio.WRENCH_TYPE, stamps[rows] + 1_000_000 if recv is None else recv, msgs)
+
+
+def _clock(rec):
+    return BASE_NS + np.round(rec.t * 1e9).astype(np.int64)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "ros1"])
+def test_too_few_messages_name_the_bag_topic_and_key(tmp_path, storage):
+    def one_wrench(series, rec, st):
+        series["/ft/HL/wrench"] = _wrench_series(rec, st, "HL", _clock(rec), rows=np.array([5]))
+
+    with pytest.raises(BagError, match=r"rec(\.bag)?: topic '/ft/HL/wrench' \(\[wrench_topics\] HL\) has 1 message\(s\); at least 2 are needed"):
+        ingest(_bag_with(tmp_path / "w", one_wrench, storage=storage))
+
+    def mr_once(series, rec, st):
+        s = series["/joint_states"]
+        names = [f"{k}_shaft" for k in LEGS if k != "MR"]
+        js = s.receive_ns - 500_000
+        pos = np.stack([np.interp((js - BASE_NS) * 1e-9, rec.t, rec.phi[k]) for k in LEGS if k != "MR"], 1)
+        msgs = bagio.encode_messages(st, bagio.JOINT_TYPE, js, "", pos, names)
+        ts = bagio.typestore_for(st)
+        msgs[3] = bagio.joint_state(ts, int(js[3]), [f"{k}_shaft" for k in LEGS], np.zeros(6))  # MR once
+        series["/joint_states"] = bagio.TopicSeries("/joint_states", bagio.JOINT_TYPE, s.receive_ns, msgs)
+
+    with pytest.raises(BagError, match=r"joint 'MR_shaft' \(\[joints\] MR\) has fewer than 2 positions"):
+        ingest(_bag_with(tmp_path / "j", mr_once, storage=storage))
+
+    def one_pose(series, rec, st):
+        s = series["/mocap/body/pose"]
+        series["/mocap/body/pose"] = bagio.TopicSeries(s.topic, s.msgtype, s.receive_ns[:1], s.messages[:1])
+
+    with pytest.raises(BagError, match=r"topic '/mocap/body/pose' \(\[body_pose\] topic\) has fewer than 2 valid orientations"):
+        ingest(_bag_with(tmp_path / "p", one_pose, kind="standing", storage=storage))
+
+
+def test_stamps_going_backwards_are_an_error_reordering_is_not(tmp_path):
+    def reset(series, rec, st):  # the FR driver's clock jumps back 1 s at row 30
+        stamps = _clock(rec)
+        stamps[30:] -= 1_000_000_000
+        series["/ft/FR/wrench"] = _wrench_series(rec, st, "FR", stamps, recv=_clock(rec) + 1_000_000)
+
+    with pytest.raises(BagError, match=r"rec: topic '/ft/FR/wrench' \(\[wrench_topics\] FR\): header stamps go backwards: "
+                                       r"sample 31 of 60 \(bag order\) is stamped 0.99 s before .*max_backward_s = 0.05"):
+        ingest(_bag_with(tmp_path / "a", reset))
+    # a looser max_backward_s lets it through (the map says the jump is expected)
+    ingest(_bag_with(tmp_path / "b", reset, max_backward_s=2.0))
+
+    def joints_back(series, rec, st):
+        s = series["/joint_states"]
+        js = s.receive_ns - 500_000
+        js[10:] -= 200_000_000
+        pos = np.stack([np.interp((js - BASE_NS) * 1e-9, rec.t, rec.phi[k]) for k in LEGS], 1)
+        msgs = bagio.encode_messages(st, bagio.JOINT_TYPE, js, "", pos, [f"{k}_shaft" for k in LEGS])
+        series["/joint_states"] = bagio.TopicSeries("/joint_states", bagio.JOINT_TYPE, s.receive_ns, msgs)
+
+    with pytest.raises(BagError, match=r"'/joint_states' \(\[joints\] FL\): header stamps go backwards: sample 11 of"):
+        ingest(_bag_with(tmp_path / "c", joints_back))
+
+    def swapped(series, rec, st):  # ML's message 21 arrives before message 20: stamps step back 10 ms
+        recv = _clock(rec) + 1_000_000
+        recv[20] = recv[21] + 1
+        series["/ft/ML/wrench"] = _wrench_series(rec, st, "ML", _clock(rec), recv=recv)
+
+    ref = ingest(_bag_with(tmp_path / "d", lambda *a: None))
+    got = ingest(_bag_with(tmp_path / "e", swapped))
+    s = bagio.read_streams(tmp_path / "e" / "rec", wrench_topics=["/ft/ML/wrench"])
+    assert np.diff(s.wrench["/ft/ML/wrench"].stamp_ns).min() == -10_000_000  # bag order is receive order
+    for a, b in zip(got.dataset.recordings, ref.dataset.recordings):
+        np.testing.assert_array_equal(a.wrench_array(), b.wrench_array())
+
+    def unstamped(series, rec, st):
+        series["/ft/FL/wrench"] = _wrench_series(rec, st, "FL", np.zeros(rec.n, dtype=np.int64), recv=_clock(rec))
+
+    with pytest.raises(BagError, match=r"'/ft/FL/wrench' \(\[wrench_topics\] FL\) has messages with zero header stamps.*time_source"):
+        ingest(_bag_with(tmp_path / "f", unstamped))
+
+
+def test_output_folder_is_never_written_over_unless_asked(session, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "standing.parquet").write_text("someone else's recording")  # a dataset without its manifest
+    with pytest.raises(FileExistsError, match=r"would write over \[.*standing.parquet'\]; pass overwrite=True"):
+        write_ingested(session["result"], out)
+    assert sorted(p.name for p in out.iterdir()) == ["standing.parquet"]  # nothing written
+    assert cli_main([str(session["map"]), "-o", str(out), "-q"]) == 2
+    write_ingested(session["result"], out, overwrite=True)
+    assert len(read_dataset(out / "dataset.toml").recordings) == 3
+
+
+def test_unreadable_bag_paths_get_clear_errors(session, tmp_path):
+    import shutil
+
+    shutil.copy(session["root"] / "standing.bag", tmp_path / "standing_ros1")
+    with pytest.raises(BagError, match=r"standing_ros1: a file not named \*.bag; a ROS 1 bag must end in .bag"):
+        bagio.read_streams(tmp_path / "standing_ros1", wrench_topics=[])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match=r"empty: folder without metadata.yaml"):
+        bagio.read_streams(tmp_path / "empty", wrench_topics=[])
+
+
+def test_progress_bar_only_when_asked_or_on_a_terminal(session, capsys):
+    bag = session["root"] / "hang_xneg"
+    bagio.read_streams(bag, wrench_topics=["/ft/FL/wrench"])  # stderr is not a terminal under pytest
+    assert capsys.readouterr().err == ""
+    bagio.read_streams(bag, wrench_topics=["/ft/FL/wrench"], progress=True)
+    err = capsys.readouterr().err
+    assert "hang_xneg" in err and "msg" in err
+
+
+@pytest.mark.parametrize("storage, compression", [("ros1", "bz2"), ("ros1", "lz4"), ("mcap", "zstd"), ("mcap", "message"), ("sqlite3", "message")])
+def test_compressed_bags_read_alike(tmp_path, monkeypatch, storage, compression):
+    """Compressed chunks are read directly; per-message compression through rosbags."""
+    from ftcal_nlp.ros import rawscan
+    from ftcal_nlp.ros.simbag import recording_series
+
+    rec = _small("standing", 200)
+    path = tmp_path / ("c.bag" if storage == "ros1" else "c")
+    bagio.write_bag(path, recording_series(rec, LEGS, storage, epoch_ns=BASE_NS), storage=storage, compression=compression)
+    kw = dict(wrench_topics=[f"/ft/{k}/wrench" for k in LEGS], joint_topic="/joint_states", joint_names=[f"{k}_shaft" for k in LEGS], pose_topic="/mocap/body/pose")
+    slow = bagio.read_streams(path, fast=False, **kw)
+    direct = storage == "ros1" or compression == "zstd"
+    with monkeypatch.context() as mp:
+        if direct:
+            _forbid_rosbags_reader(mp)
+        fast = bagio.read_streams(path, **kw)
+    _assert_same_streams(fast, slow)
+    np.testing.assert_array_equal(fast.wrench["/ft/MR/wrench"].values, rec.wrench["MR"])
+    if direct:
+        assert rawscan.scan(path).chunks[0].compression == ("zstd" if storage == "mcap" else compression)
+    else:
+        with pytest.raises(rawscan.RawScanError):
+            rawscan.scan(path)

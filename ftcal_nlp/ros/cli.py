@@ -23,11 +23,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("-o", "--output", required=True, help="dataset folder to write (dataset.toml, robot.toml, recordings)")
     ap.add_argument("--format", choices=("parquet", "csv"), default=None, help="recording file type (default: the map's 'format', else parquet)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing dataset.toml in the output folder")
-    ap.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    ap.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors, no progress bar")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar (it is shown only on a terminal anyway)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        result = ingest(args.map)
+        result = ingest(args.map, progress=False if (args.quiet or args.no_progress) else None)
         manifest = write_ingested(result, args.output, fmt=args.format, overwrite=args.overwrite)
         ds = read_dataset(manifest)
     except (DataFormatError, FileExistsError) as exc:

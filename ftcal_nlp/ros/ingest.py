@@ -18,6 +18,12 @@ header stamps of the first leg's ``WrenchStamped`` topic. Per clock row
 * ``t`` is seconds since the session epoch, the earliest stamp of any stream
   used in any bag of the map, so later recordings have larger ``t``.
 
+Before resampling, every stream the map names must exist with at least two
+samples, non-zero header stamps that never step back (in bag order) by more
+than ``max_backward_s``, and (``check_frame_ids``) WrenchStamped frames equal to
+the transducer links; errors name the bag, topic, map key and what was
+expected. :func:`write_ingested` writes over nothing unless asked.
+
 Readings are multiplied by ``wrench_sign`` and otherwise passed through: the
 format's reading is the wrench the leg exerts on the transducer, in ``ft_k``
 about its origin, offset included (report eq. 1).
@@ -43,7 +49,7 @@ from ..data import (
     recording_to_frame,
     write_robot,
 )
-from .bagio import BagError, BagStreams, Stream, bag_topics, read_streams
+from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
 from .mapfile import IngestMap, RecordingSpec, read_map
 
@@ -127,6 +133,24 @@ def _check_streams(m: IngestMap, spec: RecordingSpec, s: BagStreams) -> None:
             if np.any(st.stamp_ns <= 0):
                 raise BagError(f"{spec.bag}: topic '{st.topic}' ({key}) has messages with zero header stamps; "
                                "the publisher does not stamp them: set time_source = \"receive\" in the map to use bag receive times")
+            _check_not_backwards(spec, key, st, m.max_backward_s)
+
+
+def _check_not_backwards(spec: RecordingSpec, key: str, st: Stream, max_backward_s: float) -> None:
+    """Header stamps in bag (receive) order may step back by transport reordering,
+    never by more than ``max_backward_s``: that is a clock reset, a looped
+    playback or two clocks on one topic, and sorting would interleave them."""
+    if len(st) < 2:
+        return
+    d = np.diff(st.stamp_ns)
+    i = int(np.argmin(d))
+    if d[i] < -max_backward_s * 1e9:
+        raise BagError(
+            f"{spec.bag}: topic '{st.topic}' ({key}): header stamps go backwards: sample {i + 2} of {len(st)} (bag order) is stamped "
+            f"{-d[i] * 1e-9:.6g} s before the one received just ahead of it ({(st.stamp_ns[i] - st.stamp_ns[0]) * 1e-9:.6g} s after the first); "
+            f"expected stamps that increase, up to max_backward_s = {max_backward_s:g} s of reordering. A clock reset, a looped playback "
+            "or two publishers with different clocks on one topic? Split or fix the bag, or set time_source = \"receive\""
+        )
 
 
 def _stamps(st: Stream, m: IngestMap) -> np.ndarray:
@@ -239,12 +263,13 @@ def _right_multiply(q_wxyz: np.ndarray, R: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- driver
 
 
-def read_bags(m: IngestMap) -> list[BagStreams]:
-    """Read every bag of the map, checking topics, joints and frames against the map."""
+def read_bags(m: IngestMap, *, progress: bool | None = None) -> list[BagStreams]:
+    """Read every bag of the map once, checking topics, joints, frames and stamps against the map.
+
+    ``progress``: a progress bar over each bag's messages (None: when stderr is a terminal).
+    """
     out = []
     for spec in m.recordings:
-        topics = bag_topics(spec.bag)
-        _check_topics(m, spec, topics)
         s = read_streams(
             spec.bag,
             wrench_topics=m.wrench_topics.values(),
@@ -252,6 +277,8 @@ def read_bags(m: IngestMap) -> list[BagStreams]:
             joint_names=m.joint_names.values(),
             # hanging recordings do without orientation (the format ignores it there)
             pose_topic=m.pose_topic if spec.kind != "hanging" else None,
+            check_topics=lambda topics, spec=spec: _check_topics(m, spec, topics),
+            progress=progress,
         )
         _check_streams(m, spec, s)
         out.append(s)
@@ -263,10 +290,13 @@ def session_epoch_ns(m: IngestMap, streams: list[BagStreams]) -> int:
     return int(min(int(_stamps(st, m).min()) for s in streams for st in _streams_used(m, s) if len(st)))
 
 
-def ingest(map_or_path: IngestMap | str | Path) -> IngestResult:
-    """Read a map and its bags into a validated :class:`Dataset` (nothing written)."""
+def ingest(map_or_path: IngestMap | str | Path, *, progress: bool | None = None) -> IngestResult:
+    """Read a map and its bags into a validated :class:`Dataset` (nothing written).
+
+    ``progress``: a progress bar over each bag's messages (None: when stderr is a terminal).
+    """
     m = map_or_path if isinstance(map_or_path, IngestMap) else read_map(map_or_path)
-    streams = read_bags(m)
+    streams = read_bags(m, progress=progress)
     epoch = session_epoch_ns(m, streams)
     recs: list[Recording] = []
     counts = []
@@ -308,6 +338,9 @@ def _summary(c: IngestCounts) -> str:
 def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None = None, overwrite: bool = False) -> Path:
     """Write the dataset (``dataset.toml``, ``robot.toml``, one file per bag); returns the manifest.
 
+    Refuses (``FileExistsError``, nothing written) when any of these files
+    exists, unless ``overwrite``; the manifest is written last.
+
     The manifest also holds, under keys the reader ignores, the bag of each
     recording, its counts and the session epoch (``[ingest] epoch_ns``).
     """
@@ -318,10 +351,16 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
         raise ValueError(f"fmt must be 'csv' or 'parquet', got {fmt!r}")
     folder = Path(folder)
     manifest = folder / "dataset.toml"
-    if manifest.exists() and not overwrite:
-        raise FileExistsError(f"{manifest} exists; pass overwrite=True (--overwrite) to replace it")
-    folder.mkdir(parents=True, exist_ok=True)
     ds = result.dataset
+    # Every file this would write is checked first: nothing is written over unless asked,
+    # not even the recordings of a dataset whose manifest is gone.
+    targets = [manifest, folder / "robot.toml"] + [folder / f"{rec.name}.{fmt}" for rec in ds.recordings]
+    present = [str(x) for x in targets if x.exists()]
+    if present and not overwrite:
+        raise FileExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them")
+    if folder.exists() and not folder.is_dir():
+        raise FileExistsError(f"{folder} exists and is not a folder")
+    folder.mkdir(parents=True, exist_ok=True)
     write_robot(ds.robot, folder / "robot.toml")
     entries = []
     for rec, c in zip(ds.recordings, result.counts):

@@ -19,6 +19,8 @@ the map; ``*`` marks keys beyond the issue's contract, all optional)::
     * wrench_match = "nearest" | "linear": how other legs meet the first leg's clock
     * check_frame_ids = true: a WrenchStamped frame_id other than its transducer link is an error
     * time_source = "header" | "receive": header stamps (default) or bag receive times
+    * max_backward_s = 0.05: header stamps of a stream may step back (bag order) by this
+      much (transport reordering); more is an error (a clock reset, a looped playback)
     * format = "parquet" | "csv": recording files written
     * [joints] max_gap_s = 0.25; [joints.zero_rad] FL = 0.0; [joints.sign] FL = 1:
       phi = sign * (unwrap(position) - zero_rad), so that phi = 0 is the leg straight down
@@ -73,6 +75,7 @@ class IngestMap:
     time_source: str
     fmt: str
     recordings: tuple[RecordingSpec, ...]
+    max_backward_s: float = 0.05
 
     @property
     def legs(self) -> tuple[str, ...]:
@@ -238,9 +241,12 @@ def read_map(path: str | Path) -> IngestMap:
 
         R_bm, _ = fixed_pose(urdf, base, _get(bp, "link", wp, str), key="[body_pose] link", source=where)
         R_mb = R_bm.T
+    max_back = float(_get(d, "max_backward_s", where, (int, float), 0.05))
     for key, val in (("joints.max_gap_s", joint_gap), ("body_pose.max_gap_s", pose_gap)):
         if not val > 0:
             raise DataFormatError(f"{where}: '{key}' = {val} should be a positive number of seconds")
+    if not max_back >= 0:
+        raise DataFormatError(f"{where}: 'max_backward_s' = {max_back} should be a number of seconds >= 0")
     recs = _recordings(d, where, root)
     if pose_topic is None:
         needing = [r.name for r in recs if r.kind != "hanging"]
@@ -265,4 +271,5 @@ def read_map(path: str | Path) -> IngestMap:
         time_source=_choice(d, "time_source", where, ("header", "receive")),
         fmt=_choice(d, "format", where, ("parquet", "csv")),
         recordings=recs,
+        max_backward_s=max_back,
     )

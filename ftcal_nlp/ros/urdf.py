@@ -134,3 +134,31 @@ def robot_from_urdf(
         transducers,
         None if leg_mass_kg is None else {k: float(v) for k, v in leg_mass_kg.items()},
     )
+
+
+def urdf_text(robot: Robot, *, base_link: str = "base_link", shaft_joint: str = "{leg}_shaft") -> str:
+    """A URDF of ``robot``'s nominal transducer poses (the inverse of :func:`robot_from_urdf`).
+
+    Links ``base_link`` (frame B), ``ft_{leg}`` (frame ft_leg, a fixed joint
+    ``ft_{leg}_mount`` from B with ``origin xyz = position_m``, ``rpy`` of
+    ``rotation``) and ``leg_{leg}`` on a continuous joint ``shaft_joint`` about
+    the transducer's y axis. No inertials: masses come from the map.
+    """
+    from scipy.spatial.transform import Rotation
+
+    def origin(p, R) -> str:
+        # URDF rpy: R = Rz(yaw) Ry(pitch) Rx(roll), scipy's extrinsic "xyz"
+        rpy = Rotation.from_matrix(R).as_euler("xyz")
+        return f'<origin xyz="{" ".join(repr(float(x)) for x in p)}" rpy="{" ".join(repr(float(x)) for x in rpy)}"/>'
+
+    parts = [f'<?xml version="1.0"?>\n<robot name="{robot.name}">', f'  <link name="{base_link}"/>']
+    for k in robot.legs:
+        tr = robot.transducers[k]
+        parts += [
+            f'  <link name="ft_{k}"/>',
+            f'  <link name="leg_{k}"/>',
+            f'  <joint name="ft_{k}_mount" type="fixed"><parent link="{base_link}"/><child link="ft_{k}"/>{origin(tr.position_m, tr.rotation)}</joint>',
+            f'  <joint name="{shaft_joint.format(leg=k)}" type="continuous"><parent link="ft_{k}"/><child link="leg_{k}"/>'
+            '<origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 1 0"/></joint>',
+        ]
+    return "\n".join(parts + ["</robot>", ""])

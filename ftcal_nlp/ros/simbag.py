@@ -1,0 +1,143 @@
+"""Bags of interchange recordings: what a ROS session of a (simulated) dataset would have recorded.
+
+For the ingest's tests and benchmark (issue 9). Each recording becomes one bag:
+
+* one ``WrenchStamped`` topic per leg, in ``ft_{leg}``, at the recording's
+  sample times ``epoch_ns + t``;
+* ``JointState`` of every shaft at ``1/joint_every`` of that rate and
+  ``joint_delay_ns`` late, the angle being the chord of the recording's
+  ``phi`` at those instants (the recording is the truth at its own times);
+* ``PoseStamped`` of B at the sample times where the recording has an
+  orientation: motion-capture dropouts leave no message, as with a real bridge.
+
+Receive times trail the stamps by a transport delay. Messages are serialised
+by :func:`.bagio.encode_messages` (``encode=True``) or built as ``rosbags``
+message objects (``encode=False``, ~20x slower, independent of :mod:`.wire`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..data import Dataset, Recording
+from . import bagio
+from .urdf import urdf_text
+
+WRENCH_TOPIC = "/ft/{leg}/wrench"
+JOINT_TOPIC = "/joint_states"
+JOINT_NAME = "{leg}_shaft"
+POSE_TOPIC = "/mocap/body/pose"
+
+
+def stamps_ns(t: np.ndarray, epoch_ns: int) -> np.ndarray:
+    """Integer ns stamps of session times ``t`` (s)."""
+    return int(epoch_ns) + np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
+def recording_series(
+    rec: Recording,
+    legs: Sequence[str],
+    storage: str,
+    *,
+    epoch_ns: int,
+    joint_every: int = 2,
+    joint_delay_ns: int = 3_000_000,
+    encode: bool = True,
+) -> list[bagio.TopicSeries]:
+    """The topics of one recording's bag (see the module docstring)."""
+    ts = bagio.typestore_for(storage)
+    clock = stamps_ns(rec.t, epoch_ns)
+    series = []
+    for k in legs:
+        frame = f"ft_{k}"
+        if encode:
+            msgs = bagio.encode_messages(storage, bagio.WRENCH_TYPE, clock, frame, rec.wrench[k])
+        else:
+            msgs = [bagio.wrench_stamped(ts, int(s), frame, w) for s, w in zip(clock, rec.wrench[k])]
+        series.append(bagio.TopicSeries(WRENCH_TOPIC.format(leg=k), bagio.WRENCH_TYPE, clock + 1_000_000, msgs))
+    js = clock[::joint_every] + int(joint_delay_ns)
+    js = js[js <= clock[-1]]
+    tj = rec.t[0] + (js - clock[0]) * 1e-9
+    pos = np.stack([np.interp(tj, rec.t, rec.phi[k]) for k in legs], axis=1)
+    names = [JOINT_NAME.format(leg=k) for k in legs]
+    if encode:
+        msgs = bagio.encode_messages(storage, bagio.JOINT_TYPE, js, "", pos, names)
+    else:
+        msgs = [bagio.joint_state(ts, int(s), names, p) for s, p in zip(js, pos)]
+    series.append(bagio.TopicSeries(JOINT_TOPIC, bagio.JOINT_TYPE, js + 500_000, msgs))
+    if rec.quat is not None:
+        ok = np.all(np.isfinite(rec.quat), axis=1)
+        ps, q = clock[ok], rec.quat[ok]
+        if encode:
+            vals = np.concatenate([np.zeros((len(q), 3)), q[:, [1, 2, 3, 0]]], axis=1)
+            msgs = bagio.encode_messages(storage, bagio.POSE_TYPE, ps, "world", vals)
+        else:
+            msgs = [bagio.pose_stamped(ts, int(s), "world", w) for s, w in zip(ps, q)]
+        series.append(bagio.TopicSeries(POSE_TOPIC, bagio.POSE_TYPE, ps + 2_000_000, msgs))
+    return series
+
+
+def bag_name(rec: Recording, storage: str) -> str:
+    """``{name}.bag`` for ROS 1, the bag folder ``{name}`` for ROS 2."""
+    return f"{rec.name}.bag" if storage == "ros1" else rec.name
+
+
+def session_map(legs: Sequence[str], mass_kg: float, g: float, recordings: Sequence[tuple[str, Recording]], *, urdf: str = "robot.urdf") -> dict:
+    """An ingest map (as a dict for ``tomli_w``) of bags ``(path, recording)`` written by :func:`write_session`."""
+    entries = []
+    for bag, rec in recordings:
+        e: dict = {"bag": bag, "kind": rec.kind, "name": rec.name}
+        if rec.gravity_body is not None:
+            e["gravity_body"] = [float(x) for x in rec.gravity_body]
+        entries.append(e)
+    return {
+        "mass_kg": float(mass_kg),
+        "g": float(g),
+        "legs": list(legs),
+        "urdf": urdf,
+        "base_link": "base_link",
+        "transducer_links": {k: f"ft_{k}" for k in legs},
+        "wrench_topics": {k: WRENCH_TOPIC.format(leg=k) for k in legs},
+        "joints": {"topic": JOINT_TOPIC, **{k: JOINT_NAME.format(leg=k) for k in legs}},
+        "body_pose": {"topic": POSE_TOPIC},
+        "recording": entries,
+    }
+
+
+def write_session(
+    ds: Dataset,
+    folder: str | Path,
+    storage: str | Mapping[str, str] = "mcap",
+    *,
+    epoch_ns: int = 1_700_000_000 * 10**9,
+    names: Sequence[str] | None = None,
+    **kw,
+) -> Path:
+    """Write ``ds`` as ROS bags (one per recording), a URDF of its robot and an ingest map; returns the map.
+
+    ``storage``: one storage for all, or per recording name (``mcap``,
+    ``sqlite3``, ``ros1``); ``names``: the recordings to write (default all);
+    ``kw``: :func:`recording_series` settings. Nothing is written over.
+    """
+    import tomli_w
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    recs = [r for r in ds.recordings if names is None or r.name in names]
+    legs = ds.robot.legs
+    urdf, mp = folder / "robot.urdf", folder / "map.toml"
+    st_of = {r.name: storage if isinstance(storage, str) else storage[r.name] for r in recs}
+    for p in [urdf, mp] + [folder / bag_name(r, st_of[r.name]) for r in recs]:
+        if p.exists():
+            raise FileExistsError(f"{p} exists; not written over")
+    written = []
+    for rec in recs:
+        path = folder / bag_name(rec, st_of[rec.name])
+        bagio.write_bag(path, recording_series(rec, legs, st_of[rec.name], epoch_ns=epoch_ns, **kw), storage=st_of[rec.name])
+        written.append((path.name, rec))
+    urdf.write_text(urdf_text(ds.robot))
+    mp.write_bytes(tomli_w.dumps(session_map(legs, ds.robot.mass_kg, ds.robot.g, written)).encode())
+    return mp
