@@ -190,21 +190,45 @@ def test_truth_is_bigant_like(res):
     assert np.all(np.abs(down[:, 2] + SMALL.toe_depth_m) < 0.01) and np.all(np.abs(down[:, 0]) < 0.01)
     up = tr.ft_to_body(tr.foot_ft(np.full(6, np.pi))) - tr.p
     assert np.all(up[:, 2] - down[:, 2] > 0.05)
+    # the four-bar's flat-ish stance arc: lowest at 0, a few mm up at +-36 deg (as configured), then rising to pi
+    for a in (-36.0, 36.0):
+        rise = tr.toe_height(np.full(6, np.radians(a))) * 1e3
+        assert np.all(np.abs(rise - SMALL.toe_stance_rise_mm) <= SMALL.toe_rise_spread_mm + 1e-9), rise
+    h = tr.toe_height(np.linspace(0, np.pi, 181)[:, None] * np.ones(6))
+    assert np.all(h[0] == 0) and np.all(np.diff(h, axis=0) > 0)
+    np.testing.assert_allclose(h[-1], tr.toe_lift, rtol=1e-12)
 
 
 def test_standing_equilibrium_is_exact(res):
-    """Per pose: the ground forces (foot springs + internal forces) hold the whole robot."""
+    """Per pose, on level ground and on the board: the ground forces (foot springs, the slope's
+    friction share, internal forces) hold the whole robot, inside the friction cones."""
     tr = res.true_robot
-    poses = solve_poses(tr, SMALL, res.pose_phi, np.random.default_rng(0))
+    board_dir = np.where(np.arange(len(res.pose_phi)) % 3 == 0, np.random.default_rng(1).uniform(0, 2 * np.pi, len(res.pose_phi)), np.nan)
+    poses = solve_poses(tr, SMALL, res.pose_phi, np.random.default_rng(0), board_dir)
     assert len(poses.skipped) == 0
+    np.testing.assert_array_equal(poses.on_board, np.isfinite(board_dir))
     feet_W = np.einsum("pij,pkj->pki", poses.R_tilt, tr.ft_to_body(tr.foot_ft(poses.phi)))
     c_W = np.einsum("pij,pj->pi", poses.R_tilt, tr.total_com_B(poses.phi))
     F = poses.ground_W0
     np.testing.assert_allclose(F.sum(1), np.broadcast_to([0, 0, tr.weight_N], (len(F), 3)), atol=1e-7)
     np.testing.assert_allclose(np.cross(feet_W - c_W[:, None], F).sum(1), 0, atol=1e-8)
-    horizontal = np.linalg.norm(F[..., :2], axis=-1)
-    assert np.all(horizontal <= 0.5 * SMALL.friction_mu * F[..., 2] + 1e-12), "inside the friction cones"
-    assert horizontal.max() > 0.3 * SMALL.internal_force_N, "internal forces are present"
+    # friction: in the ground's frame (z its normal) the tangential force stays inside the cone
+    F_G = np.einsum("pji,pkj->pki", poses.R_ground, F)
+    normal, tangential = F_G[..., 2], np.linalg.norm(F_G[..., :2], axis=-1)
+    assert np.all(normal >= 0)
+    level, board = ~poses.on_board, poses.on_board
+    assert np.all(tangential[level] <= 0.5 * SMALL.friction_mu * normal[level] + 1e-12), "inside the friction cones"
+    assert tangential[level].max() > 0.3 * SMALL.internal_force_N, "internal forces are present"
+    assert np.all(tangential[board] <= SMALL.board_friction_mu * normal[board] + 1e-12)
+    tan = np.tan(np.radians(SMALL.board_tilt_deg))
+    # the board carries the slope's share, tan(theta) N, on every loaded foot (internal forces aside)
+    np.testing.assert_allclose(tangential[board].sum(1) / normal[board].sum(1), tan, rtol=0.1)
+    slope = np.degrees(np.arccos(poses.R_ground[:, 2, 2]))
+    np.testing.assert_allclose(slope[board], SMALL.board_tilt_deg, atol=1e-9)
+    np.testing.assert_allclose(slope[level], 0, atol=1e-9)
+    # the body lies on the board within the compliance tilt
+    rel = np.degrees(np.arccos(np.einsum("pi,pi->p", poses.R_ground[:, :, 2], poses.R_tilt[:, :, 2])))
+    assert np.all(rel <= SMALL.max_tilt_deg)
 
 
 def test_potential_derivatives_match_finite_differences():
@@ -215,17 +239,23 @@ def test_potential_derivatives_match_finite_differences():
     tr = draw_true_robot(SMALL, np.random.default_rng(5))
     phi = np.radians([[0, 36, -36, 0, 36, -36], [36, 36, 36, -36, -36, -36], [0, 0, 0, 0, 0, 0]])
     feet, com = tr.ft_to_body(tr.foot_ft(phi)), tr.total_com_B(phi)
-    q = np.array([[0.168, 0.004, -0.003], [0.169, -0.006, 0.002], [0.1675, 0.0, 0.0]])
+    q = np.array([[0.163, 0.004, -0.003], [0.160, -0.006, 0.002], [0.1675, 0.0, 0.0]])
     W, k = tr.weight_N, SMALL.foot_stiffness_N_per_m
-    V, g, H = _potential(q, feet, com, W, k)
+    bumps = np.random.default_rng(6).normal(0.0, 1e-3, (3, 6))  # an uneven floor
+    V, g, H = _potential(q, feet, com, W, k, bumps)
+    assert np.all(((bumps - (tr.ft_to_body(tr.foot_ft(phi))[..., 2] + q[:, :1])) > 0).sum(1) >= 3), "several feet in contact"
     h = 1e-6
     for j, e in enumerate(np.eye(3) * h):
-        Vp, gp, _ = _potential(q + e, feet, com, W, k)
-        Vm, gm, _ = _potential(q - e, feet, com, W, k)
+        Vp, gp, _ = _potential(q + e, feet, com, W, k, bumps)
+        Vm, gm, _ = _potential(q - e, feet, com, W, k, bumps)
         np.testing.assert_allclose((Vp - Vm) / (2 * h), g[:, j], atol=1e-6 * W)
         np.testing.assert_allclose((gp - gm) / (2 * h), H[:, :, j], rtol=1e-5, atol=1e-4 * W)
-    # at the level height the force equation is the z-gradient
-    np.testing.assert_allclose(_residual(q, feet, com, W, k)[0][:, 0], -g[:, 0], atol=1e-9)
+    # the force equation is the z-gradient; level (a = b = 0), the moment equations about the CoM are
+    # -dV/da and +dV/db up to the force residual's moment: -dV/da = r_1 + r_0 c_y, dV/db = r_2 + r_0 c_x
+    r = _residual(q, feet, com, W, k, None, bumps)[0]
+    np.testing.assert_allclose(r[:, 0], -g[:, 0], atol=1e-9)
+    np.testing.assert_allclose(r[2, 1] + r[2, 0] * com[2, 1], -g[2, 1], atol=1e-9)
+    np.testing.assert_allclose(r[2, 2] + r[2, 0] * com[2, 0], g[2, 2], atol=1e-9)
 
 
 def test_tipping_pose_is_skipped():
@@ -273,13 +303,20 @@ def test_walk_truth(res):
     np.testing.assert_allclose(G.sum(1), total, atol=1e-9)
     mg = SMALL.mass_kg * SMALL.g
     np.testing.assert_allclose(total, np.broadcast_to([0, 0, mg, 0, 0, 0], total.shape), atol=1e-6)
-    # Feet well into the swing read exactly zero: lifted more than 2 cm, i.e. several times the
-    # largest foot compression (max load / stiffness) plus what a ~0.5 deg body tilt lowers a foot.
+    # Feet well into the swing read exactly zero: lifted on their toe loop by more than the largest
+    # foot compression (max load / stiffness), plus what the body tilt lowers a foot 0.4 m from the
+    # support, plus 5 mm for the legs' height differences (mounting, toe depth and rise).
     tr = res.true_robot
-    phi = res.dataset.walking[0].phi_array(legs)
-    lift = tr.toe_lift * ((1 - np.cos(phi)) / 2) ** 2
-    assert G[..., 2].max() / SMALL.foot_stiffness_N_per_m < 0.005
-    swing = lift > 0.02
+    walk = res.dataset.walking[0]
+    phi = walk.phi_array(legs)
+    lift = tr.toe_height(phi)
+    from ftcal_nlp.geometry import quat_to_rotation
+
+    ok = np.isfinite(walk.quat[:, 0])
+    tilt = np.arccos(quat_to_rotation(walk.quat[ok])[:, 2, 2]).max()
+    clear = G[..., 2].max() / SMALL.foot_stiffness_N_per_m + 0.4 * np.sin(tilt) + 0.005
+    assert clear < 0.03
+    swing = lift > clear
     assert swing.any(axis=0).all()
     assert np.all(G[swing] == 0.0)
     # a tripod or more carries the robot, each loaded foot pushes up
@@ -346,3 +383,163 @@ def test_effect_hook(res, tmp_path):
     truth = json.loads((tmp_path / "truth.json").read_text())
     assert truth["effect"] == "casing_load" and truth["scale"] == 2.0 and truth["in_library"] is True
     assert EFFECTS == {} or all(callable(f) for f in EFFECTS.values())
+
+
+# ----------------------------------------------------------------------------- realism against the shared sample
+
+LEVEL = np.cos(np.radians(10.0))   # pose whose body z is within 10 deg of up: level ground
+LOADED_N = 1.0                     # a foot carries load when the ground pushes it up by more than this
+
+
+def _constant_phi_windows(rec, legs, settle_s=1.0, min_s=2.0):
+    """Row indices of each run of constant shaft angles (a pose), from ``settle_s`` after it starts."""
+    phi = rec.phi_array(legs)
+    edges = np.flatnonzero(np.any(np.diff(phi, axis=0) != 0, axis=1)) + 1
+    starts, ends = np.r_[0, edges], np.r_[edges, len(phi)]
+    rate = 1 / np.median(np.diff(rec.t))
+    return [np.arange(a + int(settle_s * rate), b) for a, b in zip(starts, ends) if b - a >= min_s * rate]
+
+
+def _ground_from_readings(rec, legs, windows, cal, min_rows=100):
+    """Per pose (median of its steady rows with motion capture): ground force on each foot in W,
+    reading less offset less leg weight turned into W with ``cal``, (P, K, 3); shaft angles (P, K);
+    R_WB (P, 3, 3); rows used (P,); index of the window (P,)."""
+    from ftcal_nlp import physics
+    from ftcal_nlp.geometry import quat_to_rotation
+
+    offsets, weights, rotations, _ = cal.stacked(legs)
+    W, PHI = rec.wrench_array(legs), rec.phi_array(legs)
+    out = {"F": [], "phi": [], "R": [], "n": [], "i": []}
+    for i, rows in enumerate(windows):
+        rows = rows[np.isfinite(rec.quat[rows, 0])]
+        if len(rows) < min_rows:
+            continue
+        q = rec.quat[rows] * np.sign(rec.quat[rows] @ rec.quat[rows[0]])[:, None]
+        qm = np.median(q, axis=0)
+        R = quat_to_rotation(qm / np.linalg.norm(qm))
+        phi = np.median(PHI[rows], axis=0)
+        u = physics.gravity_dir_in_ft(R, rotations)
+        r = np.stack([cal.legs[k].com(phi[j : j + 1])[0] for j, k in enumerate(legs)])
+        w = np.median(W[rows], axis=0) - offsets - physics.leg_gravity_wrench(u, r, weights)
+        for key, v in zip(out, (np.einsum("ij,kjl,kl->ki", R, rotations, w[:, :3]), phi, R, len(rows), i)):
+            out[key].append(v)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def _load_stats(g):
+    """Loading and tilt statistics of level poses: P(loaded | leg at 0), P(loaded | leg at +-36 deg),
+    per-leg loaded fraction (K,), mean number of loaded feet, median tilt (deg)."""
+    level = g["R"][:, 2, 2] > LEVEL
+    loaded = g["F"][level][..., 2] > LOADED_N
+    at0 = np.isclose(g["phi"][level], 0.0, atol=1e-6)
+    tilt = np.degrees(np.arccos(g["R"][level][:, 2, 2]))
+    return dict(p0=loaded[at0].mean(), p36=loaded[~at0].mean(), frac=loaded.mean(0), feet=loaded.sum(1).mean(), tilt=np.median(tilt))
+
+
+@pytest.fixture(scope="module")
+def sample_loads():
+    ds = read_dataset(SAMPLE / "dataset.toml", kinds=("standing",))
+    st, legs = ds.standing[0], ds.robot.legs
+    g = _ground_from_readings(st, legs, _constant_phi_windows(st, legs), Calibration.load(SAMPLE / "truth.json", g=9.81))
+    return g, _load_stats(g)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 3])
+def test_every_leg_carries_load_like_the_sample(seed, sample_loads):
+    """Each leg's mounting is identifiable only where its foot carries ground load. Over the whole
+    3^6 grid, read off the readings with the truth as on the sample: every leg is loaded in at least
+    20 % of the level poses, and the loading resembles the sample's (a leg at 0 deg nearly always
+    loaded, at +-36 deg in ~70 % of poses; ~5 feet loaded; the body tilted ~0.8 deg)."""
+    r = simulate(SimConfig(seed=seed, hanging_cycles=0.1, walk_cycles=0.0))
+    st, legs = r.dataset.standing[0], r.dataset.robot.legs
+    g = _ground_from_readings(st, legs, [np.flatnonzero((st.t >= a) & (st.t <= b)) for a, b in r.pose_windows], r.truth)
+    # The readings give the true vertical ground forces to the noise: the median's reading noise and
+    # the motion-capture error (held through the pose) turning the reading's force into W.
+    true_fz = r.pose_ground_N[g["i"]][..., 2]
+    f_ft = np.linalg.norm(g["F"], axis=-1)
+    sd = np.sqrt(np.pi / 2 * r.config.noise_force_N**2 / g["n"][:, None]
+                 + 2 * (np.radians(r.config.mocap_pose_error_deg) * f_ft) ** 2 + 1e-12)
+    z = (g["F"][..., 2] - true_fz) / sd
+    assert np.abs(z).max() < 5, np.abs(z).max()
+
+    ours, (_, theirs) = _load_stats(g), sample_loads
+    print(f"\nseed {seed}: loaded fraction per leg {ours['frac'].round(2)} (sample {theirs['frac'].round(2)}); "
+          f"P(loaded | 0 deg) {ours['p0']:.2f} ({theirs['p0']:.2f}), P(loaded | +-36 deg) {ours['p36']:.2f} ({theirs['p36']:.2f}); "
+          f"feet loaded {ours['feet']:.2f} ({theirs['feet']:.2f}); median tilt {ours['tilt']:.2f} deg ({theirs['tilt']:.2f})")
+    assert ours["frac"].min() >= 0.2
+    assert theirs["frac"].min() >= 0.2, "the sample, the reference: every leg loaded"
+    # Resemblance, not equality (other robots, other seeds): within 0.15 in the fractions, half a
+    # foot in the count, a factor 1.6 in the tilt.
+    assert abs(ours["p0"] - theirs["p0"]) < 0.15 and abs(ours["p36"] - theirs["p36"]) < 0.15
+    assert abs(ours["feet"] - theirs["feet"]) < 0.5
+    assert 1 / 1.6 < ours["tilt"] / theirs["tilt"] < 1.6
+
+
+def test_board_poses_like_the_sample(sample_loads):
+    """A share of the poses stand on a 38 deg board (the sample: 9 of 108 at 38-39 deg), downhill in a
+    random direction per pose: gravity then has a large component in the body's xy plane, which makes
+    the turn of all transducers about z identifiable. The robot stays on the board (friction) and
+    only the uphill feet may lift."""
+    cfg = replace(SMALL, n_poses=150, hanging_cycles=0.1, walk_cycles=0.0)
+    r = simulate(cfg)
+    n_board = round(cfg.board_pose_fraction * cfg.n_poses)
+    assert r.pose_on_board.sum() == n_board and len(r.skipped_pose_phi) == 0
+    g = _ground_from_readings(r.dataset.standing[0], r.dataset.robot.legs,
+                              [np.flatnonzero((r.dataset.standing[0].t >= a) & (r.dataset.standing[0].t <= b)) for a, b in r.pose_windows],
+                              r.truth)
+    on = r.pose_on_board[g["i"]]
+    tilt = np.degrees(np.arccos(g["R"][:, 2, 2]))
+    assert np.all(np.abs(tilt[on] - cfg.board_tilt_deg) < 2.0), tilt[on]      # board plus compliance
+    assert np.all(tilt[~on] < 3.0)
+    sample_g, _ = sample_loads
+    sample_tilt = np.degrees(np.arccos(sample_g["R"][:, 2, 2]))
+    assert np.all(np.abs(sample_tilt[sample_tilt > 10] - cfg.board_tilt_deg) < 2.0) and (sample_tilt > 10).sum() == 9
+    # downhill directions in B spread around (gravity's horizontal part in the body frame)
+    up_B = g["R"][on, 2, :]
+    az = np.arctan2(up_B[:, 1], up_B[:, 0])
+    assert np.abs(np.mean(np.exp(1j * az))) < 0.6, "not all in one direction"
+    # the readings hold the robot: vertical loads carry the weight, ground forces nearly vertical
+    # (the slope's friction share turns each normal load vertical; internal forces aside)
+    F = g["F"][on]
+    np.testing.assert_allclose(F[..., 2].sum(1), r.truth.mass_kg * r.truth.g, rtol=0.01)
+    assert np.all((F[..., 2] > LOADED_N).sum(1) >= 2)
+
+
+def test_board_poses_slip_without_enough_friction():
+    """Below tan(38 deg) = 0.78 no friction holds the robot on the board: those poses are skipped."""
+    base = replace(SMALL, n_poses=60, hanging_cycles=0.1, walk_cycles=0.0, board_pose_fraction=0.2)
+    held = simulate(base)
+    slid = simulate(replace(base, board_friction_mu=0.75))
+    assert held.pose_on_board.sum() == 12 and slid.pose_on_board.sum() == 0
+    assert len(slid.skipped_pose_phi) == len(held.skipped_pose_phi) + 12
+    flat = simulate(replace(base, board_pose_fraction=0.0))
+    assert flat.pose_on_board.sum() == 0 and len(flat.pose_phi) == 60
+
+
+def test_mocap_error_is_held_through_each_pose():
+    """Motion capture: an orientation error constant through each standing pose (not averaged by
+    the pose median) plus white jitter; walking has the white jitter only. With the jitter off, the
+    measured orientation differs from the error-free one by exactly the pose's held error."""
+    base = replace(SMALL, n_poses=20, hanging_cycles=0.1, walk_cycles=0.3, mocap_jitter_deg=0.0,
+                   mocap_dropout_rate=0.0, mocap_blip_rate_hz=0.0)
+    from ftcal_nlp.geometry import quat_to_rotation, rotation_to_rotvec
+
+    clean = simulate(replace(base, mocap_pose_error_deg=0.0))
+    held = simulate(base)
+    err = held.pose_mocap_error
+    assert err.shape == (len(held.pose_phi), 3)
+    # its size: per-axis sd of the configured value (5 standard errors of an sd over 3P draws)
+    assert abs(np.degrees(err.std()) / base.mocap_pose_error_deg - 1) < 5 / np.sqrt(2 * err.size)
+    a, b = clean.dataset.standing[0], held.dataset.standing[0]
+    np.testing.assert_array_equal(a.wrench_array(), b.wrench_array())  # readings untouched
+    rv = rotation_to_rotvec(np.swapaxes(quat_to_rotation(a.quat), 1, 2) @ quat_to_rotation(b.quat))
+    pose = np.repeat(np.arange(len(held.pose_phi)), round(base.pose_s * base.rate_hz))
+    np.testing.assert_allclose(rv, err[pose], atol=1e-12)
+    np.testing.assert_array_equal(clean.dataset.walking[0].quat, held.dataset.walking[0].quat)
+    # white jitter on top: a pose's rows scatter by it about their (held) median
+    jit = simulate(replace(base, mocap_jitter_deg=0.05)).dataset.standing[0]
+    R = quat_to_rotation(jit.quat)
+    lo, hi = held.pose_windows[0]
+    m = (jit.t >= lo) & (jit.t <= hi)
+    d = np.degrees(rotation_to_rotvec(np.swapaxes(R[m][:1], 1, 2) @ R[m]))
+    assert abs(np.diff(d, axis=0).std() / np.sqrt(2) / 0.05 - 1) < 5 / np.sqrt(2 * d[1:].size)

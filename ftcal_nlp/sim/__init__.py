@@ -3,7 +3,8 @@
 ``simulate(SimConfig(...))`` gives a :class:`SimResult` (dataset, truth, walking
 truth, standing pose windows); ``write_simulation(res, folder)`` writes it like
 ``shared/sample``. Modules: ``config`` (settings), ``robot_model`` (true
-parameters, leg CoM and toe loop), ``statics`` (compliant-foot equilibrium),
+parameters, leg CoM and toe loop), ``statics`` (compliant-foot equilibrium on
+level ground or a tilted board),
 ``recordings`` (hanging / standing / walking time series), ``effects`` (hook
 for effect injectors), ``simulate`` (sensors and assembly), ``writer`` (files).
 """
@@ -12,10 +13,11 @@ from .config import SimConfig
 from .effects import EFFECTS, InjectionContext, Injector, NoEffect, make_effects
 from .robot_model import LEGS, TrueRobot, draw_true_robot, nominal_robot
 from .simulate import SimResult, simulate
-from .statics import Stance, internal_forces, solve_stance
+from .statics import Stance, board_rotation, contact_forces, internal_forces, solve_stance
 from .writer import write_simulation
 
 __all__ = [
     "EFFECTS", "InjectionContext", "Injector", "LEGS", "NoEffect", "SimConfig", "SimResult", "Stance", "TrueRobot",
-    "draw_true_robot", "internal_forces", "make_effects", "nominal_robot", "simulate", "solve_stance", "write_simulation",
+    "board_rotation", "contact_forces", "draw_true_robot", "internal_forces", "make_effects", "nominal_robot", "simulate",
+    "solve_stance", "write_simulation",
 ]

@@ -2,9 +2,16 @@
 
 The defaults reproduce the experiment of the report (Wu & Revzen, Sec. I-B,
 III-A, IV-3): hanging in +-x and +-z with ten slow leg turns at 100 Hz, the
-3^6 grid of standing poses {0, +-36 deg} held 5 s each, and a quasi-static
-tripod walk on a 0.08 Hz Buehler clock turning ~9 deg per cycle; ATI Gamma
-noise; BigAnt's mass (8.18 kg) and Table II offsets and leg weights.
+3^6 grid of standing poses {0, +-36 deg} held 5 s each (about 8 % of them on a
+board tilted 38 deg, like ``shared/sample``), and a quasi-static tripod walk on
+a 0.08 Hz Buehler clock turning ~9 deg per cycle; ATI Gamma noise; motion
+capture with white jitter plus an orientation error constant within each
+standing pose; BigAnt's mass (8.18 kg) and Table II offsets and leg weights;
+compliant PARF legs (3-5 mm deflection under the 15-25 N a foot carries) on a
+four-bar toe loop whose flat-ish bottom rises ~7.5 mm at +-36 deg, on a floor
+with ~1 mm bumps. Tuned to the sample's standing poses: every leg carries load
+in most poses (a leg at 0 deg nearly always, at +-36 deg in ~70 %), 4-6 feet
+loaded, level-ground tilt 0.3-2 deg.
 
 ``SimConfig.from_dict`` reads a TOML ``[simulate]`` table: keys are the field
 names, lists become tuples, an unknown key is an error naming the known ones.
@@ -42,7 +49,12 @@ class SimConfig:
     heading_step_deg: float = 1.0         # feet shuffle the heading a little at each pose change
     internal_force_N: float = 2.0         # size of friction-locked self-equilibrated foot forces
     friction_mu: float = 0.5
-    max_tilt_deg: float = 5.0             # a pose needing more tilt than this has tipped over (grid poses need < 1 deg)
+    max_tilt_deg: float = 5.0             # a pose needing more tilt than this (relative to its ground) has tipped over
+                                          # (grid poses on level ground need < 3 deg)
+    ground_roughness_mm: float = 1.0      # sd of the floor (or board) height under each foot, drawn afresh per pose
+    board_pose_fraction: float = 0.08     # share of the requested poses taken on a tilted board (the sample: 9 of 108)
+    board_tilt_deg: float = 38.0          # the board's slope; its downhill direction is random per pose
+    board_friction_mu: float = 1.0        # rubber feet on the board: above tan(board_tilt_deg), else every board pose slips
 
     # walking (report Sec. IV-3)
     walk_cycles: float = 2.0
@@ -55,7 +67,9 @@ class SimConfig:
     # sensors
     noise_force_N: float = 0.05
     noise_torque_Nm: float = 0.003
-    mocap_jitter_deg: float = 0.05
+    mocap_jitter_deg: float = 0.05        # white, per axis, every sample (standing and walking)
+    mocap_pose_error_deg: float = 0.05    # per axis, constant through each standing pose (the marker model's error
+                                          # for that placement): the pose median does not average it away
     mocap_dropout_rate: float = 0.03      # probability that a pose loses mocap through its steady part
     mocap_blip_rate_hz: float = 0.01      # short tracking losses per second (standing and walking)
     mocap_blip_s: tuple = (0.1, 1.0)      # their duration range
@@ -67,24 +81,27 @@ class SimConfig:
     mounting_trans_mm: float = 3.0        # rms size of each transducer's mounting translation error
     leg_weight_spread_N: float = 0.05     # spread of leg weights about Table II
     com_body_range_m: tuple = (0.025, 0.012, 0.02)  # body-without-legs CoM drawn uniformly within +- this
-    foot_stiffness_N_per_m: float = 15000.0  # compliant feet: ~1-4 mm compression, 3-6 feet loaded
+    foot_stiffness_N_per_m: float = 5000.0   # compliant PARF leg and foot: 3-5 mm under 15-25 N; 4-6 feet loaded
     toe_depth_m: float = 0.17             # foot below the hip at phi = 0
     toe_depth_spread_mm: float = 1.0
     toe_reach_m: float = 0.10             # foot x = -reach sin(phi)
-    toe_lift_m: float = 0.08              # foot raised by lift*((1 - cos phi)/2)^2
+    toe_lift_m: float = 0.08              # foot raised this much at phi = pi
+    toe_stance_rise_mm: float = 7.5       # foot higher at phi = +-36 deg than at 0 (flat-ish stance arc) ...
+    toe_rise_spread_mm: float = 1.5       # ... by this much more or less, uniformly, per leg
 
     # effect injectors (issue 7): objects following ftcal_nlp.sim.effects.Injector
     effects: tuple = ()
 
     def __post_init__(self) -> None:
         positive = ("rate_hz", "hanging_cycles", "hanging_cycle_s", "pose_s", "walk_freq_hz", "mass_kg", "g",
-                    "foot_stiffness_N_per_m", "toe_depth_m", "transient_decay_per_s", "transient_freq_hz")
+                    "foot_stiffness_N_per_m", "toe_depth_m", "transient_decay_per_s", "transient_freq_hz", "toe_lift_m")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"SimConfig.{name} must be > 0, got {getattr(self, name)!r}")
         nonneg = ("noise_force_N", "noise_torque_Nm", "mocap_jitter_deg", "mocap_dropout_rate", "mocap_blip_rate_hz",
                   "walk_cycles", "gap_s", "move_s", "settle_s", "internal_force_N", "walk_internal_force_N",
-                  "mounting_rot_deg", "mounting_trans_mm", "hanging_tilt_deg")
+                  "mounting_rot_deg", "mounting_trans_mm", "hanging_tilt_deg", "mocap_pose_error_deg",
+                  "board_tilt_deg", "board_friction_mu", "toe_rise_spread_mm", "friction_mu", "ground_roughness_mm")
         for name in nonneg:
             if getattr(self, name) < 0:
                 raise ValueError(f"SimConfig.{name} must be >= 0, got {getattr(self, name)!r}")
@@ -100,6 +117,10 @@ class SimConfig:
             raise ValueError("SimConfig.com_body_range_m needs 3 numbers and mocap_blip_s 2")
         if not 0 <= self.mocap_dropout_rate <= 1:
             raise ValueError(f"SimConfig.mocap_dropout_rate is a probability, got {self.mocap_dropout_rate}")
+        if not 0 <= self.board_pose_fraction <= 1:
+            raise ValueError(f"SimConfig.board_pose_fraction is a fraction in [0, 1], got {self.board_pose_fraction}")
+        if not self.board_tilt_deg < 80:
+            raise ValueError(f"SimConfig.board_tilt_deg must be below 80 deg, got {self.board_tilt_deg}")
 
     @property
     def dt(self) -> float:

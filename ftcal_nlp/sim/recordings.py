@@ -9,7 +9,10 @@ leg on its transducer (report eq. 1, in ft_k about its origin). Readings
   ``R_tilt`` a ~2 deg rotation per recording; every leg turns at its own slow
   speed and phase, so ``w_a = [m_k g u; r_k(phi) x m_k g u]``, ``u = R_k^T R_tilt g_body``.
 * Standing (report Sec. I-B): poses of the 3^6 grid, each solved for the
-  compliant-foot equilibrium (``statics.py``); a pose that tips is skipped; the
+  compliant-foot equilibrium (``statics.py``), a share of them on a board
+  sloping ``board_tilt_deg`` downhill in a random direction (with gravity then
+  far from the body's z, the readings pin down the turn of all transducers about
+  z, which level poses leave free); a pose that tips or slips is skipped; the
   ground force on foot k adds ``[f; foot_k(phi) x f]`` (f in ft_k). After each
   pose change, wrenches and orientation ring into the new equilibrium as an
   underdamped second-order response to the commanded shaft motion.
@@ -28,7 +31,7 @@ import numpy as np
 from scipy import signal
 
 from ..geometry import remove_yaw, rotation_between, rotation_to_rotvec, rotvec_to_rotation
-from .statics import applied_wrench, heading_rotation, internal_forces, solve_stance
+from .statics import applied_wrench, board_rotation, contact_forces, heading_rotation, internal_forces, solve_stance
 
 TRIPOD_A = ("FL", "MR", "HL")
 
@@ -105,24 +108,38 @@ def transition_profile(cfg) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class StandingPoses:
     phi: np.ndarray           # (P, K) kept poses
-    skipped: np.ndarray       # (S, K) poses where the robot would tip
-    R_tilt: np.ndarray        # (P, 3, 3)
+    skipped: np.ndarray       # (S, K) poses where the robot would tip or slip
+    R_tilt: np.ndarray        # (P, 3, 3) B -> W, heading arbitrary
     applied: np.ndarray       # (P, K, 6)
-    ground_W0: np.ndarray     # (P, K, 3) foot forces, heading-free world axes
-    normal_N: np.ndarray      # (P, K)
+    ground_W0: np.ndarray     # (P, K, 3) foot forces, world axes of R_tilt
+    normal_N: np.ndarray      # (P, K) vertical foot forces
+    on_board: np.ndarray | None = None  # (P,) taken on the tilted board
+    R_ground: np.ndarray | None = None  # (P, 3, 3) ground frame (z its normal) -> world axes of R_tilt
 
 
-def solve_poses(truth, cfg, phi_req: np.ndarray, rng: np.random.Generator) -> StandingPoses:
-    """Equilibrium of each requested pose (R, K); tipping poses are set aside."""
+def solve_poses(truth, cfg, phi_req: np.ndarray, rng: np.random.Generator, board_dir: np.ndarray | None = None) -> StandingPoses:
+    """Equilibrium of each requested pose (R, K); tipping or slipping poses are set aside.
+
+    ``board_dir`` (R,): downhill direction (rad, in the board's frame, ~B) of poses
+    taken on the board, NaN for level ground; None: all level.
+    """
     feet_B = truth.ft_to_body(truth.foot_ft(phi_req))
     com_B = truth.total_com_B(phi_req)
-    st = solve_stance(feet_B, com_B, truth.weight_N, cfg.foot_stiffness_N_per_m, max_tilt_deg=cfg.max_tilt_deg)
+    board = np.zeros(len(phi_req), bool) if board_dir is None else np.isfinite(board_dir)
+    ground = None
+    if board.any():
+        ground = np.broadcast_to(np.eye(3), (len(phi_req), 3, 3)).copy()
+        ground[board] = board_rotation(np.radians(cfg.board_tilt_deg), board_dir[board])
+    bumps = rng.normal(0.0, cfg.ground_roughness_mm * 1e-3, phi_req.shape)
+    st = solve_stance(feet_B, com_B, truth.weight_N, cfg.foot_stiffness_N_per_m, max_tilt_deg=cfg.max_tilt_deg,
+                      ground=ground, bumps=bumps)
     raw = rng.normal(0.0, cfg.internal_force_N, phi_req.shape + (2,))
-    h = internal_forces(st.feet_W, st.normal_N, raw, cfg.friction_mu)
-    F = st.normal_N[..., None] * np.array([0.0, 0.0, 1.0]) + h
-    keep = st.ok
+    F, slipping = contact_forces(st, raw, np.where(board, cfg.board_friction_mu, cfg.friction_mu))
+    keep = st.ok & ~slipping
     w = applied_wrench(st.R_tilt[keep], phi_req[keep], truth, F[keep])  # heading drops out of w_a
-    return StandingPoses(phi_req[keep], phi_req[~keep], st.R_tilt[keep], w, F[keep], st.normal_N[keep])
+    R_ground = np.broadcast_to(np.eye(3), (len(phi_req), 3, 3)) if st.R_ground is None else st.R_ground
+    return StandingPoses(phi_req[keep], phi_req[~keep], st.R_tilt[keep], w, F[keep], st.normal_N[keep], board[keep],
+                         np.ascontiguousarray(R_ground[keep]))
 
 
 def standing_series(truth, cfg, t0: float, rng: np.random.Generator, name: str = "standing"):
@@ -132,10 +149,13 @@ def standing_series(truth, cfg, t0: float, rng: np.random.Generator, name: str =
     order = rng.permutation(len(grid))
     if cfg.n_poses is not None:
         order = order[: cfg.n_poses]
-    poses = solve_poses(truth, cfg, grid[order], rng)
+    n_board = int(round(cfg.board_pose_fraction * len(order)))
+    board_dir = np.full(len(order), np.nan)
+    board_dir[rng.choice(len(order), n_board, replace=False)] = rng.uniform(0.0, 2 * np.pi, n_board)
+    poses = solve_poses(truth, cfg, grid[order], rng, board_dir)
     P = len(poses.phi)
     if P == 0:
-        raise ValueError("simulate: the robot tips over in every requested standing pose")
+        raise ValueError("simulate: the robot tips over or slips in every requested standing pose")
     s, y = transition_profile(cfg)
     n = len(s)
     psi = rng.uniform(-np.pi, np.pi) + np.cumsum(rng.normal(0.0, np.radians(cfg.heading_step_deg), P))

@@ -10,10 +10,16 @@ steps 1-2). Each leg hangs from its transducer, so its geometry is fixed in
 * leg CoM ``r_k(phi)`` in ft_k (report Fig. 4 / Fig. 7): ``x, z = A sin(phi + C) + D``,
   ``y`` constant;
 * toe loop (report Fig. 1, right): in the nominal leg frame (B axes at ft_k's
-  origin) ``x = -reach sin(phi)``, ``z = -depth + lift ((1 - cos phi)/2)^2``,
-  ``y`` = an outward constant: straight down at ``phi = 0``, nearly flat over
-  the +-36 deg stance, lifted clear near ``phi = pi``; mapped into ft_k by the
-  nominal rotation (the mounting error then carries it with the transducer).
+  origin) ``x = -reach sin(phi)``, ``y`` = an outward constant and, with
+  ``u = (1 - cos phi)/2``,
+
+      z = -depth + c u + (lift - c) u^3,   c = (rise - lift u_s^3) / (u_s - u_s^3),
+
+  ``u_s = u(36 deg)``: straight down at ``phi = 0``, a flat-ish bottom where the
+  foot stands ``rise`` (several mm, per leg) higher at +-36 deg than at 0 (the
+  four-bar's stance arc, radius ~0.25 m), lifted ``lift`` clear at ``phi = pi``;
+  mapped into ft_k by the nominal rotation (the mounting error then carries it
+  with the transducer).
 
 Offsets ``w_o`` and leg weights ``m_k g`` follow the report's Table II. The body
 without legs has its CoM ``com_body_m`` off the geometric centre; its weight is
@@ -32,6 +38,7 @@ from ..robot import Robot, Transducer
 
 LEGS = ("FL", "ML", "HL", "FR", "MR", "HR")
 COM_GRID_POINTS = 72
+STANCE_EDGE_RAD = np.radians(36.0)  # the report's standing grid angle, where the toe loop's rise is set
 
 # Report Table II: offsets [fx, fy, fz, tx, ty, tz] (N, N*m) in ft_k and leg weights (N).
 TABLE_II_OFFSETS = {
@@ -65,7 +72,9 @@ class TrueRobot:
     (K, 6); ``weights_N`` (K,); leg CoM in ft_k ``com_amp``, ``com_phase``,
     ``com_mean`` (K, 3) with ``r = amp sin(phi + phase) + mean`` (amp of y is 0);
     toe loop ``toe_reach``, ``toe_depth``, ``toe_lift``, ``toe_y`` (K,) in the
-    nominal leg frame; ``com_body_m`` (3,) in B; ``mass_kg`` total.
+    nominal leg frame and ``toe_rise`` (K,), the foot's height at +-36 deg above
+    its lowest point (None: the flattest loop, ``c = 0``); ``com_body_m`` (3,)
+    in B; ``mass_kg`` total.
     """
 
     robot: Robot
@@ -83,6 +92,7 @@ class TrueRobot:
     com_body_m: np.ndarray
     mass_kg: float
     g: float
+    toe_rise: np.ndarray | None = None
 
     @property
     def legs(self) -> tuple[str, ...]:
@@ -110,10 +120,23 @@ class TrueRobot:
     def foot_ft(self, phi: np.ndarray) -> np.ndarray:
         """Toe point in ft_k, (..., K, 3) m (the closed toe loop over ``phi`` (..., K))."""
         phi = np.asarray(phi, float)
-        lift = self.toe_lift * ((1.0 - np.cos(phi)) / 2.0) ** 2
-        leg = np.stack([-self.toe_reach * np.sin(phi), np.broadcast_to(self.toe_y, phi.shape), -self.toe_depth + lift], axis=-1)
+        leg = np.stack([-self.toe_reach * np.sin(phi), np.broadcast_to(self.toe_y, phi.shape), self.toe_height(phi) - self.toe_depth],
+                       axis=-1)
         R_nom = self.robot.nominal_rotations()
         return np.einsum("kji,...kj->...ki", R_nom, leg)  # R_nom^T (nominal leg frame has B axes)
+
+    def toe_height(self, phi: np.ndarray) -> np.ndarray:
+        """Height of the toe above its lowest point (phi = 0), nominal leg frame, (..., K) m."""
+        u = (1.0 - np.cos(np.asarray(phi, float))) / 2.0
+        return self.toe_curve * u + (self.toe_lift - self.toe_curve) * u**3
+
+    @property
+    def toe_curve(self) -> np.ndarray:
+        """``c`` of the toe loop (K,): the stance arc's share of the lift."""
+        if self.toe_rise is None:
+            return np.zeros_like(self.toe_lift)
+        us = (1.0 - np.cos(STANCE_EDGE_RAD)) / 2.0
+        return (self.toe_rise - self.toe_lift * us**3) / (us - us**3)
 
     def ft_to_body(self, x_ft: np.ndarray) -> np.ndarray:
         """Points in ft_k (..., K, 3) -> B (..., K, 3)."""
@@ -201,9 +224,18 @@ def draw_true_robot(cfg, rng: np.random.Generator) -> TrueRobot:
     toe_y = side * rng.uniform(0.045, 0.055, K)
     toe_depth = cfg.toe_depth_m + rng.normal(0.0, cfg.toe_depth_spread_mm * 1e-3, K)
     com_body = rng.uniform(-1.0, 1.0, 3) * np.asarray(cfg.com_body_range_m, float)
+    # Drawn last, so the draws above stay those of earlier versions for a seed.
+    toe_rise = (cfg.toe_stance_rise_mm + rng.uniform(-1.0, 1.0, K) * cfg.toe_rise_spread_mm) * 1e-3
+    # The loop rises monotonically from phi = 0 to pi iff 0 <= c <= 1.5 lift.
+    us = (1.0 - np.cos(STANCE_EDGE_RAD)) / 2.0
+    lo, hi = cfg.toe_lift_m * us**3, cfg.toe_lift_m * (1.5 * (us - us**3) + us**3)
+    if np.any(toe_rise < lo) or np.any(toe_rise > hi):
+        raise ValueError(f"SimConfig: toe_stance_rise_mm +- toe_rise_spread_mm must keep every leg's rise within "
+                         f"[{lo * 1e3:.2f}, {hi * 1e3:.1f}] mm for toe_lift_m = {cfg.toe_lift_m}: else the toe loop is "
+                         f"not lowest at phi = 0 and rising to phi = pi")
     return TrueRobot(
         robot=robot, R=R, p=p, offsets=offsets, weights_N=weights,
         com_amp=com_amp, com_phase=com_phase, com_mean=com_mean,
         toe_reach=np.full(K, cfg.toe_reach_m), toe_depth=toe_depth, toe_lift=np.full(K, cfg.toe_lift_m), toe_y=toe_y,
-        com_body_m=com_body, mass_kg=float(cfg.mass_kg), g=float(cfg.g),
+        com_body_m=com_body, mass_kg=float(cfg.mass_kg), g=float(cfg.g), toe_rise=toe_rise,
     )

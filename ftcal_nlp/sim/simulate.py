@@ -7,10 +7,12 @@ Order on one session clock (like ``shared/sample``): hanging +x, -x, +z, -z
     w_m = w_a + w_o + n,     n ~ N(0, diag(s_f^2 I, s_t^2 I))
 
 with effect injectors (``effects.py``) applied to ``w_a + w_o`` before the
-noise; motion capture reports ``R_WB exp([delta])`` with jitter ``delta`` and
-NaN rows where tracking is lost. Randomness comes from one
-``np.random.SeedSequence(seed)`` split into independent streams (robot,
-hanging, standing, walking, sensors, effects), so a seed fixes every array.
+noise; motion capture reports ``R_WB exp([delta])``, ``delta`` white jitter
+plus, while standing, an error constant through each pose (so a pose's median
+keeps it, as in ``shared/sample``), with NaN rows where tracking is lost.
+Randomness comes from one ``np.random.SeedSequence(seed)`` split into
+independent streams (robot, hanging, standing, walking, sensors, effects, the
+held mocap error), so a seed fixes every array.
 """
 
 from __future__ import annotations
@@ -43,8 +45,12 @@ class SimResult:
     the heading frame about the instantaneous CoM (columns ``t``, ``{leg}_fx``..,
     ``total_fx``..). ``pose_windows`` (P, 2): first and last sample time of each
     standing pose's nominally steady part. ``pose_phi`` (P, K) and
-    ``skipped_pose_phi`` (S, K): kept and tipping poses. ``true_robot``: every
+    ``skipped_pose_phi`` (S, K): kept and tipping (or slipping) poses. ``true_robot``: every
     true parameter; ``hanging_tilt``: the hanging tilt rotation per recording.
+    ``pose_on_board`` (P,): poses on the tilted board; ``pose_ground_N`` (P, K, 3):
+    true ground force on each foot, N, in world axes up to the pose's heading (z up);
+    ``pose_mocap_error`` (P, 3): the motion-capture error rotation vector (rad,
+    body axes) held through each pose, white jitter aside.
     """
 
     dataset: Dataset
@@ -57,6 +63,9 @@ class SimResult:
     pose_phi: np.ndarray | None = None
     skipped_pose_phi: np.ndarray | None = None
     hanging_tilt: dict = field(default_factory=dict)
+    pose_on_board: np.ndarray | None = None
+    pose_ground_N: np.ndarray | None = None
+    pose_mocap_error: np.ndarray | None = None
 
     def truth_json_dict(self) -> dict:
         """``truth.json`` content, in the layout of ``shared/sample/truth.json``."""
@@ -65,8 +74,9 @@ class SimResult:
 
 
 def _sensor_readings(ser: TrueSeries, truth: TrueRobot, cfg: SimConfig, rng: np.random.Generator,
-                     effect_rngs: list) -> tuple[np.ndarray, np.ndarray | None]:
-    """Readings (N, K, 6) and quaternions (N, 4) (None when hanging) of one recording."""
+                     effect_rngs: list, pose_error: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Readings (N, K, 6) and quaternions (N, 4) (None when hanging) of one recording;
+    ``pose_error`` (P, 3) mocap error held through each standing pose (rotation vectors, rad)."""
     ctx = dict(kind=ser.kind, name=ser.name, t=ser.t, phi=ser.phi, R_WB=ser.R_WB, applied=ser.applied,
                pose_index=ser.pose_index, truth=truth)
     clean = apply_readings(cfg.effects, ctx, ser.applied + truth.offsets, effect_rngs)
@@ -75,6 +85,8 @@ def _sensor_readings(ser: TrueSeries, truth: TrueRobot, cfg: SimConfig, rng: np.
     if ser.kind == "hanging":
         return w_m, None
     delta = rng.normal(0.0, np.radians(cfg.mocap_jitter_deg), (len(ser.t), 3))
+    if pose_error is not None:
+        delta += pose_error[ser.pose_index]
     R_meas = apply_orientation(cfg.effects, ctx, ser.R_WB @ rotvec_to_rotation(delta), effect_rngs)
     quat = rotation_to_quat(R_meas)
     if ser.mocap_lost is not None:
@@ -106,7 +118,7 @@ def walk_truth_frame(t: np.ndarray, ground: np.ndarray, legs: tuple[str, ...]) -
 def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
     """Simulate a session (hanging x4, standing, walking) and its truth; deterministic in ``cfg.seed``."""
     ss = np.random.SeedSequence(cfg.seed)
-    s_robot, s_hang, s_stand, s_walk, s_sensor, s_effect = ss.spawn(6)
+    s_robot, s_hang, s_stand, s_walk, s_sensor, s_effect, s_mocap = ss.spawn(7)
     truth = draw_true_robot(cfg, np.random.default_rng(s_robot))
     legs = truth.legs
     rng_hang = np.random.default_rng(s_hang)
@@ -123,11 +135,13 @@ def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
         series.append(walk)
 
     rng_sensor = np.random.default_rng(s_sensor)
+    # Its own stream: the readings' noise stays that of a seed whatever this error's size.
+    pose_error = np.random.default_rng(s_mocap).normal(0.0, np.radians(cfg.mocap_pose_error_deg), (len(poses.phi), 3))
     effect_seeds = s_effect.spawn(len(series))
     recs = []
     for ser, es in zip(series, effect_seeds):
         effect_rngs = [np.random.default_rng(s) for s in es.spawn(len(cfg.effects))]
-        w_m, quat = _sensor_readings(ser, truth, cfg, rng_sensor, effect_rngs)
+        w_m, quat = _sensor_readings(ser, truth, cfg, rng_sensor, effect_rngs, pose_error if ser.kind == "standing" else None)
         recs.append(_recording(ser, legs, w_m, quat))
     ds = Dataset(apply_robot(cfg.effects, truth.robot), tuple(recs))
     wt = walk_truth_frame(walk.t, ground, legs) if walk is not None else walk_truth_frame(np.zeros(0), np.zeros((0, len(legs), 6)), legs)
@@ -142,4 +156,7 @@ def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
         pose_phi=poses.phi,
         skipped_pose_phi=poses.skipped,
         hanging_tilt={s.name: s.extra["R_tilt"] for s in series if s.kind == "hanging"},
+        pose_on_board=poses.on_board,
+        pose_ground_N=poses.ground_W0,
+        pose_mocap_error=pose_error,
     )
