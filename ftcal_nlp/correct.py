@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
-from .data import WRENCH_COMPONENTS, DataFormatError, Recording, recording_from_frame, _read_table
+from .data import WRENCH_COMPONENTS, DataFormatError, Recording, _read_table, ground_wrench_frame, recording_from_frame
 from .geometry import quat_to_rotation
 from .physics import ground_wrenches
 from .robot import Robot, Transducer
@@ -47,14 +47,7 @@ def correct_recording(cal: Calibration, rec: Recording) -> pd.DataFrame:
         rec = rec.select(ok)
     legs = cal.leg_names
     gw = ground_wrenches(rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat), cal)
-    cols: dict[str, np.ndarray] = {"t": rec.t}
-    for i, k in enumerate(legs):
-        for j, c in enumerate(WRENCH_COMPONENTS):
-            cols[f"{k}_{c}"] = gw[:, i, j]
-    total = gw.sum(axis=1)
-    for j, c in enumerate(WRENCH_COMPONENTS):
-        cols[f"total_{c}"] = total[:, j]
-    return pd.DataFrame(cols)
+    return ground_wrench_frame(rec.t, gw, legs)
 
 
 def correct_file(cal: Calibration, path: str | Path) -> pd.DataFrame:

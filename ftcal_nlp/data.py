@@ -359,6 +359,19 @@ def recording_to_frame(rec: Recording, legs: Iterable[str]) -> pd.DataFrame:
     return pd.DataFrame(cols)
 
 
+def ground_wrench_frame(t: np.ndarray, ground: np.ndarray, legs: Iterable[str]) -> pd.DataFrame:
+    """Table of a corrected recording (``OUTPUT_FORMAT.md``): ``t``, ``{leg}_fx..tz`` per foot and
+    ``total_fx..tz``, from per-foot wrenches ``ground`` (N, K, 6) in the heading frame."""
+    cols: dict[str, np.ndarray] = {"t": t}
+    for i, k in enumerate(legs):
+        for j, c in enumerate(WRENCH_COMPONENTS):
+            cols[f"{k}_{c}"] = ground[:, i, j]
+    total = ground.sum(axis=1)
+    for j, c in enumerate(WRENCH_COMPONENTS):
+        cols[f"total_{c}"] = total[:, j]
+    return pd.DataFrame(cols)
+
+
 def write_robot(robot: Robot, path: str | Path) -> None:
     import tomli_w
 

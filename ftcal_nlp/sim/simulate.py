@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ..calibration import Calibration
-from ..data import WRENCH_COMPONENTS, Dataset, Recording
+from ..data import Dataset, Recording, ground_wrench_frame
 from ..geometry import rotation_to_quat, rotvec_to_rotation
 from .config import SimConfig
 from .effects import apply_orientation, apply_readings, apply_robot, effect_label
@@ -103,18 +103,6 @@ def _recording(ser: TrueSeries, legs: tuple[str, ...], w_m: np.ndarray, quat: np
     )
 
 
-def walk_truth_frame(t: np.ndarray, ground: np.ndarray, legs: tuple[str, ...]) -> pd.DataFrame:
-    """``walk_truth.csv`` table: ``t``, per-foot and total wrenches (N, K, 6) in the heading frame."""
-    cols: dict[str, np.ndarray] = {"t": t}
-    for i, k in enumerate(legs):
-        for j, c in enumerate(WRENCH_COMPONENTS):
-            cols[f"{k}_{c}"] = ground[:, i, j]
-    total = ground.sum(axis=1)
-    for j, c in enumerate(WRENCH_COMPONENTS):
-        cols[f"total_{c}"] = total[:, j]
-    return pd.DataFrame(cols)
-
-
 def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
     """Simulate a session (hanging x4, standing, walking) and its truth; deterministic in ``cfg.seed``."""
     ss = np.random.SeedSequence(cfg.seed)
@@ -144,7 +132,7 @@ def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
         w_m, quat = _sensor_readings(ser, truth, cfg, rng_sensor, effect_rngs, pose_error if ser.kind == "standing" else None)
         recs.append(_recording(ser, legs, w_m, quat))
     ds = Dataset(apply_robot(cfg.effects, truth.robot), tuple(recs))
-    wt = walk_truth_frame(walk.t, ground, legs) if walk is not None else walk_truth_frame(np.zeros(0), np.zeros((0, len(legs), 6)), legs)
+    wt = ground_wrench_frame(walk.t, ground, legs) if walk is not None else ground_wrench_frame(np.zeros(0), np.zeros((0, len(legs), 6)), legs)
     return SimResult(
         dataset=ds,
         truth=truth.calibration(),
