@@ -47,6 +47,13 @@ def periodic_interp(phi: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np
     return out
 
 
+def _nulls(x):
+    """Nested lists with non-finite floats replaced by None."""
+    if isinstance(x, list):
+        return [_nulls(v) for v in x]
+    return x if np.isfinite(x) else None
+
+
 @dataclass(frozen=True)
 class Calibration:
     """A finished (or true) calibration of a robot; serialised as ``calibration.json``."""
@@ -80,7 +87,11 @@ class Calibration:
 
     def to_json_dict(self) -> dict:
         def lst(a):
-            return None if a is None else np.where(np.isfinite(a), a, np.nan).tolist()
+            # strict JSON has no NaN/inf: a value the data do not determine is written as null
+            if a is None:
+                return None
+            a = np.asarray(a, dtype=float)
+            return None if a.ndim == 0 and not np.isfinite(a) else _nulls(a.tolist())
 
         legs = {}
         for k, l in self.legs.items():
@@ -88,14 +99,14 @@ class Calibration:
                 "offset": lst(l.offset),
                 "offset_se": lst(l.offset_se),
                 "leg_weight_N": float(l.leg_weight_N),
-                "leg_weight_se_N": None if l.leg_weight_se_N is None else float(l.leg_weight_se_N),
-                "leg_com_grid": {"phi": lst(l.com_phi), "xyz": [[None if not np.isfinite(v) else float(v) for v in r] for r in l.com_xyz]},
+                "leg_weight_se_N": None if l.leg_weight_se_N is None or not np.isfinite(l.leg_weight_se_N) else float(l.leg_weight_se_N),
+                "leg_com_grid": {"phi": lst(l.com_phi), "xyz": lst(l.com_xyz)},
                 "rotation_to_body": lst(l.rotation_to_body),
                 "position_from_com_m": lst(l.position_from_com_m),
                 "position_from_com_se_m": lst(l.position_from_com_se_m),
             }
             if l.com_xyz_se is not None:
-                d["leg_com_grid"]["xyz_se"] = [[None if not np.isfinite(v) else float(v) for v in r] for r in l.com_xyz_se]
+                d["leg_com_grid"]["xyz_se"] = lst(l.com_xyz_se)
             legs[k] = d
         return {
             "model": self.model,
@@ -107,7 +118,7 @@ class Calibration:
         }
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json_dict(), indent=1, allow_nan=True))
+        Path(path).write_text(json.dumps(self.to_json_dict(), indent=1, allow_nan=False))
 
     @classmethod
     def from_json_dict(cls, d: dict, *, mass_kg: float | None = None, g: float | None = None, source: str = "calibration") -> "Calibration":

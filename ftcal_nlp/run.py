@@ -150,7 +150,10 @@ def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
                     standing_base = fit_standing(poses, prior, robot, model=model_name, solver="baseline", balance=cfg.standing.balance)
                 except RuntimeError as exc:  # a failed baseline is a finding, not a reason to stop
                     log.warning("baseline standing solver failed: %s", exc)
-    cal = replace(standing.calibration, model=str(model_name), meta={"config": str(cfg.path), "solver": cfg.standing.solver, "balance": cfg.standing.balance})
+    meta = {"config": str(cfg.path), "solver": cfg.standing.solver, "balance": cfg.standing.balance,
+            # null standard errors in calibration.json are these: directions the poses do not determine
+            "unidentified": list(getattr(standing, "unidentified_params", ()))}
+    cal = replace(standing.calibration, model=str(model_name), meta=meta)
 
     result = RunResult(cfg, ds, cal, hang, hang_base, poses, selection, standing, standing_base, truth=truth, timings=timings)
     with stage("write calibration", timings):

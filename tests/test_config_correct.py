@@ -95,3 +95,24 @@ def test_pose_thresholds_are_config_keys(tmp_path):
     assert cfg.standing.poses.deriv_threshold_N_s == 2.5 and cfg.standing.poses.min_steady_s == 1.0 and cfg.standing.poses.deriv_norm == "total"
     with pytest.raises(ConfigError, match=r"\[standing.poses\].*deriv_norm"):
         load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nderiv_norm = "max"\n'))
+
+
+def test_calibration_json_is_strict_and_round_trips(truth_calibration, tmp_path):
+    cal = Calibration.load(truth_calibration)
+    leg = cal.legs["FL"]
+    from dataclasses import replace
+
+    # an undetermined se (inf) and an unsupported CoM grid point (NaN) become null, and come back as NaN
+    se = np.array([0.1, np.inf, 0.1])
+    xyz = leg.com_xyz.copy()
+    xyz[3] = np.nan
+    odd = replace(cal, legs={**cal.legs, "FL": replace(leg, position_from_com_se_m=se, com_xyz=xyz)})
+    path = tmp_path / "c.json"
+    odd.save(path)
+    text = path.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+    back = Calibration.load(path)
+    assert np.isnan(back.legs["FL"].position_from_com_se_m[1]) and np.isnan(back.legs["FL"].com_xyz[3]).all()
+    np.testing.assert_allclose(back.legs["ML"].com_xyz, cal.legs["ML"].com_xyz)
+    np.testing.assert_allclose(back.legs["FR"].rotation_to_body, cal.legs["FR"].rotation_to_body)
