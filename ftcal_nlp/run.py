@@ -143,7 +143,10 @@ def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
                 model_name = selection.best
                 log.info("model selection:\n%s", selection.table().to_string(index=False))
         with stage("standing", timings):
-            standing = fit_standing(poses, prior, robot, model=model_name, solver=cfg.standing.solver, balance=cfg.standing.balance)
+            if selection is not None and model_name in selection.results:
+                standing = selection.results[model_name]  # selection already fitted it to all poses
+            else:
+                standing = fit_standing(poses, prior, robot, model=model_name, solver=cfg.standing.solver, balance=cfg.standing.balance)
         if cfg.standing.compare_baseline and cfg.standing.solver != "baseline":
             with stage("standing (baseline)", timings):
                 try:

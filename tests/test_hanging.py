@@ -384,3 +384,15 @@ def test_ipopt_failure_is_reported(tiny, monkeypatch):
     monkeypatch.setitem(nlp_module._IPOPT, "ipopt.max_iter", 1)
     with pytest.raises(HangingSolveError, match=r"leg L: IPOPT failed.*\['rec0', 'rec1', 'rec2', 'rec3'\]"):
         fit_hanging(recs, robot)
+
+
+def test_no_smoothing_is_allowed():
+    """smoothing=0 (no penalty) is a valid setting: the fit runs and still recovers the weights."""
+    from conftest import SAMPLE
+    from ftcal_nlp.data import read_dataset
+
+    ds = read_dataset(SAMPLE / "dataset.toml", kinds=["hanging"])
+    truth = Calibration.load(SAMPLE / "truth.json", g=9.81)
+    res = fit_hanging(ds.hanging, ds.robot, smoothing=0.0)
+    for k, l in res.legs.items():
+        assert abs(l.leg_weight_N - truth.legs[k].leg_weight_N) < 4 * l.leg_weight_se_N

@@ -129,7 +129,7 @@ def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str = "auto", nlp_cac
         lam_moved = False
         if rounds <= GCV_ROUNDS:
             lam_new, design = _smoothing(problem, s, W, smoothing)
-            lam_moved = lam is None or abs(lam_new / lam - 1.0) >= LAM_RTOL
+            lam_moved = lam is None or abs(lam_new - lam) >= LAM_RTOL * abs(lam)  # lam may be 0 (no smoothing)
             if lam_moved:  # otherwise keep lam, so that J stays one function between rounds
                 lam = lam_new
                 s = _qp_step(problem, qp, s, design, lam)

@@ -1,0 +1,1 @@
+"""Benchmarks (issue 8): accuracy against the Cramer-Rao bound, speed, scaling, profile."""

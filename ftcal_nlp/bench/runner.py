@@ -1,0 +1,104 @@
+"""The bench as one call: settings for the quick and the full run, and :func:`run_bench`.
+
+Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
+(speed.py), ``scaling`` (scaling.py), ``profile`` (profile.py, on the speed
+bench's problem). Results are written by report.py into ``out``.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .accuracy import AccuracySettings
+from .scaling import HANGING_TASKS, ScalingSettings
+from .speed import SpeedSettings
+
+PARTS = ("accuracy", "speed", "scaling", "profile")
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    accuracy: AccuracySettings = field(default_factory=AccuracySettings)
+    speed: SpeedSettings = field(default_factory=SpeedSettings)
+    scaling: ScalingSettings = field(default_factory=ScalingSettings)
+    profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
+    profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
+    parts: tuple[str, ...] = PARTS
+    mode: str = "full"
+
+
+def full_settings() -> BenchSettings:
+    """The full bench (~10 min on 2 shared cores): 20 datasets and all four pipelines, 3 repeats, 28 scaling points."""
+    return BenchSettings(accuracy=AccuracySettings(pipelines=("nlp", "baseline", "baseline_exact_balance", "nlp_report_balance")))
+
+
+def quick_settings() -> BenchSettings:
+    """The quick bench (~2 min): 4 datasets, one repeat, 9 scaling points (no tracemalloc), the slowest calibration stage profiled."""
+    return BenchSettings(
+        accuracy=AccuracySettings(seeds=(0, 1, 2, 3)),
+        speed=SpeedSettings(repeats=1),
+        scaling=ScalingSettings(poses=(100, 1000, 10000), hanging_samples=(10_000, 30_000, 100_000),
+                                standing_tasks=("selection_nlp",), hanging_tasks=HANGING_TASKS, tracemalloc=False),
+        profile_all=False,
+        profile_count=1,
+        mode="quick",
+    )
+
+
+def tiny_settings() -> BenchSettings:
+    """A few seconds' smoke run (tests): one small dataset, a small speed problem, two scaling points."""
+    sim_small = {"hanging_cycles": 1.5, "n_poses": 60, "walk_cycles": 0.5}
+    return BenchSettings(
+        accuracy=AccuracySettings(seeds=(0,), hanging_cycles=1.5, n_poses=60),
+        speed=SpeedSettings(repeats=1, sim_overrides=sim_small, folds=3, diagnosis=False),
+        scaling=ScalingSettings(poses=(100, 200), hanging_samples=(), standing_tasks=("standing_nlp",), hanging_tasks=(),
+                                base_sim={"hanging_cycles": 1.5, "n_poses": 60}, tracemalloc=False),
+        profile_all=False,
+        profile_count=1,
+        mode="tiny",
+    )
+
+
+def _slowest(times, k: int = 2) -> list[str]:
+    """Names of the slowest NLP-side stages (profile keys of speed.profile_targets)."""
+    t = times[times.method.isin(["nlp", "shared"])].dropna(subset=["wall_s"]).sort_values("wall_s", ascending=False)
+    keys = []
+    for r in t.itertuples():
+        key = r.stage if r.stage in ("load", "poses", "report", "diagnosis") else f"{r.stage} (nlp)"
+        if key not in keys:
+            keys.append(key)
+    calib = [f"{s} (nlp)" for s in ("hanging", "model selection", "standing")]
+    slow_calib = next(k_ for k_ in keys if k_ in calib)
+    out = [slow_calib] + [k_ for k_ in keys if k_ != slow_calib][: k - 1]
+    return out
+
+
+def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progress: bool = True) -> dict:
+    """Run the chosen parts, write tables, figures and ``summary.md`` into ``out``; returns the results and the text."""
+    from threadpoolctl import threadpool_limits
+
+    from . import report
+    from .accuracy import run_accuracy
+    from .profile import profile_stages
+    from .scaling import run_scaling
+    from .speed import profile_targets, run_speed
+
+    acc = sp = sc = prof = None
+    with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
+        if "accuracy" in settings.parts:
+            acc = run_accuracy(settings.accuracy, progress=progress)
+        if "speed" in settings.parts or "profile" in settings.parts:
+            sp = run_speed(settings.speed, progress=progress)
+        if "profile" in settings.parts:
+            keep = None if settings.profile_all else _slowest(sp["times"], settings.profile_count)
+            with tempfile.TemporaryDirectory(prefix="ftcal_profile_") as tmp:
+                prof = profile_stages(profile_targets(sp["context"], Path(tmp), keep))
+        if "scaling" in settings.parts:
+            sc = run_scaling(settings.scaling, progress=progress)
+    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode)
+    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "summary": text}
+
+
+__all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]
