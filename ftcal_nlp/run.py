@@ -210,6 +210,36 @@ def summary_text(res: RunResult) -> str:
     return "\n".join(lines)
 
 
+def _is_validation_config(path: str) -> bool:
+    import tomllib
+
+    p = Path(path)
+    if not p.is_file():
+        return False
+    try:
+        return "validation" in tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError:
+        return False  # load_config reports it
+
+
+def _run_validation(path: str, force: bool, run_validation) -> int:
+    """A ``[validation]`` config: the withheld-effect validation of the diagnosis (issue 7)."""
+    import tomllib
+
+    p = Path(path)
+    d = tomllib.loads(p.read_text())
+    out = d.get("output", {}).get("dir")
+    if not isinstance(out, str):
+        raise ConfigError(f"{p} [output].dir: expected a path string for the output folder")
+    folder = p.parent / out
+    prepare_output(folder, force)
+    try:
+        run_validation(d["validation"], folder)
+    except ValueError as exc:
+        raise ConfigError(f"{p}: {exc}") from exc
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.run", description="Calibrate the transducers of a legged robot from a dataset.")
     ap.add_argument("config", help="run config (TOML), e.g. problems/bigant_sim.toml")
@@ -218,6 +248,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     try:
+        if _is_validation_config(args.config):
+            from .diagnose.validate import run_validation
+
+            with threadpool_limits(limits=1):
+                return _run_validation(args.config, args.force, run_validation)
         cfg = load_config(args.config)
         # many small LAPACK calls: threaded BLAS only adds contention on a few cores
         with threadpool_limits(limits=1):

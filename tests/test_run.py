@@ -161,3 +161,19 @@ def test_sample_walk_correction_within_noise(sample_run):
     rms = np.sqrt((err**2).mean(axis=(0, 1)))
     print("sample walk RMS error per component", rms)
     assert np.all(rms[:3] < 1.5 * 0.05) and np.all(rms[3:] < 1.5 * 0.011)
+
+
+def test_validation_config_dispatches_to_the_withheld_effect_validation(tmp_path, capsys):
+    """A config with a [validation] table runs the diagnosis validation (issue 7) through run's CLI."""
+    cfg = tmp_path / "val.toml"
+    cfg.write_text(
+        '[validation]\nn_datasets = 1\nseed = 2\nclean_share = 0.0\neffects = ["robot_mass"]\nmagnitude = "test"\n'
+        '[validation.simulate]\nn_poses = 80\nhanging_cycles = 1.0\nwalk_cycles = 0.5\n'
+        f'[output]\ndir = "{tmp_path}/out"\n'
+    )
+    assert main([str(cfg)]) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    rows = pd.read_csv(tmp_path / "out" / "datasets.csv")
+    assert len(rows) == 1 and rows.iloc[0].astype(str).str.contains("robot_mass").sum() >= 2, rows.iloc[0].to_dict()
+    assert summary["accuracy"] == 1.0
+    assert main([str(cfg)]) == 2 and "--force" in capsys.readouterr().err

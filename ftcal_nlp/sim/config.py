@@ -93,6 +93,10 @@ class SimConfig:
     effects: tuple = ()
 
     def __post_init__(self) -> None:
+        if any(not hasattr(e, "readings") for e in self.effects):  # names or tables -> injectors
+            from .effects import make_effects
+
+            object.__setattr__(self, "effects", make_effects(tuple(self.effects), where="SimConfig.effects"))
         positive = ("rate_hz", "hanging_cycles", "hanging_cycle_s", "pose_s", "walk_freq_hz", "mass_kg", "g",
                     "foot_stiffness_N_per_m", "toe_depth_m", "transient_decay_per_s", "transient_freq_hz", "toe_lift_m")
         for name in positive:

@@ -108,6 +108,8 @@ def make_effects(spec: Any, *, where: str = "effects") -> tuple[Injector, ...]:
             continue
         else:
             raise ValueError(f"{where}[{i}]: expected an effect name or a table with key 'name', got {item!r}")
+        if name not in EFFECTS:  # the effect library registers its injectors on import
+            import ftcal_nlp.diagnose.effects  # noqa: F401
         if name not in EFFECTS:
             raise ValueError(f"{where}[{i}]: unknown effect '{name}'; known effects: {sorted(EFFECTS) or '(none registered)'}")
         out.append(EFFECTS[name](**kw))

@@ -1,0 +1,275 @@
+"""Attribution: every candidate effect added in turn, scored on data it was not fitted to.
+
+For each effect of the library and each recording kind where it has a face:
+
+* standing: the selected error model plus the effect (``standing_fit.py``),
+  k-fold cross-validated over the poses (the folds of ``selection.fold_indices``),
+  against the model alone under the same folds; ``delta_bic`` from the full-data
+  fits with the effective number of added parameters;
+* hanging and walking swing: the linear faces (``linear_fit.py``), contiguous
+  time-block folds;
+* design (mocap_bias, tether_force): when the model frees the transducer
+  rotations it absorbs a mocap bias (and a tether's horizontal force) as one
+  common tilt of all fitted frames; :func:`~.effects.body.design_check` tests for it.
+
+Effects are ranked by the sum of their ``delta_bic`` over the kinds where the
+gap lies (BIC penalises the parameters a candidate spends; the held-out
+improvement says whether it beats the floor). Verdict (``decide``):
+
+* a kind has a gap when its held-out excess over the floor, ``mean_c
+  (mse_c / floor_c^2) - 1``, exceeds its threshold (standing: 0.5, and four of
+  its sampling standard errors ``sqrt(2/P)``; hanging 0.1; walking swing 1.0, whose
+  floor comes from few samples);
+  the design kind when its ``delta_bic < -10``;
+* ``none``: no gap anywhere;
+* ``effect``: the candidate with the lowest ``delta_bic`` among those with
+  ``delta_bic < -10`` (strong evidence) that remove at least half of the excess,
+  averaged over the kinds with a gap (weights ``log(1 + excess)``) (a candidate that only fits the calibration's
+  own small errors, e.g. a mass term absorbing the hanging leg weights' error,
+  does not explain a gap elsewhere);
+* ``unexplained``: a gap that no candidate explains.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import casadi as ca
+import numpy as np
+
+from ..selection import fold_indices
+from .effects import Effect, design_check
+from .linear_fit import base_linear, recalibrate, score_linear
+from .localise import standing_nugget
+from .scores import KindScore
+from .standing_fit import AugmentedFitError, AugmentedProblem
+from .views import Views, to_world
+
+log = logging.getLogger(__name__)
+
+DBIC_STRONG = -10.0
+EXPLAINED_MIN = 0.5
+GAP_THRESHOLD = {"standing": 0.5, "hanging": 0.1, "walking swing": 1.0}
+DESIGN_EFFECTS = ("mocap_bias", "tether_force")
+
+
+@dataclass(frozen=True)
+class EffectScore:
+    """One candidate: per-kind scores, design check, parameters fitted on all standing poses."""
+
+    effect: str
+    kinds: dict
+    status: str = "ok"
+    design: dict | None = None
+    eta: np.ndarray | None = None
+    param_names: tuple = ()
+    note: str = ""
+    time_s: float = 0.0
+
+    @property
+    def delta_bic(self) -> float:
+        """Sum over every kind the effect was scored on (and the design check)."""
+        return self.delta_bic_on(None)
+
+    def delta_bic_on(self, kinds) -> float:
+        """Sum over ``kinds`` (None: all; ``"design"`` for the design check)."""
+        if self.status != "ok":
+            return float("nan")
+        d = sum(s.delta_bic for k, s in self.kinds.items() if kinds is None or k in kinds)
+        if self.design is not None and (kinds is None or "design" in kinds):
+            d += self.design["delta_bic"]
+        return float(d)
+
+
+@dataclass(frozen=True)
+class Attribution:
+    base: dict                       # kind -> KindScore of the model alone
+    scores: list                     # EffectScore, best first
+    design: dict | None              # design check of the fitted frames (None: rotations not free)
+    standing_heldout: np.ndarray | None = None   # (P, 6) W axes, model alone
+    standing_after: dict = field(default_factory=dict)  # effect -> (P, 6) held-out residuals with it
+    model: str = ""
+    balance: str = "exact"
+    views: Views | None = None       # the views scored (standing floor with its nugget)
+    folds: list = field(default_factory=list)
+
+
+def _standing_cv(problem: AugmentedProblem, view, folds: list, x0: np.ndarray):
+    """Full fit, effective dof and held-out residuals (P, 6, W axes) of one problem."""
+    Phi = problem.design(view.data)
+    P = view.P
+    x = problem.fit(Phi, np.full(P, 1.0 / P), x0)
+    dof = problem.effective_dof(x, Phi)
+    held = np.zeros((P, 6))
+    for test in folds:
+        w = np.full(P, 1.0 / (P - len(test)))
+        w[test] = 0.0
+        xf = problem.fit(Phi, w, x)
+        held[test] = problem.residuals(xf, Phi[test])
+    r_in = to_world(problem.residuals(x, Phi), view.R_WB)
+    return x, dof, to_world(held, view.R_WB), r_in
+
+
+def _kind_score(kind, floor, held_before, held_after, in_before, in_after, dof) -> KindScore:
+    s = np.where(floor > 0, floor, 1.0)
+    return KindScore(kind, (held_before**2).mean(0), (held_after**2).mean(0), floor,
+                     float(((held_before / s) ** 2).sum()), float(((held_after / s) ** 2).sum()),
+                     float(((in_before / s) ** 2).sum()), float(((in_after / s) ** 2).sum()), held_before.size, int(dof))
+
+
+def _transforms(problem: AugmentedProblem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """The fitted rotations (K, 3, 3) and, for models that fit them, offsets (K, 6) at ``x``."""
+    xm = x[: problem.n_model]
+    R = np.stack([np.asarray(ca.Function("R", [problem.spec.x], [Rk])(xm)) for Rk in problem.spec.R])
+    off = None
+    if problem.spec.offsets is not None:
+        off = np.stack([np.asarray(ca.Function("o", [problem.spec.x], [o])(xm)).ravel() for o in problem.spec.offsets])
+    return R, off
+
+
+def rotations_free(problem: AugmentedProblem) -> bool:
+    """Does the error model estimate the transducer rotations (so that it absorbs a common tilt)?"""
+    return any(ca.depends_on(R, problem.spec.x) for R in problem.spec.R)
+
+
+def attribute(views: Views, effects: list[Effect], model, prior, robot, balance: str, *, folds: int = 5, seed: int = 0,
+              x_start: np.ndarray | None = None) -> Attribution:
+    """Score every effect in ``effects`` (module docstring); ``x_start`` the model's fitted x (warm start)."""
+    base: dict = {}
+    base_off = None
+    sv = views.standing
+    base_prob = None
+    held0 = None
+    design = None
+    fidx = None
+    if sv is not None:
+        base_prob = AugmentedProblem(model, prior, robot, balance)
+        fidx = fold_indices(sv.P, folds, seed)
+        x0 = base_prob.x0 if x_start is None or len(x_start) != base_prob.n_model else x_start
+        xb, dof_b, held0, in0 = _standing_cv(base_prob, sv, fidx, x0)
+        offsets = prior.stacked(robot.legs)[0]
+        nugget = standing_nugget(sv, held0, offsets)
+        sv = replace(sv, floor=np.maximum(sv.floor, nugget), floor_parts={**sv.floor_parts, "nugget": nugget})
+        views = replace(views, standing=sv)
+        base["standing"] = _kind_score("standing", sv.floor, held0, held0, in0, in0, 0)
+        base_off = _transforms(base_prob, xb)[1]
+        if rotations_free(base_prob):
+            design = design_check(_transforms(base_prob, xb)[0], robot.nominal_rotations())
+    if views.hanging is not None:
+        base["hanging"] = base_linear(views.hanging)
+    if views.swing is not None:
+        base["walking swing"] = base_linear(views.swing)
+
+    scores, after = [], {}
+    for eff in effects:
+        t0 = time.perf_counter()
+        kinds: dict = {}
+        status, note, eta, names, recal = "ok", "", None, (), None
+        try:
+            if sv is not None and eff.needs_report_balance and balance != "report":
+                note = "not applicable: the calibration already uses the exact balance (moving CoMs included)"
+            elif sv is not None:
+                prob = AugmentedProblem(model, prior, robot, balance, eff)
+                if prob.n_eta > 0 or prob.balance != balance:
+                    x0 = np.concatenate([xb, prob.x0[prob.n_model :]])
+                    x, dof, held, r_in = _standing_cv(prob, sv, fidx, x0)
+                    kinds["standing"] = _kind_score("standing", sv.floor, held0, held, in0, r_in, dof - dof_b)
+                    after[eff.name] = held
+                    eta = prob.eta(x)
+                    names = prob.params.names if prob.params is not None else ()
+                    recal = _transforms(prob, x)
+            if views.hanging is not None:
+                face = eff.hanging_features(views.hanging.legs)
+                if face is not None:
+                    kinds["hanging"], _ = score_linear(views.hanging, face, folds)
+            if views.swing is not None:
+                # The swing legs' weights are predicted with the calibration's rotations: with the
+                # effect added to the standing fit they move, and the swing residual with them.
+                sw_after = None
+                if recal is not None:
+                    sw_after = recalibrate(views.swing, recal[0], recal[1], base_off)
+                face = eff.swing_features(views.swing.legs if sw_after is None else sw_after.legs)
+                if face is not None or sw_after is not None:
+                    kinds["walking swing"], _ = score_linear(views.swing, face, folds, after=sw_after)
+        except AugmentedFitError as exc:
+            status = f"failed: {exc.status}"
+            log.warning("diagnosis: %s", exc)
+        dsg = design if (eff.name in DESIGN_EFFECTS and design is not None) else None
+        if not kinds and dsg is None:
+            note = note or "no face on these recordings"
+            if status == "ok":
+                status = "not applicable"
+        scores.append(EffectScore(eff.name, kinds, status, dsg, eta, names, note, time.perf_counter() - t0))
+    att = Attribution(base, scores, design, held0, after, getattr(base_prob.model, "name", str(model)) if base_prob else str(model),
+                      balance, views, fidx or [])
+    return replace(att, scores=ranked(att))
+
+
+def ranking_bic(score: EffectScore, gap: dict) -> float:
+    """What candidates are ranked by: ``delta_bic`` summed over the kinds with a gap (all kinds
+    when there is none). Elsewhere the calibration's own small errors would reward any flexible
+    face (a tether's per-leg tilts fitting the few-mN swing residual a mass error leaves)."""
+    return score.delta_bic_on(list(gap) if gap else None)
+
+
+def ranked(att: Attribution) -> list:
+    gap = gaps(att)
+    # Ties (two candidates explaining a design-only gap alike) go to the smaller total dBIC: the
+    # candidate whose other faces spend parameters for nothing loses.
+    key = lambda s: (s.status != "ok" or (not s.kinds and s.design is None), np.nan_to_num(ranking_bic(s, gap), nan=np.inf),
+                     np.nan_to_num(s.delta_bic, nan=np.inf))
+    return sorted(att.scores, key=key)
+
+
+# ----------------------------------------------------------------------------- verdict
+
+
+def gap_threshold(kind: str, score: KindScore) -> float:
+    thr = GAP_THRESHOLD.get(kind, 0.25)
+    if kind == "standing":
+        thr = max(thr, 4.0 * np.sqrt(2.0 / max(score.n / 6, 1)))
+    return thr
+
+
+def gaps(att: Attribution) -> dict:
+    """Kinds with a gap -> their excess over the floor (design: -delta_bic / 10 as a size)."""
+    out = {}
+    for kind, s in att.base.items():
+        if s.excess_before > gap_threshold(kind, s):
+            out[kind] = s.excess_before
+    if att.design is not None and att.design["delta_bic"] < DBIC_STRONG:
+        out["design"] = -att.design["delta_bic"] / 10.0
+    return out
+
+
+def explained_fraction(score: EffectScore, gap: dict) -> float:
+    """Fraction of the excess removed, averaged over the kinds with a gap with weights
+    ``log(1 + excess)``: a secondary gap (e.g. the swing legs' weights mispredicted by rotations
+    that absorbed the effect) counts, but less than the one where the effect shows most."""
+    if not gap:
+        return 0.0
+    fr, wt = [], []
+    for kind, size in gap.items():
+        if kind == "design":
+            fr.append(1.0 if score.design is not None else 0.0)
+        elif kind in score.kinds:
+            fr.append(float(np.clip(score.kinds[kind].explained, 0.0, 1.0)))
+        else:
+            fr.append(0.0)
+        wt.append(np.log1p(max(size, 0.0)))
+    wt = np.asarray(wt)
+    return float(np.average(fr, weights=wt)) if wt.sum() > 0 else float(np.mean(fr))
+
+
+def decide(att: Attribution) -> tuple[str, str | None, dict]:
+    """``(verdict, effect, gaps)`` (module docstring)."""
+    gap = gaps(att)
+    if not gap:
+        return "none", None, gap
+    ok = [s for s in att.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap)) and ranking_bic(s, gap) < DBIC_STRONG
+          and explained_fraction(s, gap) >= EXPLAINED_MIN]
+    if ok:
+        return "effect", min(ok, key=lambda s: (ranking_bic(s, gap), s.delta_bic)).effect, gap
+    return "unexplained", None, gap

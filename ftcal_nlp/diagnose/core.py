@@ -1,0 +1,241 @@
+"""The diagnosis of one calibrated dataset: views -> attribution -> localisation -> result.
+
+After calibration, what remains in held-out data is the gap between the model
+(the "sim") and the robot (the "real"). ``diagnose`` says where it lies
+(recording kind, legs, components, what it follows), which candidate effect of
+the library explains it (every candidate added to the model in turn and scored
+on data it was not fitted to) and how far it shrinks once that effect is
+added, beside the noise floor.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..calibration import Calibration
+from ..data import Dataset
+from ..models import ModelContext, resolve
+from ..robot import Robot
+from .attribute import (
+    GAP_THRESHOLD,
+    attribute,
+    decide,
+    explained_fraction,
+    gap_threshold,
+    ranking_bic,
+)
+from .effects import resolve_effects
+from .localise import (
+    components_with_gap,
+    describe,
+    legs_with_gap,
+    localise_series,
+    localise_standing,
+    standing_legs,
+    standing_nugget,
+    strongest_dependence,
+)
+from .result import DiagnosisResult
+from .views import Views, hanging_series, standing_view, walking_views
+
+log = logging.getLogger(__name__)
+
+KIND_NAMES = {"standing": "standing", "hanging": "hanging", "walking swing": "walking", "design": "standing"}
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """``effects``: candidate names (None: the whole library); ``folds``/``seed``: cross-validation;
+    ``model``/``balance``: the calibration's error model and balance (None: from the calibration)."""
+
+    effects: tuple | None = None
+    folds: int = 5
+    seed: int = 0
+    model: Any = None
+    balance: str | None = None
+
+
+def _settings(settings) -> DiagnosisSettings:
+    if settings is None:
+        return DiagnosisSettings()
+    if isinstance(settings, DiagnosisSettings):
+        return settings
+    get = settings.get if isinstance(settings, dict) else (lambda k, d=None: getattr(settings, k, d))
+    eff = get("effects", None)
+    return DiagnosisSettings(None if eff is None else tuple(eff), int(get("folds", 5)), int(get("seed", 0)), get("model", None),
+                             get("balance", None))
+
+
+def _model_and_balance(calibration: Calibration, s: DiagnosisSettings) -> tuple[Any, str]:
+    meta = calibration.meta or {}
+    balance = s.balance or meta.get("balance") or (meta.get("standing") or {}).get("balance") or "exact"
+    model = s.model if s.model is not None else calibration.model
+    try:
+        resolve(model)
+    except (ValueError, TypeError):
+        log.warning("diagnosis: calibration model %r is not a known error model; using 'full'", model)
+        model = "full"
+    return model, balance
+
+
+def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, robot: Robot, settings=None, *,
+             x_start: np.ndarray | None = None) -> DiagnosisResult:
+    """Diagnose the sim-to-real gap of a calibrated dataset.
+
+    ``hanging_result``: the :class:`~ftcal_nlp.hanging.HangingResult` (None: no hanging view,
+    the calibration's offsets serve as the prior); ``poses``: the standing
+    :class:`~ftcal_nlp.standing.Poses` (time order); ``calibration``: the finished
+    calibration (its ``model`` and ``meta['balance']`` name the error model and balance);
+    ``settings``: :class:`DiagnosisSettings`, the run config's ``DiagnoseSettings`` or a dict;
+    ``x_start``: the standing fit's decision vector (warm start).
+    """
+    t0 = time.perf_counter()
+    s = _settings(settings)
+    model, balance = _model_and_balance(calibration, s)
+    effects = resolve_effects(s.effects)
+    legs = tuple(robot.legs)
+    prior = hanging_result.to_calibration(robot) if hanging_result is not None else calibration
+    notes = []
+    hang_recs = dataset.hanging
+    t_ref = float(np.mean(np.concatenate([r.t for r in hang_recs]))) if hang_recs else (float(np.mean(poses.t)) if poses is not None else 0.0)
+    sv = None
+    if poses is not None and poses.n >= 2 * s.folds:
+        spec = resolve(model).build(ModelContext(legs, robot.nominal_rotations(), robot.nominal_positions(), prior))
+        sv = standing_view(dataset, poses, calibration, prior, robot, t_ref, spec.n_dof, s.folds)
+    elif poses is not None:
+        notes.append(f"only {poses.n} standing poses: too few for {s.folds}-fold cross-validation; standing not diagnosed")
+    hs = hanging_series(hang_recs, hanging_result, robot, t_ref) if (hanging_result is not None and hang_recs) else None
+    sw, wt = walking_views(dataset.walking, calibration, robot, t_ref) if dataset.walking else (None, None)
+    views = Views(sv, hs, sw, wt, t_ref, legs, notes)
+    att = attribute(views, effects, model, prior, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
+    verdict, effect, gap = decide(att)
+    views = att.views or views
+
+    if verdict == "effect" and views.standing is not None and effect in att.standing_after:
+        # The nugget of the gap decision holds whatever of the effect the families cannot express;
+        # with the effect added, what is left is the floor to report.
+        sv2 = views.standing
+        nug = standing_nugget(sv2, att.standing_after[effect], prior.stacked(legs)[0])
+        fl = np.maximum(sv2.floor_parts["within"], np.minimum(sv2.floor, nug))
+        views = replace(views, standing=replace(sv2, floor=fl, floor_parts={**sv2.floor_parts, "nugget_after": nug}))
+        if "standing" in att.base:
+            att.base["standing"] = replace(att.base["standing"], floor=fl)
+            for sc in att.scores:
+                if "standing" in sc.kinds:
+                    sc.kinds["standing"] = replace(sc.kinds["standing"], floor=fl)
+    loc = {}
+    if views.standing is not None and att.standing_heldout is not None:
+        loc["standing"] = localise_standing(views.standing, att.standing_heldout, prior.stacked(legs)[0], att.folds, legs)
+    for key, series in (("hanging", views.hanging), ("walking swing", views.swing)):
+        if series is not None:
+            loc[key] = localise_series(series, len(legs), s.folds)
+
+    phys = {k: v for k, v in gap.items() if k != "design"}
+    primary = _primary(phys, att, verdict, effect)
+    where = {"recordings": [], "legs": [], "components": [], "explains": None}
+    if gap:
+        recs = []
+        for k in sorted(gap, key=gap.get, reverse=True):
+            name = KIND_NAMES.get(k, k)
+            if name not in recs:
+                recs.append(name)
+        where["recordings"] = recs
+        if primary in loc and primary in phys:
+            L = loc[primary]
+            where["components"] = components_with_gap(L)
+            where["legs"] = standing_legs(L, legs) if primary == "standing" else legs_with_gap(L, legs, GAP_THRESHOLD.get(primary, 0.25))
+            where["explains"] = strongest_dependence({k: loc[k] for k in phys if k in loc})
+        elif "design" in gap:
+            where["explains"] = "body_tilt"
+            where["components"] = ["fx", "fy"]
+    base = att.base.get(primary)
+    by_name = {sc.effect: sc for sc in att.scores}
+    before = base.rms_before if base is not None else np.full(6, np.nan)
+    floor = base.floor if base is not None else np.full(6, np.nan)
+    after = before
+    if verdict == "effect" and primary in by_name[effect].kinds:
+        after = by_name[effect].kinds[primary].rms_after
+    shrink = {"heldout_rms_before": before, "heldout_rms_after": after, "noise_floor": floor, "kind": KIND_NAMES.get(primary, primary),
+              "kind_key": primary}
+    ranking = []
+    for sc in att.scores:
+        k = sc.kinds.get(primary)
+        ranking.append({"effect": sc.effect, "delta_bic": ranking_bic(sc, gap), "heldout_rms_after": k.rms_after if k is not None else before,
+                        "explained": explained_fraction(sc, gap) if gap else 0.0, "status": sc.status, "note": sc.note})
+    kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
+                 "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
+    statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where)
+    return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
+                           str(att.model), balance, time.perf_counter() - t0, tuple(views.notes))
+
+
+PRIORITY = ("standing", "hanging", "walking swing")
+
+
+def _primary(phys: dict, att, verdict: str, effect: str | None) -> str | None:
+    """The kind the shrinkage is reported on: by priority (the standing poses are the calibration's
+    own data), among the kinds with a gap that the named effect explains (any gap kind otherwise)."""
+    if not phys:
+        return "standing" if "standing" in att.base else next(iter(att.base), None)
+    order = [k for k in PRIORITY if k in phys] + [k for k in phys if k not in PRIORITY]
+    if verdict == "effect":
+        sc = next(s for s in att.scores if s.effect == effect)
+        good = [k for k in order if k in sc.kinds and sc.kinds[k].explained >= 0.5]
+        if good:
+            return good[0]
+    return order[0]
+
+
+def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[str]:
+    out = []
+    if verdict == "none":
+        out.append("No gap above the noise floor: every recording kind's held-out residual is at its floor, so no candidate effect is called.")
+    elif verdict == "effect":
+        b, a, f = (np.asarray(shrink[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))
+        c = int(np.argmax(b / np.where(f > 0, f, 1.0)))
+        unit = "N" if c < 3 else "N*m"
+        out.append(f"The gap is explained by {effect}: adding it to the calibration model brings the held-out {shrink['kind']} RMS of "
+                   f"{['fx', 'fy', 'fz', 'tx', 'ty', 'tz'][c]} from {b[c]:.3g} to {a[c]:.3g} {unit} (noise floor {f[c]:.2g} {unit}).")
+    else:
+        out.append("There is a gap above the noise floor that no candidate effect of the library explains (see where it lies below).")
+    if gap:
+        out.append("It lies in the " + ", ".join(where["recordings"]) + " recordings"
+                   + (f", legs {', '.join(where['legs'])}" if where["legs"] else ", common to all legs")
+                   + (f", components {', '.join(where['components'])}" if where["components"] else "")
+                   + (f", and follows {where['explains'].replace('_', ' ')}." if where["explains"] else "."))
+    for kind, L in loc.items():
+        out.append(describe(L))
+    d = att.design
+    if d is not None:
+        tilt = np.asarray(d["tilt_deg"])
+        out.append(f"Design check: the fitted transducer frames share a tilt of ({tilt[0]:.2f}, {tilt[1]:.2f}) +- {d['tilt_se_deg']:.2f} deg "
+                   f"about x, y of B (mounting scatter {d['scatter_deg']:.2f} deg; dBIC {d['delta_bic']:.1f}); a common tilt is what a "
+                   "motion-capture bias (or a cable's horizontal pull) leaves when the model frees every rotation.")
+    good = [r for r in ranking if r["status"] == "ok" and np.isfinite(r["delta_bic"])]
+    if good:
+        out.append("Candidates by dBIC where the gap lies: " + ", ".join(f"{r['effect']} {r['delta_bic']:.0f} (explains {100 * r['explained']:.0f}%)"
+                                                                         for r in good[:4]) + ".")
+        if verdict == "effect" and len(good) > 1 and good[1]["explained"] >= 0.5 and good[1]["delta_bic"] - good[0]["delta_bic"] < 0.05 * abs(good[0]["delta_bic"]):
+            out.append(f"{good[0]['effect']} and {good[1]['effect']} explain this gap almost equally well here; they are confusable on these recordings.")
+    return out
+
+
+def diagnose_run(run_result) -> DiagnosisResult:
+    """The diagnosis of a finished run (``ftcal_nlp.run.RunResult``) with its ``[diagnose]`` settings."""
+    cfg = run_result.config
+    dset = getattr(cfg, "diagnose", None)
+    st = run_result.standing
+    balance = getattr(getattr(cfg, "standing", None), "balance", None) or (st.balance if st is not None else None)
+    model = run_result.calibration.model
+    settings = DiagnosisSettings(
+        effects=None if dset is None or dset.effects is None else tuple(dset.effects),
+        folds=getattr(dset, "folds", 5), seed=getattr(dset, "seed", 0), model=model, balance=balance,
+    )
+    x0 = st.x if (st is not None and getattr(st, "x", None) is not None and st.model == model) else None
+    return diagnose(run_result.dataset, run_result.hanging, run_result.poses, run_result.calibration, run_result.dataset.robot,
+                    settings, x_start=x0)

@@ -1,0 +1,302 @@
+"""The calibration model with one effect added, fitted to standing poses (CasADi + IPOPT).
+
+For pose p the residual (B axes, about the reference point) is eq. (A) of
+``effects/base.py`` on top of the calibration's balance:
+
+    exact (physics.py (E)):  r_p = sum_k Ad_k (c_k - w_o,k) - M_b g [z~; 0] + e_p
+    report (eq. 9):          r_p = sum_k Ad_k (c_k - w_o,k) + sum_k m_k g [z~; (R_k r_k(phi) + p'_k) x z~]
+                                   - M g [z~; 0] + e_p
+
+with ``Ad_k w = [R_k f; R_k tau + p'_k x R_k f]`` (``geometry.transform_wrench``),
+``R_k``, ``p'_k`` (and ``w_o,k`` for models that fit offsets) the expressions of
+the selected error model's :class:`~ftcal_nlp.models.ModelSpec` (the plug-in is
+reused as it is: the augmented problem is ``[spec.x; eta]`` with the spec's
+constraints), and ``c_k``, ``z~ = Z(eta) z``, ``e_p`` the effect's corrections
+(eta = 0: none). Effects that act while hanging (``Effect.shifts_offsets``) also
+shifted the hanging offsets: ``- dw_o`` (6 parameters, B axes) is added for them.
+
+Every face is linear in the pose's features ``phi_p`` (readings, up vector,
+orientation, time, previous readings, cos/sin phi, squares and products of
+readings, leg CoM x up; ``effects/base.py:PoseSym``), so
+
+    r_p = M(theta) [1; phi_p],   M = [r(theta, 0), d r / d phi]
+
+is read off the symbolic residual by one Jacobian (and checked not to depend on
+``phi``), and eq. 8 with per-pose weights ``omega_p`` becomes, as in
+``standing/problem.py``,
+
+    sum_p omega_p ||r_p||_K^2 = sum_i K_ii (M S M^T)_ii,   S = sum_p omega_p phi~_p phi~_p^T.
+
+One compiled IPOPT solver (S a parameter, only the features the face uses)
+serves the full fit (omega = 1/P) and every cross-validation fold (omega = 0
+on the held-out poses), so no candidate is scored on poses it was fitted to.
+
+Effective degrees of freedom: the rank of the residual Jacobian on the tangent
+space of the constraints (columns scaled to unit norm, eigenvalues of the
+information matrix above ``REL_EIG_TOL`` of the largest, as in
+``standing/result.py``). An augmentation that the model already absorbs (a
+mocap bias under free rotations and translations) adds no rank.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from scipy.linalg import null_space
+
+from ..calibration import Calibration
+from ..geometry import transform_wrench
+from ..models import ModelContext, resolve
+from ..robot import Robot
+from ..standing.problem import K_DIAG, check_balance
+from .effects.base import AugContext, Effect, ParamBlock, PoseSym
+
+REL_EIG_TOL = 1e-5
+
+
+class AugmentedFitError(RuntimeError):
+    """IPOPT did not solve an augmented standing problem; ``status`` is its return status."""
+
+    def __init__(self, message: str, status: str):
+        super().__init__(message)
+        self.status = status
+
+
+@dataclass(frozen=True)
+class StandingData:
+    """Per-pose data of the standing poses (P poses, K legs), numpy.
+
+    ``w`` (P, K, 6) raw readings; ``z`` (P, 3) up in B; ``R_HB`` (P, 3, 3) orientation
+    without heading; ``t_h`` (P,) hours since the hanging reference time; ``prev``
+    (P, K, 6) previous pose's raw readings (= ``w`` where unknown); ``phi`` (P, K);
+    ``rcom`` (P, K, 3) leg CoMs at phi (hanging curves, ft_k, m); ``n_vert`` (K, 3)
+    the design-vertical ft axes.
+    """
+
+    w: np.ndarray
+    z: np.ndarray
+    R_HB: np.ndarray
+    t_h: np.ndarray
+    prev: np.ndarray
+    phi: np.ndarray
+    rcom: np.ndarray
+    n_vert: np.ndarray
+
+    @property
+    def P(self) -> int:
+        return len(self.t_h)
+
+    @property
+    def K(self) -> int:
+        return self.w.shape[1]
+
+    def subset(self, idx) -> StandingData:
+        return StandingData(self.w[idx], self.z[idx], self.R_HB[idx], self.t_h[idx], self.prev[idx], self.phi[idx],
+                            self.rcom[idx], self.n_vert)
+
+    def features(self) -> np.ndarray:
+        """``phi_p`` (P, n_phi) in the order of :func:`pose_symbols`."""
+        P = self.P
+        nf = np.einsum("ki,pki->pk", self.n_vert, self.w[..., :3])
+        rz = self.rcom[:, :, :, None] * self.z[:, None, None, :]
+        return np.concatenate([
+            self.w.reshape(P, -1), self.z, self.R_HB.reshape(P, 9), self.t_h[:, None], self.t_h[:, None] ** 2,
+            self.prev.reshape(P, -1), np.cos(self.phi), np.sin(self.phi), (self.w**2).reshape(P, -1),
+            (nf[..., None] * self.w).reshape(P, -1), self.rcom.reshape(P, -1), rz.reshape(P, -1),
+        ], axis=1)
+
+
+def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
+    """One pose's features as an SX vector and its named views (columns of :meth:`StandingData.features`)."""
+    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K
+    d = ca.SX.sym("phi", n)
+    i = 0
+
+    def take(m):
+        nonlocal i
+        out = d[i : i + m]
+        i += m
+        return out
+
+    def legs6(v):
+        return [v[6 * k : 6 * k + 6] for k in range(K)]
+
+    w = take(6 * K)
+    z = take(3)
+    R = ca.reshape(take(9), 3, 3).T  # stored row by row
+    t_h = take(1)
+    t_h2 = take(1)
+    prev = take(6 * K)
+    cphi = take(K)
+    sphi = take(K)
+    w2 = take(6 * K)
+    nfw = take(6 * K)
+    rcom = take(3 * K)
+    rz = take(9 * K)
+    return d, PoseSym(
+        w=legs6(w), z=z, R_HB=R, t_h=t_h, t_h2=t_h2, prev=legs6(prev), cphi=cphi, sphi=sphi, w2=legs6(w2),
+        nfw=legs6(nfw), rcom=[rcom[3 * k : 3 * k + 3] for k in range(K)],
+        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)],
+    )
+
+
+def balance_residual_sx(R, p, w_o, c, z, zmap, rz, leg_weight_N, Mg: float, balance: str):
+    """Eq. (E) or eq. 9 for one pose as SX (6,), B axes (module docstring), from corrected readings ``c``.
+
+    ``z~ = zmap z`` (``zmap`` None: identity); the report's ``(R_k r_k) x z~`` is
+    written with the product features ``rz[k][a, l] = r_a z_l`` so that it stays linear.
+    """
+    K = len(c)
+    total = ca.SX.zeros(6, 1)
+    for k in range(K):
+        total += transform_wrench(R[k], p[k], c[k] - w_o[k])
+    Z = ca.SX.eye(3) if zmap is None else zmap
+    zt = ca.mtimes(Z, z)
+    Mbg = Mg - float(np.sum(leg_weight_N))
+    if balance == "exact":
+        return total - ca.vertcat(Mbg * zt, ca.SX.zeros(3, 1))
+    for k in range(K):
+        Rr_x_z = ca.SX.zeros(3, 1)
+        for a in range(3):
+            for l in range(3):
+                Rr_x_z += rz[k][a, l] * ca.cross(R[k][:, a], Z[:, l])
+        total += leg_weight_N[k] * ca.vertcat(zt, Rr_x_z + ca.cross(p[k], zt))
+    return total - ca.vertcat(Mg * zt, ca.SX.zeros(3, 1))
+
+
+class AugmentedProblem:
+    """The selected error model plus ``effect`` (None: the model alone) on standing features."""
+
+    def __init__(self, model, prior: Calibration, robot: Robot, balance: str, effect: Effect | None = None, *,
+                 ridge: float = 1e-10):
+        check_balance(balance)
+        self.model = resolve(model)
+        self.effect = effect
+        self.base_balance = balance
+        self.balance = effect.standing_balance(balance) if effect is not None else balance
+        legs = tuple(robot.legs)
+        K = len(legs)
+        mctx = ModelContext(legs, robot.nominal_rotations(), robot.nominal_positions(), prior)
+        spec = self.model.build(mctx)
+        spec.validate(K, f"error model {self.model.name!r}")
+        self.spec = spec
+        offsets = list(spec.offsets) if spec.offsets is not None else [ca.DM(prior.legs[k].offset) for k in legs]
+        m = np.array([prior.legs[k].leg_weight_N for k in legs])
+        actx = AugContext(legs, offsets, robot.nominal_rotations(), m, prior.g)
+        block = effect.standing_params(actx) if effect is not None else None
+        shift = effect is not None and effect.shifts_offsets
+        if shift:  # the offset shift: a constant wrench in B (module docstring of effects/sensor.py)
+            names = tuple(block.names if block is not None else ()) + tuple(f"dw_o.{c} [B]" for c in ("fx", "fy", "fz", "tx", "ty", "tz"))
+            lb = np.r_[block.lb if block is not None else [], np.full(6, -20.0)]
+            block = ParamBlock(names, np.zeros(len(names)), lb, -lb)
+        self.params = block
+        m_eta = block.m if block is not None else 0
+        eta = ca.SX.sym("eta", m_eta)
+        d, pose = pose_symbols(K)
+        m_face = m_eta - 6 if shift else m_eta
+        c, zmap, extra = effect.standing(eta[:m_face], pose, actx) if effect is not None else (pose.w, None, None)
+        r = balance_residual_sx(list(spec.R), list(spec.p_prime), offsets, c, pose.z, zmap, pose.rz, m,
+                                prior.mass_kg * prior.g, self.balance)
+        if extra is not None:
+            r = r + extra
+        if shift:
+            r = r - eta[m_face:]
+        x_all = ca.vertcat(spec.x, eta)
+        self.n_model = int(spec.x.numel())
+        self.n = int(x_all.numel())
+        M = ca.jacobian(r, d)
+        if ca.depends_on(M, d):
+            raise ValueError(f"effect {self.name!r}: its standing face is not linear in the pose features (see PoseSym)")
+        M0 = ca.substitute(r, d, ca.DM.zeros(d.numel()))
+        Mfull = ca.horzcat(M0, M)
+        # Only the features the residual uses (and the constant) enter the moments.
+        used = sorted(set(np.asarray(ca.DM(ca.sparsify(Mfull).sparsity(), 1)).nonzero()[1].tolist()) | {0})
+        self.used = np.array(used)
+        Mu = Mfull[:, used]
+        self.M_fn = ca.Function("M", [x_all], [Mu])
+        self.dM_fn = ca.Function("dM", [x_all], [ca.jacobian(ca.reshape(Mu, -1, 1), x_all)])
+        nu = len(used)
+        X = ca.MX.sym("x", self.n)
+        S = ca.MX.sym("S", nu, nu)
+        x_ref = ca.MX.sym("x_ref", self.n)
+        Mx = self.M_fn(X)
+        f = ca.sum1(ca.sum2(ca.mtimes(ca.DM(np.diag(K_DIAG)), ca.mtimes(Mx, S)) * Mx))
+        # Minimal change: along directions the poses do not determine (an offset shift against a
+        # common tilt of the frames, a cable's torque against the CoM) stay nearest the reference.
+        f = f + ridge * ca.sumsqr(X - x_ref)
+        g = ca.Function("g", [spec.x], [spec.g])(X[: self.n_model])
+        self._nlp = {"x": X, "p": ca.vertcat(ca.reshape(S, -1, 1), x_ref), "f": f, "g": g}
+        self.x0 = np.concatenate([np.asarray(spec.x0, float), block.x0 if block is not None else np.zeros(0)])
+        self.lbx = np.concatenate([spec.lbx, block.lb if block is not None else np.zeros(0)])
+        self.ubx = np.concatenate([spec.ubx, block.ub if block is not None else np.zeros(0)])
+        self.lbg, self.ubg = np.asarray(spec.lbg, float), np.asarray(spec.ubg, float)
+        self._solver = None
+        self._G = ca.Function("G", [spec.x], [ca.jacobian(spec.g, spec.x)]) if spec.g.numel() else None
+
+    @property
+    def name(self) -> str:
+        return self.effect.name if self.effect is not None else "base"
+
+    @property
+    def n_eta(self) -> int:
+        return self.n - self.n_model
+
+    def design(self, data: StandingData) -> np.ndarray:
+        """``[1; phi_p]`` restricted to the used features, (P, n_used)."""
+        phi = np.concatenate([np.ones((data.P, 1)), data.features()], axis=1)
+        return phi[:, self.used]
+
+    @property
+    def solver(self):
+        if self._solver is None:
+            opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10,
+                    "ipopt.max_iter": 1000}
+            self._solver = ca.nlpsol(f"diag_{self.name}_{self.balance}", "ipopt", self._nlp, opts)
+        return self._solver
+
+    def fit(self, Phi: np.ndarray, weights: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """Minimise ``sum_p weights_p ||r_p||_K^2 + ridge ||x - x0||^2`` over the design rows ``Phi``
+        (P, n_used) from ``x0`` (the reference of the minimal-change ridge).
+
+        Raises :class:`AugmentedFitError` when IPOPT does not report success.
+        """
+        x0 = self.x0 if x0 is None else x0
+        S = (Phi * weights[:, None]).T @ Phi
+        p = np.concatenate([S.ravel(order="F"), x0])
+        sol = self.solver(x0=x0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+        st = self.solver.stats()
+        if not st.get("success", False):
+            status = str(st.get("return_status", "unknown"))
+            raise AugmentedFitError(f"IPOPT failed on the standing problem with {self.name!r} ({self.balance} balance): {status}", status)
+        return np.asarray(sol["x"]).ravel()
+
+    def residuals(self, x: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+        """Residuals (P, 6) in B axes at ``x``."""
+        return Phi @ np.asarray(self.M_fn(x)).T
+
+    def effective_dof(self, x: np.ndarray, Phi: np.ndarray) -> int:
+        """Rank of the K-weighted residual Jacobian on the constraints' tangent space (module docstring)."""
+        nu = len(self.used)
+        dM = np.asarray(self.dM_fn(x)).reshape(nu, 6, self.n)  # vec(M) is column-major: index i + 6 j
+        J = np.einsum("pj,jin->pin", Phi, dM) * np.sqrt(K_DIAG)[None, :, None]
+        J = J.reshape(-1, self.n)
+        eq = self.lbg == self.ubg
+        if self._G is not None and eq.any():
+            G = np.asarray(self._G(x[: self.n_model])).reshape(-1, self.n_model)[eq]
+            Tm = null_space(G)
+            T = np.zeros((self.n, Tm.shape[1] + self.n_eta))
+            T[: self.n_model, : Tm.shape[1]] = Tm
+            T[self.n_model :, Tm.shape[1] :] = np.eye(self.n_eta)
+        else:
+            T = np.eye(self.n)
+        Jt = J @ T
+        A = Jt.T @ Jt
+        s = np.sqrt(np.diag(A))
+        s = np.where(s > 0, s, 1.0)
+        lam = np.linalg.eigvalsh(A / np.outer(s, s))
+        return int(np.sum(lam >= REL_EIG_TOL * lam.max()))
+
+    def eta(self, x: np.ndarray) -> np.ndarray:
+        return x[self.n_model :]

@@ -1,0 +1,354 @@
+"""What the diagnosis looks at: residuals of the calibration per recording kind, their
+explanatory variables, and noise floors derived from the data (never from simulator settings).
+
+* standing: the static poses (time order kept) with, per pose, the previous
+  pose's readings and the steady run it was taken from, found again in the raw
+  recording (shafts still between two motions, as in ``standing/poses.py``).
+  Noise floor of the pose-level total wrench (report eq. 8 residual): the
+  within-pose scatter, from the medians of the two halves of each steady run,
+  ``var(median) ~ E[(m_1 - m_2)^2] / 4`` (a half has half the samples, so twice
+  the variance; this holds for correlated noise too), plus the hanging offsets'
+  and leg weights' standard errors carried into the total, plus the
+  cross-validation inflation ``1 + d / (6 P_train)`` of a d-parameter fit.
+* hanging: per leg and sample the residual of the hanging fit (report eqs.
+  4-7, ``hanging_residuals``) with shaft angle, speed, time and the fitted
+  weight vector. Floor: the high-frequency scatter, ``std(diff(e)) / sqrt(2)``
+  within each recording (slow patterns do not enter differences).
+* walking: the balance (E) residual of every sample with orientation (stance:
+  the total wrench against the weight) and, per leg, the swing residual
+  ``w_m - w_o - [m g u; r(phi) x m g u]`` while the foot is in the air (fast
+  shaft, angle well outside the stance range), which should be zero. Floors:
+  high-frequency scatter as for hanging.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from ..calibration import Calibration, periodic_interp
+from ..data import Dataset, Recording
+from ..geometry import quat_to_rotation, remove_yaw, skew, transform_wrench
+from ..robot import Robot
+from .effects.base import HangingLeg
+from .standing_fit import StandingData
+
+PREV_WINDOW_S = 0.5        # the previous pose's readings: median over its last half second
+SHAFT_RATE_RAD_S = 0.05    # a shaft faster than this is moving (standing/poses.py's default)
+SAVGOL_WINDOW_S = 0.31
+IN_AIR_MARGIN_RAD = 1.0    # a swing foot counts as in the air this far outside the stance range (compliant feet lift late)
+
+
+@dataclass(frozen=True)
+class StandingView:
+    """Standing poses: features for the augmented fits, floors and explanatory variables.
+
+    ``data``: :class:`StandingData`; ``t`` (P,) s; ``R_WB`` (P, 3, 3) yaw removed;
+    ``floor`` (6,) N, N*m per component of the pose-level residual (W axes);
+    ``floor_parts`` the pieces of it; ``has_prev`` (P,) whether the previous pose
+    was found; ``n_run`` (P,) samples in each pose's steady run (0 if not found).
+    """
+
+    data: StandingData
+    t: np.ndarray
+    R_WB: np.ndarray
+    floor: np.ndarray
+    floor_parts: dict
+    has_prev: np.ndarray
+    n_run: np.ndarray
+
+    @property
+    def P(self) -> int:
+        return self.data.P
+
+
+@dataclass(frozen=True)
+class LegSeries:
+    """Per-leg samples (hanging or walking swing) and the floor of each leg (K, 6)."""
+
+    legs: list[HangingLeg]
+    floor: np.ndarray
+    kind: str
+    n_params: int = 0            # parameters the fitted model spent on these samples (in-sample correction)
+
+    @property
+    def n(self) -> int:
+        return sum(len(l.t) for l in self.legs)
+
+
+@dataclass(frozen=True)
+class WalkingTotal:
+    """Balance (E) residual of walking samples, W axes (N, 6), with time, shaft angles/speeds, floor (6,)."""
+
+    e: np.ndarray
+    t: np.ndarray
+    phi: np.ndarray
+    omega: np.ndarray
+    floor: np.ndarray
+
+
+@dataclass(frozen=True)
+class Views:
+    standing: StandingView | None
+    hanging: LegSeries | None
+    swing: LegSeries | None
+    walking: WalkingTotal | None
+    t_ref: float
+    legs: tuple[str, ...]
+    notes: list[str] = field(default_factory=list)
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _odd_window(n_samples: int, n: int) -> int:
+    w = max(n_samples, 5)
+    w += 1 - w % 2
+    return max(3, min(w, n if n % 2 else n - 1))
+
+
+def shaft_rate(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """``d phi/dt`` (N, K) by a 2nd-order Savitzky-Golay filter (as the pose extraction)."""
+    if len(t) < 5:
+        return np.gradient(phi, t, axis=0) if len(t) > 1 else np.zeros_like(phi)
+    dt = float(np.median(np.diff(t)))
+    win = _odd_window(int(round(SAVGOL_WINDOW_S / dt)), len(t))
+    return savgol_filter(phi, win, 2, deriv=1, delta=dt, axis=0)
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return d[0::2], d[1::2]
+
+
+def hf_floor(e: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
+    """High-frequency noise sd per column of ``e`` (N, c): ``std(diff) / sqrt(2)`` within groups."""
+    if groups is None:
+        groups = np.zeros(len(e), int)
+    d = [np.diff(e[groups == g], axis=0) for g in np.unique(groups)]
+    d = np.concatenate([x for x in d if len(x)], axis=0)
+    return np.sqrt(np.mean(d**2, axis=0) / 2.0)
+
+
+def fourier_second_derivative(grid: np.ndarray, values: np.ndarray, phi: np.ndarray, harmonics: int = 3) -> np.ndarray:
+    """``d^2 r / d phi^2`` at ``phi`` from a least-squares Fourier series (``harmonics``) of the
+    periodic curve ``values`` (G, 3) on ``grid`` (G,): differentiating a smooth fit, not the grid."""
+    ok = np.all(np.isfinite(values), axis=1)
+    n = np.arange(1, harmonics + 1)
+    B = np.concatenate([np.ones((ok.sum(), 1)), np.cos(np.outer(grid[ok], n)), np.sin(np.outer(grid[ok], n))], axis=1)
+    coef, *_ = np.linalg.lstsq(B, values[ok], rcond=None)
+    a, b = coef[1 : 1 + harmonics], coef[1 + harmonics :]
+    C, S = np.cos(np.outer(phi, n)), np.sin(np.outer(phi, n))
+    return -(C * n**2) @ a - (S * n**2) @ b
+
+
+def total_residual_B(w: np.ndarray, z: np.ndarray, cal: Calibration, legs) -> np.ndarray:
+    """Balance (E) residual (N, 6) in B axes about the body CoM: ``sum_k Ad_k (w - w_o) - M_b g [z; 0]``."""
+    off, m, R, p = cal.stacked(legs)
+    tot = transform_wrench(R[None], p[None], w - off[None]).sum(axis=1)
+    tot[:, :3] -= cal.body_weight_N * z
+    return tot
+
+
+def to_world(r_B: np.ndarray, R_WB: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.einsum("pij,pj->pi", R_WB, r_B[:, :3]), np.einsum("pij,pj->pi", R_WB, r_B[:, 3:])], axis=1)
+
+
+# ----------------------------------------------------------------------------- standing
+
+
+def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Calibration, robot: Robot, t_ref: float,
+                  model_dof: int, folds: int) -> StandingView:
+    """The standing view of ``poses`` (``standing.Poses``; their ``source`` indexes ``dataset.standing``)."""
+    legs = tuple(robot.legs)
+    P = poses.n
+    prev = poses.w_m.copy()
+    has_prev = np.zeros(P, bool)
+    n_run = np.zeros(P, int)
+    diffs = []
+    src = poses.source if poses.source is not None else np.zeros(P, int)
+    recs = dataset.standing
+    for s in np.unique(src):
+        rec = recs[int(s)]
+        idx = np.flatnonzero(src == s)
+        pv, hp, nr, dd = _pose_history(rec, legs, poses.t[idx], calibration)
+        prev[idx] = np.where(hp[:, None, None], pv, poses.w_m[idx])  # no previous pose: no history term
+        has_prev[idx], n_run[idx] = hp, nr
+        diffs.append(dd)
+    dd = np.concatenate(diffs, axis=0)
+    ok = np.all(np.isfinite(dd), axis=1)
+    if ok.sum() >= 5:
+        pose_var = np.mean(dd[ok] ** 2, axis=0) / 4.0
+    else:  # steady runs not found again: fall back on the spread of the residuals (conservative)
+        pose_var = np.full(6, np.nan)
+    # Hanging offsets and leg weights are estimates: their errors enter every pose's total.
+    off, m, R, p = calibration.stacked(legs)
+    cal_var = np.zeros(6)
+    for i, k in enumerate(legs):
+        se = prior.legs[k].offset_se
+        if se is None:
+            continue
+        Ad = np.zeros((6, 6))
+        Ad[:3, :3], Ad[3:, 3:] = R[i], R[i]
+        Ad[3:, :3] = skew(p[i]) @ R[i]
+        cal_var += np.einsum("ij,j,ij->i", Ad, np.asarray(se, float) ** 2, Ad)
+    w_se = [prior.legs[k].leg_weight_se_N for k in legs]
+    if all(v is not None for v in w_se):
+        cal_var[2] += float(np.sum(np.square(w_se)))
+    P_train = P * (1.0 - 1.0 / max(folds, 2))
+    inflation = 1.0 + model_dof / max(6.0 * P_train, 1.0)
+    floor = np.sqrt((pose_var + cal_var) * inflation)
+    t_h = (poses.t - t_ref) / 3600.0
+    rcom = np.stack([prior.legs[k].com(poses.phi[:, i]) for i, k in enumerate(legs)], axis=1)
+    rcom = np.where(np.isfinite(rcom), rcom, 0.0)
+    n_vert = robot.nominal_rotations()[:, 2, :]
+    data = StandingData(poses.w_m, poses.R_WB[:, 2, :], poses.R_WB, t_h, prev, poses.phi, rcom, n_vert)
+    parts = {"pose_noise": np.sqrt(pose_var), "calibration": np.sqrt(cal_var), "cv_inflation": inflation,
+             "poses_with_run": int(ok.sum()), "within": floor.copy()}
+    return StandingView(data, poses.t.copy(), poses.R_WB.copy(), floor, parts, has_prev, n_run)
+
+
+def _pose_history(rec: Recording, legs, t_pose: np.ndarray, cal: Calibration):
+    """Previous-pose readings (P, K, 6), found flags, steady-run lengths and half-run median differences (P, 6)."""
+    t = rec.t
+    W = rec.wrench_array(legs)
+    phi = rec.phi_array(legs)
+    moving = np.any(np.abs(shaft_rate(t, phi)) > SHAFT_RATE_RAD_S, axis=1)
+    dt = float(np.median(np.diff(t)))
+    n_prev = max(int(round(PREV_WINDOW_S / dt)), 1)
+    starts, ends = _runs(moving)  # moving runs [start, end)
+    P = len(t_pose)
+    prev = np.full((P, len(legs), 6), np.nan)
+    has = np.zeros(P, bool)
+    n_run = np.zeros(P, int)
+    dd = np.full((P, 6), np.nan)
+    R_all = quat_to_rotation(rec.quat) if rec.quat is not None else None
+    for j, tp in enumerate(t_pose):
+        i = int(np.clip(np.searchsorted(t, tp), 0, len(t) - 1))
+        r = int(np.searchsorted(ends, i, side="right")) - 1     # last moving run ending at or before i
+        left = ends[r] if r >= 0 else 0                          # first still sample of this pose
+        nxt = int(np.searchsorted(starts, i, side="right"))
+        right = starts[nxt] if nxt < len(starts) else len(t)     # first moving sample after the pose
+        h = min(right - i, i - left)
+        n_run[j] = 2 * h
+        if r >= 0:
+            seg_start = ends[r - 1] if r >= 1 else 0
+            a = max(starts[r] - n_prev, seg_start)
+            if starts[r] > a:
+                prev[j] = np.median(W[a : starts[r]], axis=0)
+                has[j] = True
+        if h >= 4 and R_all is not None:
+            sl = slice(i - h, i + h)
+            Rw = R_all[sl]
+            good = np.all(np.isfinite(Rw.reshape(len(Rw), -1)), axis=1)
+            if good.sum() >= 4:
+                r_s = total_residual_B(W[sl][good], Rw[good][:, 2, :], cal, legs)
+                half = len(r_s) // 2
+                dd[j] = np.median(r_s[:half], axis=0) - np.median(r_s[half:], axis=0)
+    return prev, has, n_run, dd
+
+
+# ----------------------------------------------------------------------------- hanging
+
+
+def hanging_series(recordings, hanging, robot: Robot, t_ref: float) -> LegSeries:
+    """Per-leg residuals of the hanging fit (report eqs. 4-7) with their explanatory variables."""
+    from ..hanging import hanging_residuals
+
+    legs = tuple(robot.legs)
+    recs = list(recordings)
+    res = hanging_residuals(hanging, recs, robot)
+    out, floors = [], []
+    g = robot.g
+    n_par = 0
+    for k, leg in enumerate(legs):
+        l = hanging.legs[leg]
+        R_nom = robot.transducers[leg].rotation
+        t = np.concatenate([r.t for r in recs])
+        phi = np.concatenate([r.phi[leg] for r in recs])
+        omega = np.concatenate([shaft_rate(r.t, r.phi[leg][:, None])[:, 0] for r in recs])
+        rec_idx = np.concatenate([np.full(r.n, j) for j, r in enumerate(recs)])
+        f = np.concatenate([
+            np.broadcast_to(l.leg_weight_N * (l.misalignment[r.name] @ (R_nom.T @ (r.gravity_body / np.linalg.norm(r.gravity_body)))), (r.n, 3))
+            for r in recs
+        ])
+        grid, xyz = l.com_phi, (l.com_xyz_fit if l.com_xyz_fit is not None else l.com_xyz)
+        rr = periodic_interp(phi, grid, np.where(np.isfinite(xyz), xyz, 0.0))
+        r_dd = fourier_second_derivative(grid, xyz, phi)
+        e = res[leg]
+        floors.append(hf_floor(e, rec_idx))
+        out.append(HangingLeg(leg, k, e, t, phi, omega, rec_idx, f, rr, r_dd, float(l.leg_weight_N), g, t_ref, R_nom.T @ np.array([0, 0, 1.0])))
+        n_par = 2 * len(recs) + 7 + 3 * len(grid)
+    return LegSeries(out, np.array(floors), "hanging", n_par)
+
+
+# ----------------------------------------------------------------------------- walking
+
+
+def walking_views(recordings, cal: Calibration, robot: Robot, t_ref: float) -> tuple[LegSeries | None, WalkingTotal | None]:
+    """Swing residuals per leg (feet in the air) and the balance residual of every sample with orientation."""
+    legs = tuple(robot.legs)
+    K = len(legs)
+    off, m, R, p = cal.stacked(legs)
+    swing: list[list] = [[] for _ in range(K)]
+    tot_e, tot_t, tot_phi, tot_om, tot_grp = [], [], [], [], []
+    for j, rec in enumerate(recordings):
+        if rec.quat is None:
+            continue
+        ok = np.all(np.isfinite(rec.quat), axis=1)
+        if ok.sum() < 10:
+            continue
+        r = rec.select(ok)
+        R_WB = quat_to_rotation(r.quat)
+        W = r.wrench_array(legs)
+        phi = r.phi_array(legs)
+        om = shaft_rate(r.t, phi)
+        e_B = total_residual_B(W, R_WB[:, 2, :], cal, legs)
+        tot_e.append(to_world(e_B, remove_yaw(R_WB)))
+        tot_t.append(r.t)
+        tot_phi.append(phi)
+        tot_om.append(om)
+        tot_grp.append(np.full(len(r.t), j))
+        u_B = -R_WB[:, 2, :]
+        for k, leg in enumerate(legs):
+            speed = np.abs(om[:, k])
+            slow = speed <= 2.0 * np.median(speed)
+            ang = np.angle(np.exp(1j * phi[:, k]))
+            if slow.sum() < 5 or (~slow).sum() < 5:
+                continue
+            centre = np.angle(np.mean(np.exp(1j * ang[slow])))
+            half = np.max(np.abs(np.angle(np.exp(1j * (ang[slow] - centre)))))
+            air = ~slow & (np.abs(np.angle(np.exp(1j * (ang - centre)))) > half + IN_AIR_MARGIN_RAD)
+            if air.sum() < 5:
+                continue
+            lc = cal.legs[leg]
+            u = (R[k].T @ u_B[air].T).T
+            f = m[k] * u
+            rr = lc.com(phi[air, k])
+            rr = np.where(np.isfinite(rr), rr, 0.0)
+            e = W[air, k] - off[k] - np.hstack([f, np.cross(rr, f)])
+            r_dd = fourier_second_derivative(lc.com_phi, lc.com_xyz, phi[air, k])
+            swing[k].append((e, r.t[air], phi[air, k], om[air, k], np.full(air.sum(), j), f, rr, r_dd))
+    sw = None
+    legs_out, floors = [], []
+    for k, leg in enumerate(legs):
+        if not swing[k]:
+            continue
+        cat = [np.concatenate([s[i] for s in swing[k]]) for i in range(8)]
+        e, t, ph, om, grp, f, rr, r_dd = cat
+        floors.append(hf_floor(e, grp))
+        legs_out.append(HangingLeg(leg, k, e, t, ph, om, grp, f, rr, r_dd, float(m[k]), robot.g, t_ref, robot.nominal_rotations()[k, 2, :], R[k]))
+    if legs_out:
+        fl = np.full((K, 6), np.nan)
+        for l, f_ in zip(legs_out, floors):
+            fl[l.k] = f_
+        sw = LegSeries(legs_out, fl, "walking swing", 0)
+    wt = None
+    if tot_e:
+        e = np.concatenate(tot_e)
+        grp = np.concatenate(tot_grp)
+        wt = WalkingTotal(e, np.concatenate(tot_t), np.concatenate(tot_phi), np.concatenate(tot_om), hf_floor(e, grp))
+    return sw, wt
