@@ -17,6 +17,7 @@ the output folder).
 
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -128,6 +129,11 @@ def _build(cls, table: dict, where: str, section: str):
     return cls(**kwargs)
 
 
+def _norm(p: Path) -> Path:
+    """``a/../b`` -> ``b``, so logs and reports show the paths a user recognises."""
+    return Path(os.path.normpath(p))
+
+
 def load_config(path: str | Path) -> RunConfig:
     """Read and validate a run config; paths in it are relative to the config file."""
     path = Path(path)
@@ -150,7 +156,7 @@ def load_config(path: str | Path) -> RunConfig:
             raise ConfigError(f"{path} [data]: unknown key(s) {sorted(set(data) - {'manifest'})}; known keys: ['manifest']")
         if not isinstance(data.get("manifest"), str):
             raise ConfigError(f"{path} [data].manifest: expected a path string to dataset.toml")
-        manifest = base / data["manifest"]
+        manifest = _norm(base / data["manifest"])
     simulate = d.get("simulate")
     sim_dir = None
     if simulate is not None:
@@ -158,7 +164,7 @@ def load_config(path: str | Path) -> RunConfig:
             raise ConfigError(f"{path} [simulate]: expected a table")
         simulate = dict(simulate)
         if "dir" in simulate:
-            sim_dir = base / str(simulate.pop("dir"))
+            sim_dir = _norm(base / str(simulate.pop("dir")))
     if manifest is None and simulate is None:
         raise ConfigError(f"{path}: needs [data].manifest (a dataset.toml) or a [simulate] table")
 
@@ -183,7 +189,7 @@ def load_config(path: str | Path) -> RunConfig:
     if off_tbl:
         if set(off_tbl) - {"calibration"} or not isinstance(off_tbl.get("calibration"), str):
             raise ConfigError(f"{path} [offsets_only]: expected only 'calibration' = path to an earlier calibration.json")
-        off = OffsetsOnlySettings(base / off_tbl["calibration"])
+        off = OffsetsOnlySettings(_norm(base / off_tbl["calibration"]))
     seed = d.get("seed", 0)
     if not isinstance(seed, int):
         raise ConfigError(f"{path} seed: expected an integer, got {seed!r}")
@@ -195,7 +201,7 @@ def load_config(path: str | Path) -> RunConfig:
         manifest=manifest,
         simulate=simulate,
         simulate_dir=sim_dir,
-        output_dir=base / out["dir"],
+        output_dir=_norm(base / out["dir"]),
         hanging=_build(HangingSettings, d.get("hanging", {}), f"{path} [hanging]", "hanging"),
         standing=standing,
         selection=sel,
