@@ -33,19 +33,25 @@ def _rotations(ctx: ModelContext, free: bool):
     return [r for r, _ in out], [b for _, b in out]
 
 
+def _translations(ctx: ModelContext, each: bool):
+    """Six free ``p'_k`` (``each``), or nominal positions less one free body CoM ``c``:
+    returns the K translations, their variable blocks and ``c`` (None when each is free)."""
+    if each:
+        out = [vector_variable(f"p_prime_{leg}", ctx.p_nominal[k], TRANSLATION_BOUND_M) for k, leg in enumerate(ctx.legs)]
+        return [v for v, _ in out], [b for _, b in out], None
+    c, b = vector_variable("com_body", np.zeros(3), TRANSLATION_BOUND_M)
+    return [ca.DM(ctx.p_nominal[k]) - c for k in range(ctx.K)], [b], c
+
+
 class Full(ErrorModel):
     name = "full"
     description = "Full (Six rotations + six translations)"
     baseline_rotations, baseline_translations = "each", "each"
 
     def build(self, ctx: ModelContext) -> ModelSpec:
-        R, blocks = _rotations(ctx, True)
-        p = []
-        for k, leg in enumerate(ctx.legs):
-            v, b = vector_variable(f"p_prime_{leg}", ctx.p_nominal[k], TRANSLATION_BOUND_M)
-            p.append(v)
-            blocks.append(b)
-        return make_spec(blocks, R, p, dof=6 * ctx.K, dof_label=f"{3 * ctx.K}+{3 * ctx.K}")
+        R, rb = _rotations(ctx, True)
+        p, pb, _ = _translations(ctx, True)
+        return make_spec(rb + pb, R, p, dof=6 * ctx.K, dof_label=f"{3 * ctx.K}+{3 * ctx.K}")
 
 
 class Rot6Trans1(ErrorModel):
@@ -54,11 +60,9 @@ class Rot6Trans1(ErrorModel):
     baseline_rotations, baseline_translations = "each", "common"
 
     def build(self, ctx: ModelContext) -> ModelSpec:
-        R, blocks = _rotations(ctx, True)
-        c, b = vector_variable("com_body", np.zeros(3), TRANSLATION_BOUND_M)
-        blocks.append(b)
-        p = [ca.DM(ctx.p_nominal[k]) - c for k in range(ctx.K)]
-        return make_spec(blocks, R, p, com_body=c, dof=3 * ctx.K + 3, dof_label=f"{3 * ctx.K}+3")
+        R, rb = _rotations(ctx, True)
+        p, pb, c = _translations(ctx, False)
+        return make_spec(rb + pb, R, p, com_body=c, dof=3 * ctx.K + 3, dof_label=f"{3 * ctx.K}+3")
 
 
 class Trans6(ErrorModel):
@@ -67,13 +71,9 @@ class Trans6(ErrorModel):
     baseline_rotations, baseline_translations = "nominal", "each"
 
     def build(self, ctx: ModelContext) -> ModelSpec:
-        R, blocks = _rotations(ctx, False)
-        p = []
-        for k, leg in enumerate(ctx.legs):
-            v, b = vector_variable(f"p_prime_{leg}", ctx.p_nominal[k], TRANSLATION_BOUND_M)
-            p.append(v)
-            blocks.append(b)
-        return make_spec(blocks, R, p, dof=3 * ctx.K, dof_label=f"{3 * ctx.K}")
+        R, rb = _rotations(ctx, False)
+        p, pb, _ = _translations(ctx, True)
+        return make_spec(rb + pb, R, p, dof=3 * ctx.K, dof_label=f"{3 * ctx.K}")
 
 
 class Trans1(ErrorModel):
@@ -82,11 +82,9 @@ class Trans1(ErrorModel):
     baseline_rotations, baseline_translations = "nominal", "common"
 
     def build(self, ctx: ModelContext) -> ModelSpec:
-        R, blocks = _rotations(ctx, False)
-        c, b = vector_variable("com_body", np.zeros(3), TRANSLATION_BOUND_M)
-        blocks.append(b)
-        p = [ca.DM(ctx.p_nominal[k]) - c for k in range(ctx.K)]
-        return make_spec(blocks, R, p, com_body=c, dof=3, dof_label="3")
+        R, rb = _rotations(ctx, False)
+        p, pb, c = _translations(ctx, False)
+        return make_spec(rb + pb, R, p, com_body=c, dof=3, dof_label="3")
 
 
 class OffsetsOnly(ErrorModel):
