@@ -44,6 +44,7 @@ class StandingSettings:
     candidates: tuple[str, ...] = ("full", "rot6_trans1", "trans6", "trans1")
     solver: str = "ipopt"            # "ipopt" or "baseline"
     balance: str = "exact"           # "exact" or "report"
+    weighting: str = "fgls"          # final fit: "fgls" (two-step feasible GLS) or "knorm" (eq. 8's K)
     compare_baseline: bool = True
     poses: PoseExtraction = field(default_factory=PoseExtraction)
 
@@ -88,6 +89,7 @@ _CHOICES = {
     ("hanging", "method"): ("nlp", "baseline"),
     ("standing", "solver"): ("ipopt", "baseline"),
     ("standing", "balance"): ("exact", "report"),
+    ("standing", "weighting"): ("fgls", "knorm"),
 }
 
 
@@ -184,6 +186,8 @@ def load_config(path: str | Path) -> RunConfig:
     from dataclasses import replace
 
     standing = replace(standing, poses=poses)
+    if standing.solver == "baseline" and standing.weighting != "knorm":
+        raise ConfigError(f'{path} [standing]: solver = "baseline" is the report\'s K-norm method; set weighting = "knorm"')
     off_tbl = d.get("offsets_only", {})
     off = OffsetsOnlySettings()
     if off_tbl:

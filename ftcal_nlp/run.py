@@ -143,10 +143,11 @@ def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
                 model_name = selection.best
                 log.info("model selection:\n%s", selection.table().to_string(index=False))
         with stage("standing", timings):
-            if selection is not None and model_name in selection.results:
+            if selection is not None and model_name in selection.results and cfg.standing.weighting == "knorm":
                 standing = selection.results[model_name]  # selection already fitted it to all poses
             else:
-                standing = fit_standing(poses, prior, robot, model=model_name, solver=cfg.standing.solver, balance=cfg.standing.balance)
+                standing = fit_standing(poses, prior, robot, model=model_name, solver=cfg.standing.solver, balance=cfg.standing.balance,
+                                        weighting=cfg.standing.weighting)
         if cfg.standing.compare_baseline and cfg.standing.solver != "baseline":
             with stage("standing (baseline)", timings):
                 try:
@@ -154,6 +155,7 @@ def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
                 except RuntimeError as exc:  # a failed baseline is a finding, not a reason to stop
                     log.warning("baseline standing solver failed: %s", exc)
     meta = {"config": str(cfg.path), "solver": cfg.standing.solver, "balance": cfg.standing.balance,
+            "weighting": getattr(standing, "weighting", "knorm"),
             # null standard errors in calibration.json are these: directions the poses do not determine
             "unidentified": list(getattr(standing, "unidentified_params", ()))}
     cal = replace(standing.calibration, model=str(model_name), meta=meta)

@@ -116,3 +116,12 @@ def test_calibration_json_is_strict_and_round_trips(truth_calibration, tmp_path)
     assert np.isnan(back.legs["FL"].position_from_com_se_m[1]) and np.isnan(back.legs["FL"].com_xyz[3]).all()
     np.testing.assert_allclose(back.legs["ML"].com_xyz, cal.legs["ML"].com_xyz)
     np.testing.assert_allclose(back.legs["FR"].rotation_to_body, cal.legs["FR"].rotation_to_body)
+
+
+def test_weighting_key(tmp_path):
+    cfg = load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nweighting = "knorm"\n'))
+    assert cfg.standing.weighting == "knorm"
+    with pytest.raises(ConfigError, match=r"\[standing\].weighting"):
+        load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nweighting = "ols"\n'))
+    with pytest.raises(ConfigError, match=r'solver = "baseline".*weighting = "knorm"'):
+        load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nsolver = "baseline"\n'))

@@ -524,3 +524,52 @@ def test_sample_recovery_from_raw_recordings():
     cal = res.calibration
     assert np.allclose(cal.stacked(robot.legs)[0], prior.stacked(robot.legs)[0])  # offsets from hanging kept
     assert cal.legs["FL"].position_from_com_se_m is not None
+
+
+# ----------------------------------------------------------------------------- efficient weighting (feasible GLS)
+
+
+def test_fgls_weighting_is_within_3se_and_not_less_precise_than_knorm():
+    """weighting="fgls": K fit, then refit with W = (mean residual covariance in B)^-1. On ftcal_nlp.sim
+    poses (reading noise reaches r_p through the Ad_k, so K is not the inverse noise covariance):
+    every rotation and translation within 3 of its own (W-weighted Gauss-Newton) se, rotation se no
+    larger than the K fit's on average, RSS still the K-norm one (so not below the K fit's), and the
+    RMS rotation error over a few seeds reported for both weightings (loose check only: the
+    efficient weight must not be clearly worse)."""
+    rms = {"knorm": [], "fgls": []}
+    for seed in (7, 8, 9):
+        sim, robot, poses = sim_session(seed)
+        truth, prior = sim.truth, hanging_prior(sim.truth, robot)
+        k = fit_standing(poses, prior, robot, model="full")
+        f = fit_standing(poses, prior, robot, model="full", weighting="fgls")
+        assert f.weighting == "fgls" and k.weighting == "knorm" and f.calibration.meta["standing"]["weighting"] == "fgls"
+        assert f.unidentified == () and np.all(np.isfinite(f.rotvec_se)) and np.all(np.isfinite(f.p_prime_se))
+        assert f.rss >= k.rss * (1 - 1e-9)  # the K fit minimises the K-norm RSS
+        ek, ef = rotation_errors(k, truth), rotation_errors(f, truth)
+        assert np.all(np.abs(ef) <= 3 * f.rotvec_se)
+        assert np.all(np.abs(f.p_prime - truth.stacked(robot.legs)[3]) <= 3 * f.p_prime_se)
+        assert f.rotvec_se.mean() <= k.rotvec_se.mean()
+        rms["knorm"].append(np.sqrt((ek**2).mean()))
+        rms["fgls"].append(np.sqrt((ef**2).mean()))
+    pooled = {w: float(np.degrees(np.sqrt(np.mean(np.square(v))))) for w, v in rms.items()}
+    print(f"rotation RMS error [deg] over seeds 7-9: knorm {pooled['knorm']:.4f} "
+          f"({', '.join(f'{np.degrees(v):.4f}' for v in rms['knorm'])}), fgls {pooled['fgls']:.4f} "
+          f"({', '.join(f'{np.degrees(v):.4f}' for v in rms['fgls'])})")
+    assert pooled["fgls"] <= 1.25 * pooled["knorm"]
+    with pytest.raises(ValueError, match="unknown weighting"):
+        fit_standing(poses, prior, robot, weighting="gls")
+    with pytest.raises(ValueError, match="needs solver 'ipopt'"):
+        fit_standing(poses, prior, robot, solver="baseline", weighting="fgls")
+
+
+def test_fgls_weight_inverts_the_residual_covariance_and_stays_finite():
+    from ftcal_nlp.standing.problem import K_DIAG, fgls_weight
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    C = A @ A.T + np.eye(6)
+    r = rng.multivariate_normal(np.zeros(6), C, size=400)
+    W = fgls_weight(r)
+    assert np.allclose(W @ (r.T @ r / len(r)), np.eye(6), atol=1e-8)
+    assert np.all(np.isfinite(fgls_weight(r[:3])))  # rank 3: floored eigenvalues
+    assert np.allclose(fgls_weight(np.zeros((5, 6))), np.diag(K_DIAG))  # noise-free: K

@@ -47,7 +47,9 @@ GROUP_UNITS = {"offsets": "N, N*m", "leg_weights": "N", "com_curves": "mm", "com
                "translations": "mm", "com": "mm"}
 
 PIPELINES = {
-    "nlp": {"hanging": "nlp", "solver": "ipopt", "balance": "exact"},
+    "nlp": {"hanging": "nlp", "solver": "ipopt", "balance": "exact", "weighting": "fgls"},
+    # ablation: the NLP with eq. 8's fixed K-norm instead of the feasible-GLS weighting
+    "nlp_knorm": {"hanging": "nlp", "solver": "ipopt", "balance": "exact", "weighting": "knorm"},
     "baseline": {"hanging": "baseline", "solver": "baseline", "balance": "report"},
     # ablations: which part of the baseline's error is the balance (eq. 9), which the solvers
     "baseline_exact_balance": {"hanging": "baseline", "solver": "baseline", "balance": "exact"},
@@ -174,7 +176,8 @@ def run_pipeline(pipeline: str, sim, poses, model: str = "full"):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         hang = fit_hanging(sim.dataset.hanging, robot, method=spec["hanging"])
-        stand = fit_standing(poses, hang.to_calibration(robot), robot, model=model, solver=spec["solver"], balance=spec["balance"])
+        stand = fit_standing(poses, hang.to_calibration(robot), robot, model=model, solver=spec["solver"], balance=spec["balance"],
+                             weighting=spec.get("weighting", "knorm"))
     return hang, stand
 
 

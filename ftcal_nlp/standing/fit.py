@@ -13,6 +13,12 @@ estimated relative to C are moved to the body-without-legs CoM for the
 calibration with the mean leg configuration of the poses:
 ``c_body^C = -sum_k m_k (R_k mean_p r_k(phi_pk) + p'_k) / M_b`` (C taken as the
 mean whole-robot CoM); the se are carried over unchanged.
+
+``weighting="fgls"`` (two-step feasible GLS, ``problem.py``): fit with eq. 8's K,
+estimate ``C = mean_p r_p r_p^T`` of its residuals (B axes), refit from there with
+``W = C^-1`` and take the Gauss-Newton covariance ``(sum_p J_p^T W J_p)^-1``
+(``result.py``). The reported RSS, residuals, sigma and BIC stay the K-norm ones
+of Table I, evaluated at the GLS estimate.
 """
 
 from __future__ import annotations
@@ -28,10 +34,11 @@ from ..robot import Robot
 from .baseline import BaselineSettings, solve_baseline, to_model_x
 from .nlp import CompiledProblem, Solution, compile_problem
 from .poses import Poses
-from .problem import check_balance, features, knorm2, moments, to_world
+from .problem import K_DIAG, check_balance, features, fgls_weight, knorm2, moments, to_world
 from .result import REL_EIG_TOL, StandingResult, physical, uncertainty
 
 SOLVERS = ("ipopt", "baseline")
+WEIGHTINGS = ("knorm", "fgls")
 
 
 @dataclass
@@ -77,11 +84,15 @@ def prepare(prior: Calibration, robot: Robot, model: str | ErrorModel = "full", 
 
 
 def solve(problem: StandingProblem, xi: np.ndarray, solver: str = "ipopt", x0: np.ndarray | None = None,
-          baseline: BaselineSettings = BaselineSettings()) -> tuple[np.ndarray, Solution]:
-    """Minimise eq. 8 on features ``xi`` with ``solver``; returns the model's x and the solver record."""
+          baseline: BaselineSettings = BaselineSettings(), W: np.ndarray | None = None) -> tuple[np.ndarray, Solution]:
+    """Minimise eq. 8 on features ``xi`` with ``solver``; returns the model's x and the solver record.
+
+    ``W`` (6x6, ipopt only): weight replacing K (the feasible GLS step)."""
     if solver == "ipopt":
-        sol = problem.compiled.solve(moments(xi), x0)
+        sol = problem.compiled.solve(moments(xi), x0, W)
         return sol.x, sol
+    if W is not None:
+        raise ValueError(f"a weight W other than K needs solver 'ipopt', got {solver!r}")
     if solver == "baseline":
         R, p, off, sol = solve_baseline(problem.model, problem.ctx, xi, problem.balance, baseline)
         return to_model_x(problem.spec, problem.model, problem.ctx, R, p, off), sol
@@ -102,11 +113,13 @@ def _report_to_body_com(prior: Calibration, legs, R: np.ndarray, p: np.ndarray, 
 
 
 def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.ndarray, sol: Solution, solver: str, *,
-                rel_eig_tol: float = REL_EIG_TOL, covariance: str = "gauss_newton") -> StandingResult:
-    """Evaluate the fit at ``x``: residuals, uncertainty, undetermined directions, calibration."""
+                rel_eig_tol: float = REL_EIG_TOL, covariance: str = "gauss_newton", W: np.ndarray | None = None) -> StandingResult:
+    """Evaluate the fit at ``x``: residuals, uncertainty, undetermined directions, calibration.
+
+    ``W``: the fit's weight when it is not K (feasible GLS); the covariance uses it, RSS stays K-norm."""
     legs, K, prior = problem.ctx.legs, problem.ctx.K, problem.ctx.prior
     phys = physical(problem.spec, x, legs)
-    unc = uncertainty(problem.compiled, x, xi, phys, rel_eig_tol=rel_eig_tol, covariance=covariance)
+    unc = uncertainty(problem.compiled, x, xi, phys, rel_eig_tol=rel_eig_tol, covariance=covariance, W=W)
     se = unc.se
     rot_se = se[: 3 * K].reshape(K, 3)
     p_se = se[3 * K : 6 * K].reshape(K, 3)
@@ -139,7 +152,7 @@ def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.nd
     meta = dict(prior.meta)
     meta["standing"] = {
         "model": problem.name, "balance": problem.balance, "solver": solver, "status": sol.status,
-        "n_poses": int(poses.n), "rss": rss, "dof": problem.spec.n_dof, "sigma": float(np.sqrt(unc.sigma2)),
+        "weighting": "knorm" if W is None else "fgls", "n_poses": int(poses.n), "rss": rss, "dof": problem.spec.n_dof, "sigma": float(np.sqrt(unc.sigma2)),
         "rotation_se_rad": {leg: rot_se[k].tolist() for k, leg in enumerate(legs)},
         "unidentified": list(unc.unidentified),
     }
@@ -151,26 +164,40 @@ def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.nd
         model=problem.name, balance=problem.balance, solver=solver, legs=tuple(legs), R_nominal=problem.ctx.R_nominal,
         com_body_se_m=com_se, offsets=phys.offsets, offsets_se=off_se, unidentified_params=unc.unidentified_params,
         sigma2=unc.sigma2, eig_ratio=unc.eig_ratio, x=x, iterations=sol.iterations,
+        weighting="knorm" if W is None else "fgls", weight=None if W is None else np.asarray(W, float),
     )
 
 
 def fit_standing(poses: Poses, prior: Calibration, robot: Robot, *, model: str | ErrorModel = "full", solver: str = "ipopt",
                  balance: str = "exact", fit_offsets: bool = False, covariance: str = "gauss_newton",
                  rel_eig_tol: float = REL_EIG_TOL, baseline: BaselineSettings = BaselineSettings(),
-                 verbose: bool = False) -> StandingResult:
+                 verbose: bool = False, weighting: str = "knorm") -> StandingResult:
     """Fit the transducer-to-CoM transforms (or, ``fit_offsets=True``, the offsets alone) to standing poses.
 
     ``model``: a registered name (``full``, ``rot6_trans1``, ``trans6``, ``trans1``), ``module:Class``,
     ``file.py:Class`` or an ErrorModel (ignored when ``fit_offsets``); ``solver``: ``ipopt`` (exact SO(3)) or ``baseline`` (the report's
-    Cayley + alternating least squares); ``balance``: ``exact`` (eq. E) or ``report`` (eq. 9).
+    Cayley + alternating least squares); ``balance``: ``exact`` (eq. E) or ``report`` (eq. 9);
+    ``weighting``: ``knorm`` (eq. 8's K) or ``fgls`` (K fit, then refit with W = (mean residual
+    covariance)^-1; IPOPT only: the report's baseline solver is defined for K).
     Raises :class:`SolverError` when the solver does not converge.
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; known: {list(SOLVERS)}")
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"unknown weighting {weighting!r}; known: {list(WEIGHTINGS)}")
+    if weighting == "fgls" and solver != "ipopt":
+        raise ValueError(f"weighting 'fgls' needs solver 'ipopt', got {solver!r}")
     check_inputs(poses, prior, robot)
     t0 = time.perf_counter()
     problem = prepare(prior, robot, model, balance, fit_offsets=fit_offsets, verbose=verbose)
     xi = features(poses.w_m, poses.phi, poses.R_WB, prior, robot.legs, balance)
     x, sol = solve(problem, xi, solver, baseline=baseline)
-    res = make_result(problem, poses, xi, x, sol, solver, rel_eig_tol=rel_eig_tol, covariance=covariance)
+    W = None
+    if weighting == "fgls":
+        W = fgls_weight(xi @ problem.compiled.L(x).T)
+        # IPOPT's tolerances are absolute: solve with W scaled like K (same minimiser), keep W for the covariance
+        t_first = sol.solve_time_s
+        x, sol = solve(problem, xi, "ipopt", x0=x, W=W * (K_DIAG.sum() / np.trace(W)))
+        sol = replace(sol, solve_time_s=sol.solve_time_s + t_first)
+    res = make_result(problem, poses, xi, x, sol, solver, rel_eig_tol=rel_eig_tol, covariance=covariance, W=W)
     return replace(res, total_time_s=time.perf_counter() - t0)

@@ -1,11 +1,12 @@
 """The standing calibration as one NLP, solved by IPOPT (report eq. 8 with exact SO(3)).
 
-    min_theta  sum_i K_ii (L(theta) S L(theta)^T)_ii       S = sum_p xi_p xi_p^T / P
+    min_theta  tr(W L(theta) S L(theta)^T)       S = sum_p xi_p xi_p^T / P,  W = K by default
     s.t.       the model's constraints g(theta) (R^T R = I, det R >= 0 per free rotation)
 
 (``problem.py`` for ``L`` and ``xi``.) The moment matrix S is a parameter of the
 compiled solver, so one compilation serves the full fit and every
-cross-validation fold. ``L(x)`` and the constraints are SX functions (scalar
+cross-validation fold; so is the 6x6 weight W (eq. 8's K, or the feasible GLS
+weight). ``L(x)`` and the constraints are SX functions (scalar
 graphs, fast to evaluate); the objective wraps them in a small MX graph
 (``L S L^T`` as matrix products), which keeps the exact Hessian while building in
 ~0.1 s instead of the ~0.5-2 s of an all-SX objective with a 40x40 to 94x94
@@ -24,7 +25,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from ..models import ModelSpec
-from .problem import L_casadi, n_features, objective_casadi
+from .problem import K_DIAG, L_casadi, n_features, objective_casadi
 
 
 class SolverError(RuntimeError):
@@ -74,12 +75,14 @@ class CompiledProblem:
         J = np.array(self.dL_fn(x))  # rows: vec(L) column-major, index i + 6 j
         return J.reshape(self.n_xi, 6, -1).transpose(1, 0, 2)
 
-    def solve(self, S: np.ndarray, x0: np.ndarray | None = None) -> Solution:
-        """Minimise eq. 8 for moments ``S`` from ``x0`` (the model's start by default)."""
+    def solve(self, S: np.ndarray, x0: np.ndarray | None = None, W: np.ndarray | None = None) -> Solution:
+        """Minimise eq. 8 for moments ``S`` from ``x0`` (the model's start by default), weight ``W`` (K by default)."""
         sp = self.spec
         x0 = sp.x0 if x0 is None else x0
+        W = np.diag(K_DIAG) if W is None else np.asarray(W, float)
+        p = ca.vertcat(ca.DM(S).reshape((-1, 1)), ca.DM(W).reshape((-1, 1)))
         t0 = time.perf_counter()
-        sol = self.solver(x0=x0, p=ca.DM(S).reshape((-1, 1)), lbx=sp.lbx, ubx=sp.ubx, lbg=sp.lbg, ubg=sp.ubg)
+        sol = self.solver(x0=x0, p=p, lbx=sp.lbx, ubx=sp.ubx, lbg=sp.lbg, ubg=sp.ubg)
         dt = time.perf_counter() - t0
         st = self.solver.stats()
         status = str(st.get("return_status", "unknown"))
@@ -107,7 +110,8 @@ def compile_problem(spec: ModelSpec, prior: Calibration, legs, balance: str, *, 
     L_fn = ca.Function("L", [spec.x], [L])
     x = ca.MX.sym("x", spec.x.numel())
     S = ca.MX.sym("S", n_xi, n_xi)
-    f = objective_casadi(L_fn(x), S)
+    W = ca.MX.sym("W", 6, 6)
+    f = objective_casadi(L_fn(x), S, W)
     g = ca.Function("g", [spec.x], [spec.g])(x)
     opts = {
         "ipopt.print_level": 5 if verbose else 0,
@@ -116,6 +120,6 @@ def compile_problem(spec: ModelSpec, prior: Calibration, legs, balance: str, *, 
         "ipopt.tol": tol,
         "ipopt.max_iter": max_iter,
     }
-    nlp = {"x": x, "p": ca.reshape(S, -1, 1), "f": f, "g": g}
+    nlp = {"x": x, "p": ca.vertcat(ca.reshape(S, -1, 1), ca.reshape(W, -1, 1)), "f": f, "g": g}
     dL_fn = ca.Function("dL", [spec.x], [ca.jacobian(ca.reshape(L, -1, 1), spec.x)])
     return CompiledProblem(spec, balance, model_name, L_fn, dL_fn, nlp, n_xi, opts)

@@ -16,6 +16,13 @@ reduces to the moments ``S = sum_p xi_p xi_p^T / P``:
 This makes one IPOPT iteration independent of the number of poses and lets
 cross-validation folds change only the parameter S.
 
+Efficient weighting (``weighting="fgls"`` of ``fit_standing``): K is not the inverse
+noise covariance of r_p (the readings' noise reaches r_p through the Ad_k and
+couples force and torque), so two-step feasible GLS refits with a constant
+``W = C^-1``, ``C = mean_p r_p r_p^T`` of the K fit (B axes); the objective stays
+``tr(W L S L^T)``. W is constant in B, so unlike K it is not invariant under the
+body rotation; the poses' residuals are all expressed in B.
+
 Exact balance, physics.py eq. (E), with ``Ad_k = [[R_k, 0], [[p'_k] R_k, R_k]]``,
 ``z_p = R_WB,p^T e_z`` (up in B), ``M_b g`` the weight of the body without legs:
 
@@ -153,6 +160,23 @@ def moments(xi: np.ndarray) -> np.ndarray:
     return xi.T @ xi / len(xi)
 
 
-def objective_casadi(L, S):
-    """``sum_i K_ii (L S L^T)_ii`` (SX or MX): the mean K-norm residual over the poses summarised by S."""
-    return ca.sum1(ca.sum2(ca.mtimes(ca.DM(np.diag(K_DIAG)), ca.mtimes(L, S)) * L))
+def objective_casadi(L, S, W=None):
+    """``tr(W L S L^T)`` (SX or MX): the mean W-norm residual over the poses summarised by S.
+
+    ``W`` (6x6, symmetric) defaults to eq. 8's ``K``; the feasible GLS fit passes the inverse
+    residual covariance (a parameter of the compiled solver, like S)."""
+    W = ca.DM(np.diag(K_DIAG)) if W is None else W
+    return ca.sum1(ca.sum2(ca.mtimes(W, ca.mtimes(L, S)) * L))
+
+
+def fgls_weight(r_B: np.ndarray, rel_floor: float = 1e-8) -> np.ndarray:
+    """``W = C^-1`` with ``C = mean_p r_p r_p^T`` (6x6, B axes), the efficient constant weight.
+
+    Eigenvalues of C below ``rel_floor`` times the largest are raised to it (fewer than 6 poses,
+    or a noise-free block), so W stays finite; an all-zero C (noise-free data) gives ``K``."""
+    C = r_B.T @ r_B / max(len(r_B), 1)
+    lam, V = np.linalg.eigh((C + C.T) / 2)
+    if not np.isfinite(lam).all() or lam.max() <= 0:
+        return np.diag(K_DIAG)
+    lam = np.maximum(lam, rel_floor * lam.max())
+    return (V / lam) @ V.T

@@ -9,7 +9,9 @@ SO(3), 3 directions). In tangent coordinates
     A = sum_p (J_p T)^T K (J_p T),     sigma^2 = RSS / (6P - d),     Cov_t = sigma^2 A^-1
 
 (``covariance="sandwich"``: ``A^-1 (sum_p g_p g_p^T) A^-1``, ``g_p = (J_p T)^T K r_p``,
-robust to unequal force/torque noise). Standard errors of what the model
+robust to unequal force/torque noise). For the feasible GLS fit (``problem.py``)
+K is replaced by ``W = C^-1`` and ``Cov_t = A^-1`` (no sigma^2: W is already the
+inverse residual covariance). Standard errors of what the model
 determines follow by the chain rule: rotations as rotation vectors ``delta_k``
 of ``R_k = exp([delta_k]) R_k*`` (B axes, rad), translations ``p'_k`` (m),
 offsets, ``com_body``.
@@ -127,8 +129,12 @@ def _describe(c: np.ndarray, labels, ratio: float, top: int = 12) -> tuple[str, 
 
 
 def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_tol: float = REL_EIG_TOL,
-                covariance: str = "gauss_newton") -> Uncertainty:
-    """Standard errors and undetermined directions at the optimum ``x`` (module docstring)."""
+                covariance: str = "gauss_newton", W: np.ndarray | None = None) -> Uncertainty:
+    """Standard errors and undetermined directions at the optimum ``x`` (module docstring).
+
+    ``W`` (6x6): the fit was weighted by W = (residual covariance)^-1 (feasible GLS) instead of K:
+    ``A = sum_p (J_p T)^T W (J_p T)`` and the Gauss-Newton covariance is ``A^-1`` with no sigma^2
+    factor (W already holds the noise scale); ``sigma2`` stays the K-norm one (reporting)."""
     if covariance not in ("gauss_newton", "sandwich"):
         raise ValueError(f"covariance: expected 'gauss_newton' or 'sandwich', got {covariance!r}")
     spec = cp.spec
@@ -144,7 +150,8 @@ def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_to
         T = np.eye(n)
     d = T.shape[1]
     Jt = J @ T
-    A = np.einsum("pin,i,pim->nm", Jt, K_DIAG, Jt)
+    Wm = np.diag(K_DIAG) if W is None else np.asarray(W, float)
+    A = np.einsum("pin,ij,pjm->nm", Jt, Wm, Jt)
     rss = float(knorm2(r).sum())
     sigma2 = rss / max(6 * P - d, 1)
     s = np.sqrt(np.diag(A))
@@ -155,9 +162,9 @@ def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_to
     ok = ratio >= rel_eig_tol
     Ainv = (V[:, ok] / lam[ok]) @ V[:, ok].T
     if covariance == "gauss_newton":
-        Cs = sigma2 * Ainv
+        Cs = (sigma2 if W is None else 1.0) * Ainv
     else:
-        g = np.einsum("pin,i,pi->pn", Jt, K_DIAG, r) / s
+        g = np.einsum("pin,ij,pj->pn", Jt, Wm, r) / s
         Cs = Ainv @ (g.T @ g) @ Ainv * P / max(P - d, 1)
     Cx = T @ (Cs / np.outer(s, s)) @ T.T
     D = phys.D
@@ -207,7 +214,8 @@ class StandingResult:
     does not estimate it (nominal or prior value kept);
     ``residuals`` (P, 6) eq. (E) or (9) residual per pose in W axes (N, N*m);
     ``rss`` the K-norm residual sum of squares; ``dof`` the model's degrees of freedom;
-    ``unidentified`` descriptions of directions the poses do not determine.
+    ``unidentified`` descriptions of directions the poses do not determine;
+    ``weighting`` the fit's weight (the se follow it; ``rss`` is the K-norm either way).
     """
 
     calibration: Calibration
@@ -237,6 +245,8 @@ class StandingResult:
     x: np.ndarray | None = field(default=None, repr=False)
     iterations: int = -1
     total_time_s: float = float("nan")   # compile + solve + uncertainty
+    weighting: str = "knorm"             # "knorm" (eq. 8's K) or "fgls" (W = residual covariance^-1)
+    weight: np.ndarray | None = field(default=None, repr=False)  # the fgls W (6x6, B axes)
 
     @property
     def rotation_errors(self) -> np.ndarray:
