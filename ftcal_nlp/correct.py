@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
-from .data import WRENCH_COMPONENTS, DataFormatError, Recording, _read_table, ground_wrench_frame, recording_from_frame
+from .data import WRENCH_COMPONENTS, DataFormatError, Recording, ground_wrench_frame, read_table, recording_from_frame
 from .geometry import quat_to_rotation
 from .physics import ground_wrenches
 from .robot import Robot, Transducer
@@ -53,7 +53,7 @@ def correct_recording(cal: Calibration, rec: Recording) -> pd.DataFrame:
 def correct_file(cal: Calibration, path: str | Path) -> pd.DataFrame:
     """Read a CSV/Parquet recording in the interchange format and correct it."""
     path = Path(path)
-    rec = recording_from_frame(_read_table(path), robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
+    rec = recording_from_frame(read_table(path), robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
     return correct_recording(cal, rec)
 
 

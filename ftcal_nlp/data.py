@@ -187,7 +187,8 @@ def read_robot(path: str | Path) -> Robot:
     return Robot(str(d.get("name", path.parent.name)), mass, g, tuple(legs), transducers, leg_mass)
 
 
-def _read_table(path: Path) -> pd.DataFrame:
+def read_table(path: Path) -> pd.DataFrame:
+    """The raw table of a CSV or Parquet recording (no validation: see :func:`recording_from_frame`)."""
     if not path.is_file():
         raise DataFormatError(f"{path}: recording file not found")
     suffix = path.suffix.lower()
@@ -277,7 +278,7 @@ def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
 def read_recording(path: str | Path, robot: Robot, *, kind: str, gravity_body=None, name: str | None = None) -> Recording:
     """Read one CSV or Parquet recording and validate it against ``robot``."""
     path = Path(path)
-    df = _read_table(path)
+    df = read_table(path)
     gb = None if gravity_body is None else _vec3(list(gravity_body), f"{path} gravity_body")
     return recording_from_frame(df, robot, name=name or path.stem, kind=kind, gravity_body=gb, source=str(path), path=path)
 

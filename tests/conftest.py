@@ -14,8 +14,19 @@ settings.load_profile("ftcal")
 
 from pathlib import Path
 
+import numpy as np
+
 # The sample dataset written by someone else lives in shared/ beside the clone (CI and
 # developers alike); FTCAL_SAMPLE points elsewhere if needed.
 SAMPLE = Path(os.environ.get("FTCAL_SAMPLE", Path(__file__).resolve().parents[2] / "shared" / "sample"))
 if not (SAMPLE / "dataset.toml").is_file():
     raise RuntimeError(f"sample dataset not found at {SAMPLE}: set FTCAL_SAMPLE to shared/sample")
+
+
+def constant_phi_windows(rec, legs, settle_s=1.0, min_s=2.0):
+    """Row indices of each run of constant shaft angles (a pose of the sample), from ``settle_s`` after it starts."""
+    phi = rec.phi_array(legs)
+    edges = np.flatnonzero(np.any(np.diff(phi, axis=0) != 0, axis=1)) + 1
+    starts, ends = np.r_[0, edges], np.r_[edges, len(phi)]
+    rate = 1 / np.median(np.diff(rec.t))
+    return [np.arange(a + int(settle_s * rate), b) for a, b in zip(starts, ends) if b - a >= min_s * rate]

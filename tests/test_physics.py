@@ -29,7 +29,7 @@ from ftcal_nlp.data import read_dataset
 from ftcal_nlp.geometry import quat_to_rotation, remove_yaw, skew
 from ftcal_nlp.sim import SimConfig, simulate
 
-from conftest import SAMPLE
+from conftest import SAMPLE, constant_phi_windows
 
 COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
 MEDIAN_VAR = np.pi / 2          # asymptotic variance of a Gaussian median, in units of sigma^2 / n
@@ -94,15 +94,6 @@ def z_limit(n_values):
 def sim_windows(res):
     st = res.dataset.standing[0]
     return [np.flatnonzero((st.t >= a) & (st.t <= b)) for a, b in res.pose_windows]
-
-
-def sample_windows(rec, legs, settle_s=1.0, min_s=2.0):
-    """Runs of constant shaft angles (the sample's poses), from ``settle_s`` after they start."""
-    phi = rec.phi_array(legs)
-    edges = np.flatnonzero(np.any(np.diff(phi, axis=0) != 0, axis=1)) + 1
-    starts, ends = np.r_[0, edges], np.r_[edges, len(phi)]
-    rate = 1 / np.median(np.diff(rec.t))
-    return [np.arange(a + int(settle_s * rate), b) for a, b in zip(starts, ends) if b - a >= min_s * rate]
 
 
 def moving_com_torque(phi, R_WB, cal):
@@ -218,13 +209,13 @@ def test_sample_standing_balances_exactly(sample):
     ds, cal = sample
     st = ds.standing[0]
     legs = ds.robot.legs
-    wm, phi, R, n = steady_medians(st, legs, sample_windows(st, legs))
+    wm, phi, R, n = steady_medians(st, legs, constant_phi_windows(st, legs))
     assert len(wm) >= 100
     # The sample states ATI-level noise; its mocap error is constant within a pose, so it is
     # not averaged: take the brief's 0.05 deg per pose. Torque noise read off the data
     # (first differences of the steady readings carry sqrt(2) sigma).
     W = st.wrench_array(legs)
-    d = np.concatenate([np.diff(W[rows], axis=0) for rows in sample_windows(st, legs)])
+    d = np.concatenate([np.diff(W[rows], axis=0) for rows in constant_phi_windows(st, legs)])
     sigma = d.std(axis=0).mean(0) / np.sqrt(2)
     sigma_f, sigma_t = sigma[:3].max(), sigma[3:].max()
     print(f"\nsample noise from the data: force {sigma_f:.4f} N, torque {sigma_t:.4f} N*m")

@@ -12,7 +12,7 @@ from ftcal_nlp.data import hanging_pairs, read_dataset
 from ftcal_nlp.sim import EFFECTS, NoEffect, SimConfig, draw_true_robot, simulate, write_simulation
 from ftcal_nlp.sim.recordings import pose_grid, solve_poses, transition_profile
 
-from conftest import SAMPLE
+from conftest import SAMPLE, constant_phi_windows
 
 SMALL = SimConfig(seed=3, n_poses=40, hanging_cycles=2, walk_cycles=1.0)
 COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -391,15 +391,6 @@ LEVEL = np.cos(np.radians(10.0))   # pose whose body z is within 10 deg of up: l
 LOADED_N = 1.0                     # a foot carries load when the ground pushes it up by more than this
 
 
-def _constant_phi_windows(rec, legs, settle_s=1.0, min_s=2.0):
-    """Row indices of each run of constant shaft angles (a pose), from ``settle_s`` after it starts."""
-    phi = rec.phi_array(legs)
-    edges = np.flatnonzero(np.any(np.diff(phi, axis=0) != 0, axis=1)) + 1
-    starts, ends = np.r_[0, edges], np.r_[edges, len(phi)]
-    rate = 1 / np.median(np.diff(rec.t))
-    return [np.arange(a + int(settle_s * rate), b) for a, b in zip(starts, ends) if b - a >= min_s * rate]
-
-
 def _ground_from_readings(rec, legs, windows, cal, min_rows=100):
     """Per pose (median of its steady rows with motion capture): ground force on each foot in W,
     reading less offset less leg weight turned into W with ``cal``, (P, K, 3); shaft angles (P, K);
@@ -440,7 +431,7 @@ def _load_stats(g):
 def sample_loads():
     ds = read_dataset(SAMPLE / "dataset.toml", kinds=("standing",))
     st, legs = ds.standing[0], ds.robot.legs
-    g = _ground_from_readings(st, legs, _constant_phi_windows(st, legs), Calibration.load(SAMPLE / "truth.json", g=9.81))
+    g = _ground_from_readings(st, legs, constant_phi_windows(st, legs), Calibration.load(SAMPLE / "truth.json", g=9.81))
     return g, _load_stats(g)
 
 
