@@ -30,6 +30,7 @@ class LegCalibration:
     leg_weight_se_N: float | None = None
     position_from_com_se_m: np.ndarray | None = None
     com_xyz_se: np.ndarray | None = None
+    rotation_se_rad: np.ndarray | None = None   # se of the rotation vector of R_k (left perturbation, B axes)
 
     def com(self, phi: np.ndarray) -> np.ndarray:
         """Leg CoM ``r_k(phi)`` in ft_k, (N, 3) m, by periodic linear interpolation of the grid."""
@@ -48,10 +49,16 @@ def periodic_interp(phi: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np
 
 
 def _nulls(x):
-    """Nested lists with non-finite floats replaced by None."""
-    if isinstance(x, list):
+    """Nested lists / dicts with non-finite floats replaced by None (strict JSON); other values as they are."""
+    if isinstance(x, (list, tuple)):
         return [_nulls(v) for v in x]
-    return x if np.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _nulls(v) for k, v in x.items()}
+    if isinstance(x, np.ndarray):
+        return _nulls(x.tolist())
+    if isinstance(x, (float, np.floating)):
+        return float(x) if np.isfinite(x) else None
+    return x
 
 
 @dataclass(frozen=True)
@@ -105,6 +112,8 @@ class Calibration:
                 "position_from_com_m": lst(l.position_from_com_m),
                 "position_from_com_se_m": lst(l.position_from_com_se_m),
             }
+            if l.rotation_se_rad is not None:  # beside the contract's keys, in the same naming
+                d["rotation_to_body_se_rad"] = lst(l.rotation_se_rad)
             if l.com_xyz_se is not None:
                 d["leg_com_grid"]["xyz_se"] = lst(l.com_xyz_se)
             legs[k] = d
@@ -114,7 +123,7 @@ class Calibration:
             "com_body_m": lst(self.com_body_m),
             "mass_kg": float(self.mass_kg),
             "g": float(self.g),
-            **({"meta": self.meta} if self.meta else {}),
+            **({"meta": _nulls(self.meta)} if self.meta else {}),
         }
 
     def save(self, path: str | Path) -> None:
@@ -149,6 +158,7 @@ class Calibration:
                 leg_weight_se_N=l.get("leg_weight_se_N"),
                 position_from_com_se_m=arr(l.get("position_from_com_se_m")),
                 com_xyz_se=arr(grid.get("xyz_se")),
+                rotation_se_rad=arr(l.get("rotation_to_body_se_rad")),
             )
         m = d.get("mass_kg", d.get("mass_true_kg", mass_kg))
         gg = d.get("g", g)

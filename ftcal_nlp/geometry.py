@@ -64,15 +64,17 @@ def unskew(m: ArrayLike) -> ArrayLike:
 
 
 def cayley(q: ArrayLike) -> ArrayLike:
-    """Cayley map ``R = (I - [q])(I + [q])^{-1}``; a proper rotation for every q in R^3."""
+    """Cayley map ``R = (I - [q])(I + [q])^{-1}``; a proper rotation for every q in R^3.
+
+    Evaluated in closed form, ``((1 - q.q) I + 2 q q^T - 2 [q]) / (1 + q.q)``, which stays
+    orthonormal to rounding for any |q| (a linear solve loses ~|q| eps near 180 degrees).
+    """
     if _is_symbolic(q):
-        s = skew(q)
-        eye = ca.DM.eye(3)
-        return ca.mtimes(eye - s, ca.inv(eye + s))
-    s = skew(q)
-    eye = np.broadcast_to(np.eye(3), s.shape)
-    # (I - S)(I + S)^-1 == solve((I + S)^T, (I - S)^T)^T
-    return np.swapaxes(np.linalg.solve(np.swapaxes(eye + s, -1, -2), np.swapaxes(eye - s, -1, -2)), -1, -2)
+        qq = ca.dot(q, q)
+        return ((1 - qq) * ca.DM.eye(3) + 2 * ca.mtimes(q, q.T) - 2 * skew(q)) / (1 + qq)
+    q = np.asarray(q, dtype=float)
+    qq = np.sum(q * q, axis=-1)[..., None, None]
+    return ((1 - qq) * np.eye(3) + 2 * q[..., :, None] * q[..., None, :] - 2 * skew(q)) / (1 + qq)
 
 
 def cayley_inv(R: ArrayLike) -> ArrayLike:
@@ -114,6 +116,21 @@ def adjoint_transpose(T: np.ndarray) -> np.ndarray:
     out[..., 3:, :3] = -Rt @ skew(p)
     out[..., 3:, 3:] = Rt
     return out
+
+
+def cross(a: ArrayLike, b: ArrayLike) -> ArrayLike:
+    """``a x b``: numpy arrays (..., 3) broadcast; CasADi 3-vectors."""
+    if _is_symbolic(a) or _is_symbolic(b):
+        return ca.cross(ca.reshape(a, 3, 1) if isinstance(a, np.ndarray) else a, ca.reshape(b, 3, 1) if isinstance(b, np.ndarray) else b)
+    return np.cross(np.asarray(a, float), np.asarray(b, float))
+
+
+def stack_wrench(f: ArrayLike, tau: ArrayLike) -> ArrayLike:
+    """``[f; tau]``: numpy (..., 3) pairs -> (..., 6); CasADi 3-vectors -> 6-vector."""
+    if _is_symbolic(f) or _is_symbolic(tau):
+        return ca.vertcat(f, tau)
+    f, tau = np.broadcast_arrays(np.asarray(f, float), np.asarray(tau, float))
+    return np.concatenate([f, tau], axis=-1)
 
 
 def transform_wrench(R: ArrayLike, p: ArrayLike, w: ArrayLike) -> ArrayLike:

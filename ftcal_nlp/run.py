@@ -1,12 +1,13 @@
 """``python -m ftcal_nlp.run CONFIG.toml [--force]``: dataset in, calibration and report out.
 
-Stages (each logged with counts and wall time): load or simulate the dataset;
-hanging calibration (Sec. III-A); pose extraction (Sec. I-B); standing
-calibration with model selection (Sec. III-B, IV-2); the calibration written as
-``calibration.json``; every walking recording corrected into ``corrected/``;
-the sim-to-real gap diagnosis; the report (tables, figures, ``report.md``,
-``report.html``). With ``[offsets_only] calibration = ...`` only the offsets are
-re-estimated from the standing poses and everything else is kept (Sec. V).
+The command line around :func:`ftcal_nlp.calibrate`: it reads the config, loads
+(or simulates and writes) the dataset, calls ``calibrate`` with the config's
+settings, and writes what the run produced: ``calibration.json``, the corrected
+walking recordings in ``corrected/``, ``diagnosis.json`` and the report
+(tables, figures, ``report.md``, ``report.html``), then prints a short summary.
+With ``[offsets_only] calibration = ...`` only the offsets are re-estimated from
+the standing poses and everything else is kept (report Sec. V). A config with a
+``[validation]`` table runs the diagnosis' withheld-effect validation instead.
 """
 
 from __future__ import annotations
@@ -16,52 +17,28 @@ import json
 import logging
 import sys
 import time
-from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+import tomllib
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterator
 
+import matplotlib
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .calibration import Calibration
+from .calibration_run import CalibrationRun
 from .config import ConfigError, RunConfig, load_config
 from .data import DataFormatError, Dataset, read_dataset
+from .diagnose.validate import run_validation
+from .pipeline import calibrate, stage
+from .report import write_report
+from .sim import SimConfig, simulate, write_simulation
 
 log = logging.getLogger("ftcal_nlp.run")
 
 
 class OutputExistsError(RuntimeError):
     pass
-
-
-@dataclass
-class RunResult:
-    """Everything a run produced; reports render from this only."""
-
-    config: RunConfig
-    dataset: Dataset
-    calibration: Calibration
-    hanging: Any = None
-    hanging_baseline: Any = None
-    poses: Any = None
-    selection: Any = None
-    standing: Any = None
-    standing_baseline: Any = None
-    diagnosis: Any = None
-    truth: Calibration | None = None
-    corrected: dict = field(default_factory=dict)
-    timings: dict[str, float] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-
-@contextmanager
-def stage(name: str, timings: dict[str, float]) -> Iterator[None]:
-    log.info("[%s] ...", name)
-    t0 = time.perf_counter()
-    yield
-    timings[name] = time.perf_counter() - t0
-    log.info("[%s] done in %.2f s", name, timings[name])
 
 
 def prepare_output(folder: Path, force: bool) -> None:
@@ -80,8 +57,6 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
         return ds, truth
     if cfg.simulate is None:
         raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)")
-    from .sim import SimConfig, simulate, write_simulation
-
     sim_cfg = SimConfig.from_dict(cfg.simulate)
     res = simulate(sim_cfg)
     folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
@@ -90,131 +65,56 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
     return read_dataset(manifest), res.truth
 
 
-def run(cfg: RunConfig, *, force: bool = False) -> RunResult:
-    """Run the whole pipeline of ``cfg``; write every output into ``cfg.output_dir``."""
-    from .correct import correct_recording
-    from .hanging import fit_hanging
-    from .standing import extract_poses, fit_standing
-    from .standing.poses import Poses
-
-    timings: dict[str, float] = {}
+def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
+    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir``."""
     prepare_output(cfg.output_dir, force)
-    with stage("load", timings):
-        ds, truth = load_or_simulate(cfg, force)
-        log.info("%d recordings: %s", len(ds.recordings), ", ".join(f"{r.name} ({r.kind}, {r.n} rows)" for r in ds.recordings))
-    robot = ds.robot
-    hang = hang_base = None
+    t0 = time.perf_counter()
+    ds, truth = load_or_simulate(cfg, force)
+    t_load = time.perf_counter() - t0
+    log.info("%d recordings: %s", len(ds.recordings), ", ".join(f"{r.name} ({r.kind}, {r.n} rows)" for r in ds.recordings))
+    prior = None
     if cfg.offsets_only.calibration is not None:
-        prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=robot.mass_kg, g=robot.g)
-        log.info("offsets-only re-estimation from %s", cfg.offsets_only.calibration)
-    else:
-        with stage("hanging", timings):
-            hang = fit_hanging(ds.hanging, robot, method=cfg.hanging.method, n_grid=cfg.hanging.n_grid, smoothing=cfg.hanging.smoothing, seed=cfg.seed)
-            for leg in hang.legs.values():
-                for w in leg.warnings:
-                    log.warning("%s", w)
-        if cfg.hanging.compare_baseline and cfg.hanging.method != "baseline":
-            with stage("hanging (baseline)", timings):
-                hang_base = fit_hanging(ds.hanging, robot, method="baseline", n_grid=cfg.hanging.n_grid, seed=cfg.seed)
-        prior = hang.to_calibration(robot)
-
-    with stage("poses", timings):
-        per_rec = [extract_poses(r, robot, cfg.standing.poses) for r in ds.standing]
-        if not per_rec:
-            raise DataFormatError(f"{cfg.manifest}: no standing recording; the transformation errors need standing poses")
-        poses = Poses.concat(per_rec)
-        log.info("poses: %s", " -> ".join(f"{v} {k}" for k, v in poses.counts.items()))
-
-    selection = standing = standing_base = None
-    if cfg.offsets_only.calibration is not None:
-        with stage("standing (offsets only)", timings):
-            standing = fit_standing(poses, prior, robot, fit_offsets=True, solver=cfg.standing.solver, balance=cfg.standing.balance)
-        model_name = prior.model
-    else:
-        from .selection import select_models
-
-        model_name = cfg.standing.model
-        if model_name == "auto":
-            with stage("model selection", timings):
-                selection = select_models(
-                    poses, prior, robot, candidates=list(cfg.standing.candidates), solver=cfg.standing.solver,
-                    balance=cfg.standing.balance, folds=cfg.selection.folds, seed=cfg.selection.seed,
-                )
-                model_name = selection.best
-                log.info("model selection:\n%s", selection.table().to_string(index=False))
-        with stage("standing", timings):
-            if selection is not None and model_name in selection.results and cfg.standing.weighting == "knorm":
-                standing = selection.results[model_name]  # selection already fitted it to all poses
-            else:
-                standing = fit_standing(poses, prior, robot, model=model_name, solver=cfg.standing.solver, balance=cfg.standing.balance,
-                                        weighting=cfg.standing.weighting)
-        if cfg.standing.compare_baseline and cfg.standing.solver != "baseline":
-            with stage("standing (baseline)", timings):
-                try:
-                    standing_base = fit_standing(poses, prior, robot, model=model_name, solver="baseline", balance=cfg.standing.balance)
-                except RuntimeError as exc:  # a failed baseline is a finding, not a reason to stop
-                    log.warning("baseline standing solver failed: %s", exc)
-    meta = {"config": str(cfg.path), "solver": cfg.standing.solver, "balance": cfg.standing.balance,
-            "weighting": getattr(standing, "weighting", "knorm"),
-            # null standard errors in calibration.json are these: directions the poses do not determine
-            "unidentified": list(getattr(standing, "unidentified_params", ()))}
-    cal = replace(standing.calibration, model=str(model_name), meta=meta)
-
-    result = RunResult(cfg, ds, cal, hang, hang_base, poses, selection, standing, standing_base, truth=truth, timings=timings)
-    with stage("write calibration", timings):
-        cal.save(cfg.output_dir / "calibration.json")
-    with stage("correct walking", timings):
+        prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
+    res = calibrate(ds, cfg.settings, offsets_only=prior)
+    res.truth = truth
+    res.timings = {"load": t_load, **res.timings}
+    res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta})
+    with stage("write calibration", res.timings):
+        res.calibration.save(cfg.output_dir / "calibration.json")
+    with stage("write corrected", res.timings):
         (cfg.output_dir / "corrected").mkdir(exist_ok=True)
-        for rec in ds.walking:
-            df = correct_recording(cal, rec)
-            df.to_csv(cfg.output_dir / "corrected" / f"{rec.name}.csv", index=False, float_format="%.7g")
-            result.corrected[rec.name] = df
-            log.info("corrected %s: %d rows", rec.name, len(df))
-    if cfg.diagnose.enabled:
-        with stage("diagnosis", timings):
-            try:
-                from .diagnose import diagnose_run
-            except ImportError:
-                msg = "diagnosis requested but ftcal_nlp.diagnose is not available in this version; diagnosis.json not written"
-                log.warning(msg)
-                result.notes.append(msg)
-            else:
-                result.diagnosis = diagnose_run(result)
-                (cfg.output_dir / "diagnosis.json").write_text(json.dumps(result.diagnosis.to_json_dict(), indent=1))
-    with stage("report", timings):
-        from .report import write_report
-
-        write_report(result, cfg.output_dir)
-    print(summary_text(result))
-    return result
+        for name, df in res.corrected.items():
+            df.to_csv(cfg.output_dir / "corrected" / f"{name}.csv", index=False, float_format="%.7g")
+    if res.diagnosis is not None:
+        (cfg.output_dir / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
+    with stage("report", res.timings):
+        write_report(res, cfg.output_dir)
+    print(summary_text(res, cfg))
+    return res
 
 
-def summary_text(res: RunResult) -> str:
+def summary_text(res: CalibrationRun, cfg: RunConfig) -> str:
     """The short end-of-run summary: model, residual before/after, where the report is."""
-    lines = [f"ftcal_nlp: {res.config.path}"]
+    lines = [f"ftcal_nlp: {cfg.path}"]
     if res.poses is not None:
         lines.append("poses: " + " -> ".join(f"{v} {k}" for k, v in res.poses.counts.items()))
     lines.append(f"model: {res.calibration.model}")
     if res.standing is not None:
         r = np.asarray(res.standing.residuals)
         lines.append("calibrated total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((r**2).mean(0))))
-    from .report.figures import naive_total_residuals
-
     try:
-        naive = naive_total_residuals(res)
+        naive = res.naive_total_residuals()
         lines.append("naive-tare total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((naive**2).mean(0))))
     except (ValueError, IndexError) as exc:
         lines.append(f"naive-tare residual not computed: {exc}")
     if res.diagnosis is not None:
         lines.append(f"diagnosis: {res.diagnosis.verdict}" + (f" ({res.diagnosis.effect})" if res.diagnosis.effect else ""))
     lines.append("stage times: " + ", ".join(f"{k} {v:.2f}s" for k, v in res.timings.items()))
-    lines.append(f"report: {res.config.output_dir / 'report.md'}")
+    lines.append(f"report: {cfg.output_dir / 'report.md'}")
     return "\n".join(lines)
 
 
 def _is_validation_config(path: str) -> bool:
-    import tomllib
-
     p = Path(path)
     if not p.is_file():
         return False
@@ -226,8 +126,6 @@ def _is_validation_config(path: str) -> bool:
 
 def _run_validation(path: str, force: bool, run_validation) -> int:
     """A ``[validation]`` config: the withheld-effect validation of the diagnosis (issue 7)."""
-    import tomllib
-
     p = Path(path)
     d = tomllib.loads(p.read_text())
     out = d.get("output", {}).get("dir")
@@ -248,11 +146,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--force", action="store_true", help="overwrite a non-empty output folder")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
+    matplotlib.use("Agg")  # files only; the entry point, not the library, picks the backend
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     try:
         if _is_validation_config(args.config):
-            from .diagnose.validate import run_validation
-
             with threadpool_limits(limits=1):
                 return _run_validation(args.config, args.force, run_validation)
         cfg = load_config(args.config)

@@ -18,17 +18,19 @@ from __future__ import annotations
 
 import io
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
-from tqdm.auto import tqdm
 import pandas as pd
+from tqdm.auto import tqdm
 
 from .calibration import Calibration
-from .models import REPORT_CANDIDATES
+from .results import bic as information_bic
+from .results import fmt_pm, latex_escape
 from .robot import Robot
 from .standing.fit import check_inputs, heldout_mse, make_result, prepare, solve
-from .standing.nlp import SolverError
+from .settings import SelectionSettings, StandingSettings, with_overrides
+from .solver import SolverError
 from .standing.poses import Poses
 from .standing.problem import features
 from .standing.result import StandingResult
@@ -76,17 +78,43 @@ class SelectionResult:
         return self.results[self.best]
 
     def table(self) -> pd.DataFrame:
-        """Table I: Model, DOF, CV error, BIC (plus name, DOF total, RSS, CV fold spread, status, time)."""
+        """Every statistic, one row per candidate, for programs: Table I's Model, DOF, CV error, BIC, then
+        the candidate's key ``name`` (as ``calibration.json`` names the model), its DOF count ``dof``,
+        RSS, the CV error's standard error over folds, status and time (s). The report shows
+        :meth:`report_table` instead."""
         rows = []
         for s in self.scores:
-            folds = np.asarray(s.cv_fold_errors, float)
             rows.append({
                 "Model": s.description, "DOF": s.dof_label, "CV error": s.cv_error, "BIC": s.bic,
-                "name": s.name, "dof": s.dof, "RSS": s.rss,
-                "CV error se": float(folds.std(ddof=1) / np.sqrt(len(folds))) if len(folds) > 1 else float("nan"),
+                "name": s.name, "dof": s.dof, "RSS": s.rss, "CV error se": _fold_se(s),
                 "status": s.status, "time_s": s.time_s,
             })
         return pd.DataFrame(rows)
+
+    def report_table(self, numeric: bool = False) -> pd.DataFrame:
+        """Table I as the report shows it: rows labelled by the model, DOF, CV error ``± se`` over the folds,
+        BIC and its difference to the selected model, the K-norm RSS (and the status where a fit failed).
+
+        ``numeric``: numbers instead of formatted text (the CSV), the CV error's se in its own column.
+        CV error and RSS are K-norm squares (eq. 8), N²."""
+        best = self.best
+        best_bic = next(s.bic for s in self.scores if s.name == best)
+        failed = any(s.status != "ok" for s in self.scores)
+        rows = []
+        for s in self.scores:
+            se = _fold_se(s)
+            if numeric:
+                row = {"DOF": s.dof_label, "CV error [N²]": s.cv_error, "CV error se [N²]": se, "BIC": s.bic,
+                       "delta BIC": s.bic - best_bic, "RSS [N²]": s.rss, "selected": s.name == best}
+            elif s.status != "ok":
+                row = {"DOF": s.dof_label, "CV error [N²]": "failed", "BIC": "", "delta BIC": "", "RSS [N²]": ""}
+            else:
+                row = {"DOF": s.dof_label, "CV error [N²]": fmt_pm(s.cv_error, se), "BIC": f"{s.bic:.1f}",
+                       "delta BIC": f"{s.bic - best_bic:.1f}", "RSS [N²]": f"{s.rss:.4g}"}
+            if failed or numeric:
+                row["status"] = s.status
+            rows.append(row)
+        return pd.DataFrame(rows, index=pd.Index([s.description for s in self.scores], name="Model"))
 
     def to_csv(self) -> str:
         return to_csv(self)
@@ -96,6 +124,12 @@ class SelectionResult:
 
     def to_latex(self) -> str:
         return to_latex(self)
+
+
+def _fold_se(s: CandidateScore) -> float:
+    """Standard error of the mean CV error over the folds."""
+    folds = np.asarray(s.cv_fold_errors, float)
+    return float(folds.std(ddof=1) / np.sqrt(len(folds))) if len(folds) > 1 else float("nan")
 
 
 def _report_layout(sel: SelectionResult) -> list[list[str]]:
@@ -128,16 +162,13 @@ def to_markdown(sel: SelectionResult) -> str:
 
 def to_latex(sel: SelectionResult) -> str:
     """Table I as a LaTeX tabular in a table environment, with the report's caption."""
-    def esc(s: str) -> str:
-        return s.replace("\\", "\\textbackslash{}").replace("_", "\\_").replace("%", "\\%").replace("&", "\\&")
-
     best = sel.best
     out = ["\\begin{table}[t]", "\\centering",
-           f"\\caption{{Summary of model selection statistics ({sel.n_poses} poses, {sel.folds}-fold CV, {esc(sel.balance)} balance). "
+           f"\\caption{{Summary of model selection statistics ({sel.n_poses} poses, {sel.folds}-fold CV, {latex_escape(sel.balance)} balance). "
            "(Abbreviations: degree of freedom (DOF), cross-validation (CV), Bayesian information criterion (BIC))}",
            "\\begin{tabular}{lrrr}", "\\hline", " & ".join(TABLE_COLUMNS) + " \\\\", "\\hline"]
     for s, row in zip(sel.scores, _report_layout(sel)):
-        cells = [esc(c) for c in row]
+        cells = [latex_escape(c) for c in row]
         if s.name == best:
             cells = [f"\\textbf{{{c}}}" for c in cells]
         out.append(" & ".join(cells) + " \\\\")
@@ -153,15 +184,24 @@ def fold_indices(n: int, folds: int, seed: int) -> list[np.ndarray]:
     return [np.sort(f) for f in np.array_split(perm, folds)]
 
 
-def select_models(poses: Poses, prior_calibration: Calibration, robot: Robot, candidates=REPORT_CANDIDATES, solver: str = "ipopt",
-                  balance: str = "exact", folds: int = 5, seed: int = 0, *, on_failure: str = "raise",
-                  covariance: str = "gauss_newton", verbose: bool = False) -> SelectionResult:
+def select_models(poses: Poses, prior_calibration: Calibration, robot: Robot, standing: StandingSettings | None = None,
+                  selection: SelectionSettings | None = None, *, on_failure: str = "raise", verbose: bool = False,
+                  **overrides) -> SelectionResult:
     """CV error and BIC of every candidate model on ``poses`` (module docstring).
 
-    ``candidates``: names or ``module:Class`` specs. ``on_failure="raise"`` (default)
-    propagates a solver failure; ``"record"`` keeps it as a failed row of the table.
-    ``verbose`` prints IPOPT's output. Folds are warm-started from the all-pose solution.
+    ``standing``: its ``candidates`` (names or ``module:Class`` specs), ``solver``, ``balance``,
+    ``covariance`` and ``rel_eig_tol`` are used (the fits here are K-norm, as Table I defines
+    them); ``selection``: ``folds`` and ``seed``. Keyword ``overrides`` replace single fields of
+    either (``select_models(poses, prior, robot, candidates=["full"], folds=3)``).
+    ``on_failure="raise"`` (default) propagates a solver failure; ``"record"`` keeps it as a
+    failed row of the table. ``verbose`` prints IPOPT's output. Folds are warm-started from the
+    all-pose solution.
     """
+    sel_keys = {f.name for f in fields(SelectionSettings)}
+    sel = with_overrides(selection, SelectionSettings, {k: v for k, v in overrides.items() if k in sel_keys}, "select_models")
+    st = with_overrides(standing, StandingSettings, {k: v for k, v in overrides.items() if k not in sel_keys}, "select_models")
+    candidates, solver, balance, covariance = st.candidates, st.solver, st.balance, st.covariance
+    folds, seed = sel.folds, sel.seed
     if on_failure not in ("raise", "record"):
         raise ValueError(f"on_failure: expected 'raise' or 'record', got {on_failure!r}")
     check_inputs(poses, prior_calibration, robot)
@@ -177,7 +217,7 @@ def select_models(poses: Poses, prior_calibration: Calibration, robot: Robot, ca
         dof, label = problem.spec.n_dof, problem.spec.dof_label or str(problem.spec.n_dof)
         try:
             x, sol = solve(problem, xi, solver)
-            res = make_result(problem, poses, xi, x, sol, solver, covariance=covariance)
+            res = make_result(problem, poses, xi, x, sol, solver, covariance=covariance, rel_eig_tol=st.rel_eig_tol)
             fold_err = []
             for test in parts:
                 train = np.setdiff1d(np.arange(P), test)
@@ -188,7 +228,7 @@ def select_models(poses: Poses, prior_calibration: Calibration, robot: Robot, ca
                 raise
             scores.append(CandidateScore(name, desc, dof, label, status=f"failed: {exc.status}", time_s=time.perf_counter() - t0))
             continue
-        bic = float(P * np.log(res.rss / P) + dof * np.log(P))
+        bic = information_bic(res.rss, P, dof)
         results[name] = res
         scores.append(CandidateScore(name, desc, dof, label, res.rss, bic, float(np.mean(fold_err)), tuple(fold_err), "ok",
                                      time.perf_counter() - t0))

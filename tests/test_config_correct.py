@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import SAMPLE
+from conftest import SAMPLE, require_sample
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.config import ConfigError, load_config
 from ftcal_nlp.correct import correct_file, main as correct_main
@@ -54,7 +54,7 @@ def test_default_problem_config_is_valid():
 
 @pytest.fixture(scope="module")
 def truth_calibration(tmp_path_factory):
-    d = json.loads((SAMPLE / "truth.json").read_text())
+    d = json.loads((require_sample() / "truth.json").read_text())
     path = tmp_path_factory.mktemp("cal") / "calibration.json"
     Calibration.from_json_dict(d, mass_kg=8.18, g=9.81).save(path)
     return path

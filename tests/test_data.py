@@ -10,12 +10,12 @@ import pytest
 
 from ftcal_nlp.data import DataFormatError, hanging_pairs, read_dataset, read_robot, write_dataset
 
-from conftest import SAMPLE
+from conftest import SAMPLE, require_sample
 
 
 @pytest.fixture(scope="module")
 def sample():
-    return read_dataset(SAMPLE / "dataset.toml")
+    return read_dataset(require_sample() / "dataset.toml")
 
 
 @pytest.fixture()
@@ -23,7 +23,7 @@ def small(tmp_path):
     """A copy of the sample cut to 300 rows per recording, all CSV."""
     import tomllib
 
-    man = tomllib.loads((SAMPLE / "dataset.toml").read_text())
+    man = tomllib.loads((require_sample() / "dataset.toml").read_text())
     shutil.copy(SAMPLE / "robot.toml", tmp_path / "robot.toml")
     lines = ['robot = "robot.toml"']
     for e in man["recording"]:

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import SAMPLE
+from conftest import SAMPLE, requires_sample
 
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.data import read_dataset
@@ -26,6 +26,7 @@ from ftcal_nlp.diagnose.validate import plan, run_validation
 from ftcal_nlp.diagnose.views import LegSeries, to_world
 from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
 from ftcal_nlp.hanging import fit_hanging
+from ftcal_nlp.settings import DiagnoseSettings
 from ftcal_nlp.physics import balance_residual_exact, balance_residual_report
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
 from ftcal_nlp.sim.effects import LIBRARY_EFFECTS, make_effects
@@ -65,7 +66,7 @@ def diagnosis(effect: str) -> DiagnosisResult:
     if key not in _cache:
         sim, hang, poses, st = session(effect)
         _cache[key] = diagnose(sim.dataset, hang, poses, st.calibration, sim.dataset.robot,
-                               {"folds": FOLDS, "balance": st.balance}, x_start=st.x)
+                               DiagnoseSettings(folds=FOLDS), balance=st.balance, x_start=st.x)
     return _cache[key]
 
 
@@ -281,8 +282,14 @@ def test_diagnosis_json_follows_the_contract(tmp_path):
         assert set(r) >= {"effect", "delta_bic", "heldout_rms_after"} and len(r["heldout_rms_after"]) == 6
     bics = [r["delta_bic"] for r in js["ranking"] if r["delta_bic"] is not None and r["status"] == "ok"]
     assert bics == sorted(bics)
-    sec = d.report_section(tmp_path)
-    assert sec.title and sec.text and len(sec.tables) == 2
+    # the named effect's fitted parameters come with standard errors (results protocol of the diagnosis' fit)
+    assert d.verdict == "effect" and d.effect_fit is not None and len(js["effect_parameters"]) == len(d.effect_fit.effect_params)
+    assert all(v["se"] is None or v["se"] > 0 for v in js["effect_parameters"].values())
+    assert d.effect_fit.cov_params().shape == (len(d.effect_fit.params),) * 2 and "±" in d.effect_fit.summary().as_text()
+    from ftcal_nlp.report.diagnosis import diagnosis_section
+
+    sec = diagnosis_section(d, tmp_path)
+    assert sec.title and sec.text and len(sec.tables) == 3
     for name, path in sec.figures:
         assert path.is_file() and path.stat().st_size > 5000, name
     assert "casing_load" in d.summary()
@@ -304,7 +311,7 @@ def test_localisation_finds_the_leg_of_a_one_leg_effect():
     hang = fit_hanging(ds.hanging, ds.robot)
     poses = Poses.concat([extract_poses(r, ds.robot) for r in ds.standing])
     st = fit_standing(poses, hang.to_calibration(ds.robot), ds.robot, model="full")
-    d = diagnose(ds, hang, poses, st.calibration, ds.robot, {"folds": FOLDS, "effects": ["casing_load", "offset_drift", "leg_inertia"]}, x_start=st.x)
+    d = diagnose(ds, hang, poses, st.calibration, ds.robot, DiagnoseSettings(folds=FOLDS, effects=("casing_load", "offset_drift", "leg_inertia")), x_start=st.x)
     assert d.effect == "casing_load"
     loc = d.localisation["hanging"]
     assert int(np.nanargmax(loc.leg_excess)) == 2 and loc.top == "shaft_angle"
@@ -313,13 +320,14 @@ def test_localisation_finds_the_leg_of_a_one_leg_effect():
     assert legs_with_gap(loc, ds.robot.legs, 0.1) == [ds.robot.legs[2]]
 
 
+@requires_sample
 def test_sample_dataset_has_no_gap():
     """The sample written by someone else (effect "none"): no gap, no false alarm."""
     ds = read_dataset(SAMPLE / "dataset.toml")
     hang = fit_hanging(ds.hanging, ds.robot)
     poses = Poses.concat([extract_poses(r, ds.robot) for r in ds.standing])
     st = fit_standing(poses, hang.to_calibration(ds.robot), ds.robot, model="full")
-    d = diagnose(ds, hang, poses, st.calibration, ds.robot, {"folds": FOLDS}, x_start=st.x)
+    d = diagnose(ds, hang, poses, st.calibration, ds.robot, DiagnoseSettings(folds=FOLDS), x_start=st.x)
     assert d.verdict == "none", (d.gaps, d.kinds, d.ranking[:3])
 
 

@@ -101,7 +101,7 @@ def test_spec_validation_names_the_problem():
     with pytest.raises(ValueError, match="R must hold 6"):
         Broken().build(ctx).validate(ctx.K, "error model 'broken'")
     with pytest.raises(ValueError, match="R must hold 6"):
-        fit_standing(make_poses(true_calibration(0), 1, 20), ctx.prior, SAMPLE_ROBOT, model=Broken())
+        fit_standing(make_poses(true_calibration(0), 1, 20), ctx.prior, SAMPLE_ROBOT, model=Broken(), weighting="knorm")
 
 
 @pytest.mark.parametrize("cls", ["CommonRotation", "YawOnly"])
@@ -121,7 +121,7 @@ def test_custom_models_recover_their_own_truth(cls):
         truth = replace(truth, legs={k: replace(l, rotation_to_body=yaw[i] @ SAMPLE_ROBOT.nominal_rotations()[i])
                                      for i, (k, l) in enumerate(truth.legs.items())})
     poses = make_poses(truth, 130, 120)
-    res = fit_standing(poses, hanging_prior(truth), SAMPLE_ROBOT, model=model)
+    res = fit_standing(poses, hanging_prior(truth), SAMPLE_ROBOT, model=model, weighting="knorm")
     assert res.model == model.name and res.dof == (21 if cls == "CommonRotation" else 24)
     err = rotation_errors(res, truth)
     est = ~np.isnan(res.rotvec_se)  # YawOnly estimates rotations about z only: x, y are fixed (se NaN)

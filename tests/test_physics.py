@@ -29,7 +29,7 @@ from ftcal_nlp.data import read_dataset
 from ftcal_nlp.geometry import quat_to_rotation, remove_yaw, skew
 from ftcal_nlp.sim import SimConfig, simulate
 
-from conftest import SAMPLE, constant_phi_windows
+from conftest import SAMPLE, constant_phi_windows, require_sample
 
 COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
 MEDIAN_VAR = np.pi / 2          # asymptotic variance of a Gaussian median, in units of sigma^2 / n
@@ -45,7 +45,7 @@ def sim():
 
 @pytest.fixture(scope="module")
 def sample():
-    ds = read_dataset(SAMPLE / "dataset.toml", kinds=("standing", "walking"))
+    ds = read_dataset(require_sample() / "dataset.toml", kinds=("standing", "walking"))
     return ds, Calibration.load(SAMPLE / "truth.json", g=9.81)
 
 

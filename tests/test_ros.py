@@ -31,7 +31,7 @@ from ftcal_nlp.ros.bagio import BagError
 from ftcal_nlp.ros.ingest import ingest, write_ingested
 from ftcal_nlp.ros.urdf import fixed_pose, load_urdf, robot_from_urdf
 
-SAMPLE = Path(os.environ.get("FTCAL_SAMPLE", Path(__file__).resolve().parents[2] / "shared" / "sample"))
+from conftest import SAMPLE, require_sample, requires_sample
 LEGS = ("FL", "ML", "HL", "FR", "MR", "HR")
 BASE_NS = 1_700_000_000 * 10**9  # wall-clock epoch of the fake session
 H = 0.01  # wrench period, s
@@ -88,6 +88,7 @@ def write_urdf(path: Path, *, tilt_fl=False, movable_on_chain=None) -> Path:
     return path
 
 
+@requires_sample
 def test_urdf_poses_equal_the_chain_of_fixed_joints(tmp_path):
     urdf = write_urdf(tmp_path / "r.urdf", tilt_fl=True)
     robot = robot_from_urdf(urdf, base_link="base_link", transducer_links={k: f"ft_{k}" for k in LEGS}, legs=LEGS, mass_kg=8.18, g=9.81)
@@ -122,7 +123,7 @@ def test_urdf_errors_name_the_link_and_joint(tmp_path):
 
 
 def _source(file: str, kind: str, start: int, n: int = 300):
-    robot = read_robot(SAMPLE / "robot.toml")
+    robot = read_robot(require_sample() / "robot.toml")
     gb = {"hang_xpos.csv": [1, 0, 0], "hang_xneg.csv": [-1, 0, 0]}.get(file)
     rec = read_recording(SAMPLE / file, robot, kind=kind, gravity_body=gb)
     i = np.arange(rec.n)

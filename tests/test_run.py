@@ -57,7 +57,11 @@ def test_outputs_follow_the_contract(small_run):
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 5
     md = (out / "report.md").read_text()
-    assert "## Summary" in md and "Model selection" in md
+    assert "## Summary" in md and "## Notation" in md and "Model selection" in md
+    assert f"{res.selection.folds}-fold" in md and "+-" not in md and " ± " in md
+    for stem in ("parameters", "hanging", "model_selection"):  # a labelled first column, no tuple headers
+        head = pd.read_csv(out / f"{stem}.csv").columns
+        assert head[0] in ("parameter", "Model") and not any(c.startswith("(") for c in head), (stem, list(head))
     corrected = pd.read_csv(out / "corrected" / "walk.csv")
     expected = ["t"] + [f"{k}_{c}" for k in legs for c in COMPONENTS] + [f"total_{c}" for c in COMPONENTS]
     assert list(corrected.columns) == expected
@@ -108,9 +112,10 @@ def test_walking_correction_matches_simulated_truth(small_run):
 def test_existing_output_is_not_overwritten(small_run, capsys):
     res, tmp = small_run
     before = (tmp / "out" / "calibration.json").read_bytes()
+    cfg = load_config(tmp / "small.toml")
     with pytest.raises(OutputExistsError):
-        run(res.config)
-    assert main([str(res.config.path)]) == 2
+        run(cfg)
+    assert main([str(cfg.path)]) == 2
     assert "--force" in capsys.readouterr().err
     assert (tmp / "out" / "calibration.json").read_bytes() == before
 
@@ -135,8 +140,9 @@ def test_offsets_only_reestimation(small_run, tmp_path):
 
 @pytest.fixture(scope="module")
 def sample_run(tmp_path_factory):
-    from conftest import SAMPLE
+    from conftest import require_sample
 
+    SAMPLE = require_sample()
     tmp = tmp_path_factory.mktemp("sample")
     cfg_path = tmp / "sample.toml"
     # the minimal config of OUTPUT_FORMAT.md (diagnosis off here: it has its own tests)

@@ -67,6 +67,13 @@ def test_folds_are_seeded_and_renderers_keep_table_one(full_truth_selection):
     assert md.splitlines()[0] == "| Model | DOF | CV error | BIC |" and "**Full (Six rotations + six translations)**" in md
     tex = sel.to_latex()
     assert "\\begin{tabular}{lrrr}" in tex and "Model & DOF & CV error & BIC" in tex and "\\textbf{Full" in tex
+    # the report's view of Table I: rows labelled by the model, one DOF column, CV error ± se over the folds
+    view = sel.report_table()
+    assert view.index.name == "Model" and list(view.index) == list(sel.table()["Model"])
+    assert list(view.columns) == ["DOF", "CV error [N²]", "BIC", "delta BIC", "RSS [N²]"]
+    assert " ± " in view.iloc[0]["CV error [N²]"] and view.loc[view.index[0], "delta BIC"] == "0.0"
+    assert sel.report_table(numeric=True)["selected"].sum() == 1
+    assert "5-fold CV" in tex
     back = pd.read_csv(io.StringIO(sel.to_csv()))
     assert list(back["name"]) == list(sel.table()["name"]) and np.allclose(back["BIC"], sel.table()["BIC"])
     with pytest.raises(ValueError, match="folds"):
@@ -96,6 +103,8 @@ def test_failed_solves_raise_or_are_recorded():
     assert t.loc["infeasible", "status"].startswith("failed") and np.isnan(t.loc["infeasible", "BIC"])
     assert sel.best == "trans1" and "infeasible" not in sel.results
     assert "failed" in sel.to_markdown()
+    view = sel.report_table()
+    assert view.loc["Infeasible on purpose", "CV error [N²]"] == "failed" and view.loc["Infeasible on purpose", "status"].startswith("failed")
 
 
 def test_baseline_selection_agrees(full_truth_selection):

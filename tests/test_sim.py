@@ -12,7 +12,7 @@ from ftcal_nlp.data import hanging_pairs, read_dataset
 from ftcal_nlp.sim import EFFECTS, NoEffect, SimConfig, draw_true_robot, simulate, write_simulation
 from ftcal_nlp.sim.recordings import pose_grid, solve_poses, transition_profile
 
-from conftest import SAMPLE, constant_phi_windows
+from conftest import SAMPLE, constant_phi_windows, require_sample, requires_sample
 
 SMALL = SimConfig(seed=3, n_poses=40, hanging_cycles=2, walk_cycles=1.0)
 COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -153,6 +153,7 @@ def test_written_files_read_back(res, tmp_path):
     np.testing.assert_allclose(wt.to_numpy(), res.walk_truth.to_numpy(), rtol=1e-9, atol=1e-12)
 
 
+@requires_sample
 def test_truth_json_layout_matches_sample(res, tmp_path):
     write_simulation(res, tmp_path)
     ours = json.loads((tmp_path / "truth.json").read_text())
@@ -429,7 +430,7 @@ def _load_stats(g):
 
 @pytest.fixture(scope="module")
 def sample_loads():
-    ds = read_dataset(SAMPLE / "dataset.toml", kinds=("standing",))
+    ds = read_dataset(require_sample() / "dataset.toml", kinds=("standing",))
     st, legs = ds.standing[0], ds.robot.legs
     g = _ground_from_readings(st, legs, constant_phi_windows(st, legs), Calibration.load(SAMPLE / "truth.json", g=9.81))
     return g, _load_stats(g)

@@ -11,6 +11,7 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+import pandas as pd
 import pytest
 
 from ftcal_nlp.calibration import Calibration, LegCalibration
@@ -22,7 +23,10 @@ from ftcal_nlp.standing.fit import prepare
 from ftcal_nlp.standing.nlp import compile_problem
 from ftcal_nlp.standing.problem import L_casadi, L_numpy, features, moments, residuals_B, to_world
 
-from conftest import SAMPLE
+from conftest import HAVE_SAMPLE, SAMPLE, SAMPLE_MISSING
+
+if not HAVE_SAMPLE:  # the generators below take the sample's robot and truth (also imported by test_models, test_selection)
+    pytest.skip(SAMPLE_MISSING, allow_module_level=True)
 
 # ----------------------------------------------------------------------------- a tiny generator of static poses
 
@@ -278,7 +282,7 @@ def test_casadi_jacobian_matches_finite_differences():
 
 def test_full_model_recovers_truth_within_3se_and_0p1_degree():
     truth, prior, poses = scenario()
-    res = fit_standing(poses, prior, SAMPLE_ROBOT, model="full")
+    res = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", weighting="knorm")
     err = rotation_errors(res, truth)
     assert res.unidentified == ()
     assert np.all(np.abs(err) <= 3 * res.rotvec_se)
@@ -291,7 +295,13 @@ def test_full_model_recovers_truth_within_3se_and_0p1_degree():
     cal = res.calibration
     assert np.allclose(cal.stacked()[2], res.rotations) and np.allclose(cal.stacked()[3], res.p_prime)
     assert cal.model == "full" and np.allclose(cal.stacked()[0], prior.stacked()[0])
-    assert "R_tilde x [deg]" in res.table().index and "full" in res.summary()
+    assert "R_tilde x [deg]" in res.table().index and "full" in res.summary().as_text()
+    # results protocol: labelled params with se and a covariance whose diagonal gives them
+    p, se, C = res.params, res.bse, res.cov_params()
+    assert p.index[0] == f"{SAMPLE_ROBOT.legs[0]}.R_tilde.x" and list(C.index) == list(p.index)
+    np.testing.assert_allclose(p[[f"{k}.p_prime.{c}" for k in SAMPLE_ROBOT.legs for c in "xyz"]], res.p_prime.ravel())
+    fin = np.isfinite(se.to_numpy())
+    np.testing.assert_allclose(np.sqrt(np.diag(C.to_numpy())[fin]), se.to_numpy()[fin], rtol=1e-9)
 
 
 def test_standard_errors_are_calibrated_across_seeds():
@@ -299,7 +309,7 @@ def test_standard_errors_are_calibrated_across_seeds():
     z = []
     for seed in range(20, 26):
         truth = true_calibration(seed)
-        res = fit_standing(make_poses(truth, seed + 100, 120), hanging_prior(truth), SAMPLE_ROBOT, model="full")
+        res = fit_standing(make_poses(truth, seed + 100, 120), hanging_prior(truth), SAMPLE_ROBOT, model="full", weighting="knorm")
         z += [(rotation_errors(res, truth) / res.rotvec_se).ravel(), ((res.p_prime - truth.stacked()[3]) / res.p_prime_se).ravel()]
     z = np.concatenate(z)
     # std of 216 unit normals lies in [0.85, 1.15] with probability > 0.99
@@ -310,8 +320,8 @@ def test_yaw_of_the_body_does_not_change_the_fit():
     truth, prior, poses = scenario()
     yaw = rotvec_to_rotation(np.column_stack([np.zeros((poses.n, 2)), np.linspace(-3, 3, poses.n)]))
     turned = replace(poses, R_WB=yaw @ poses.R_WB)
-    a = fit_standing(poses, prior, SAMPLE_ROBOT)
-    b = fit_standing(turned, prior, SAMPLE_ROBOT)
+    a = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", weighting="knorm")
+    b = fit_standing(turned, prior, SAMPLE_ROBOT, model="full", weighting="knorm")
     assert np.abs(a.rotations - b.rotations).max() < 1e-8 and np.abs(a.p_prime - b.p_prime).max() < 1e-9
     assert abs(a.rss - b.rss) < 1e-9 * a.rss
 
@@ -321,7 +331,7 @@ def test_baseline_and_ipopt_agree(model):
     """Same data, same settings: with tight tolerances the report's ALS lands on the IPOPT optimum
     (within 1% of an se); with the report's 1e-3 tolerances it stops earlier, never lower."""
     truth, prior, poses = scenario()
-    ip = fit_standing(poses, prior, SAMPLE_ROBOT, model=model)
+    ip = fit_standing(poses, prior, SAMPLE_ROBOT, model=model, weighting="knorm")
     tight = fit_standing(poses, prior, SAMPLE_ROBOT, model=model, solver="baseline",
                          baseline=BaselineSettings(ftol=1e-15, step_tol=1e-12, max_passes=2000))
     fin = np.isfinite(ip.rotvec_se) & (ip.rotvec_se > 0)
@@ -342,12 +352,12 @@ def test_solver_failures_raise_with_status():
         cp.solve(moments(xi))
     assert exc.value.status == "Maximum_Iterations_Exceeded"
     with pytest.raises(SolverError, match="did not converge") as exc:
-        fit_standing(poses, prior, SAMPLE_ROBOT, solver="baseline", baseline=BaselineSettings(step_tol=0.0, max_passes=2))
+        fit_standing(poses, prior, SAMPLE_ROBOT, model="full", solver="baseline", baseline=BaselineSettings(step_tol=0.0, max_passes=2))
     assert exc.value.status == "max_passes"
     with pytest.raises(ValueError, match="unknown solver"):
-        fit_standing(poses, prior, SAMPLE_ROBOT, solver="newton")
+        fit_standing(poses, prior, SAMPLE_ROBOT, solver="newton", model="full", weighting="knorm")
     with pytest.raises(ValueError, match="unknown balance"):
-        fit_standing(poses, prior, SAMPLE_ROBOT, balance="approx")
+        fit_standing(poses, prior, SAMPLE_ROBOT, balance="approx", model="full", weighting="knorm")
 
 
 # ----------------------------------------------------------------------------- identifiability
@@ -359,7 +369,7 @@ def test_flat_poses_leave_common_yaw_and_vertical_shift_undetermined():
     and what they move gets se = inf, not a confident number."""
     truth = true_calibration(2)
     poses = make_poses(truth, 102, 100, tilt_deg=0.0)
-    res = fit_standing(poses, hanging_prior(truth), SAMPLE_ROBOT, model="full")
+    res = fit_standing(poses, hanging_prior(truth), SAMPLE_ROBOT, model="full", weighting="knorm")
     assert len(res.unidentified) == 2
     assert any(all(f"p_prime[{k}].z" in u for k in SAMPLE_ROBOT.legs) for u in res.unidentified)
     flagged = set(res.unidentified_params)
@@ -371,8 +381,8 @@ def test_flat_poses_leave_common_yaw_and_vertical_shift_undetermined():
     # what is determined is still right
     err = rotation_errors(res, truth)
     assert np.all(np.abs(err[:, :2]) <= 3 * res.rotvec_se[:, :2])
-    assert "not determined" in res.summary()
-    tilted = fit_standing(make_poses(truth, 102, 100, tilt_deg=3.0), hanging_prior(truth), SAMPLE_ROBOT, model="full")
+    assert "not determined" in res.summary().as_text()
+    tilted = fit_standing(make_poses(truth, 102, 100, tilt_deg=3.0), hanging_prior(truth), SAMPLE_ROBOT, model="full", weighting="knorm")
     assert tilted.unidentified == ()
 
 
@@ -380,11 +390,11 @@ def test_com_body_only_for_models_with_nominal_translations():
     truth = true_calibration(5, rot_deg=1.5, trans_mm=0.0)  # transducers exactly at their nominal positions
     poses = make_poses(truth, 105, 120)
     prior = hanging_prior(truth)
-    r = fit_standing(poses, prior, SAMPLE_ROBOT, model="rot6_trans1")
+    r = fit_standing(poses, prior, SAMPLE_ROBOT, model="rot6_trans1", weighting="knorm")
     assert np.all(np.abs(r.com_body_m - truth.com_body_m) <= 3 * r.com_body_se_m)
     assert np.allclose(r.calibration.com_body_m, r.com_body_m)
     assert np.all(np.abs(rotation_errors(r, truth)) <= 3 * r.rotvec_se)
-    assert fit_standing(poses, prior, SAMPLE_ROBOT, model="trans6").com_body_m is None
+    assert fit_standing(poses, prior, SAMPLE_ROBOT, model="trans6", weighting="knorm").com_body_m is None
 
 
 # ----------------------------------------------------------------------------- offsets only (Sec. V)
@@ -398,13 +408,14 @@ def test_offsets_only_reestimates_the_determined_combinations():
     drift = np.r_[rng.normal(scale=3.0, size=3), rng.normal(scale=0.3, size=3)]
     drifted = replace(truth, legs={k: replace(l, offset=l.offset + drift * (i + 1) / 3) for i, (k, l) in enumerate(truth.legs.items())})
     poses = make_poses(drifted, 111, 80)
-    res = fit_standing(poses, truth, SAMPLE_ROBOT, fit_offsets=True)   # prior: the old calibration
+    res = fit_standing(poses, truth, SAMPLE_ROBOT, fit_offsets=True, weighting="knorm")   # prior: the old calibration
     K = SAMPLE_ROBOT.n_legs
     assert len(res.unidentified) == 6 * K - 6 and np.all(np.isinf(res.offsets_se))
     assert np.allclose(res.rotations, truth.stacked()[2]) and np.allclose(res.p_prime, truth.stacked()[3])
-    from ftcal_nlp.standing.problem import ad_numpy
+    from ftcal_nlp.geometry import transform_wrench
 
-    Ad = ad_numpy(truth.stacked()[2], truth.stacked()[3])
+    # Ad_k as matrices: the wrench map applied to the unit wrenches
+    Ad = np.stack([transform_wrench(R, p, np.eye(6)).T for R, p in zip(truth.stacked()[2], truth.stacked()[3])])
     c_est = np.einsum("kij,kj->i", Ad, res.offsets)
     c_true = np.einsum("kij,kj->i", Ad, drifted.stacked()[0])
     # the combination is the mean balance residual: its error is the mean of P residuals
@@ -417,7 +428,7 @@ def test_offsets_only_reestimates_the_determined_combinations():
     assert np.linalg.norm(delta - np.linalg.pinv(M) @ (M @ delta)) < 1e-6 * np.linalg.norm(delta)
     floor = noise_floor_rss(poses, drifted)
     assert res.rss < floor
-    stale = fit_standing(poses, truth, SAMPLE_ROBOT, model="full")
+    stale = fit_standing(poses, truth, SAMPLE_ROBOT, model="full", weighting="knorm")
     assert stale.rss > 10 * floor
 
 
@@ -439,8 +450,8 @@ def test_report_balance_leaves_pose_dependent_torque():
     assert np.corrcoef(predicted[:, :2].ravel(), at_truth[:, 3:5].ravel())[0, 1] > 0.99
     assert np.sqrt((at_truth[:, 3:5] ** 2).mean()) > 10 * np.sqrt((predicted - at_truth[:, 3:]).var())
 
-    ex = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", balance="exact")
-    rep = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", balance="report")
+    ex = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", balance="exact", weighting="knorm")
+    rep = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", balance="report", weighting="knorm")
     assert ex.rss < noise_floor_rss(poses, truth)
     t_ex = np.sqrt((ex.residuals[:, 3:5] ** 2).mean())
     t_rep = np.sqrt((rep.residuals[:, 3:5] ** 2).mean())
@@ -507,7 +518,7 @@ def test_sim_recovery_with_exact_balance():
     floor = noise_floor_rss(poses, truth) / poses.n
     cv = sel.table().set_index("name").loc["full", "CV error"]
     assert 0.8 * floor < cv < 1.3 * floor
-    rep = fit_standing(poses, hanging_prior(truth, robot), robot, model="full", balance="report")
+    rep = fit_standing(poses, hanging_prior(truth, robot), robot, model="full", balance="report", weighting="knorm")
     assert np.sqrt((rep.residuals[:, 3:5] ** 2).mean()) > 10 * np.sqrt((res.residuals[:, 3:5] ** 2).mean())
 
 
@@ -516,7 +527,7 @@ def test_sample_recovery_from_raw_recordings():
     every mounting rotation and position relative to the CoM within 3 se of truth.json."""
     robot, prior, poses = sample_session()
     assert np.allclose(prior.stacked(robot.legs)[2], robot.nominal_rotations())
-    res = fit_standing(poses, prior, robot, model="full")
+    res = fit_standing(poses, prior, robot, model="full", weighting="knorm")
     assert res.unidentified == ()
     err = rotation_errors(res, SAMPLE_TRUTH)
     assert np.all(np.abs(err) <= 3 * res.rotvec_se)
@@ -540,7 +551,7 @@ def test_fgls_weighting_is_within_3se_and_not_less_precise_than_knorm():
     for seed in (7, 8, 9):
         sim, robot, poses = sim_session(seed)
         truth, prior = sim.truth, hanging_prior(sim.truth, robot)
-        k = fit_standing(poses, prior, robot, model="full")
+        k = fit_standing(poses, prior, robot, model="full", weighting="knorm")
         f = fit_standing(poses, prior, robot, model="full", weighting="fgls")
         assert f.weighting == "fgls" and k.weighting == "knorm" and f.calibration.meta["standing"]["weighting"] == "fgls"
         assert f.unidentified == () and np.all(np.isfinite(f.rotvec_se)) and np.all(np.isfinite(f.p_prime_se))
@@ -573,3 +584,27 @@ def test_fgls_weight_inverts_the_residual_covariance_and_stays_finite():
     assert np.allclose(W @ (r.T @ r / len(r)), np.eye(6), atol=1e-8)
     assert np.all(np.isfinite(fgls_weight(r[:3])))  # rank 3: floored eigenvalues
     assert np.allclose(fgls_weight(np.zeros((5, 6))), np.diag(K_DIAG))  # noise-free: K
+
+
+def test_sensitivity_to_the_hanging_parameters_matches_a_refit():
+    """``StandingResult.sensitivity`` (implicit-function theorem) predicts how the estimates move when the
+    hanging offsets and leg weights they condition on move: checked against refits with perturbed priors."""
+    truth, prior, poses = scenario()
+    res = fit_standing(poses, prior, SAMPLE_ROBOT, model="full", weighting="knorm")
+    G = res.sensitivity
+    assert G is not None and G.shape == (len(res.params), 7 * SAMPLE_ROBOT.n_legs)
+    rng = np.random.default_rng(3)
+    # a perturbation of a few hanging standard errors: small enough for first order, large against solver noise
+    d_off = np.concatenate([rng.normal(scale=2e-3, size=(SAMPLE_ROBOT.n_legs, 3)), rng.normal(scale=2e-4, size=(SAMPLE_ROBOT.n_legs, 3))], axis=1)
+    d_m = rng.normal(scale=2e-3, size=SAMPLE_ROBOT.n_legs)
+    moved = replace(prior, legs={k: replace(l, offset=l.offset + d_off[i], leg_weight_N=l.leg_weight_N + d_m[i])
+                                 for i, (k, l) in enumerate(prior.legs.items())})
+    res2 = fit_standing(poses, moved, SAMPLE_ROBOT, model="full", weighting="knorm")
+    h = pd.Series({**{f"{k}.w_o.{c}": d_off[i, j] for i, k in enumerate(SAMPLE_ROBOT.legs)
+                      for j, c in enumerate(("fx", "fy", "fz", "tx", "ty", "tz"))},
+                   **{f"{k}.mg": d_m[i] for i, k in enumerate(SAMPLE_ROBOT.legs)}})
+    predicted = G.to_numpy() @ h[G.columns].to_numpy()
+    actual = (res2.params - res.params).to_numpy()
+    # the change is a sizeable fraction of the se (not lost in solver tolerance) and first order predicts it
+    assert np.max(np.abs(actual) / res.bse.to_numpy()) > 0.3
+    np.testing.assert_allclose(predicted, actual, atol=0.02 * np.max(np.abs(actual)))

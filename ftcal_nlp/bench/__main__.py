@@ -19,6 +19,8 @@ import logging
 import sys
 from dataclasses import replace
 
+import matplotlib
+
 
 def main(argv: list[str] | None = None) -> int:
     from .runner import PARTS, full_settings, quick_settings, run_bench
@@ -30,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, help="number of simulated datasets for the accuracy part")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
     a = ap.parse_args(argv)
+    matplotlib.use("Agg")  # files only; the entry point, not the library, picks the backend
     logging.basicConfig(level=logging.WARNING)
     s = quick_settings() if a.quick else full_settings()
     if a.only:

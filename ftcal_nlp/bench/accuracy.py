@@ -40,6 +40,8 @@ import pandas as pd
 
 from ..geometry import rotation_to_rotvec
 from ..physics import total_com_from_body_com
+from ..pipeline import calibrate
+from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from . import crb
 
 GROUPS = ("offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com")
@@ -166,19 +168,26 @@ def pipeline_errors(seed: int, pipeline: str, hang, stand, sim, bounds: DatasetB
     return rows, maha
 
 
-def run_pipeline(pipeline: str, sim, poses, model: str = "full"):
-    """Hanging then standing fit of one pipeline; returns ``(HangingResult, StandingResult)``."""
-    from ..hanging import fit_hanging
-    from ..standing import fit_standing
-
+def pipeline_settings(pipeline: str, model: str) -> CalibrationSettings:
+    """The :func:`ftcal_nlp.calibrate` settings of one pipeline of :data:`PIPELINES` with a fixed ``model``."""
     spec = PIPELINES[pipeline]
-    robot = sim.dataset.robot
+    return CalibrationSettings(
+        hanging=HangingSettings(method=spec["hanging"], compare_baseline=False),
+        standing=StandingSettings(model=model, solver=spec["solver"], balance=spec["balance"],
+                                  weighting=spec.get("weighting", "knorm"), compare_baseline=False),
+        diagnose=DiagnoseSettings(enabled=False))
+
+
+def run_pipeline(pipeline: str, sim, poses, model: str = "full"):
+    """``calibrate`` with one pipeline's settings; returns ``(HangingResult, StandingResult)``.
+
+    ``poses`` (those the bounds were computed on) must be the run's own: checked."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        hang = fit_hanging(sim.dataset.hanging, robot, method=spec["hanging"])
-        stand = fit_standing(poses, hang.to_calibration(robot), robot, model=model, solver=spec["solver"], balance=spec["balance"],
-                             weighting=spec.get("weighting", "knorm"))
-    return hang, stand
+        run = calibrate(sim.dataset, pipeline_settings(pipeline, model))
+    if run.poses.n != poses.n or not np.array_equal(run.poses.w_m, poses.w_m):
+        raise RuntimeError(f"pipeline {pipeline}: calibrate extracted other poses than the bound was computed on")
+    return run.hanging, run.standing
 
 
 def evaluate_seed(seed: int, settings: AccuracySettings = AccuracySettings()) -> dict:

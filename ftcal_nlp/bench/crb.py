@@ -60,7 +60,7 @@ import numpy as np
 from ..geometry import skew
 from ..hanging.binning import interp_weights, periodic_grid
 from ..standing.problem import K_DIAG
-from ..standing.result import REL_EIG_TOL
+from ..solver import REL_EIG_TOL
 
 MEDIAN_EFFICIENCY = np.pi / 2  # var(median of n Gaussian samples) ~ (pi/2) sigma^2 / n
 

@@ -12,9 +12,6 @@ import subprocess
 from datetime import UTC, datetime
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
@@ -139,7 +136,8 @@ def fig_z(acc: dict, path: Path, pipeline: str = "nlp") -> Path:
 
 def speed_table(sp: dict) -> pd.DataFrame:
     t = sp["times"]
-    order = ["load", "poses", "hanging", "model selection", "standing", "diagnosis", "report"]
+    order = ["load", "poses", "hanging", "model selection", "standing", "calibrate() without diagnosis", "diagnosis",
+             "calibrate() with diagnosis", "report"]
     rows = []
     for st in order:
         d = t[t.stage == st].set_index("method")
@@ -149,6 +147,11 @@ def speed_table(sp: dict) -> pd.DataFrame:
             r = d.loc["shared"]
             rows.append({"stage": st, "NLP wall [s]": r.wall_s, "baseline wall [s]": r.wall_s, "baseline / NLP": np.nan,
                          "NLP CPU [s]": r.cpu_s, "baseline CPU [s]": r.cpu_s, "note": f"shared {r.note}".strip()})
+            continue
+        if "baseline" not in d.index:  # NLP only (the run with the diagnosis)
+            n = d.loc["nlp"]
+            rows.append({"stage": st, "NLP wall [s]": n.wall_s, "baseline wall [s]": np.nan, "baseline / NLP": np.nan,
+                         "NLP CPU [s]": n.cpu_s, "baseline CPU [s]": np.nan, "note": n.note})
             continue
         n, b = d.loc["nlp"], d.loc["baseline"]
         rows.append({"stage": st, "NLP wall [s]": n.wall_s, "baseline wall [s]": b.wall_s, "baseline / NLP": b.wall_s / n.wall_s,

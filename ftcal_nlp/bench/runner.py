@@ -66,6 +66,8 @@ def _slowest(times, k: int = 2) -> list[str]:
     t = times[times.method.isin(["nlp", "shared"])].dropna(subset=["wall_s"]).sort_values("wall_s", ascending=False)
     keys = []
     for r in t.itertuples():
+        if r.stage.startswith("calibrate()"):  # whole-call rows; the profile looks at stages
+            continue
         key = r.stage if r.stage in ("load", "poses", "report", "diagnosis") else f"{r.stage} (nlp)"
         if key not in keys:
             keys.append(key)

@@ -14,10 +14,14 @@ never while timing), the peak of numpy and Python allocations.
 Standing poses (100 to 20 000): the poses extracted from one simulated 3^6
 grid, replicated with fresh noise at the level of a pose median (readings:
 ``sigma sqrt(pi / 2n)``, n = 300 samples) and concatenated (``Poses.concat``);
-the prior is that dataset's NLP hanging fit. Tasks: ``fit_standing`` (full
-model, IPOPT, exact balance), ``select_models`` (four candidates, 5-fold CV)
-and the report's baseline (``fit_standing`` with the baseline solver and the
-report balance). Hanging samples (10^4 to 10^6 in all four recordings): the
+the prior is that dataset's NLP hanging fit. Tasks: the stages as
+``calibrate`` runs them (the settings objects of ``speed.METHODS``, which the
+speed bench passes to ``calibrate``): ``fit_standing`` (full model, the run's
+defaults: IPOPT, exact balance, feasible GLS), ``select_models`` (four
+candidates, 5-fold CV) and the report's baseline (``fit_standing`` with the
+baseline solver and the report balance). ``calibrate`` itself cannot be scaled
+in poses without simulating recordings of 20 000 poses; its whole-call time on
+the default problem is the speed bench's. Hanging samples (10^4 to 10^6 in all four recordings): the
 simulator with ``hanging_cycles`` chosen for the count; tasks ``fit_hanging``
 NLP and baseline.
 
@@ -105,19 +109,22 @@ def replicate_poses(base, n: int, sigma: np.ndarray, seed: int = 0):
 
 
 def _standing_task(task: str, n: int, data_path: Path):
+    """The stage as ``calibrate`` runs it (the speed bench's settings objects), at ``n`` replicated poses."""
     from ..selection import select_models
     from ..standing import fit_standing
+    from .speed import METHODS
 
     with open(data_path, "rb") as fh:
         d = pickle.load(fh)
     poses = replicate_poses(d["poses"], n, d["sigma_median"])
     prior, robot = d["prior"], d["robot"]
+    nlp, base = METHODS["nlp"], METHODS["baseline"]
     if task == "standing_nlp":
-        return lambda: fit_standing(poses, prior, robot, model="full", solver="ipopt", balance="exact")
+        return lambda: fit_standing(poses, prior, robot, nlp.standing, model="full")
     if task == "selection_nlp":
-        return lambda: select_models(poses, prior, robot, solver="ipopt", balance="exact")
+        return lambda: select_models(poses, prior, robot, nlp.standing, nlp.selection)
     if task == "standing_baseline":
-        return lambda: fit_standing(poses, prior, robot, model="full", solver="baseline", balance="report")
+        return lambda: fit_standing(poses, prior, robot, base.standing, model="full")
     raise ValueError(f"unknown standing task {task!r}; known: {list(STANDING_TASKS)}")
 
 
@@ -129,10 +136,12 @@ def _hanging_task(task: str, n: int):
     sim = simulate(SimConfig(seed=0, hanging_cycles=cycles, n_poses=5, walk_cycles=0.0))
     recs, robot = sim.dataset.hanging, sim.dataset.robot
     del sim
+    from .speed import METHODS
+
     method = {"hanging_nlp": "nlp", "hanging_baseline": "baseline"}.get(task)
     if method is None:
         raise ValueError(f"unknown hanging task {task!r}; known: {list(HANGING_TASKS)}")
-    return lambda: fit_hanging(recs, robot, method=method)
+    return lambda: fit_hanging(recs, robot, METHODS[method].hanging)
 
 
 def worker(task: str, n: int, data_path: Path | None, trace: bool = True) -> dict:

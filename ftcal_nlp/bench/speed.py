@@ -1,25 +1,25 @@
-"""Speed: wall and CPU time per pipeline stage on the default problem, NLP and baseline in one process.
+"""Speed: wall and CPU time of what a run does, per stage, NLP and baseline in one process.
 
 The default problem is ``SimConfig()`` (the full 3^6 pose grid, four hanging
 recordings of 10 leg turns at 100 Hz), written to a temporary folder in the
-interchange format so that loading is timed as a user meets it. Stages, as in
-``ftcal_nlp.run``:
+interchange format so that loading is timed as a user meets it. Then
+:func:`ftcal_nlp.calibrate` itself is timed, ``repeats`` times per method, and
+its own stage clocks (``CalibrationRun.timings`` / ``cpu_timings``) give the
+per-stage rows, so the table measures exactly what ``python -m ftcal_nlp.run``
+does:
 
-* ``load``: ``read_dataset`` of the manifest;
-* ``poses``: ``extract_poses`` of every standing recording;
-* ``hanging``: ``fit_hanging`` (``nlp`` | ``baseline``);
-* ``model selection``: ``select_models`` over the report's four candidates with
-  5-fold CV (``ipopt`` + exact balance | ``baseline`` solver + report balance,
-  i.e. the report's method);
-* ``standing``: ``fit_standing`` of the selected model (as ``run.py`` does after
-  the selection);
-* ``diagnosis``: ``ftcal_nlp.diagnose.diagnose_run`` when that package provides it;
-* ``report``: ``ftcal_nlp.report.write_report`` (tables and figures).
+* ``nlp``: the run's defaults (``CalibrationSettings()``: IPOPT, exact balance,
+  feasible-GLS final fit), baselines and diagnosis off;
+* ``baseline``: the report's method (hanging ``baseline``; Cayley + alternating
+  least squares with the report's balance, K-norm);
+* ``calibrate()`` rows: the whole call, without and (NLP) with the diagnosis,
+  so the diagnosis' cost is stated beside the run's;
+* ``report``: ``ftcal_nlp.report.write_report`` of the NLP run with diagnosis.
 
-"Calibration" is hanging + model selection + standing (the 5 s target). Each
-stage runs ``repeats`` times and the median is reported (the machine is shared:
-CPU time, ``time.process_time``, is reported beside wall time). BLAS must be
-limited to one thread by the caller (``__main__`` does).
+"Calibration" is hanging + model selection + standing (the 5 s target). The
+median over repeats is reported (the machine is shared: CPU time,
+``time.process_time``, is reported beside wall time). BLAS must be limited to
+one thread by the caller (``__main__`` does).
 """
 
 from __future__ import annotations
@@ -28,16 +28,29 @@ import tempfile
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from ..data import read_dataset
+from ..hanging import fit_hanging
+from ..pipeline import calibrate
+from ..report import write_report
+from ..selection import select_models
+from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
+from ..sim import SimConfig, simulate, write_simulation
+from ..standing import Poses, extract_poses, fit_standing
+
 CALIBRATION_STAGES = ("hanging", "model selection", "standing")
+PIPELINE_STAGES = ("poses", "hanging", "model selection", "standing")
+_OFF = dict(diagnose=DiagnoseSettings(enabled=False))
 METHODS = {
-    "nlp": {"hanging": "nlp", "solver": "ipopt", "balance": "exact"},
-    "baseline": {"hanging": "baseline", "solver": "baseline", "balance": "report"},
+    "nlp": CalibrationSettings(hanging=HangingSettings(compare_baseline=False), standing=StandingSettings(compare_baseline=False), **_OFF),
+    "baseline": CalibrationSettings(hanging=HangingSettings(method="baseline", compare_baseline=False),
+                                    standing=StandingSettings(solver="baseline", balance="report", weighting="knorm",
+                                                              compare_baseline=False), **_OFF),
 }
 
 
@@ -46,7 +59,7 @@ class SpeedSettings:
     repeats: int = 3
     sim_overrides: dict = field(default_factory=dict)   # SimConfig fields; empty: the default problem
     folds: int = 5
-    diagnosis: bool = True                               # time ftcal_nlp.diagnose when it is available
+    diagnosis: bool = True                               # also time calibrate() with the diagnosis
 
 
 def timed(fn: Callable, repeats: int) -> tuple[object, list[float], list[float]]:
@@ -65,70 +78,76 @@ def _row(stage: str, method: str, walls: list[float], cpus: list[float], note: s
             "cpu_s": float(np.median(cpus)), "repeats": len(walls), "note": note}
 
 
+def _settings(method: str, folds: int, diagnosis: bool = False) -> CalibrationSettings:
+    cs = METHODS[method]
+    cs = replace(cs, selection=replace(cs.selection, folds=folds))
+    return replace(cs, diagnose=DiagnoseSettings(enabled=True, folds=folds)) if diagnosis else cs
+
+
+def _time_calibrate(ds, cs: CalibrationSettings, repeats: int):
+    """``calibrate(ds, cs)`` ``repeats`` times: the last run, whole-call wall/CPU, per-stage wall/CPU lists."""
+    walls, cpus, stage_w, stage_c, run = [], [], {}, {}, None
+    for _ in range(max(1, repeats)):
+        w0, c0 = time.perf_counter(), time.process_time()
+        run = calibrate(ds, cs)
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+        for k, v in run.timings.items():
+            stage_w.setdefault(k, []).append(v)
+            stage_c.setdefault(k, []).append(run.cpu_timings.get(k, np.nan))
+    return run, walls, cpus, stage_w, stage_c
+
+
 def run_speed(settings: SpeedSettings = SpeedSettings(), progress: bool = True) -> dict:
-    """Time every stage (module docstring). Returns ``times`` (DataFrame: stage, method, wall_s,
+    """Time ``calibrate`` (module docstring). Returns ``times`` (DataFrame: stage, method, wall_s,
     wall_min_s, cpu_s, repeats, note), ``totals`` and the problem's sizes."""
     from tqdm import tqdm
 
-    from ..data import read_dataset
-    from ..hanging import fit_hanging
-    from ..selection import select_models
-    from ..sim import SimConfig, simulate, write_simulation
-    from ..standing import extract_poses, fit_standing
-    from ..standing.poses import Poses
-
     R = settings.repeats
     rows: list[dict] = []
-    steps = 7
-    bar = tqdm(total=steps, desc="speed (stages)", disable=not progress)
+    bar = tqdm(total=2 + len(METHODS) + int(settings.diagnosis), desc="speed", disable=not progress)
     sim = simulate(SimConfig(**settings.sim_overrides))
+    runs: dict = {}
+    totals: dict = {}
     with tempfile.TemporaryDirectory(prefix="ftcal_bench_") as tmp:
         manifest = write_simulation(sim, Path(tmp) / "data")
         ds, w, c = timed(lambda: read_dataset(manifest), R)
         rows.append(_row("load", "shared", w, c))
         bar.update()
-        robot = ds.robot
-        poses, w, c = timed(lambda: Poses.concat([extract_poses(r, robot) for r in ds.standing]), R)
-        rows.append(_row("poses", "shared", w, c))
-        bar.update()
-        results = {}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for method, spec in METHODS.items():
-                hang, w, c = timed(lambda spec=spec: fit_hanging(ds.hanging, robot, method=spec["hanging"]), R)
-                rows.append(_row("hanging", method, w, c))
-                prior = hang.to_calibration(robot)
-                sel, w, c = timed(lambda spec=spec, prior=prior: select_models(poses, prior, robot, solver=spec["solver"],
-                                                                                balance=spec["balance"], folds=settings.folds,
-                                                                                on_failure="record"), R)
-                rows.append(_row("model selection", method, w, c, f"selected {sel.best}"))
-                stand, w, c = timed(lambda spec=spec, prior=prior, best=sel.best: fit_standing(
-                    poses, prior, robot, model=best, solver=spec["solver"], balance=spec["balance"]), R)
-                rows.append(_row("standing", method, w, c, f"model {sel.best}"))
-                results[method] = (hang, sel, stand)
+            for method in METHODS:
+                run, walls, cpus, sw, sc = _time_calibrate(ds, _settings(method, settings.folds), R)
+                runs[method] = run
+                for st in PIPELINE_STAGES:
+                    note = f"selected {run.selection.best}" if st == "model selection" else (f"model {run.calibration.model}" if st == "standing" else "")
+                    rows.append(_row(st, method, sw[st], sc[st], note))
+                rows.append(_row("calibrate() without diagnosis", method, walls, cpus))
+                totals[method] = {"calibration_wall_s": float(sum(np.median(sw[k]) for k in CALIBRATION_STAGES)),
+                                  "calibration_cpu_s": float(sum(np.median(sc[k]) for k in CALIBRATION_STAGES)),
+                                  "run_wall_s": float(np.median(walls)), "run_cpu_s": float(np.median(cpus))}
+                totals[method]["with_poses_wall_s"] = totals[method]["calibration_wall_s"] + float(np.median(sw["poses"]))
                 bar.update()
-        run_res = _run_result(ds, manifest, Path(tmp), results, poses, sim)
-        if settings.diagnosis:
-            rows.append(_diagnosis_row(run_res, R))
-        bar.update()
+            report_run = runs["nlp"]
+            if settings.diagnosis:
+                run, walls, cpus, sw, sc = _time_calibrate(ds, _settings("nlp", settings.folds, diagnosis=True), R)
+                rows.append(_row("diagnosis", "shared", sw["diagnosis"], sc["diagnosis"], f"verdict {run.diagnosis.verdict}"))
+                rows.append(_row("calibrate() with diagnosis", "nlp", walls, cpus))
+                totals["nlp"]["run_with_diagnosis_wall_s"] = float(np.median(walls))
+                report_run = run
+                bar.update()
+        report_run.truth = sim.truth
         out_dir = Path(tmp) / "report"
         out_dir.mkdir()
-        from ..report import write_report
-
-        _, w, c = timed(lambda: write_report(run_res, out_dir), 1)
+        _, w, c = timed(lambda: write_report(report_run, out_dir), 1)
         rows.append(_row("report", "shared", w, c))
         bar.update()
-    bar.update(steps - bar.n)
     bar.close()
     times = pd.DataFrame(rows)
-    totals = {}
-    for method in METHODS:
-        t = times[(times.method == method) & times.stage.isin(CALIBRATION_STAGES)]
-        totals[method] = {"calibration_wall_s": float(t.wall_s.sum()), "calibration_cpu_s": float(t.cpu_s.sum())}
-        totals[method]["with_poses_wall_s"] = totals[method]["calibration_wall_s"] + float(times[times.stage == "poses"].wall_s.iloc[0])
+    poses = runs["nlp"].poses
     sizes = {"hanging_samples": int(sum(r.n for r in ds.hanging)), "standing_samples": int(sum(r.n for r in ds.standing)),
-             "poses": int(poses.n), "selected_nlp": results["nlp"][1].best, "selected_baseline": results["baseline"][1].best}
-    context = {"sim": sim, "dataset": ds, "poses": poses, "results": results, "run_result": run_res}
+             "poses": int(poses.n), "selected_nlp": runs["nlp"].selection.best, "selected_baseline": runs["baseline"].selection.best}
+    context = {"sim": sim, "dataset": ds, "poses": poses, "runs": runs, "run_result": report_run, "folds": settings.folds}
     return {"times": times, "totals": totals, "sizes": sizes, "settings": settings, "load_average": _load_average(),
             "context": context}
 
@@ -144,70 +163,30 @@ def _load_average() -> float:
 
 
 def profile_targets(context: dict, workdir: Path, names: list[str] | None = None, methods: tuple[str, ...] = ("nlp",)) -> dict:
-    """Callables re-running stages of the speed bench's problem, for :mod:`.profile`.
+    """Callables re-running stages of the speed bench's problem with the settings ``calibrate`` used, for :mod:`.profile`.
 
     ``names``: which to build (all by default): ``load``, ``poses``, ``hanging (nlp)``,
-    ``model selection (nlp)``, ``standing (nlp)``, ``diagnosis`` (when available), ``report``.
+    ``model selection (nlp)``, ``standing (nlp)``, ``calibrate (nlp)``, ``diagnosis``, ``report``.
     The dataset for ``load`` is written into ``workdir`` here, outside what is profiled.
     """
-    from ..data import read_dataset
-    from ..hanging import fit_hanging
-    from ..report import write_report
-    from ..selection import select_models
-    from ..sim import write_simulation
-    from ..standing import extract_poses, fit_standing
-    from ..standing.poses import Poses
+    from ..diagnose import diagnose_run
 
     ds, poses, robot = context["dataset"], context["poses"], context["dataset"].robot
-    out = {}
+    out: dict[str, Callable] = {}
     if names is None or "load" in names:
         manifest = write_simulation(context["sim"], Path(workdir) / "data", overwrite=True)
         out["load"] = lambda: read_dataset(manifest)
-    out["poses"] = lambda: Poses.concat([extract_poses(r, robot) for r in ds.standing])
     for m in methods:
-        spec = METHODS[m]
-        hang, sel, _ = context["results"][m]
-        prior = hang.to_calibration(robot)
-        out[f"hanging ({m})"] = lambda spec=spec: fit_hanging(ds.hanging, robot, method=spec["hanging"])
-        out[f"model selection ({m})"] = lambda spec=spec, prior=prior: select_models(poses, prior, robot, solver=spec["solver"], balance=spec["balance"])
-        out[f"standing ({m})"] = lambda spec=spec, prior=prior, best=sel.best: fit_standing(poses, prior, robot, model=best, solver=spec["solver"], balance=spec["balance"])
-    try:
-        from ..diagnose import diagnose_run
-
-        out["diagnosis"] = lambda: diagnose_run(context["run_result"])
-    except ImportError:
-        pass
+        cs = _settings(m, context["folds"])
+        run = context["runs"][m]
+        prior = run.hanging.to_calibration(robot)
+        out["poses"] = lambda cs=cs: Poses.concat([extract_poses(r, robot, cs.standing.poses) for r in ds.standing])
+        out[f"hanging ({m})"] = lambda cs=cs: fit_hanging(ds.hanging, robot, cs.hanging)
+        out[f"model selection ({m})"] = lambda cs=cs, prior=prior: select_models(poses, prior, robot, cs.standing, cs.selection)
+        out[f"standing ({m})"] = lambda cs=cs, prior=prior, best=run.calibration.model: fit_standing(poses, prior, robot, cs.standing, model=best)
+        out[f"calibrate ({m})"] = lambda cs=cs: calibrate(ds, cs)
+    out["diagnosis"] = lambda: diagnose_run(context["run_result"])
     report_dir = Path(workdir) / "report"
     report_dir.mkdir(parents=True, exist_ok=True)
     out["report"] = lambda: write_report(context["run_result"], report_dir)
     return out if names is None else {k: v for k, v in out.items() if k in names}
-
-
-def _run_result(ds, manifest: Path, tmp: Path, results: dict, poses, sim):
-    """A RunResult of the NLP pipeline (baselines attached) for the diagnosis and report stages."""
-    from dataclasses import replace
-
-    from ..config import RunConfig
-    from ..run import RunResult
-
-    hang, sel, stand = results["nlp"]
-    hang_b, _, stand_b = results["baseline"]
-    cfg = RunConfig(path=tmp / "bench.toml", manifest=manifest, simulate=None, simulate_dir=None, output_dir=tmp / "report")
-    cal = replace(stand.calibration, model=sel.best)
-    return RunResult(cfg, ds, cal, hang, hang_b, poses, sel, stand, stand_b, truth=sim.truth)
-
-
-def _diagnosis_row(run_res, repeats: int) -> dict:
-    """Time the diagnosis if ``ftcal_nlp.diagnose`` provides ``diagnose_run`` and it works; else a note."""
-    try:
-        from ..diagnose import diagnose_run
-    except ImportError as exc:
-        return {"stage": "diagnosis", "method": "shared", "wall_s": float("nan"), "wall_min_s": float("nan"),
-                "cpu_s": float("nan"), "repeats": 0, "note": f"not available ({exc})"}
-    try:
-        out, w, c = timed(lambda: diagnose_run(run_res), repeats)
-    except Exception as exc:  # noqa: BLE001 - a module under construction; its failure is reported, not raised
-        return {"stage": "diagnosis", "method": "shared", "wall_s": float("nan"), "wall_min_s": float("nan"),
-                "cpu_s": float("nan"), "repeats": 0, "note": f"failed: {type(exc).__name__}: {exc}"[:200]}
-    run_res.diagnosis = out
-    return _row("diagnosis", "shared", w, c, f"verdict {getattr(out, 'verdict', '?')}")

@@ -35,6 +35,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -44,7 +45,8 @@ from .effects import Effect, design_check
 from .linear_fit import base_linear, recalibrate, score_linear
 from .localise import standing_nugget
 from .scores import KindScore
-from .standing_fit import AugmentedFitError, AugmentedProblem
+from ..solver import SolverError
+from .standing_fit import AugmentedProblem
 from .views import Views, to_world
 
 log = logging.getLogger(__name__)
@@ -63,8 +65,7 @@ class EffectScore:
     kinds: dict
     status: str = "ok"
     design: dict | None = None
-    eta: np.ndarray | None = None
-    param_names: tuple = ()
+    fit: Any = None                  # AugmentedFit of the standing face on every pose (results protocol), or None
     note: str = ""
     time_s: float = 0.0
 
@@ -166,7 +167,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
     for eff in effects:
         t0 = time.perf_counter()
         kinds: dict = {}
-        status, note, eta, names, recal = "ok", "", None, (), None
+        status, note, fit, recal = "ok", "", None, None
         try:
             if sv is not None and eff.needs_report_balance and balance != "report":
                 note = "not applicable: the calibration already uses the exact balance (moving CoMs included)"
@@ -177,8 +178,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
                     x, dof, held, r_in = _standing_cv(prob, sv, fidx, x0)
                     kinds["standing"] = _kind_score("standing", sv.floor, held0, held, in0, r_in, dof - dof_b)
                     after[eff.name] = held
-                    eta = prob.eta(x)
-                    names = prob.params.names if prob.params is not None else ()
+                    fit = prob.result(x, prob.design(sv.data))
                     recal = _transforms(prob, x)
             if views.hanging is not None:
                 face = eff.hanging_features(views.hanging.legs)
@@ -193,7 +193,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
                 face = eff.swing_features(views.swing.legs if sw_after is None else sw_after.legs)
                 if face is not None or sw_after is not None:
                     kinds["walking swing"], _ = score_linear(views.swing, face, folds, after=sw_after)
-        except AugmentedFitError as exc:
+        except SolverError as exc:
             status = f"failed: {exc.status}"
             log.warning("diagnosis: %s", exc)
         dsg = design if (eff.name in DESIGN_EFFECTS and design is not None) else None
@@ -201,7 +201,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
             note = note or "no face on these recordings"
             if status == "ok":
                 status = "not applicable"
-        scores.append(EffectScore(eff.name, kinds, status, dsg, eta, names, note, time.perf_counter() - t0))
+        scores.append(EffectScore(eff.name, kinds, status, dsg, fit, note, time.perf_counter() - t0))
     att = Attribution(base, scores, design, held0, after, getattr(base_prob.model, "name", str(model)) if base_prob else str(model),
                       balance, views, fidx or [])
     return replace(att, scores=ranked(att))

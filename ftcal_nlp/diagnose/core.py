@@ -12,15 +12,17 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..calibration import Calibration
+from ..calibration_run import CalibrationRun
 from ..data import Dataset
 from ..models import ModelContext, resolve
 from ..robot import Robot
+from ..settings import DiagnoseSettings
 from .attribute import (
     GAP_THRESHOLD,
     attribute,
@@ -48,33 +50,10 @@ log = logging.getLogger(__name__)
 KIND_NAMES = {"standing": "standing", "hanging": "hanging", "walking swing": "walking", "design": "standing"}
 
 
-@dataclass(frozen=True)
-class DiagnosisSettings:
-    """``effects``: candidate names (None: the whole library); ``folds``/``seed``: cross-validation;
-    ``model``/``balance``: the calibration's error model and balance (None: from the calibration)."""
-
-    effects: tuple | None = None
-    folds: int = 5
-    seed: int = 0
-    model: Any = None
-    balance: str | None = None
-
-
-def _settings(settings) -> DiagnosisSettings:
-    if settings is None:
-        return DiagnosisSettings()
-    if isinstance(settings, DiagnosisSettings):
-        return settings
-    get = settings.get if isinstance(settings, dict) else (lambda k, d=None: getattr(settings, k, d))
-    eff = get("effects", None)
-    return DiagnosisSettings(None if eff is None else tuple(eff), int(get("folds", 5)), int(get("seed", 0)), get("model", None),
-                             get("balance", None))
-
-
-def _model_and_balance(calibration: Calibration, s: DiagnosisSettings) -> tuple[Any, str]:
+def _model_and_balance(calibration: Calibration, model: Any, balance: str | None) -> tuple[Any, str]:
     meta = calibration.meta or {}
-    balance = s.balance or meta.get("balance") or (meta.get("standing") or {}).get("balance") or "exact"
-    model = s.model if s.model is not None else calibration.model
+    balance = balance or meta.get("balance") or (meta.get("standing") or {}).get("balance") or "exact"
+    model = model if model is not None else calibration.model
     try:
         resolve(model)
     except (ValueError, TypeError):
@@ -83,7 +62,8 @@ def _model_and_balance(calibration: Calibration, s: DiagnosisSettings) -> tuple[
     return model, balance
 
 
-def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, robot: Robot, settings=None, *,
+def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, robot: Robot,
+             settings: DiagnoseSettings | None = None, *, model: Any = None, balance: str | None = None,
              x_start: np.ndarray | None = None) -> DiagnosisResult:
     """Diagnose the sim-to-real gap of a calibrated dataset.
 
@@ -91,12 +71,13 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     the calibration's offsets serve as the prior); ``poses``: the standing
     :class:`~ftcal_nlp.standing.Poses` (time order); ``calibration``: the finished
     calibration (its ``model`` and ``meta['balance']`` name the error model and balance);
-    ``settings``: :class:`DiagnosisSettings`, the run config's ``DiagnoseSettings`` or a dict;
-    ``x_start``: the standing fit's decision vector (warm start).
+    ``settings``: :class:`~ftcal_nlp.settings.DiagnoseSettings` (candidate effects, folds, seed);
+    ``model``/``balance``: the calibration's error model and balance (None: from the calibration's
+    ``model`` and ``meta``); ``x_start``: the standing fit's decision vector (warm start).
     """
     t0 = time.perf_counter()
-    s = _settings(settings)
-    model, balance = _model_and_balance(calibration, s)
+    s = DiagnoseSettings() if settings is None else settings
+    model, balance = _model_and_balance(calibration, model, balance)
     effects = resolve_effects(s.effects)
     legs = tuple(robot.legs)
     prior = hanging_result.to_calibration(robot) if hanging_result is not None else calibration
@@ -170,8 +151,9 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
     statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where)
+    effect_fit = by_name[effect].fit if verdict == "effect" else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
-                           str(att.model), balance, time.perf_counter() - t0, tuple(views.notes))
+                           str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit)
 
 
 PRIORITY = ("standing", "hanging", "walking swing")
@@ -225,17 +207,11 @@ def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[s
     return out
 
 
-def diagnose_run(run_result) -> DiagnosisResult:
-    """The diagnosis of a finished run (``ftcal_nlp.run.RunResult``) with its ``[diagnose]`` settings."""
-    cfg = run_result.config
-    dset = getattr(cfg, "diagnose", None)
-    st = run_result.standing
-    balance = getattr(getattr(cfg, "standing", None), "balance", None) or (st.balance if st is not None else None)
-    model = run_result.calibration.model
-    settings = DiagnosisSettings(
-        effects=None if dset is None or dset.effects is None else tuple(dset.effects),
-        folds=getattr(dset, "folds", 5), seed=getattr(dset, "seed", 0), model=model, balance=balance,
-    )
+def diagnose_run(run: CalibrationRun) -> DiagnosisResult:
+    """The diagnosis of a calibration run with its own diagnose settings, model and balance."""
+    st = run.standing
+    balance = st.balance if st is not None else run.settings.standing.balance
+    model = run.calibration.model
     x0 = st.x if (st is not None and getattr(st, "x", None) is not None and st.model == model) else None
-    return diagnose(run_result.dataset, run_result.hanging, run_result.poses, run_result.calibration, run_result.dataset.robot,
-                    settings, x_start=x0)
+    return diagnose(run.dataset, run.hanging, run.poses, run.calibration, run.dataset.robot, run.settings.diagnose,
+                    model=model, balance=balance, x_start=x0)

@@ -1,12 +1,12 @@
 """The diagnosis as a result object: ``diagnosis.json`` (``OUTPUT_FORMAT.md``), a terminal
-summary and a report section. Renders only; every number was computed by ``attribute``
-and ``localise``.
+summary and labelled tables. Every number was computed by ``attribute`` and ``localise``;
+the report's section and figures are drawn by ``ftcal_nlp.report.diagnosis``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -47,6 +47,7 @@ class DiagnosisResult:
     balance: str = "exact"
     time_s: float = float("nan")
     notes: tuple = ()
+    effect_fit: Any = None  # the named effect's standing fit (results protocol: params, bse, cov_params, summary)
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:
@@ -90,6 +91,9 @@ class DiagnosisResult:
             d = self.design
             out["design_check"] = {"common_tilt_deg": _lst(d["tilt_deg"]), "tilt_se_deg": float(d["tilt_se_deg"]),
                                    "delta_bic": float(d["delta_bic"]), "scatter_deg": float(d["scatter_deg"])}
+        if self.effect_fit is not None:
+            p, se = self.effect_fit.effect_params, self.effect_fit.effect_bse
+            out["effect_parameters"] = {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, v, e in zip(p.index, p, se)}
         if self.notes:
             out["notes"] = list(self.notes)
         return out
@@ -113,42 +117,35 @@ class DiagnosisResult:
         return "\n".join(lines)
 
     def ranking_table(self) -> pd.DataFrame:
-        rows = []
+        """Every candidate, best first (rows labelled by effect): delta BIC, the fraction of the gap it
+        explains, its held-out RMS per component (N, N*m) and its status."""
+        rows, names = [], []
         for r in self.ranking:
-            row = {"effect": r["effect"], "delta BIC": r["delta_bic"], "explained": r.get("explained", 0.0)}
+            row = {"delta BIC": r["delta_bic"] if r["delta_bic"] is not None else float("nan"), "explained": r.get("explained", 0.0)}
             for c, v in zip(WRENCH_COMPONENTS, np.asarray(r["heldout_rms_after"], float)):
-                row[f"{c} after"] = v
-            row["status"] = r.get("status", "ok") + (f" ({r['note']})" if r.get("note") else "")
+                row[f"{c} after [{_unit(c)}]"] = v
+            status, note = r.get("status", "ok"), r.get("note") or ""
+            # notes often restate the status ("not applicable: ..."): say it once
+            row["status"] = note if note.startswith(status) else (f"{status} ({note})" if note else status)
             rows.append(row)
-        return pd.DataFrame(rows)
+            names.append(r["effect"])
+        return pd.DataFrame(rows, index=pd.Index(names, name="effect"))
 
     def kinds_table(self) -> pd.DataFrame:
-        rows = []
+        """Per recording kind (rows): gap yes/no, RMS and noise floor per component (N, N*m), the share of the
+        residual that is constant and the measured variable it follows best."""
+        rows, names = [], []
         for kind, loc in self.localisation.items():
-            row = {"recordings": kind, "gap": "yes" if kind in self.gaps else "no"}
+            row = {"gap": "yes" if kind in self.gaps else "no"}
             for c, v, fl in zip(WRENCH_COMPONENTS, loc.rms, loc.floor):
-                row[f"{c} RMS / floor"] = f"{v:.3g} / {fl:.2g}"
-            row["constant share"] = round(loc.constant_share, 2)
+                row[f"{c} RMS [{_unit(c)}]"] = float(v)
+                row[f"{c} floor [{_unit(c)}]"] = float(fl)
+            row["constant share"] = float(loc.constant_share)
             row["follows"] = loc.top or "-"
             rows.append(row)
-        return pd.DataFrame(rows)
+            names.append(kind)
+        return pd.DataFrame(rows, index=pd.Index(names, name="recordings"))
 
-    def report_section(self, folder: str | Path):
-        """A :class:`ftcal_nlp.report.Section`; draws its figures into ``folder``."""
-        from ..report import Section
-        from .figures import fig_dependence, fig_shrinkage
 
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        text = list(self.statement)
-        text.append("Candidates are ranked by the change of BIC on the recordings where the gap lies; every held-out "
-                    "number comes from cross-validation folds (standing) or contiguous time blocks (hanging, walking) "
-                    "that the candidate was not fitted to. Noise floors come from the data: within-pose scatter, "
-                    "high-frequency scatter and the part of the residual no measured variable predicts.")
-        sec = Section("Sim-to-real gap diagnosis", text, [("candidate effects", self.ranking_table()),
-                                                          ("residual by recording kind", self.kinds_table())])
-        sec.figures.append(("diagnosis_shrinkage.png", fig_shrinkage(self, folder / "diagnosis_shrinkage.png")))
-        dep = fig_dependence(self, folder / "diagnosis_dependence.png")
-        if dep is not None:
-            sec.figures.append(("diagnosis_dependence.png", dep))
-        return sec
+def _unit(component: str) -> str:
+    return "N" if component.startswith("f") else "N*m"

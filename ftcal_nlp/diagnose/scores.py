@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..results import bic
+
 
 @dataclass(frozen=True)
 class KindScore:
@@ -38,9 +40,10 @@ class KindScore:
 
     @property
     def delta_bic(self) -> float:
-        if self.rss_before <= 0:
+        """BIC with the effect minus BIC without (``results.bic``; ``dof`` the effect's added degrees of freedom)."""
+        if self.rss_before <= 0 or self.n < 2:
             return 0.0
-        return float(self.n * np.log(max(self.rss_after, 1e-300) / self.rss_before) + self.dof * np.log(max(self.n, 2)))
+        return bic(max(self.rss_after, 1e-300), self.n, self.dof) - bic(self.rss_before, self.n, 0)
 
     @property
     def excess_before(self) -> float:

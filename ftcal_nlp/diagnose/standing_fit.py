@@ -44,24 +44,18 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import pandas as pd
 from scipy.linalg import null_space
 
 from ..calibration import Calibration
-from ..geometry import transform_wrench
+from ..balance import residual
 from ..models import ModelContext, resolve
 from ..robot import Robot
-from ..standing.problem import K_DIAG, check_balance
+from ..balance import K_DIAG, check_balance
+from ..results import ResultsMixin, Summary, fmt_pm
+from ..solver import REL_EIG_TOL, SolverError, identifiability, ipopt, solve_checked
 from .effects.base import AugContext, Effect, ParamBlock, PoseSym
 
-REL_EIG_TOL = 1e-5
-
-
-class AugmentedFitError(RuntimeError):
-    """IPOPT did not solve an augmented standing problem; ``status`` is its return status."""
-
-    def __init__(self, message: str, status: str):
-        super().__init__(message)
-        self.status = status
 
 
 @dataclass(frozen=True)
@@ -143,27 +137,15 @@ def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
 
 
 def balance_residual_sx(R, p, w_o, c, z, zmap, rz, leg_weight_N, Mg: float, balance: str):
-    """Eq. (E) or eq. 9 for one pose as SX (6,), B axes (module docstring), from corrected readings ``c``.
-
-    ``z~ = zmap z`` (``zmap`` None: identity); the report's ``(R_k r_k) x z~`` is
-    written with the product features ``rz[k][a, l] = r_a z_l`` so that it stays linear.
-    """
-    K = len(c)
-    total = ca.SX.zeros(6, 1)
-    for k in range(K):
-        total += transform_wrench(R[k], p[k], c[k] - w_o[k])
+    """Eq. (E) or eq. 9 for one pose as SX (6,), B axes, from corrected readings ``c`` and the
+    corrected up vector ``z~ = zmap z`` (``zmap`` None: identity): ``balance.residual`` on the
+    features ``[c_1 .. c_K, 1, z~, r_k (x) z~]`` (the report's products ``rz[k][a, l] = r_a z_l``
+    become ``rz[k] zmap^T`` and stay linear)."""
     Z = ca.SX.eye(3) if zmap is None else zmap
-    zt = ca.mtimes(Z, z)
-    Mbg = Mg - float(np.sum(leg_weight_N))
-    if balance == "exact":
-        return total - ca.vertcat(Mbg * zt, ca.SX.zeros(3, 1))
-    for k in range(K):
-        Rr_x_z = ca.SX.zeros(3, 1)
-        for a in range(3):
-            for l in range(3):
-                Rr_x_z += rz[k][a, l] * ca.cross(R[k][:, a], Z[:, l])
-        total += leg_weight_N[k] * ca.vertcat(zt, Rr_x_z + ca.cross(p[k], zt))
-    return total - ca.vertcat(Mg * zt, ca.SX.zeros(3, 1))
+    parts = [*c, ca.SX.ones(1, 1), ca.mtimes(Z, z)]
+    if balance == "report":
+        parts += [ca.reshape(ca.mtimes(rz_k, Z.T).T, 9, 1) for rz_k in rz]  # row-major a*3 + l, as balance.features
+    return residual(ca.vertcat(*parts), R, p, w_o, leg_weight_N, Mg, balance)
 
 
 class AugmentedProblem:
@@ -251,33 +233,28 @@ class AugmentedProblem:
     @property
     def solver(self):
         if self._solver is None:
-            opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10,
-                    "ipopt.max_iter": 1000}
-            self._solver = ca.nlpsol(f"diag_{self.name}_{self.balance}", "ipopt", self._nlp, opts)
+            self._solver = ipopt(f"diag_{self.name}_{self.balance}", self._nlp)
         return self._solver
 
     def fit(self, Phi: np.ndarray, weights: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """Minimise ``sum_p weights_p ||r_p||_K^2 + ridge ||x - x0||^2`` over the design rows ``Phi``
         (P, n_used) from ``x0`` (the reference of the minimal-change ridge).
 
-        Raises :class:`AugmentedFitError` when IPOPT does not report success.
+        Raises :class:`~ftcal_nlp.solver.SolverError` when IPOPT does not report success.
         """
         x0 = self.x0 if x0 is None else x0
         S = (Phi * weights[:, None]).T @ Phi
         p = np.concatenate([S.ravel(order="F"), x0])
-        sol = self.solver(x0=x0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
-        st = self.solver.stats()
-        if not st.get("success", False):
-            status = str(st.get("return_status", "unknown"))
-            raise AugmentedFitError(f"IPOPT failed on the standing problem with {self.name!r} ({self.balance} balance): {status}", status)
+        sol, _ = solve_checked(self.solver, f"the standing problem with {self.name!r} ({self.balance} balance)",
+                               x0=x0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
         return np.asarray(sol["x"]).ravel()
 
     def residuals(self, x: np.ndarray, Phi: np.ndarray) -> np.ndarray:
         """Residuals (P, 6) in B axes at ``x``."""
         return Phi @ np.asarray(self.M_fn(x)).T
 
-    def effective_dof(self, x: np.ndarray, Phi: np.ndarray) -> int:
-        """Rank of the K-weighted residual Jacobian on the constraints' tangent space (module docstring)."""
+    def _tangent_jacobian(self, x: np.ndarray, Phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """K-weighted residual Jacobian (6P, d) on the constraints' tangent space, and the basis T (n, d)."""
         nu = len(self.used)
         dM = np.asarray(self.dM_fn(x)).reshape(nu, 6, self.n)  # vec(M) is column-major: index i + 6 j
         J = np.einsum("pj,jin->pin", Phi, dM) * np.sqrt(K_DIAG)[None, :, None]
@@ -291,12 +268,74 @@ class AugmentedProblem:
             T[self.n_model :, Tm.shape[1] :] = np.eye(self.n_eta)
         else:
             T = np.eye(self.n)
-        Jt = J @ T
-        A = Jt.T @ Jt
-        s = np.sqrt(np.diag(A))
-        s = np.where(s > 0, s, 1.0)
-        lam = np.linalg.eigvalsh(A / np.outer(s, s))
-        return int(np.sum(lam >= REL_EIG_TOL * lam.max()))
+        return J @ T, T
 
+    def effective_dof(self, x: np.ndarray, Phi: np.ndarray) -> int:
+        """Rank of the K-weighted residual Jacobian on the constraints' tangent space (module docstring)."""
+        Jt, _ = self._tangent_jacobian(x, Phi)
+        return identifiability(Jt.T @ Jt, REL_EIG_TOL).rank
+
+    def result(self, x: np.ndarray, Phi: np.ndarray) -> AugmentedFit:
+        """The fit at ``x`` on the design rows ``Phi`` as a results object (Gauss-Newton covariance,
+        ``sigma^2 = RSS_K / (6P - rank)``; parameters moved by an undetermined direction get se inf)."""
+        Jt, T = self._tangent_jacobian(x, Phi)
+        ident = identifiability(Jt.T @ Jt, REL_EIG_TOL)
+        r = self.residuals(x, Phi)
+        rss = float(((r**2) @ K_DIAG).sum())
+        sigma2 = rss / max(r.size - ident.rank, 1)
+        cov = sigma2 * T @ ident.pinv() @ T.T
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        for v, _ in ident.undetermined_directions():
+            d = np.abs(T @ v)
+            se[d >= 0.05 * d.max()] = np.inf
+        names = tuple(self.spec.names or [f"x[{i}]" for i in range(self.n_model)])
+        names += tuple(self.params.names if self.params is not None else ())
+        return AugmentedFit(self.name, self.balance, names, x.copy(), se, cov, rss, len(r), ident.rank, self.n_model)
+
+    def eta(self, x: np.ndarray) -> np.ndarray:
+        return x[self.n_model :]
+
+
+@dataclass(frozen=True)
+class AugmentedFit(ResultsMixin):
+    """The calibration model plus one effect fitted to every standing pose (results protocol,
+    ``results.py``): the model's decision vector (rotations as 9 entries, translations, ...)
+    then the effect's parameters ``eta``; ``effect_params`` / ``effect_bse`` are the latter alone."""
+
+    effect: str
+    balance: str
+    names: tuple[str, ...]
+    x: np.ndarray
+    se: np.ndarray
+    cov: np.ndarray
+    rss: float
+    n_poses: int
+    rank: int
+    n_model: int
+
+    @property
+    def params(self) -> pd.Series:
+        return pd.Series(self.x, index=list(self.names), name="params")
+
+    def _bse_array(self) -> np.ndarray:
+        return self.se
+
+    def _cov_array(self) -> np.ndarray:
+        return self.cov
+
+    @property
+    def effect_params(self) -> pd.Series:
+        return self.params.iloc[self.n_model :]
+
+    @property
+    def effect_bse(self) -> pd.Series:
+        return self.bse.iloc[self.n_model :]
+
+    def summary(self) -> Summary:
+        tab = pd.DataFrame({"value ± se": [fmt_pm(v, s) for v, s in zip(self.effect_params, self.effect_bse)]},
+                           index=pd.Index(self.effect_params.index, name="effect parameter"))
+        return Summary(f"Standing fit with {self.effect} ({self.balance} balance)",
+                       [("poses", str(self.n_poses)), ("RSS (K-norm)", f"{self.rss:.5g}"), ("effective dof", str(self.rank))],
+                       [("Effect parameters", tab)])
     def eta(self, x: np.ndarray) -> np.ndarray:
         return x[self.n_model :]

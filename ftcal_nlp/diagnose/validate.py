@@ -49,6 +49,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..pipeline import calibrate
+from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
+from ..sim import SimConfig, simulate
 from .effects import LIBRARY
 
 log = logging.getLogger("ftcal_nlp.diagnose.validate")
@@ -80,27 +83,21 @@ def plan(cfg: dict) -> list[dict]:
 
 
 def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
-    """Simulate, calibrate and diagnose one dataset; returns its row."""
-    from ..hanging import fit_hanging
-    from ..sim import SimConfig, simulate
-    from ..standing import Poses, extract_poses, fit_standing
-    from . import diagnose
-
+    """Simulate one dataset and put it through :func:`ftcal_nlp.calibrate` with the diagnosis on; returns its row."""
     t0 = time.perf_counter()
     lab = item["effect"]
     spec = [] if lab in ("none", "moving_com") else [{"name": lab, "scale": item["scale"], "seed": item["seed"]}]
     balance = "report" if lab == "moving_com" else "exact"
     row = {**item, "balance": balance}
+    settings = CalibrationSettings(
+        hanging=HangingSettings(compare_baseline=False),
+        standing=StandingSettings(model=cfg["model"], balance=balance, compare_baseline=False),
+        diagnose=DiagnoseSettings(folds=int(cfg["folds"]), seed=0))
     try:
         sim = simulate(SimConfig.from_dict({**sim_over, "seed": item["seed"], "effects": spec}))
-        ds = sim.dataset
-        hang = fit_hanging(ds.hanging, ds.robot)
-        prior = hang.to_calibration(ds.robot)
-        poses = Poses.concat([extract_poses(r, ds.robot) for r in ds.standing])
-        st = fit_standing(poses, prior, ds.robot, model=cfg["model"], balance=balance)
-        t1 = time.perf_counter()
-        d = diagnose(ds, hang, poses, st.calibration, ds.robot,
-                     {"folds": cfg["folds"], "seed": 0, "model": cfg["model"], "balance": balance}, x_start=st.x)
+        run = calibrate(sim.dataset, settings)
+        d = run.diagnosis
+        t1 = t0 + sum(v for k, v in run.timings.items() if k != "diagnosis")
         sh = d.shrinkage
         b, a, f = (np.asarray(sh[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))
         row.update(verdict=d.verdict, named=d.effect or d.verdict, kind=sh["kind"], gaps=";".join(d.gaps),

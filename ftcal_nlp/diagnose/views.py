@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
+from ..balance import residual, to_world
 from ..calibration import Calibration, periodic_interp
 from ..data import Dataset, Recording
-from ..geometry import quat_to_rotation, remove_yaw, skew, transform_wrench
+from ..geometry import quat_to_rotation, remove_yaw, skew
 from ..robot import Robot
 from .effects.base import HangingLeg
 from .standing_fit import StandingData
@@ -146,15 +147,10 @@ def fourier_second_derivative(grid: np.ndarray, values: np.ndarray, phi: np.ndar
 
 
 def total_residual_B(w: np.ndarray, z: np.ndarray, cal: Calibration, legs) -> np.ndarray:
-    """Balance (E) residual (N, 6) in B axes about the body CoM: ``sum_k Ad_k (w - w_o) - M_b g [z; 0]``."""
+    """Balance (E) residual (N, 6) in B axes about the body CoM (``balance.residual``); ``w`` (N, K, 6), ``z`` (N, 3)."""
     off, m, R, p = cal.stacked(legs)
-    tot = transform_wrench(R[None], p[None], w - off[None]).sum(axis=1)
-    tot[:, :3] -= cal.body_weight_N * z
-    return tot
-
-
-def to_world(r_B: np.ndarray, R_WB: np.ndarray) -> np.ndarray:
-    return np.concatenate([np.einsum("pij,pj->pi", R_WB, r_B[:, :3]), np.einsum("pij,pj->pi", R_WB, r_B[:, 3:])], axis=1)
+    xi = np.concatenate([w.reshape(len(w), -1), np.ones((len(w), 1)), z], axis=1)
+    return residual(xi, R, p, off, m, cal.mass_kg * cal.g, "exact")
 
 
 # ----------------------------------------------------------------------------- standing

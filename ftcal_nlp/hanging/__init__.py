@@ -35,6 +35,8 @@ from tqdm.auto import tqdm
 
 from ..data import Recording
 from ..robot import Robot
+from ..settings import HANGING_METHODS as METHODS
+from ..settings import HangingSettings, with_overrides
 from .baseline import fit_leg_baseline
 from .estimate import fit_leg_nlp
 from .model import sample_prediction
@@ -45,31 +47,19 @@ from .result import HangingResult, LegHangingResult
 __all__ = ["fit_hanging", "hanging_residuals", "HangingResult", "LegHangingResult", "HangingDataError", "HangingSolveError",
            "HangingWarning", "METHODS"]
 
-METHODS = ("nlp", "baseline")
-
-
-def fit_hanging(
-    recordings: Sequence[Recording],
-    robot: Robot,
-    *,
-    method: str = "nlp",
-    n_grid: int = 72,
-    smoothing: float | str = "auto",
-    seed: int = 0,
-) -> HangingResult:
+def fit_hanging(recordings: Sequence[Recording], robot: Robot, settings: HangingSettings | None = None, **overrides) -> HangingResult:
     """Calibrate every leg of ``robot`` from its hanging recordings.
 
     ``recordings``: the ``hanging`` recordings of a dataset (opposite pairs by
-    ``gravity_body``). ``method``: ``"nlp"`` or ``"baseline"``. ``n_grid``: CoM
-    grid points on [0, 2pi). ``smoothing``: ``"auto"`` (GCV) or the weight
-    ``lam`` (1/m^2) of the second-difference penalty in the noise-standardised
-    objective. ``seed``: unused by the current estimators (both deterministic),
-    kept for estimators that resample.
+    ``gravity_body``). ``settings``: :class:`~ftcal_nlp.settings.HangingSettings`
+    (``method`` ``"nlp"`` or ``"baseline"``, ``n_grid`` CoM grid points on [0, 2pi),
+    ``smoothing`` ``"auto"`` (GCV) or the weight ``lam`` (1/m^2) of the
+    second-difference penalty in the noise-standardised objective); keyword
+    ``overrides`` replace single fields (``fit_hanging(recs, robot, method="baseline")``).
+    Both estimators are deterministic.
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown hanging method {method!r}; known: {list(METHODS)}")
-    if not (isinstance(n_grid, (int, np.integer)) and n_grid >= 8):
-        raise ValueError(f"n_grid must be an integer >= 8, got {n_grid!r}")
+    s = with_overrides(settings, HangingSettings, overrides, "fit_hanging")
+    method, n_grid, smoothing = s.method, s.n_grid, s.smoothing
     recordings = list(recordings)
     pairs = check_recordings(recordings, robot)
     legs: dict[str, LegHangingResult] = {}

@@ -41,7 +41,8 @@ import scipy.linalg as sla
 from scipy import sparse
 
 from ..geometry import skew
-from .problem import PRIOR_SD_M, HangingSolveError, LegProblem
+from ..solver import SolverError
+from .problem import PRIOR_SD_M, LegProblem
 
 
 def second_difference(n_grid: int) -> np.ndarray:
@@ -167,7 +168,7 @@ class ComQP:
         self.prob = cp.Problem(cp.Minimize(0.5 * obj))
 
     def solve(self, A: sparse.spmatrix, b: np.ndarray, lam: float) -> np.ndarray:
-        """Minimiser ``z`` (3G + 3,); raises HangingSolveError if Clarabel does not report optimal."""
+        """Minimiser ``z`` (3G + 3,); raises SolverError if Clarabel does not report optimal."""
         L = np.linalg.cholesky((A.T @ A).toarray() + self.prior)
         c = sla.solve_triangular(L, A.T @ b, lower=True)
         # Scale every term by s^2 so the data are O(1) for the interior-point solver;
@@ -179,7 +180,7 @@ class ComQP:
         try:
             self.prob.solve(solver=cp.CLARABEL)
         except cp.error.SolverError as exc:
-            raise HangingSolveError(f"leg {self.leg}: Clarabel failed on the CoM QP ({exc})") from exc
+            raise SolverError(f"leg {self.leg}: Clarabel failed on the CoM QP ({exc})", "solver_error") from exc
         if self.prob.status != cp.OPTIMAL:
-            raise HangingSolveError(f"leg {self.leg}: CoM QP status '{self.prob.status}' (expected 'optimal')")
+            raise SolverError(f"leg {self.leg}: CoM QP status '{self.prob.status}' (expected 'optimal')", str(self.prob.status))
         return np.asarray(self.z.value, float)

@@ -106,7 +106,7 @@ def noise_weights(problem: LegProblem, s: LegState) -> np.ndarray:
     return (problem.n_samples - n_par / 6) / rss(problem, s)
 
 
-def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str = "auto", nlp_cache: dict | None = None) -> LegHangingResult:
+def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str, nlp_cache: dict | None = None) -> LegHangingResult:
     """Calibrate one leg from its hanging recordings (see module docstring).
 
     ``nlp_cache`` (structure key -> HangingNLP) lets legs with the same data
@@ -169,4 +169,5 @@ def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str = "auto", nlp_cac
         smoothing=float(lam),
         n_rounds=rounds,
         objective=Jval,
+        cov=cov.physical(G),
     )

@@ -51,20 +51,13 @@ from scipy import sparse
 from ..geometry import skew, unskew
 from .com_qp import second_difference
 from .model import LegState, pseudo_residuals_sx, weighted_sumsq_sx
-from .problem import HangingSolveError, LegProblem
+from ..solver import SolverError, ipopt
+from .problem import LegProblem
 
 
-_IPOPT = {
-    "ipopt.print_level": 0,
-    "print_time": False,
-    "ipopt.sb": "yes",
-    "ipopt.tol": 1e-8,
-    # With a stiff smoothing weight the gradient's rounding floor is ~1e-7; IPOPT's own
-    # "acceptable" level then ends the solve as converged (success) instead of stalling.
-    "ipopt.acceptable_tol": 1e-6,
-    "ipopt.acceptable_iter": 3,
-    "ipopt.max_iter": 300,
-}
+# With a stiff smoothing weight the gradient's rounding floor is ~1e-7; IPOPT's own
+# "acceptable" level then ends the solve as converged (success) instead of stalling.
+_IPOPT = {"tol": 1e-8, "acceptable_tol": 1e-6, "acceptable_iter": 3, "max_iter": 300}
 
 
 def structure_key(problem: LegProblem) -> tuple:
@@ -140,7 +133,7 @@ class HangingNLP:
         x = ca.vertcat(*[ca.vec(R) for R in Rs], mg, *fs, w_o, r)
         p = ca.vertcat(W, lam, inv_n, ca.vec(Pi), data)
         nlp = {"x": x, "p": p, "f": obj * inv_n, "g": ca.vertcat(*g)}
-        solver = ca.nlpsol(f"hanging_nlp_{J}x{G}", "ipopt", nlp, _IPOPT)
+        solver = ipopt(f"hanging_nlp_{J}x{G}", nlp, **_IPOPT)
         # Jacobian of the standardised residuals in local coordinates (uncertainty.py):
         # R_j = R_j* exp([B_j eta_j]), to first order R_j* (I + [B_j eta_j]).
         eta = ca.SX.sym("eta", 2 * J)
@@ -183,10 +176,9 @@ class HangingNLP:
             g = np.asarray(sol["g"]).ravel()
             viol = np.maximum(np.maximum(self.lbg - g, g - self.ubg), 0)[: J * self.n_g_per_rec].reshape(J, self.n_g_per_rec).max(axis=1)
             worst = problem.names[int(np.argmax(viol))]
-            raise HangingSolveError(
+            raise SolverError(
                 f"leg {problem.leg}: IPOPT failed on the hanging NLP ({st['return_status']}) for recordings {list(problem.names)}; "
-                f"largest constraint violation {viol.max():.3g} in recording '{worst}'"
-            )
+                f"largest constraint violation {viol.max():.3g} in recording '{worst}'", str(st["return_status"]))
         R = x[: 9 * J].reshape(J, 3, 3).transpose(0, 2, 1)  # undo column-major vec
         n0 = 9 * J + 1 + 3 * J
         return LegState(R, float(x[9 * J]), x[n0 : n0 + 6].copy(), x[n0 + 6 :].reshape(3, -1).T.copy())

@@ -28,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..solver import SolverError
 from ..data import DataFormatError, Recording, hanging_pairs
 from ..robot import Robot
 from .binning import RecordingStats, compress_recording, periodic_grid
@@ -53,8 +54,7 @@ class HangingWarning(UserWarning):
     """Something the hanging data leave unidentified (a CoM direction, grid angles, an offset component)."""
 
 
-class HangingSolveError(RuntimeError):
-    """IPOPT or Clarabel did not solve a hanging problem; the message names leg and recordings."""
+HangingSolveError = SolverError  # IPOPT or Clarabel failed on a hanging problem (the one solver error, solver.py)
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,23 @@ import numpy as np
 import pandas as pd
 
 from ..calibration import Calibration, LegCalibration
+from ..data import WRENCH_COMPONENTS
 from ..geometry import rotation_to_rotvec
+from ..results import ResultsMixin, Summary, block_diag_cov, fmt_pm
 from ..robot import Robot
 
-ROWS = ("F_offset x [N]", "F_offset y [N]", "F_offset z [N]", "T_offset x [Nm]", "T_offset y [Nm]", "T_offset z [Nm]", "mg [N]")
+_OFFSET_ROWS = ("force offset x [N]", "force offset y [N]", "force offset z [N]",
+                "torque offset x [N*m]", "torque offset y [N*m]", "torque offset z [N*m]")
+ROWS = _OFFSET_ROWS + ("leg weight m g [N]",)
+
+
+def leg_param_names(leg: str, n_grid: int, recordings) -> list[str]:
+    """Labels of one leg's parameters (SI units): ``FL.w_o.fx`` .. ``FL.w_o.tz`` (N, N*m),
+    ``FL.mg`` (N), ``FL.com[i].x`` (m, grid point i), ``FL.tilt[rec].x`` (rad, rotation vector)."""
+    names = [f"{leg}.w_o.{c}" for c in WRENCH_COMPONENTS] + [f"{leg}.mg"]
+    names += [f"{leg}.com[{i}].{c}" for i in range(n_grid) for c in "xyz"]
+    names += [f"{leg}.tilt[{r}].{c}" for r in recordings for c in "xyz"]
+    return names
 
 
 @dataclass(frozen=True)
@@ -55,6 +68,28 @@ class LegHangingResult:
     smoothing: float = float("nan")
     n_rounds: int = 0
     objective: float = float("nan")
+    cov: np.ndarray | None = field(default=None, repr=False)  # physical covariance, order of leg_param_names
+
+    @property
+    def param_names(self) -> list[str]:
+        return leg_param_names(self.leg, len(self.com_phi), list(self.misalignment))
+
+    def param_values(self) -> np.ndarray:
+        tilts = [rotation_to_rotvec(R) for R in self.misalignment.values()]
+        return np.concatenate([self.offset, [self.leg_weight_N], self.com_xyz.ravel(), *tilts])
+
+    def param_se(self) -> np.ndarray:
+        """Standard errors; inf where the data do not determine a parameter (NaN value)."""
+        se = np.concatenate([self.offset_se, [self.leg_weight_se_N], self.com_xyz_se.ravel(),
+                             *[np.asarray(v, float) for v in self.misalignment_se.values()]])
+        return np.where(np.isnan(self.param_values()), np.inf, se)
+
+    def param_cov(self) -> np.ndarray:
+        """The Fisher covariance (NLP), or the diagonal of the se where a method gives only se (baseline)."""
+        if self.cov is not None:
+            return self.cov
+        se = self.param_se()
+        return np.diag(np.where(np.isfinite(se), se, 0.0) ** 2)
 
     def misalignment_deg(self) -> dict[str, tuple[float, float]]:
         """Angle of each misalignment rotation and its standard error, degrees."""
@@ -68,57 +103,69 @@ class LegHangingResult:
         return out
 
 
-def _fmt(v: float, se: float) -> str:
-    """``value ± se`` with the value rounded to the first significant digit of se (Table II style)."""
-    if not np.isfinite(v):
-        return "nan"
-    if not np.isfinite(se) or se <= 0:
-        return f"{v:.4g}"
-    d = max(0, -int(np.floor(np.log10(se))))
-    return f"{v:.{d}f} ± {se:.{d}f}"
-
-
 @dataclass(frozen=True)
-class HangingResult:
-    """All legs of one hanging calibration; ``method`` is ``"nlp"`` or ``"baseline"``."""
+class HangingResult(ResultsMixin):
+    """All legs of one hanging calibration; ``method`` is ``"nlp"`` or ``"baseline"``.
+
+    Results protocol (``results.py``): ``params`` labelled as in :func:`leg_param_names`
+    for every leg; legs are independent (block-diagonal ``cov_params()``).
+    """
 
     legs: dict[str, LegHangingResult]
     method: str
 
-    def table(self) -> pd.DataFrame:
-        """Table II of the report: offsets and leg weights, columns (leg, value|se)."""
-        cols = pd.MultiIndex.from_product([list(self.legs), ["value", "se"]], names=["leg", ""])
-        data = np.empty((len(ROWS), len(cols)))
-        for i, l in enumerate(self.legs.values()):
-            data[:, 2 * i] = np.append(l.offset, l.leg_weight_N)
-            data[:, 2 * i + 1] = np.append(l.offset_se, l.leg_weight_se_N)
-        return pd.DataFrame(data, index=list(ROWS), columns=cols)
+    @property
+    def params(self) -> pd.Series:
+        return pd.Series(np.concatenate([l.param_values() for l in self.legs.values()]),
+                         index=[n for l in self.legs.values() for n in l.param_names], name="params")
 
-    def summary(self) -> str:
-        """Text summary: Table II (value ± se), then per leg fit quality, tilts and warnings."""
-        legs = list(self.legs.values())
-        head = f"Hanging calibration ({self.method}), {len(legs)} legs"
-        cells = [[_fmt(v, s) for v, s in zip(np.append(l.offset, l.leg_weight_N), np.append(l.offset_se, l.leg_weight_se_N))] for l in legs]
-        w0 = max(len(r) for r in ROWS)
-        w = max(max(len(c) for col in cells for c in col), max(len(l.leg) for l in legs)) + 2
-        lines = [head, "=" * len(head), " " * w0 + "".join(f"{l.leg:>{w}}" for l in legs)]
-        for i, r in enumerate(ROWS):
-            lines.append(f"{r:<{w0}}" + "".join(f"{col[i]:>{w}}" for col in cells))
-        lines.append("")
-        for l in legs:
-            rms = " ".join(f"{x:.3g}" for x in l.residual_rms)
-            state = "converged" if l.converged else "NOT CONVERGED"
-            lines.append(f"{l.leg}: {state}, {l.solve_time_s:.2f} s, residual RMS [N, N, N, Nm, Nm, Nm] {rms}")
-            if l.n_rounds:
-                lines.append(f"    {l.n_rounds} NLP/QP rounds, smoothing lam = {l.smoothing:.3g} /m^2")
-            tilts = ", ".join(f"{k} {_fmt(a, s)} deg" for k, (a, s) in l.misalignment_deg().items())
-            lines.append(f"    misalignment: {tilts}")
+    def _bse_array(self) -> np.ndarray:
+        return np.concatenate([l.param_se() for l in self.legs.values()])
+
+    def _cov_array(self) -> np.ndarray:
+        frames = [pd.DataFrame(l.param_cov(), index=l.param_names, columns=l.param_names) for l in self.legs.values()]
+        return block_diag_cov(frames).to_numpy()
+
+    def table(self) -> pd.DataFrame:
+        """Table II of the report: offsets and leg weight per leg as ``value ± se`` (rows with units)."""
+        cols = {}
+        for k, l in self.legs.items():
+            cols[k] = [fmt_pm(v, s) for v, s in zip(np.append(l.offset, l.leg_weight_N), np.append(l.offset_se, l.leg_weight_se_N))]
+        df = pd.DataFrame(cols, index=list(ROWS))
+        df.index.name = "parameter"
+        return df
+
+    def fit_table(self) -> pd.DataFrame:
+        """Per leg: convergence, rounds, smoothing, residual RMS, tilts, CoM identification."""
+        rows = {}
+        for k, l in self.legs.items():
+            tilts = "; ".join(f"{name}: {fmt_pm(a, s)}" for name, (a, s) in l.misalignment_deg().items())
             n_id = int(np.isfinite(l.com_xyz).all(axis=1).sum())
-            lines.append(f"    CoM grid: {n_id} of {len(l.com_phi)} angles fully identified; "
-                         f"median se {np.nanmedian(l.com_xyz_se) * 1e3 if np.isfinite(l.com_xyz_se).any() else float('nan'):.3g} mm")
-            for msg in l.warnings:
-                lines.append(f"    warning: {msg}")
-        return "\n".join(lines)
+            med = np.nanmedian(l.com_xyz_se) * 1e3 if np.isfinite(l.com_xyz_se).any() else float("nan")
+            rows[k] = {
+                "converged": "yes" if l.converged else "NO",
+                "time [s]": f"{l.solve_time_s:.2f}",
+                "rounds": str(l.n_rounds) if l.n_rounds else "",
+                "smoothing lam [1/m^2]": f"{l.smoothing:.3g}" if np.isfinite(l.smoothing) else "",
+                "residual RMS f [N]": " ".join(f"{x:.3g}" for x in l.residual_rms[:3]),
+                "residual RMS tau [N*m]": " ".join(f"{x:.3g}" for x in l.residual_rms[3:]),
+                "CoM grid identified": f"{n_id}/{len(l.com_phi)}",
+                "CoM median se [mm]": f"{med:.3g}",
+                "hanging tilt [deg]": tilts,
+            }
+        df = pd.DataFrame(rows).T
+        df.index.name = "leg"
+        return df
+
+    def summary(self) -> Summary:
+        """Table II (``value ± se``), then per leg fit quality, tilts and warnings."""
+        legs = list(self.legs.values())
+        s = Summary(f"Hanging calibration ({self.method}), {len(legs)} legs",
+                    [("method", self.method), ("CoM grid", f"{len(legs[0].com_phi)} shaft angles") if legs else ("CoM grid", "-")])
+        s.tables.append(("Offsets w_o (ft_k axes) and leg weights, value ± standard error", self.table()))
+        s.tables.append(("Fit per leg", self.fit_table()))
+        s.notes += [f"{l.leg}: {m}" for l in legs for m in l.warnings]
+        return s
 
     def to_calibration(self, robot: Robot) -> Calibration:
         """A calibration with these offsets, weights and CoM curves and the nominal transducer poses.

@@ -25,7 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from ..solver import identifiability
 from .com_qp import penalty, prior
+
+# Only numerically singular directions are dropped: the penalised CoM grid and the weak prior make H
+# regular wherever the data leave a direction open (those come out with large, honest se).
+PINV_REL_TOL = 1e-13
 from .model import LegState
 from .nlp import HangingNLP
 from .problem import LegProblem, tangent_basis
@@ -45,6 +50,24 @@ class LegCovariance:
     def se(self, sl) -> np.ndarray:
         return np.sqrt(np.maximum(np.diag(self.cov)[sl], 0.0))
 
+    def physical(self, n_grid: int) -> np.ndarray:
+        """Covariance of the physical parameters in the order of ``result.leg_param_names``:
+        ``w_o`` (6), ``m g``, the CoM grid point by point (x, y, z per angle), then each
+        recording's tilt as a rotation vector ``B_j eta_j`` (3), rad."""
+        n_loc = self.cov.shape[0]
+        J = len(self.eta)
+        G = n_grid
+        D = np.zeros((7 + 3 * G + 3 * J, n_loc))
+        D[:6, self.w_o] = np.eye(6)
+        D[6, self.mg] = 1.0
+        r0 = self.r.start
+        for i in range(G):
+            for c in range(3):
+                D[7 + 3 * i + c, r0 + c * G + i] = 1.0  # r is stored component-major: x_0..x_G-1, y.., z..
+        for j in range(J):
+            D[7 + 3 * G + 3 * j : 10 + 3 * G + 3 * j, self.eta[j]] = self.bases[j]
+        return D @ self.cov @ D.T
+
     def rotvec_se(self, j: int) -> np.ndarray:
         """Standard error (3,) of the misalignment rotation vector of recording ``j``, rad."""
         B = self.bases[j]
@@ -63,7 +86,7 @@ def leg_covariance(problem: LegProblem, nlp: HangingNLP, state: LegState, W: np.
     H[n0:, n0:] += lam * penalty(G)[:n, :n] + prior(G, problem.prior_precision)[:n, :n]
     if len(C):  # gauge constraints (single gravity axis): covariance on their null space
         Z = sla.null_space(C)
-        cov = Z @ np.linalg.pinv(Z.T @ H @ Z, rcond=1e-13, hermitian=True) @ Z.T
+        cov = Z @ identifiability(Z.T @ H @ Z, PINV_REL_TOL).pinv() @ Z.T
     else:
-        cov = np.linalg.pinv(H, rcond=1e-13, hermitian=True)
+        cov = identifiability(H, PINV_REL_TOL).pinv()
     return LegCovariance(cov, [slice(2 * j, 2 * j + 2) for j in range(J)], 2 * J, slice(2 * J + 1, 2 * J + 7), slice(n0, n0 + 3 * G), bases)

@@ -1,124 +1,174 @@
 """The run's report: tables (CSV, Markdown, LaTeX), figures (PNG), ``report.md`` and a
-self-contained ``report.html`` (figures embedded), rendered from a :class:`RunResult` only."""
+self-contained ``report.html`` (figures embedded), rendered from a
+:class:`~ftcal_nlp.calibration_run.CalibrationRun` only (its results objects and
+its ``settings``).
+
+* ``render.py``: sections and blocks, Markdown and HTML;
+* ``tables.py``: the labelled tables (row labels with units, ``value ± se``) and their files;
+* ``figures.py``: the calibration's figures; ``diagnosis.py``: the diagnosis' section and figures.
+
+The report opens with a summary, then the notation it uses, then one section
+per stage. Figures are drawn with whatever matplotlib backend the entry point
+chose (``run.py`` sets Agg).
+"""
 
 from __future__ import annotations
 
-import base64
-import html
 import logging
-from dataclasses import dataclass, field
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
+from ..results import PM, Summary
 from . import figures
-from .tables import parameter_table, to_latex, to_markdown, truth_check
+from .diagnosis import diagnosis_section
+from .render import Bullets, Definitions, Figure, Section, Table, Text, render_html, render_markdown
+from .tables import hanging_comparison, parameter_table, stage_times, truth_table, write_table
 
 if TYPE_CHECKING:
-    from ..run import RunResult
+    from ..calibration_run import CalibrationRun
+
+__all__ = ["Section", "write_report", "build_sections", "summary_paragraph", "notation_section", "diagnosis_section", "legs_as_columns"]
 
 log = logging.getLogger(__name__)
 
-
-@dataclass
-class Section:
-    title: str
-    text: list[str] = field(default_factory=list)
-    tables: list[tuple[str, pd.DataFrame]] = field(default_factory=list)
-    figures: list[tuple[str, Path]] = field(default_factory=list)
-
-
-def write_table(df: pd.DataFrame, folder: Path, stem: str, caption: str) -> None:
-    df.to_csv(folder / f"{stem}.csv", index=False)
-    (folder / f"{stem}.md").write_text(to_markdown(df))
-    (folder / f"{stem}.tex").write_text(to_latex(df, caption=caption, label=f"tab:{stem}"))
+TITLE = "ftcal_nlp calibration report"
 
 
 def _rms(a: np.ndarray) -> np.ndarray:
     return np.sqrt(np.nanmean(np.asarray(a) ** 2, axis=0))
 
 
-def summary_paragraph(res: "RunResult") -> str:
-    ds, cal = res.dataset, res.calibration
+def _model_description(res: "CalibrationRun", name: str) -> str:
+    if res.selection is not None:
+        for s in res.selection.scores:
+            if s.name == name:
+                return s.description
+    return ""
+
+
+def summary_paragraph(res: "CalibrationRun") -> str:
+    """What was calibrated, how (from ``res.settings``), and what it changed."""
+    ds, cal, st = res.dataset, res.calibration, res.settings
     parts = [
         f"Dataset with {len(ds.hanging)} hanging, {len(ds.standing)} standing and {len(ds.walking)} walking recordings of "
         f"a {ds.robot.n_legs}-legged robot of {ds.robot.mass_kg:g} kg."
     ]
+    if res.hanging is not None:
+        parts.append(f"Hanging stage: method `{res.hanging.method}`, leg CoM curves on {st.hanging.n_grid} shaft angles.")
+    else:
+        parts.append(f"Offsets only: offsets re-estimated from the standing poses, everything else kept from model `{cal.model}`.")
     if res.poses is not None:
         parts.append("Pose extraction kept " + " -> ".join(f"{v} ({k})" for k, v in res.poses.counts.items()) + " poses.")
     if res.selection is not None:
-        parts.append(f"Model selection (5-fold CV and BIC) chose `{res.selection.best}`.")
-    else:
-        parts.append(f"The model was fixed to `{cal.model}`.")
+        sel = res.selection
+        desc = _model_description(res, sel.best)
+        parts.append(f"Model selection ({sel.folds}-fold CV and BIC over {len(sel.scores)} candidates, {sel.n_poses} poses) "
+                     f"chose `{sel.best}`" + (f" ({desc})." if desc else "."))
+    elif res.hanging is not None:
+        parts.append(f"The model was fixed to `{cal.model}` (no model selection).")
+    if res.standing is not None:
+        s = res.standing
+        parts.append(f"Standing fit: {s.balance} balance, {s.weighting} weighting, solver {s.solver} ({s.solver_status}).")
     if res.standing is not None and res.poses is not None:
+        cal_rms = _rms(res.standing.residuals)
         try:
-            nv = _rms(figures.naive_total_residuals(res))
+            nv = _rms(res.naive_total_residuals())
             parts.append(
-                f"The total-wrench residual RMS fell from {nv[:3].max():.3g} N / {nv[3:].max():.3g} N*m with naive taring "
-                f"to {_rms(res.standing.residuals)[:3].max():.3g} N / {_rms(res.standing.residuals)[3:].max():.3g} N*m calibrated (worst component)."
+                f"The total-wrench residual RMS (worst component) fell from {nv[:3].max():.3g} N / {nv[3:].max():.3g} N*m with "
+                f"naive taring to {cal_rms[:3].max():.3g} N / {cal_rms[3:].max():.3g} N*m calibrated."
             )
         except (ValueError, IndexError) as exc:
-            parts.append(f"(Naive comparison not available: {exc}.)")
+            parts.append(f"Calibrated total-wrench residual RMS (worst component) {cal_rms[:3].max():.3g} N / "
+                         f"{cal_rms[3:].max():.3g} N*m (naive comparison not available: {exc}).")
+    if cal.com_body_m is not None:
+        parts.append("CoM of the body without legs in B: (" + ", ".join(f"{1e3 * v:.1f}" for v in cal.com_body_m) + ") mm.")
     if res.standing is not None and getattr(res.standing, "unidentified", ()):
-        parts.append("Not identifiable from these poses: " + "; ".join(res.standing.unidentified) + ".")
+        parts.append(f"{len(res.standing.unidentified)} direction(s) of the parameters are not determined by these poses "
+                     "(standard error inf; listed under Standing calibration).")
     if res.diagnosis is not None:
-        parts.append(f"Sim-to-real gap diagnosis: verdict `{res.diagnosis.verdict}`" + (f" (effect `{res.diagnosis.effect}`)." if res.diagnosis.effect else "."))
-    parts += res.notes
+        parts.append(f"Sim-to-real gap diagnosis: verdict `{res.diagnosis.verdict}`"
+                     + (f" (effect `{res.diagnosis.effect}`)." if res.diagnosis.effect else "."))
+    elif not st.diagnose.enabled:
+        parts.append("The sim-to-real gap diagnosis was not run (`[diagnose] enabled = false`).")
+    if res.truth is not None:
+        parts.append("The dataset carries its truth (`truth.json`): the estimates are checked against it below.")
+    if res.notes:
+        parts.append(f"{len(res.notes)} note(s) below.")
     return " ".join(parts)
 
 
-def build_sections(res: "RunResult", folder: Path) -> list[Section]:
-    robot = res.dataset.robot
-    secs: list[Section] = [Section("Summary", [summary_paragraph(res)])]
-    nominal = {k: robot.transducers[k].rotation for k in robot.legs}
-    rv_se = None
-    if res.standing is not None and getattr(res.standing, "rotvec_se", None) is not None:
-        rv_se = {k: np.asarray(res.standing.rotvec_se)[i] for i, k in enumerate(robot.legs)}
-    par = parameter_table(res.calibration, nominal, rv_se)
-    write_table(par, folder, "parameters", "Estimated calibration parameters (value +- standard error), cf. report Table II")
-    s = Section("Calibration parameters (cf. Table II)", ["Value +- standard error; rotation errors as rotation vectors of R_k R_nominal^T."], [("parameters", par)])
-    if res.truth is not None:
-        tc = truth_check(res.calibration, res.truth, rv_se)
-        write_table(tc, folder, "truth_check", "Estimate vs simulated truth")
-        s.tables.append(("truth check (simulated data: error and error/se)", tc))
-    secs.append(s)
-    if res.selection is not None:
-        sel = res.selection.table()
-        write_table(sel, folder, "model_selection", "Model selection statistics (cf. report Table I)")
-        secs.append(Section("Model selection (cf. Table I)", [f"Selected: `{res.selection.best}`."], [("model selection", sel)]))
-    if res.hanging is not None:
-        ht = res.hanging.table()
-        ht = ht.reset_index() if ht.index.name is not None else ht
-        write_table(ht, folder, "hanging", "Hanging calibration (value +- se)")
-        hs = Section("Hanging calibration", [f"Method: `{res.hanging.method}`."], [("hanging", ht)])
-        for name, fn in (("leg_com.png", figures.fig_leg_com), ("hanging_residuals.png", figures.fig_hanging_residuals)):
-            hs.figures.append((name, _try_figure(fn, res, folder / name)))
-        if res.hanging_baseline is not None:
-            comp = _hanging_comparison(res)
-            if comp is not None:
-                write_table(comp, folder, "hanging_nlp_vs_baseline", "Hanging: NLP vs report baseline")
-                hs.tables.append(("NLP vs baseline", comp))
-        secs.append(hs)
-    st = Section("Standing calibration")
-    if res.standing is not None:
-        st.text.append("```\n" + res.standing.summary() + "\n```")
-    if res.hanging is not None:
-        st.figures.append(("naive_total.png", _try_figure(figures.fig_naive_total, res, folder / "naive_total.png")))
-    st.figures.append(("total_residuals.png", _try_figure(figures.fig_total_residuals, res, folder / "total_residuals.png")))
-    secs.append(st)
-    if res.corrected:
-        ws = Section("Walking: ground contact wrenches", [f"Corrected recordings in `corrected/`: {', '.join(res.corrected)}."])
-        for rec in res.dataset.walking:
-            name = f"walking_{rec.name}.png"
-            ws.figures.append((name, _try_figure(figures.fig_walking, res, rec, folder / name)))
-        secs.append(ws)
-    if res.diagnosis is not None and hasattr(res.diagnosis, "report_section"):
-        secs.append(res.diagnosis.report_section(folder))
-    tim = pd.DataFrame({"stage": list(res.timings), "seconds": [round(v, 3) for v in res.timings.values()]})
-    secs.append(Section("Stage times", tables=[("times", tim)]))
-    return secs
+NOTATION = (
+    ("B", "body frame of the robot (its x axis forward, z up when standing level)."),
+    ("W", "world frame of the motion capture, z up against gravity; R_WB turns B axes into W axes."),
+    ("ft_k", "frame of the transducer of leg k (k in FL, ML, HL, FR, MR, HR): its readings w_m = [f; tau] are in ft_k axes."),
+    ("heading frame", "origin at the robot's CoM at that instant, z up against gravity, x the body's x axis projected on the "
+                      "horizontal plane; the corrected walking wrenches are in it."),
+    ("w_o", "offset of a transducer: the wrench [f_o; tau_o] it reads with no load (N, N*m, ft_k axes)."),
+    ("m_k g", "weight of leg k (N)."),
+    ("r_k(phi)", "CoM of leg k in ft_k as a function of its shaft angle phi (rad), from the hanging recordings (mm in the figures)."),
+    ("R_tilde_k", "mounting rotation error of transducer k: the rotation vector of R_k R_nominal_k^T, R_k the estimated "
+                  "rotation from ft_k to B (deg in the tables)."),
+    ("p'_k", "origin of ft_k relative to the CoM of the body without legs, in B axes (mm in the tables)."),
+    ("K-norm", "||r||_K^2 = |f|^2 + 10 |tau|^2 for a wrench residual r = [f; tau] (report eq. 8; the weight 10 per m^2 "
+               "makes N and N*m compare); RSS and CV error are sums / means of it (N²)."),
+    ("CV", "k-fold cross-validation: mean K-norm squared residual per held-out pose of a model fitted to the other folds."),
+    ("BIC", "Bayesian information criterion P ln(RSS/P) + DOF ln P (P poses); the smallest selects the model."),
+    (PM, f"value {PM} one standard error; inf: the data do not determine the quantity; (fixed): kept from an earlier "
+         "stage, not estimated here."),
+)
+
+
+def notation_section() -> Section:
+    return Section("Notation", [Definitions(list(NOTATION))])
+
+
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+_LIST_CELL = re.compile(r"^\s*([^:;]+):\s*([^;]+?)\s*$")
+
+
+def _split_list_cell(text: str) -> list[tuple[str, str]] | None:
+    """``"a: 1 ± 0.1; b: 2 ± 0.1"`` -> ``[("a", "1 ± 0.1"), ("b", "2 ± 0.1")]``; None if the cell is not such a list."""
+    parts = [_LIST_CELL.match(p) for p in str(text).split(";")]
+    return [(m.group(1).strip(), m.group(2)) for m in parts] if parts and all(parts) else None
+
+
+def legs_as_columns(df: pd.DataFrame) -> pd.DataFrame:
+    """A table with one row per leg turned into one column per leg (as Table II), and list cells
+    (``"rec: value; rec: value"``) spread over one row per item, so no cell is a paragraph."""
+    if df.index.name != "leg":
+        return df
+    t = df.T
+    rows, labels = [], []
+
+    def add(label: str, sub: str, cells: list) -> None:
+        head, unit = (label.rsplit(" [", 1) + [""])[:2]
+        labels.append(f"{head} {sub}" + (f" [{unit}" if unit else ""))
+        rows.append(cells)
+
+    for label, row in t.iterrows():
+        label = str(label)
+        items = [_split_list_cell(v) for v in row]
+        names = [n for n, _ in items[0]] if items and all(items) else None
+        triples = [str(v).split() for v in row]
+        if names and all([n for n, _ in it] == names for it in items):
+            for j, n in enumerate(names):
+                add(label, n, [it[j][1] for it in items])
+        elif all(len(tr) == 3 and all(_NUMBER.fullmatch(x) for x in tr) for tr in triples):
+            for j, c in enumerate("xyz"):  # "fx fy fz" in one cell: one row per component
+                add(label, c, [tr[j] for tr in triples])
+        else:
+            labels.append(label)
+            rows.append(list(row))
+    return pd.DataFrame(rows, index=pd.Index(labels, name="quantity"), columns=list(t.columns))
+
+
+def _readable(summary: Summary) -> Summary:
+    """The stage summary with per-leg tables laid out with legs as columns (``legs_as_columns``)."""
+    return Summary(summary.title, list(summary.facts), [(c, legs_as_columns(df)) for c, df in summary.tables], list(summary.notes))
 
 
 def _try_figure(fn, *args) -> Path | None:
@@ -129,47 +179,130 @@ def _try_figure(fn, *args) -> Path | None:
         return None
 
 
-def _hanging_comparison(res: "RunResult") -> pd.DataFrame | None:
-    rows = []
-    for k in res.dataset.robot.legs:
-        a, b = res.hanging.legs[k], res.hanging_baseline.legs[k]
-        row = {"leg": k, "m g NLP [N]": a.leg_weight_N, "m g baseline [N]": b.leg_weight_N,
-               "offset F diff norm [N]": float(np.linalg.norm(np.asarray(a.offset[:3]) - b.offset[:3])),
-               "offset T diff norm [N*m]": float(np.linalg.norm(np.asarray(a.offset[3:]) - b.offset[3:]))}
-        if res.truth is not None:
-            t = res.truth.legs[k]
-            row["offset F error norm NLP [N]"] = float(np.linalg.norm(np.asarray(a.offset[:3]) - t.offset[:3]))
-            row["offset F error norm baseline [N]"] = float(np.linalg.norm(np.asarray(b.offset[:3]) - t.offset[:3]))
-        rows.append(row)
-    return pd.DataFrame(rows)
+def _parameters(res: "CalibrationRun", folder: Path) -> Section:
+    sec = Section("Calibration parameters (cf. report Table II)")
+    par = parameter_table(res)
+    caption = f"Calibration parameters per leg (value {PM} standard error), as in calibration.json"
+    write_table(par, folder, "parameters", caption)
+    if res.hanging is not None:
+        origin = ("Offsets and leg weights come from the hanging stage, R_tilde and p' from the standing fit. The standing "
+                  "fit conditions on the hanging estimates; the standard errors shown for R_tilde and p' include what the "
+                  f"hanging uncertainty adds (the run's joint covariance, `cov_params()`: {res.joint_covariance()[3]}).")
+    else:
+        origin = ("Offsets-only run: the offsets are re-estimated from the standing poses; everything else is kept from the "
+                  "earlier calibration ((fixed): not estimated here).")
+    sec.add(Text(f"The finished calibration, as written to `calibration.json`. {origin}"))
+    sec.add(Table(caption, par))
+    if res.truth is not None:
+        tc = truth_table(res)
+        tcap = "Estimate vs truth: largest |estimate - truth| over the components, and largest |error| / se"
+        write_table(tc, folder, "truth_check", tcap)
+        sec.add(Table(tcap, tc))
+    return sec
 
 
-def write_report(res: "RunResult", folder: Path) -> Path:
+def _selection(res: "CalibrationRun", folder: Path) -> Section:
+    sel = res.selection
+    sec = Section("Model selection (cf. report Table I)")
+    view = sel.report_table()
+    best = _model_description(res, sel.best)
+    caption = (f"Model selection statistics: {sel.n_poses} poses, {sel.folds}-fold CV (seed {sel.seed}), "
+               f"{sel.balance} balance, K-norm fits")
+    write_table(view, folder, "model_selection", caption, csv=sel.report_table(numeric=True))
+    sec.add(Text(f"Every candidate error model is fitted to all poses (RSS, BIC) and in {sel.folds}-fold cross-validation "
+                 f"(CV error {PM} its standard error over the folds). The model with the smallest BIC is selected: "
+                 f"**{best or sel.best}** (`{sel.best}` in calibration.json). delta BIC is the difference to it."))
+    sec.add(Table(caption, view, highlight=best or None))
+    return sec
+
+
+def _hanging(res: "CalibrationRun", folder: Path) -> Section:
+    sec = Section("Hanging calibration")
+    summ = res.hanging.summary()
+    ht = res.hanging.table()
+    write_table(ht, folder, "hanging", f"Hanging calibration ({res.hanging.method}): offsets w_o (ft_k axes) and leg weights, "
+                                        f"value {PM} standard error")
+    sec.add(Text("Robot hung with its feet in the air in several orientations, legs turning: each transducer reads its "
+                 "offset w_o plus its leg's weight m_k g acting at r_k(phi)."))
+    sec.add(_readable(summ))
+    sec.add(Figure("leg_com.png", _try_figure(figures.fig_leg_com, res, folder / "leg_com.png"),
+                   f"Estimated leg CoM r_k(phi) per shaft angle with {PM}1 se and {PM}2 se bands and a fitted sinusoid"
+                   + (" beside the truth" if res.truth is not None else "") + "."))
+    sec.add(Figure("hanging_residuals.png", _try_figure(figures.fig_hanging_residuals, res, folder / "hanging_residuals.png"),
+                   "Distribution of the hanging residuals per leg and component, with and without the estimated "
+                   "misalignment of each hanging recording."))
+    comp = hanging_comparison(res)
+    if comp is not None:
+        cap = "Hanging: NLP vs the report's baseline procedure"
+        write_table(comp, folder, "hanging_nlp_vs_baseline", cap)
+        sec.add(Table(cap, comp))
+    return sec
+
+
+def _standing(res: "CalibrationRun", folder: Path) -> Section:
+    sec = Section("Standing calibration")
+    if res.standing is not None:
+        what = ("how each transducer is mounted (R_tilde_k, p'_k)" if res.hanging is not None
+                else "the transducer offsets w_o (the rest of the calibration kept)")
+        sec.add(Text(f"Standing poses of the robot on the floor, held still: the balance of forces and torques on the body "
+                     f"determines {what}."))
+        sec.add(_readable(res.standing.summary()))
+        st = res.standing.table()
+        write_table(st, folder, "standing", f"Standing calibration (model {res.standing.model}): R_tilde and p', "
+                                            f"value {PM} standard error")
+    if res.hanging is not None and res.poses is not None:
+        sec.add(Figure("naive_total.png", _try_figure(figures.fig_naive_total, res, folder / "naive_total.png"),
+                       "What the robot reads with naive taring: the total wrench over the standing poses less its weight "
+                       "(zero if the transducers were perfect)."))
+    if res.standing is not None and res.poses is not None:
+        sec.add(Figure("total_residuals.png", _try_figure(figures.fig_total_residuals, res, folder / "total_residuals.png"),
+                       "Total-wrench residual over the standing poses with naive taring, with the hanging stage but nominal "
+                       "transducer poses (no transformation error), and calibrated; bottom row: the calibrated residual on "
+                       "its own scale."))
+    return sec
+
+
+def _walking(res: "CalibrationRun", folder: Path) -> Section:
+    sec = Section("Walking: ground contact wrenches")
+    sec.add(Text("Every walking recording corrected with the calibration, one CSV per recording in `corrected/` "
+                 f"({', '.join(f'`{n}.csv`' for n in res.corrected)}): per foot the ground force (N) and its torque about "
+                 "the robot's CoM (N*m), in the heading frame."))
+    for rec in res.dataset.walking:
+        if rec.name not in res.corrected:
+            continue
+        name = f"walking_{rec.name}.png"
+        sec.add(Figure(name, _try_figure(figures.fig_walking, res, rec, folder / name),
+                       f"Ground contact forces of {rec.name}, calibrated (solid) vs naive taring (dotted), one colour per leg."))
+    return sec
+
+
+def build_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
+    """Every section of the report, in order; writes the tables and figures into ``folder``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    secs = [Section("Summary", [Text(summary_paragraph(res))]), notation_section(), _parameters(res, folder)]
+    if res.selection is not None:
+        secs.append(_selection(res, folder))
+    if res.hanging is not None:
+        secs.append(_hanging(res, folder))
+    secs.append(_standing(res, folder))
+    if res.corrected:
+        secs.append(_walking(res, folder))
+    if res.diagnosis is not None:
+        secs.append(diagnosis_section(res.diagnosis, folder))
+    tim = stage_times(res)
+    write_table(tim, folder, "stage_times", "Stage times")
+    secs.append(Section("Stage times", [Table("Time per stage", tim)]))
+    if res.notes:
+        secs.insert(1, Section("Notes", [Bullets(list(res.notes))]))
+    return secs
+
+
+def write_report(res: "CalibrationRun", folder: Path) -> Path:
     """Write tables, figures, ``report.md`` and ``report.html`` into ``folder``; returns the md path."""
     folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     secs = build_sections(res, folder)
-    md = ["# ftcal_nlp calibration report", ""]
-    body = ["<h1>ftcal_nlp calibration report</h1>"]
-    for s in secs:
-        md += [f"## {s.title}", ""]
-        body.append(f"<h2>{html.escape(s.title)}</h2>")
-        for t in s.text:
-            md += [t, ""]
-            if t.startswith("```"):
-                body.append(f"<pre>{html.escape(t.strip('`').strip())}</pre>")
-            else:
-                body.append(f"<p>{html.escape(t)}</p>")
-        for name, df in s.tables:
-            md += [f"**{name}**", "", to_markdown(df), ""]
-            body.append(f"<h3>{html.escape(name)}</h3>" + df.to_html(index=False, border=0, classes="tbl", na_rep="n/a"))
-        for name, path in s.figures:
-            if path is None:
-                md += [f"*(figure {name} not drawn: see the log)*", ""]
-                continue
-            md += [f"![{name}]({path.name})", ""]
-            b64 = base64.b64encode(path.read_bytes()).decode()
-            body.append(f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{b64}" style="max-width:100%"></figure>')
-    (folder / "report.md").write_text("\n".join(md))
-    css = "body{font-family:sans-serif;max-width:1100px;margin:2em auto}table.tbl{border-collapse:collapse;font-size:12px}table.tbl td,table.tbl th{padding:2px 6px;border-bottom:1px solid #ddd}"
-    (folder / "report.html").write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>ftcal_nlp report</title><style>{css}</style></head><body>{''.join(body)}</body></html>")
+    (folder / "report.md").write_text(render_markdown(TITLE, secs))
+    (folder / "report.html").write_text(render_html(TITLE, secs))
     return folder / "report.md"

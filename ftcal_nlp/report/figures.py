@@ -1,14 +1,14 @@
 """Figures a reader of the report expects, rendered from a finished run.
 
-Fig. 2: naive-tare total wrench; Figs. 4/7: leg CoM vs phase with fitted
-sinusoid and bands; Fig. 5: hanging residuals with and without misalignment;
-Fig. 6: total-wrench residual naive / without transformation error /
-calibrated; Figs. 8/9: walking ground wrenches naive vs calibrated.
+Fig. 2: naive-tare total wrench; Figs. 4/7: leg CoM vs shaft angle with fitted
+sinusoid and bands; Fig. 5: hanging residuals with and without the hanging
+misalignment; Fig. 6: total-wrench residual naive / without transformation
+error / calibrated; Figs. 8/9: walking ground forces naive vs calibrated.
 
-Naive taring (Sec. I-B): the bias of each transducer is its mean reading with
-all feet in the air, upright (the hanging recording whose gravity is closest to
--z of B), and readings less that bias are rotated with the nominal transducer
-poses; the total is compared with the robot's weight and zero torque about B.
+The naive and no-transformation-error residuals are computed in ``naive.py``.
+Legends are built from proxies of exactly what is drawn (violin bodies as
+patches of their face colour and alpha). The backend is the entry point's
+choice (``run.py`` sets Agg); without a display matplotlib picks Agg itself.
 """
 
 from __future__ import annotations
@@ -16,110 +16,97 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from ..geometry import remove_yaw, skew, transform_wrench  # noqa: E402
-from ..physics import balance_residual_exact  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 if TYPE_CHECKING:
-    from ..run import RunResult
+    from ..calibration_run import CalibrationRun
 
-LABELS = ("Fx [N]", "Fy [N]", "Fz [N]", "Tx [N*m]", "Ty [N*m]", "Tz [N*m]")
-
-
-def naive_bias(res: "RunResult") -> np.ndarray:
-    """(K, 6) mean reading of the upright feet-in-the-air recording."""
-    hang = res.dataset.hanging
-    if not hang:
-        raise ValueError("naive taring needs a hanging recording with the feet in the air")
-    up = max(hang, key=lambda r: float(r.gravity_body @ np.array([0.0, 0.0, -1.0])))
-    return up.wrench_array(res.dataset.robot.legs).mean(axis=0)
-
-
-def naive_total_residuals(res: "RunResult") -> np.ndarray:
-    """(P, 6) naive-tare total wrench less ``[0, 0, m g, 0, 0, 0]`` at the extracted poses, W axes about B."""
-    robot = res.dataset.robot
-    p = res.poses
-    R = np.einsum("pij,kjl->pkil", p.R_WB, robot.nominal_rotations())
-    pos = np.einsum("pij,kj->pki", p.R_WB, robot.nominal_positions())
-    total = transform_wrench(R, pos, p.w_m - naive_bias(res)).sum(axis=1)
-    total[:, 2] -= robot.weight_N
-    return total
-
-
-def no_transformation_error_residuals(res: "RunResult") -> np.ndarray:
-    """(P, 6) exact-balance residual with the hanging offsets and weights but nominal transducer
-    poses and only a single CoM translation, fitted by linear least squares (the report's model 4)."""
-    robot, p, cal = res.dataset.robot, res.poses, res.calibration
-    offsets, weights, _, _ = cal.stacked(robot.legs)
-    Mb_g = robot.weight_N - weights.sum()
-    R0 = robot.nominal_rotations()
-    p0 = robot.nominal_positions()
-    r0 = balance_residual_exact(p.w_m, p.R_WB, offsets, R0, p0, Mb_g)
-    # Moving the reference point by c (B axes) changes torques by -(R_WB c) x F_W, linear in c.
-    F = r0[:, :3] + np.array([0.0, 0.0, Mb_g])
-    # d tau = -(R c) x F = F x (R c) = [F] R c
-    A = np.einsum("pij,pjk->pik", skew(F), p.R_WB)
-    c, *_ = np.linalg.lstsq(A.reshape(-1, 3), -r0[:, 3:].reshape(-1), rcond=None)
-    out = r0.copy()
-    out[:, 3:] += (A @ c)
-    return out
-
+FORCE = ("Fx [N]", "Fy [N]", "Fz [N]")
+TORQUE = ("Tx [N*m]", "Ty [N*m]", "Tz [N*m]")
+LABELS = FORCE + TORQUE
+VIOLIN_ALPHA = 0.6
 
 _VIOLIN_MAX_POINTS = 4000
 
 
 def _thin(d: np.ndarray) -> np.ndarray:
+    d = np.asarray(d, float)
+    d = d[np.isfinite(d)]
     if len(d) <= _VIOLIN_MAX_POINTS:
         return d
     return np.concatenate([d[:: len(d) // _VIOLIN_MAX_POINTS], [d.min(), d.max()]])
 
 
-def _violins(ax, data: list[np.ndarray], positions, color: str, label: str | None = None) -> None:
+def _violins(ax, data: list[np.ndarray], positions, color: str, width: float = 0.8) -> Patch:
+    """Violins of ``data`` at ``positions`` in one colour; returns the legend proxy of what is drawn."""
     # a 100-point kernel density barely changes past a few thousand samples: an even stride (plus
     # the extremes, which the violin's bars show) halves the report's time on 80 000-sample recordings
-    data = [_thin(np.asarray(d)) for d in data]
-    parts = ax.violinplot(data, positions=positions, widths=0.8, showmedians=True, points=100)
+    data = [_thin(d) for d in data]
+    parts = ax.violinplot(data, positions=positions, widths=width, showmedians=True, points=100)
     for b in parts["bodies"]:
         b.set_facecolor(color)
-        b.set_alpha(0.55)
+        b.set_edgecolor(color)
+        b.set_alpha(VIOLIN_ALPHA)
     for key in ("cbars", "cmins", "cmaxes", "cmedians"):
         if key in parts:
             parts[key].set_color(color)
-    if label:
-        ax.plot([], [], color=color, lw=6, alpha=0.55, label=label)
+            parts[key].set_linewidth(1.0)
+    return Patch(facecolor=color, edgecolor=color, alpha=VIOLIN_ALPHA)
 
 
-def fig_naive_total(res: "RunResult", path: Path) -> Path:
-    r = naive_total_residuals(res)
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+def fig_naive_total(res: "CalibrationRun", path: Path) -> Path:
+    r = res.naive_total_residuals()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     _violins(axes[0], [r[:, j] for j in range(3)], [1, 2, 3], "tab:blue")
     _violins(axes[1], [r[:, j] for j in range(3, 6)], [1, 2, 3], "tab:blue")
-    axes[0].set_xticks([1, 2, 3], LABELS[:3])
-    axes[1].set_xticks([1, 2, 3], LABELS[3:])
-    axes[0].set_ylabel("total wrench - [0,0,mg,0,0,0]")
-    fig.suptitle(f"Naive taring: sum of wrenches over {len(r)} standing poses (cf. report Fig. 2)")
+    axes[0].set_xticks([1, 2, 3], ["Fx", "Fy", "Fz"])
+    axes[1].set_xticks([1, 2, 3], ["Tx", "Ty", "Tz"])
+    axes[0].set_ylabel("total force - weight [N]")
+    axes[1].set_ylabel("total torque about B's origin [N*m]")
+    for ax in axes:
+        ax.axhline(0, color="k", lw=0.5)
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(f"Naive taring: sum of the six wrenches less [0, 0, m g, 0, 0, 0] over {len(r)} standing poses, "
+                 "W axes (cf. report Fig. 2)", fontsize=10)
     return _save(fig, path)
 
 
-def fig_total_residuals(res: "RunResult", path: Path) -> Path:
-    naive = naive_total_residuals(res)
-    no_tf = no_transformation_error_residuals(res)
+def fig_total_residuals(res: "CalibrationRun", path: Path) -> Path:
+    """Top: the three models on one scale (Fig. 6); bottom: the calibrated residual alone, on its own scale."""
+    naive = res.naive_total_residuals()
+    no_tf = res.no_transformation_error_residuals()
     cal = np.asarray(res.standing.residuals)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    for ax, sl, labs in ((axes[0], slice(0, 3), LABELS[:3]), (axes[1], slice(3, 6), LABELS[3:])):
-        js = range(sl.start, sl.stop)
-        for off, data, color, lab in ((-0.27, naive, "lightblue", "naive taring"), (0.0, no_tf, "tab:orange", "no transformation error"), (0.27, cal, "tab:green", f"calibrated ({res.calibration.model})")):
-            _violins(ax, [data[:, j] for j in js], [i + 1 + off for i in range(3)], color, lab if ax is axes[0] else None)
+    series = ((-0.27, naive, "tab:blue", "naive taring"),
+              (0.0, no_tf, "tab:orange", "no transformation error (nominal poses, one CoM shift)"),
+              (0.27, cal, "tab:green", f"calibrated (model {res.calibration.model})"))
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), gridspec_kw={"height_ratios": [3, 2]})
+    handles = []
+    for col, (js, labs, unit) in enumerate(((range(0, 3), ["Fx", "Fy", "Fz"], "N"), (range(3, 6), ["Tx", "Ty", "Tz"], "N*m"))):
+        ax = axes[0, col]
+        for off, data, color, lab in series:
+            h = _violins(ax, [data[:, j] for j in js], [i + 1 + off for i in range(3)], color, width=0.26)
+            if col == 0:
+                handles.append((h, lab))
         ax.set_xticks([1, 2, 3], labs)
         ax.axhline(0, color="k", lw=0.5)
-    axes[0].legend(fontsize=7, loc="best")
-    fig.suptitle("Total wrench residual at the CoM, floating-base frame (cf. report Fig. 6)")
-    return _save(fig, path)
+        ax.set_ylabel(f"residual [{unit}]")
+        ax.grid(axis="y", alpha=0.3)
+        ax = axes[1, col]
+        _violins(ax, [cal[:, j] for j in js], [1, 2, 3], "tab:green", width=0.6)
+        ax.set_xticks([1, 2, 3], labs)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(f"calibrated residual [{unit}]")
+        ax.grid(axis="y", alpha=0.3)
+    axes[1, 0].set_title("calibrated only (zoomed)", fontsize=9)
+    axes[1, 1].set_title("calibrated only (zoomed)", fontsize=9)
+    fig.legend([h for h, _ in handles], [l for _, l in handles], loc="upper center", ncol=3, fontsize=8,
+               bbox_to_anchor=(0.5, 0.955), frameon=False)
+    fig.suptitle(f"Total-wrench residual over {len(cal)} standing poses, W axes (cf. report Fig. 6)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return _save(fig, path, tight=False)
 
 
 def _sinusoid_fit(phi: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -132,9 +119,10 @@ def _sinusoid_fit(phi: np.ndarray, y: np.ndarray) -> np.ndarray:
     return X @ coef
 
 
-def fig_leg_com(res: "RunResult", path: Path) -> Path:
+def fig_leg_com(res: "CalibrationRun", path: Path) -> Path:
     legs = res.dataset.robot.legs
-    fig, axes = plt.subplots(2, (len(legs) + 1) // 2, figsize=(12, 6), sharex=True, sharey=True, squeeze=False)
+    ncol = (len(legs) + 1) // 2
+    fig, axes = plt.subplots(2, ncol, figsize=(4 * ncol, 6.4), sharex=True, sharey=True, squeeze=False)
     colors = ("tab:blue", "tab:orange", "tab:green")
     for ax, k in zip(axes.flat, legs):
         lg = res.hanging.legs[k]
@@ -142,79 +130,87 @@ def fig_leg_com(res: "RunResult", path: Path) -> Path:
         for j, (c, name) in enumerate(zip(colors, "xyz")):
             y = 1e3 * np.asarray(lg.com_xyz)[:, j]
             se = 1e3 * np.asarray(lg.com_xyz_se)[:, j] if lg.com_xyz_se is not None else np.zeros_like(y)
-            ax.fill_between(phi, y - 2 * se, y + 2 * se, color=c, alpha=0.25, lw=0)
-            ax.fill_between(phi, y - se, y + se, color=c, alpha=0.45, lw=0)
-            ax.plot(phi, y, ".", color=c, ms=3, label=name)
+            ax.fill_between(phi, y - 2 * se, y + 2 * se, color=c, alpha=0.2, lw=0)
+            ax.fill_between(phi, y - se, y + se, color=c, alpha=0.4, lw=0)
+            ax.plot(phi, y, ".", color=c, ms=3)
             fit = _sinusoid_fit(phi, y) if name != "y" else np.full_like(y, np.nanmean(y))
             ax.plot(phi, fit, "--", color="red", lw=0.8)
             if res.truth is not None:
                 ax.plot(phi, 1e3 * res.truth.legs[k].com(phi)[:, j], "-", color="k", lw=0.6, alpha=0.6)
         ax.set_title(k)
-        ax.set_xlabel("phi [rad]")
-    axes[0, 0].set_ylabel("leg CoM in ft [mm]")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle("Leg CoM vs shaft angle: estimate, +-1 se / +-2 se bands, sinusoid fit (red)" + (", truth (black)" if res.truth is not None else "") + " (cf. Figs. 4, 7)")
-    return _save(fig, path)
+        ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("shaft angle phi [rad]")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("r_k(phi) in ft_k [mm]")
+    for ax in list(axes.flat)[len(legs):]:
+        ax.set_visible(False)
+    handles = [Line2D([], [], ls="", marker=".", ms=8, color=c, label=f"{n} estimate") for c, n in zip(colors, "xyz")]
+    handles += [Patch(facecolor="0.5", alpha=0.4, label="± 1 se band"), Patch(facecolor="0.5", alpha=0.2, label="± 2 se band"),
+                Line2D([], [], ls="--", color="red", lw=0.8, label="sinusoid fit (y: mean)")]
+    if res.truth is not None:
+        handles.append(Line2D([], [], ls="-", color="k", lw=0.6, alpha=0.6, label="truth"))
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=8, bbox_to_anchor=(0.5, 0.95), frameon=False)
+    fig.suptitle("Leg CoM r_k(phi) in ft_k vs shaft angle, from the hanging recordings (cf. report Figs. 4, 7)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
+    return _save(fig, path, tight=False)
 
 
-def fig_hanging_residuals(res: "RunResult", path: Path) -> Path:
+def fig_hanging_residuals(res: "CalibrationRun", path: Path) -> Path:
     from ..hanging import hanging_residuals
 
     robot = res.dataset.robot
     with_s = hanging_residuals(res.hanging, res.dataset.hanging, robot, with_misalignment=True)
     without = hanging_residuals(res.hanging, res.dataset.hanging, robot, with_misalignment=False)
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6))
+    fig, axes = plt.subplots(2, 3, figsize=(13, 6.4))
+    pos = np.arange(len(robot.legs))
     for j, ax in enumerate(axes.flat):
-        pos = np.arange(len(robot.legs))
-        _violins(ax, [without[k][:, j] for k in robot.legs], pos - 0.2, "tab:blue", "without misalignment" if j == 0 else None)
-        _violins(ax, [with_s[k][:, j] for k in robot.legs], pos + 0.2, "tab:orange", "with misalignment" if j == 0 else None)
+        h0 = _violins(ax, [without[k][:, j] for k in robot.legs], pos - 0.2, "tab:blue", width=0.38)
+        h1 = _violins(ax, [with_s[k][:, j] for k in robot.legs], pos + 0.2, "tab:orange", width=0.38)
         ax.set_xticks(pos, robot.legs)
-        ax.set_title(LABELS[j])
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle("Hanging residuals after offsets and leg gravity, with / without the hanging misalignment (cf. Fig. 5)")
-    return _save(fig, path)
+        ax.set_ylabel(f"residual {LABELS[j]}")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.grid(axis="y", alpha=0.3)
+    fig.legend([h0, h1], ["without the hanging misalignment", "with the hanging misalignment"], loc="upper center", ncol=2,
+               fontsize=8, bbox_to_anchor=(0.5, 0.955), frameon=False)
+    fig.suptitle("Hanging residuals per leg after offsets and leg gravity, ft_k axes (cf. report Fig. 5)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return _save(fig, path, tight=False)
 
 
-def naive_ground_wrenches(res: "RunResult", rec) -> np.ndarray:
-    """(N, K, 6) naive-tare per-foot wrench in the heading frame about B's origin."""
-    from ..geometry import quat_to_rotation
-
-    robot = res.dataset.robot
-    ok = np.all(np.isfinite(rec.quat), axis=1)
-    R_HB = remove_yaw(quat_to_rotation(rec.quat[ok]))
-    R = np.einsum("nij,kjl->nkil", R_HB, robot.nominal_rotations())
-    pos = np.einsum("nij,kj->nki", R_HB, robot.nominal_positions())
-    return transform_wrench(R, pos, rec.wrench_array(robot.legs)[ok] - naive_bias(res))
-
-
-def fig_walking(res: "RunResult", rec, path: Path) -> Path:
+def fig_walking(res: "CalibrationRun", rec, path: Path) -> Path:
     legs = list(res.dataset.robot.legs)
-    naive = naive_ground_wrenches(res, rec)
+    naive, _ = res.naive_ground_wrenches(rec)
     df = res.corrected[rec.name]
     t = df["t"].to_numpy()
     tripods = (("FL", "MR", "HL"), ("FR", "ML", "HR"))
     tripods = tuple(tuple(k for k in tp if k in legs) for tp in tripods)
     if not all(tripods):
         tripods = (tuple(legs[::2]), tuple(legs[1::2]))
-    fig, axes = plt.subplots(3, 2, figsize=(13, 8), sharex=True)
+    colors = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+    fig, axes = plt.subplots(3, 2, figsize=(13, 8.4), sharex=True)
     for col, tp in enumerate(tripods):
-        for row, (j, comp) in enumerate(((0, "fx"), (1, "fy"), (2, "fz"))):
-            ax = axes[row, col]
-            for k in tp:
+        for j in range(3):
+            ax = axes[j, col]
+            for c, k in zip(colors, tp):
                 i = legs.index(k)
-                (line,) = ax.plot(t, df[f"{k}_{comp}"], lw=1, label=f"{k} calibrated")
-                ax.plot(t, naive[:, i, j], lw=0.8, ls=":", color=line.get_color(), label=f"{k} naive")
-            ax.set_ylabel(LABELS[j])
-        axes[0, col].set_title(("Left tripod: " if col == 0 else "Right tripod: ") + ", ".join(tp))
-        axes[0, col].legend(fontsize=6, ncol=2)
-    axes[-1, 0].set_xlabel("t [s]")
-    axes[-1, 1].set_xlabel("t [s]")
-    fig.suptitle(f"Ground contact forces while walking ({rec.name}): calibrated (solid) vs naive taring (dotted) (cf. Figs. 8, 9)")
-    return _save(fig, path)
+                ax.plot(t, df[f"{k}_{('fx', 'fy', 'fz')[j]}"], lw=1, color=c)
+                ax.plot(t, naive[:, i, j], lw=0.8, ls=":", color=c)
+            ax.set_ylabel(f"ground force {FORCE[j]}")
+            ax.grid(alpha=0.3)
+        handles = [Line2D([], [], color=c, lw=2, label=k) for c, k in zip(colors, tp)]
+        handles += [Line2D([], [], color="0.3", lw=1.5, label="calibrated"), Line2D([], [], color="0.3", lw=1.5, ls=":", label="naive taring")]
+        axes[0, col].legend(handles=handles, fontsize=7, ncol=len(handles), loc="lower left", bbox_to_anchor=(0, 1.0), frameon=False)
+        axes[-1, col].set_xlabel("t [s]")
+    fig.suptitle(f"Ground contact forces while walking ({rec.name}), heading frame: left column tripod {', '.join(tripods[0])}, "
+                 f"right column tripod {', '.join(tripods[1])} (cf. report Figs. 8, 9)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    return _save(fig, path, tight=False)
 
 
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
+def _save(fig, path: Path, tight: bool = True) -> Path:
+    if tight:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -1,104 +1,137 @@
-"""Tables rendered from results: Markdown and LaTeX writers, Table II (value +- se), truth check.
+"""The report's tables, built from the results objects, and their files (CSV, Markdown, LaTeX).
 
-Renderers only format; they never solve anything.
+Every table is a ``DataFrame`` whose index holds the row labels (named: the
+first column of every file) and whose labels carry units; estimates are
+``value ± se`` (:func:`ftcal_nlp.results.fmt_pm`). Renderers only format; they
+never solve anything.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pandas as pd
 
-from ..calibration import Calibration
 from ..geometry import rotation_to_rotvec
+from ..results import fmt_pm, latex_table
+from .render import bold_md, md_table
 
-COMPONENTS = ("x", "y", "z")
+if TYPE_CHECKING:
+    from ..calibration_run import CalibrationRun
 
+__all__ = ["write_table", "parameter_table", "truth_table", "hanging_comparison", "stage_times", "rotvec_se"]
 
-def fmt_pm(value: float, se: float | None) -> str:
-    """``value +- se`` with as many decimals as the se warrants (two significant digits of se)."""
-    if se is None or not np.isfinite(se):
-        return f"{value:.4g} (se n/a)" if np.isfinite(value) else "n/a"
-    if se <= 0:
-        return f"{value:.4g} +- 0"
-    dec = max(0, int(-np.floor(np.log10(se))) + 1)
-    return f"{value:.{dec}f} +- {se:.{dec}f}"
+XYZ = ("x", "y", "z")
 
 
-def to_markdown(df: pd.DataFrame) -> str:
-    cols = [str(c) for c in df.columns]
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(_cell(v) for v in row) + " |")
-    return "\n".join(lines) + "\n"
+def write_table(df: pd.DataFrame, folder: Path, stem: str, caption: str, csv: pd.DataFrame | None = None) -> None:
+    """``stem.csv`` (``csv`` if given, else ``df``; the index as a labelled first column), ``stem.md`` and ``stem.tex``."""
+    for t in (df, csv):
+        if t is not None and not t.index.name:
+            raise ValueError(f"table {stem}: the index (row labels) needs a name")
+    c = df if csv is None else csv
+    c.to_csv(folder / f"{stem}.csv", index=True, index_label=c.index.name)
+    (folder / f"{stem}.md").write_text(bold_md(caption) + "\n\n" + md_table(df))
+    (folder / f"{stem}.tex").write_text(latex_table(df, caption=caption, label=f"tab:{stem}") + "\n")
 
 
-def to_latex(df: pd.DataFrame, caption: str = "", label: str = "") -> str:
-    def esc(s: str) -> str:
-        return s.replace("\\", "\\textbackslash{}").replace("_", "\\_").replace("%", "\\%").replace("&", "\\&").replace("+-", "$\\pm$")
-
-    cols = [str(c) for c in df.columns]
-    out = ["\\begin{table}[t]", "\\centering"]
-    if caption:
-        out.append(f"\\caption{{{esc(caption)}}}")
-    if label:
-        out.append(f"\\label{{{label}}}")
-    out += ["\\begin{tabular}{l" + "r" * (len(cols) - 1) + "}", "\\hline", " & ".join(esc(c) for c in cols) + " \\\\", "\\hline"]
-    for _, row in df.iterrows():
-        out.append(" & ".join(esc(_cell(v)) for v in row) + " \\\\")
-    out += ["\\hline", "\\end{tabular}", "\\end{table}"]
-    return "\n".join(out) + "\n"
+def rotvec_se(res: "CalibrationRun") -> dict[str, np.ndarray] | None:
+    """Per leg the standard errors (rad) of the mounting rotation error's rotation vector: the calibration's
+    (joint covariance, hanging uncertainty included) or else the standing stage's own."""
+    cal = res.calibration.legs
+    if all(cal[k].rotation_se_rad is not None for k in res.dataset.robot.legs):
+        return {k: np.asarray(cal[k].rotation_se_rad, float) for k in res.dataset.robot.legs}
+    if res.standing is None or getattr(res.standing, "rotvec_se", None) is None:
+        return None
+    return {k: np.asarray(res.standing.rotvec_se)[i] for i, k in enumerate(res.dataset.robot.legs)}
 
 
-def _cell(v) -> str:
-    if isinstance(v, float):
-        return f"{v:.4g}" if np.isfinite(v) else "n/a"
-    return str(v)
+def parameter_table(res: "CalibrationRun") -> pd.DataFrame:
+    """The report's Table II extended: per leg offsets, leg weight, mounting rotation error and p', ``value ± se``.
 
-
-def parameter_table(cal: Calibration, nominal_rotations: dict[str, np.ndarray], rotvec_se: dict[str, np.ndarray] | None = None) -> pd.DataFrame:
-    """The report's Table II extended: offsets, leg weight, mounting rotation error and p', value +- se.
-
-    Rotation errors are ``R_tilde = R_k R_nominal_k^T`` as rotation vectors in degrees.
+    Values and standard errors are those of the calibration (``calibration.json``);
+    rotation errors ``R_tilde_k = R_k R_nominal_k^T`` as rotation vectors in degrees.
     """
-    rows: dict[str, dict[str, str]] = {}
-    for k, l in cal.legs.items():
+    cal, robot = res.calibration, res.dataset.robot
+    rse = rotvec_se(res)
+    cols: dict[str, list[str]] = {}
+    for k in robot.legs:
+        l = cal.legs[k]
         se = l.offset_se if l.offset_se is not None else np.full(6, np.nan)
-        col: dict[str, str] = {}
-        for j, c in enumerate(COMPONENTS):
-            col[f"F_offset {c} [N]"] = fmt_pm(l.offset[j], se[j])
-        for j, c in enumerate(COMPONENTS):
-            col[f"T_offset {c} [N*m]"] = fmt_pm(l.offset[3 + j], se[3 + j])
-        col["m g [N]"] = fmt_pm(l.leg_weight_N, l.leg_weight_se_N)
-        rv = np.degrees(rotation_to_rotvec(l.rotation_to_body @ nominal_rotations[k].T))
-        rse = np.degrees(rotvec_se[k]) if rotvec_se is not None and k in rotvec_se else np.full(3, np.nan)
-        for j, c in enumerate(COMPONENTS):
-            col[f"R_tilde {c} [deg]"] = fmt_pm(rv[j], rse[j])
+        rv = rotation_to_rotvec(l.rotation_to_body @ robot.transducers[k].rotation.T)
+        rs = rse[k] if rse is not None else np.full(3, np.nan)
         pse = l.position_from_com_se_m if l.position_from_com_se_m is not None else np.full(3, np.nan)
-        for j, c in enumerate(COMPONENTS):
-            col[f"p' {c} [mm]"] = fmt_pm(1e3 * l.position_from_com_m[j], 1e3 * pse[j])
-        rows[k] = col
-    df = pd.DataFrame(rows)
-    df.insert(0, "parameter", df.index)
-    return df.reset_index(drop=True)
+        cols[k] = ([fmt_pm(l.offset[j], se[j]) for j in range(6)]
+                   + [fmt_pm(l.leg_weight_N, l.leg_weight_se_N)]
+                   + [fmt_pm(rv[j], rs[j], scale=180 / np.pi) for j in range(3)]
+                   + [fmt_pm(l.position_from_com_m[j], pse[j], scale=1e3) for j in range(3)])
+    rows = ([f"force offset {c} [N]" for c in XYZ] + [f"torque offset {c} [N*m]" for c in XYZ] + ["leg weight m g [N]"]
+            + [f"R_tilde {c} [deg]" for c in XYZ] + [f"p' {c} [mm]" for c in XYZ])
+    return pd.DataFrame(cols, index=pd.Index(rows, name="parameter"))
 
 
-def truth_check(cal: Calibration, truth: Calibration, rotvec_se: dict[str, np.ndarray] | None = None) -> pd.DataFrame:
-    """Per leg and parameter group: max |estimate - truth| and max |error| / se (simulated data)."""
-    recs = []
+def truth_table(res: "CalibrationRun") -> pd.DataFrame:
+    """Simulated data: per parameter group and leg, the largest |estimate - truth| and, in brackets, the largest |error| / se."""
+    cal, truth = res.calibration, res.truth
+    rse = rotvec_se(res)
+    groups = (("force offset [mN]", 1e3), ("torque offset [mN*m]", 1e3), ("leg weight m g [mN]", 1e3),
+              ("leg CoM r_k(phi), grid [mm]", 1e3), ("R_tilde [deg]", 180 / np.pi), ("p' [mm]", 1e3))
+    cols: dict[str, list[str]] = {}
     for k, l in cal.legs.items():
         t = truth.legs[k]
+        osd = l.offset_se if l.offset_se is not None else np.full(6, np.nan)
+        errs = (
+            (l.offset[:3] - t.offset[:3], osd[:3]),
+            (l.offset[3:] - t.offset[3:], osd[3:]),
+            (np.atleast_1d(l.leg_weight_N - t.leg_weight_N), np.atleast_1d(l.leg_weight_se_N)),
+            (l.com_xyz - t.com(l.com_phi), l.com_xyz_se),
+            (rotation_to_rotvec(l.rotation_to_body @ t.rotation_to_body.T), None if rse is None else rse[k]),
+            (l.position_from_com_m - t.position_from_com_m, l.position_from_com_se_m),
+        )
+        col = []
+        for (_, scale), (err, se) in zip(groups, errs):
+            err = np.abs(np.asarray(err, float))
+            if not np.isfinite(err).any():
+                col.append("n/a")
+                continue
+            cell = f"{np.nanmax(err) * scale:.3g}"
+            if se is not None:
+                se = np.asarray(se, float)
+                ok = np.isfinite(se) & (se > 0) & np.isfinite(err)
+                if ok.any():
+                    cell += f" ({np.max(err[ok] / se[ok]):.2g} se)"
+            col.append(cell)
+        cols[k] = col
+    return pd.DataFrame(cols, index=pd.Index([g for g, _ in groups], name="parameter (max |error|)"))
 
-        def row(group, err, se):
-            err, se = np.atleast_1d(err), np.atleast_1d(se) if se is not None else None
-            z = np.nanmax(np.abs(err) / se) if se is not None and np.all(np.isfinite(se)) and np.all(se > 0) else np.nan
-            recs.append({"leg": k, "parameter": group, "max abs error": float(np.nanmax(np.abs(err))), "max abs error / se": float(z)})
 
-        row("offset force [N]", l.offset[:3] - t.offset[:3], None if l.offset_se is None else l.offset_se[:3])
-        row("offset torque [N*m]", l.offset[3:] - t.offset[3:], None if l.offset_se is None else l.offset_se[3:])
-        row("leg weight [N]", l.leg_weight_N - t.leg_weight_N, l.leg_weight_se_N)
-        com_t = t.com(l.com_phi)
-        row("leg CoM grid [m]", l.com_xyz - com_t, l.com_xyz_se)
-        rv = rotation_to_rotvec(l.rotation_to_body @ t.rotation_to_body.T)
-        row("rotation [deg]", np.degrees(rv), None if rotvec_se is None else np.degrees(rotvec_se[k]))
-        row("p' [m]", l.position_from_com_m - t.position_from_com_m, l.position_from_com_se_m)
-    return pd.DataFrame(recs)
+def hanging_comparison(res: "CalibrationRun") -> pd.DataFrame | None:
+    """Per leg: the leg weight of the NLP and of the report's baseline, and how far their offsets differ (and miss the truth)."""
+    if res.hanging is None or res.hanging_baseline is None:
+        return None
+    rows = {}
+    for k in res.dataset.robot.legs:
+        a, b = res.hanging.legs[k], res.hanging_baseline.legs[k]
+        row = {"m g NLP [N]": fmt_pm(a.leg_weight_N, a.leg_weight_se_N),
+               "m g baseline [N]": fmt_pm(b.leg_weight_N, b.leg_weight_se_N),
+               "force offset, |NLP - baseline| [mN]": f"{1e3 * np.linalg.norm(np.asarray(a.offset[:3]) - b.offset[:3]):.3g}",
+               "torque offset, |NLP - baseline| [mN*m]": f"{1e3 * np.linalg.norm(np.asarray(a.offset[3:]) - b.offset[3:]):.3g}"}
+        if res.truth is not None:
+            t = res.truth.legs[k]
+            row["force offset, |NLP - truth| [mN]"] = f"{1e3 * np.linalg.norm(np.asarray(a.offset[:3]) - t.offset[:3]):.3g}"
+            row["force offset, |baseline - truth| [mN]"] = f"{1e3 * np.linalg.norm(np.asarray(b.offset[:3]) - t.offset[:3]):.3g}"
+        rows[k] = row
+    df = pd.DataFrame(rows).T
+    df.index.name = "leg"
+    return df
+
+
+def stage_times(res: "CalibrationRun") -> pd.DataFrame:
+    """Wall (and CPU, where recorded) seconds per stage."""
+    cpu = getattr(res, "cpu_timings", None) or {}
+    data = {"wall time [s]": [f"{v:.2f}" for v in res.timings.values()]}
+    if cpu:
+        data["CPU time [s]"] = [f"{cpu[k]:.2f}" if k in cpu else "" for k in res.timings]
+    return pd.DataFrame(data, index=pd.Index(list(res.timings), name="stage"))

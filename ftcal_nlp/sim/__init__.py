@@ -6,18 +6,22 @@ truth, standing pose windows); ``write_simulation(res, folder)`` writes it like
 parameters, leg CoM and toe loop), ``statics`` (compliant-foot equilibrium on
 level ground or a tilted board),
 ``recordings`` (hanging / standing / walking time series), ``effects`` (hook
-for effect injectors), ``simulate`` (sensors and assembly), ``writer`` (files).
+for effect injectors), ``injectors`` (the effect library's injectors, registered
+in ``effects.EFFECTS`` when this package is imported), ``simulate`` (sensors and
+assembly), ``writer`` (files).
 """
 
 from .config import SimConfig
 from .effects import EFFECTS, InjectionContext, Injector, NoEffect, make_effects
+from .injectors import EffectInjector, Magnitude  # (importing it registers the library's injectors in EFFECTS)
 from .robot_model import LEGS, TrueRobot, draw_true_robot, nominal_robot
 from .simulate import SimResult, simulate
 from .statics import Stance, board_rotation, contact_forces, internal_forces, solve_stance
 from .writer import write_simulation
 
 __all__ = [
-    "EFFECTS", "InjectionContext", "Injector", "LEGS", "NoEffect", "SimConfig", "SimResult", "Stance", "TrueRobot",
+    "EFFECTS", "EffectInjector", "InjectionContext", "Injector", "LEGS", "Magnitude", "NoEffect", "SimConfig", "SimResult",
+    "Stance", "TrueRobot",
     "board_rotation", "contact_forces", "draw_true_robot", "internal_forces", "make_effects", "nominal_robot", "simulate",
     "solve_stance", "write_simulation",
 ]

@@ -10,7 +10,10 @@ where ``n`` is sensor noise and ``delta`` motion-capture jitter. An injector
 tether force, hysteresis, leg inertia, wrong robot mass, sensor nonlinearity)
 sees an :class:`InjectionContext` and returns modified arrays; it never changes
 the truth it is compared against. Injectors are registered by canonical name in
-:data:`EFFECTS` (a plain dict of factories), which is empty until issue 7.
+:data:`EFFECTS` (a plain dict of factories); the effect library's injectors
+(:mod:`ftcal_nlp.sim.injectors`) register there when :mod:`ftcal_nlp.sim` is
+imported. This module holds only the hook (context, protocol, registry, the
+``apply_*`` helpers); it needs nothing from the diagnosis.
 """
 
 from __future__ import annotations
@@ -82,7 +85,7 @@ class NoEffect:
         return robot
 
 
-# Canonical effect name -> factory(**kwargs) -> Injector. Filled by issue 7.
+# Canonical effect name -> factory(**kwargs) -> Injector. Filled by ftcal_nlp.sim.injectors on import.
 EFFECTS: dict[str, Callable[..., Injector]] = {}
 
 # Names the diagnosis library knows (OUTPUT_FORMAT.md), for truth.json's "in_library".
@@ -108,8 +111,6 @@ def make_effects(spec: Any, *, where: str = "effects") -> tuple[Injector, ...]:
             continue
         else:
             raise ValueError(f"{where}[{i}]: expected an effect name or a table with key 'name', got {item!r}")
-        if name not in EFFECTS:  # the effect library registers its injectors on import
-            import ftcal_nlp.diagnose.effects  # noqa: F401
         if name not in EFFECTS:
             raise ValueError(f"{where}[{i}]: unknown effect '{name}'; known effects: {sorted(EFFECTS) or '(none registered)'}")
         out.append(EFFECTS[name](**kw))

@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 from ..geometry import cayley, skew
 from ..models import ErrorModel, ModelContext
 from .nlp import Solution, SolverError
-from .problem import K_DIAG, L_numpy
+from .problem import K_DIAG, L_numpy, L_numpy_jacobian
 
 _SQRT_K = np.sqrt(K_DIAG)
 
@@ -64,17 +64,8 @@ def _cayley_jac(q: np.ndarray) -> np.ndarray:
 
 
 def _dL(R, p, off, prior, legs, balance, which: str) -> np.ndarray:
-    """``dL / d(entries of R, p' or offsets)`` (n, 6, n_xi). L is affine in each of these
-    separately (module docstring of problem.py), so a unit step gives the exact derivative."""
-    base = L_numpy(R, p, off, prior, legs, balance)
-    arr = {"R": R, "p": p, "o": off}[which]
-    out = []
-    for idx in np.ndindex(arr.shape):
-        a = arr.copy()
-        a[idx] += 1.0
-        args = {"R": R, "p": p, "o": off, which: a}
-        out.append(L_numpy(args["R"], args["p"], args["o"], prior, legs, balance) - base)
-    return np.stack(out)
+    """``dL / d(entries of R, p' or offsets)`` (n, 6, n_xi) (``problem.L_numpy_jacobian``)."""
+    return L_numpy_jacobian(R, p, off, prior, legs, balance, which)
 
 
 def solve_baseline(model: ErrorModel, ctx: ModelContext, xi: np.ndarray, balance: str,

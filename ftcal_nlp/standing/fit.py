@@ -27,18 +27,21 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+import pandas as pd
 
+from ..balance import weights
 from ..calibration import Calibration
+from ..data import WRENCH_COMPONENTS
 from ..models import ErrorModel, ModelContext, ModelSpec, OffsetsOnly, resolve
 from ..robot import Robot
+from ..settings import STANDING_SOLVERS as SOLVERS
+from ..settings import StandingSettings, with_overrides
 from .baseline import BaselineSettings, solve_baseline, to_model_x
 from .nlp import CompiledProblem, Solution, compile_problem
 from .poses import Poses
-from .problem import K_DIAG, check_balance, features, fgls_weight, knorm2, moments, to_world
-from .result import REL_EIG_TOL, StandingResult, physical, uncertainty
+from .problem import K_DIAG, L_values, check_balance, features, fgls_weight, knorm2, moments, to_world
+from .result import StandingResult, param_label, physical, uncertainty
 
-SOLVERS = ("ipopt", "baseline")
-WEIGHTINGS = ("knorm", "fgls")
 
 
 @dataclass
@@ -71,7 +74,7 @@ def check_inputs(poses: Poses, prior: Calibration, robot: Robot) -> None:
         raise ValueError("standing poses: readings, shaft angles and orientations must be finite")
 
 
-def prepare(prior: Calibration, robot: Robot, model: str | ErrorModel = "full", balance: str = "exact", *,
+def prepare(prior: Calibration, robot: Robot, model: str | ErrorModel, balance: str, *,
             fit_offsets: bool = False, verbose: bool = False) -> StandingProblem:
     """Resolve the model (``fit_offsets``: the offsets-only model), build and compile it."""
     check_balance(balance)
@@ -83,7 +86,7 @@ def prepare(prior: Calibration, robot: Robot, model: str | ErrorModel = "full", 
     return StandingProblem(m, ctx, spec, balance, cp)
 
 
-def solve(problem: StandingProblem, xi: np.ndarray, solver: str = "ipopt", x0: np.ndarray | None = None,
+def solve(problem: StandingProblem, xi: np.ndarray, solver: str, x0: np.ndarray | None = None,
           baseline: BaselineSettings = BaselineSettings(), W: np.ndarray | None = None) -> tuple[np.ndarray, Solution]:
     """Minimise eq. 8 on features ``xi`` with ``solver``; returns the model's x and the solver record.
 
@@ -112,14 +115,39 @@ def _report_to_body_com(prior: Calibration, legs, R: np.ndarray, p: np.ndarray, 
     return -np.einsum("k,ki->i", m, np.einsum("kij,kj->ki", R, r_mean) + p) / Mb
 
 
+def prior_jacobian(problem: StandingProblem, phys, xi: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """``d r_p / d h`` (P, 6, n_h), B axes, for the prior (hanging) parameters the balance uses:
+    each leg's offsets (unless the model fits its own) and leg weights ``m_k g`` (the balance is
+    linear in both, so a unit difference of ``L`` is exact)."""
+    legs, prior = problem.ctx.legs, problem.ctx.prior
+    m, Mg = weights(prior, legs)
+    fitted = phys.offsets is not None
+    off = phys.offsets if fitted else np.stack([prior.legs[k].offset for k in legs])
+    L0 = L_values(phys.R, phys.p_prime, off, m, Mg, problem.balance)[0]
+    cols, names = [], []
+    for k, leg in enumerate(legs):
+        if not fitted:
+            for c, comp in enumerate(WRENCH_COMPONENTS):
+                d = off.copy()
+                d[k, c] += 1.0
+                cols.append(L_values(phys.R, phys.p_prime, d, m, Mg, problem.balance)[0] - L0)
+                names.append(f"{leg}.w_o.{comp}")
+        dm = m.copy()
+        dm[k] += 1.0
+        cols.append(L_values(phys.R, phys.p_prime, off, dm, Mg, problem.balance)[0] - L0)
+        names.append(f"{leg}.mg")
+    return np.einsum("pj,hij->pih", xi, np.stack(cols)), names
+
+
 def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.ndarray, sol: Solution, solver: str, *,
-                rel_eig_tol: float = REL_EIG_TOL, covariance: str = "gauss_newton", W: np.ndarray | None = None) -> StandingResult:
+                rel_eig_tol: float, covariance: str, W: np.ndarray | None = None) -> StandingResult:
     """Evaluate the fit at ``x``: residuals, uncertainty, undetermined directions, calibration.
 
     ``W``: the fit's weight when it is not K (feasible GLS); the covariance uses it, RSS stays K-norm."""
     legs, K, prior = problem.ctx.legs, problem.ctx.K, problem.ctx.prior
     phys = physical(problem.spec, x, legs)
-    unc = uncertainty(problem.compiled, x, xi, phys, rel_eig_tol=rel_eig_tol, covariance=covariance, W=W)
+    J_h, h_names = prior_jacobian(problem, phys, xi)
+    unc = uncertainty(problem.compiled, x, xi, phys, rel_eig_tol=rel_eig_tol, covariance=covariance, W=W, J_h=J_h)
     se = unc.se
     rot_se = se[: 3 * K].reshape(K, 3)
     p_se = se[3 * K : 6 * K].reshape(K, 3)
@@ -165,28 +193,34 @@ def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.nd
         com_body_se_m=com_se, offsets=phys.offsets, offsets_se=off_se, unidentified_params=unc.unidentified_params,
         sigma2=unc.sigma2, eig_ratio=unc.eig_ratio, x=x, iterations=sol.iterations,
         weighting="knorm" if W is None else "fgls", weight=None if W is None else np.asarray(W, float),
+        param_labels=phys.labels, cov=unc.cov, se=unc.se,
+        sensitivity=None if unc.sensitivity is None else pd.DataFrame(
+            unc.sensitivity, index=[param_label(l) for l in phys.labels], columns=h_names),
     )
 
 
-def fit_standing(poses: Poses, prior: Calibration, robot: Robot, *, model: str | ErrorModel = "full", solver: str = "ipopt",
-                 balance: str = "exact", fit_offsets: bool = False, covariance: str = "gauss_newton",
-                 rel_eig_tol: float = REL_EIG_TOL, baseline: BaselineSettings = BaselineSettings(),
-                 verbose: bool = False, weighting: str = "knorm") -> StandingResult:
+def fit_standing(poses: Poses, prior: Calibration, robot: Robot, settings: StandingSettings | None = None, *,
+                 fit_offsets: bool = False, baseline: BaselineSettings = BaselineSettings(), verbose: bool = False,
+                 **overrides) -> StandingResult:
     """Fit the transducer-to-CoM transforms (or, ``fit_offsets=True``, the offsets alone) to standing poses.
 
-    ``model``: a registered name (``full``, ``rot6_trans1``, ``trans6``, ``trans1``), ``module:Class``,
-    ``file.py:Class`` or an ErrorModel (ignored when ``fit_offsets``); ``solver``: ``ipopt`` (exact SO(3)) or ``baseline`` (the report's
-    Cayley + alternating least squares); ``balance``: ``exact`` (eq. E) or ``report`` (eq. 9);
-    ``weighting``: ``knorm`` (eq. 8's K) or ``fgls`` (K fit, then refit with W = (mean residual
-    covariance)^-1; IPOPT only: the report's baseline solver is defined for K).
-    Raises :class:`SolverError` when the solver does not converge.
+    ``settings``: :class:`~ftcal_nlp.settings.StandingSettings`; keyword ``overrides`` replace
+    single fields. Used here: ``model`` (a registered name ``full``, ``rot6_trans1``,
+    ``trans6``, ``trans1``, ``module:Class``, ``file.py:Class`` or an ErrorModel; not
+    ``"auto"``: choosing among candidates is :func:`~ftcal_nlp.selection.select_models`'
+    job; ignored when ``fit_offsets``), ``solver`` (``ipopt``: exact SO(3); ``baseline``: the
+    report's Cayley + alternating least squares), ``balance`` (``exact`` eq. E or ``report``
+    eq. 9), ``weighting`` (``knorm``: eq. 8's K; ``fgls``: K fit, then refit with
+    W = (mean residual covariance)^-1, IPOPT only), ``covariance`` and ``rel_eig_tol``.
+    ``baseline``: the baseline solver's tolerances. Raises :class:`SolverError` when the
+    solver does not converge.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; known: {list(SOLVERS)}")
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"unknown weighting {weighting!r}; known: {list(WEIGHTINGS)}")
-    if weighting == "fgls" and solver != "ipopt":
-        raise ValueError(f"weighting 'fgls' needs solver 'ipopt', got {solver!r}")
+    s = with_overrides(settings, StandingSettings, overrides, "fit_standing")
+    model, solver, balance, weighting = s.model, s.solver, s.balance, s.weighting
+    covariance, rel_eig_tol = s.covariance, s.rel_eig_tol
+    if model == "auto" and not fit_offsets:
+        raise ValueError("fit_standing fits one model: pass model='full' (or another name); "
+                         "'auto' is resolved by select_models or calibrate")
     check_inputs(poses, prior, robot)
     t0 = time.perf_counter()
     problem = prepare(prior, robot, model, balance, fit_offsets=fit_offsets, verbose=verbose)

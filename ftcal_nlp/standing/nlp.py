@@ -25,15 +25,10 @@ import numpy as np
 
 from ..calibration import Calibration
 from ..models import ModelSpec
+from ..solver import SolverError, ipopt, solve_checked
 from .problem import K_DIAG, L_casadi, n_features, objective_casadi
 
-
-class SolverError(RuntimeError):
-    """A solver did not converge; ``status`` holds its own status text."""
-
-    def __init__(self, message: str, status: str):
-        super().__init__(message)
-        self.status = status
+__all__ = ["SolverError", "Solution", "CompiledProblem", "compile_problem"]
 
 
 @dataclass(frozen=True)
@@ -63,7 +58,7 @@ class CompiledProblem:
     def solver(self) -> ca.Function:
         """The IPOPT solver, built on first use (the baseline path needs only L and dL)."""
         if self._solver is None:
-            self._solver = ca.nlpsol(f"standing_{self.model_name or 'model'}_{self.balance}", "ipopt", self.nlp, self.ipopt_options)
+            self._solver = ipopt(f"standing_{self.model_name or 'model'}_{self.balance}", self.nlp, **self.ipopt_options)
         return self._solver
 
     def L(self, x: np.ndarray) -> np.ndarray:
@@ -82,16 +77,10 @@ class CompiledProblem:
         W = np.diag(K_DIAG) if W is None else np.asarray(W, float)
         p = ca.vertcat(ca.DM(S).reshape((-1, 1)), ca.DM(W).reshape((-1, 1)))
         t0 = time.perf_counter()
-        sol = self.solver(x0=x0, p=p, lbx=sp.lbx, ubx=sp.ubx, lbg=sp.lbg, ubg=sp.ubg)
+        sol, st = solve_checked(self.solver, f"model {self.model_name!r} ({self.balance} balance)",
+                                x0=x0, p=p, lbx=sp.lbx, ubx=sp.ubx, lbg=sp.lbg, ubg=sp.ubg)
         dt = time.perf_counter() - t0
-        st = self.solver.stats()
         status = str(st.get("return_status", "unknown"))
-        if not st.get("success", False):
-            raise SolverError(
-                f"IPOPT did not converge on model {self.model_name!r} ({self.balance} balance): {status} "
-                f"after {st.get('iter_count', '?')} iterations",
-                status,
-            )
         return Solution(np.array(sol["x"]).ravel(), status, int(st.get("iter_count", -1)), dt, float(sol["f"]))
 
 
@@ -113,13 +102,7 @@ def compile_problem(spec: ModelSpec, prior: Calibration, legs, balance: str, *, 
     W = ca.MX.sym("W", 6, 6)
     f = objective_casadi(L_fn(x), S, W)
     g = ca.Function("g", [spec.x], [spec.g])(x)
-    opts = {
-        "ipopt.print_level": 5 if verbose else 0,
-        "print_time": bool(verbose),
-        "ipopt.sb": "yes",
-        "ipopt.tol": tol,
-        "ipopt.max_iter": max_iter,
-    }
+    opts = {"tol": tol, "max_iter": max_iter, "print_level": 5 if verbose else 0}
     nlp = {"x": x, "p": ca.vertcat(ca.reshape(S, -1, 1), ca.reshape(W, -1, 1)), "f": f, "g": g}
     dL_fn = ca.Function("dL", [spec.x], [ca.jacobian(ca.reshape(L, -1, 1), spec.x)])
     return CompiledProblem(spec, balance, model_name, L_fn, dL_fn, nlp, n_xi, opts)

@@ -34,29 +34,7 @@ from scipy.signal import savgol_filter
 from ..data import Recording
 from ..geometry import quat_to_rotation, remove_yaw
 from ..robot import Robot
-
-
-@dataclass(frozen=True)
-class PoseExtraction:
-    """Settings of the steady-pose detector (report Sec. I-B); thresholds in SI units."""
-
-    window_s: float = 0.31                  # Savitzky-Golay window; rounded to an odd number of samples
-    deriv_threshold_N_s: float = 1.0        # steady when the force-derivative norm is below this
-    min_steady_s: float = 1.5               # shortest steady run that makes a pose
-    polyorder: int = 2                      # the report's 2nd-order filter
-    deriv_norm: str = "legs"                # "legs": norm over all legs' force derivatives; "total": of their sum
-    phi_rate_threshold_rad_s: float = 0.05  # a shaft moving faster than this separates two candidate poses
-    max_mocap_missing: float = 0.0          # largest fraction of NaN orientations tolerated in a steady run
-    max_gap_factor: float = 3.0             # time gaps over this many sample periods split the recording
-
-    def __post_init__(self) -> None:
-        if self.deriv_norm not in ("legs", "total"):
-            raise ValueError(f"PoseExtraction.deriv_norm: expected 'legs' or 'total', got {self.deriv_norm!r}")
-        for name in ("window_s", "deriv_threshold_N_s", "min_steady_s", "phi_rate_threshold_rad_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"PoseExtraction.{name}: expected a positive number, got {getattr(self, name)!r}")
-        if not 0.0 <= self.max_mocap_missing <= 1.0:
-            raise ValueError(f"PoseExtraction.max_mocap_missing: expected a fraction in [0, 1], got {self.max_mocap_missing!r}")
+from ..settings import PoseExtraction
 
 
 @dataclass(frozen=True)

@@ -1,19 +1,16 @@
-"""The standing balance as a residual linear in per-pose features (report Sec. III-B).
+"""The standing problem of eq. 8: the balance as ``r_p = L(theta) xi_p`` and its moments.
 
-Every balance we fit has, for pose p, a residual in B axes (about the body CoM
-for ``exact``, about the fixed point C for ``report``)
+The balance itself (exact (E) or the report's eq. 9, features ``xi_p``) is
+defined once in ``balance.py``; here ``L(theta)`` is read off it, as the
+Jacobian in ``xi`` of the CasADi residual (:func:`L_casadi`) and as the residual
+of the identity rows in numpy (:func:`L_numpy`, for the baseline solver and the
+residuals). Both are exact because the residual is linear in ``xi``.
 
-    r_p = L(theta) xi_p,      L: 6 x n_xi, polynomial in the unknowns theta,
+The K-norm objective of eq. 8 reduces to the moments ``S = sum_p xi_p xi_p^T / P``:
 
-with data features ``xi_p``. The K-norm of eq. 8, ``||r||_K^2 = r^T K r`` with
-``K = diag(1, 1, 1, 10, 10, 10)``, is invariant under the body rotation (it
-weights the force and torque blocks uniformly), so residuals in B and in W
-(``blockdiag(R_WB, R_WB) r_p``) have the same norm, and the objective of eq. 8
-reduces to the moments ``S = sum_p xi_p xi_p^T / P``:
+    (1/P) sum_p ||r_p||_K^2 = sum_i K_ii (L S L^T)_ii,
 
-    (1/P) sum_p ||r_p||_K^2 = sum_i K_ii (L S L^T)_ii.
-
-This makes one IPOPT iteration independent of the number of poses and lets
+which makes one IPOPT iteration independent of the number of poses and lets
 cross-validation folds change only the parameter S.
 
 Efficient weighting (``weighting="fgls"`` of ``fit_standing``): K is not the inverse
@@ -22,137 +19,93 @@ couples force and torque), so two-step feasible GLS refits with a constant
 ``W = C^-1``, ``C = mean_p r_p r_p^T`` of the K fit (B axes); the objective stays
 ``tr(W L S L^T)``. W is constant in B, so unlike K it is not invariant under the
 body rotation; the poses' residuals are all expressed in B.
-
-Exact balance, physics.py eq. (E), with ``Ad_k = [[R_k, 0], [[p'_k] R_k, R_k]]``,
-``z_p = R_WB,p^T e_z`` (up in B), ``M_b g`` the weight of the body without legs:
-
-    r_p = sum_k Ad_k (w_m,pk - w_o,k) - M_b g [z_p; 0]
-    xi_p = [w_m,p1 .. w_m,pK, 1, z_p]                                     (6K + 4)
-
-Report balance, eq. 9 (leg weights subtracted with the hanging CoM curves
-``r_k(phi)`` about a fixed point C, whole weight ``M g`` balanced there):
-
-    r_p = sum_k Ad_k (w_m,pk - w_o,k) + sum_k m_k g [z_p; (R_k r_k(phi_pk) + p'_k) x z_p] - M g [z_p; 0]
-    xi_p = [.. as exact .., r_k(phi_pk) (x) z_p for each k]                (6K + 4 + 9K)
-
-``(R_k r) x z = sum_{a,l} r_a z_l (R_k e_a x e_l)`` is what makes the last
-features linear. The numpy twins (:func:`L_numpy`) serve the baseline solver
-and the residuals; both are checked against ``physics.py``.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import casadi as ca
 import numpy as np
 
+from ..balance import BALANCES, K_DIAG, check_balance, features, knorm2, n_features, residual, to_world, weights
 from ..calibration import Calibration
-from ..geometry import skew
 
-K_DIAG = np.array([1.0, 1.0, 1.0, 10.0, 10.0, 10.0])  # eq. 8: torques weighted so N and N*m compare
-BALANCES = ("exact", "report")
-
-
-def check_balance(balance: str) -> str:
-    if balance not in BALANCES:
-        raise ValueError(f"unknown balance {balance!r}; known: {list(BALANCES)}")
-    return balance
-
-
-def n_features(K: int, balance: str) -> int:
-    return 6 * K + 4 + (9 * K if check_balance(balance) == "report" else 0)
-
-
-def features(w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, prior: Calibration, legs, balance: str) -> np.ndarray:
-    """Per-pose features ``xi`` (P, n_xi) of the balance (module docstring).
-
-    ``w_m`` (P, K, 6) raw readings in ft_k; ``phi`` (P, K) rad; ``R_WB`` (P, 3, 3).
-    """
-    P, K = w_m.shape[:2]
-    z = R_WB[:, 2, :]  # R_WB^T e_z: up in B
-    cols = [w_m.reshape(P, 6 * K), np.ones((P, 1)), z]
-    if check_balance(balance) == "report":
-        r = np.stack([prior.legs[k].com(phi[:, i]) for i, k in enumerate(legs)], axis=1)  # (P, K, 3)
-        if not np.all(np.isfinite(r)):
-            raise ValueError("report balance: the prior's leg CoM curves are NaN at some standing shaft angles")
-        cols.append((r[:, :, :, None] * z[:, None, None, :]).reshape(P, 9 * K))
-    return np.concatenate(cols, axis=1)
-
-
-def _weights(prior: Calibration, legs) -> tuple[np.ndarray, float, float]:
-    """Leg weights m_k g (K,), body-without-legs weight M_b g and whole weight M g (N)."""
-    m = np.array([prior.legs[k].leg_weight_N for k in legs])
-    Mg = prior.mass_kg * prior.g
-    return m, Mg - m.sum(), Mg
-
-
-# ----------------------------------------------------------------------------- CasADi
-
-
-def ad_casadi(R: ca.SX, p: ca.SX) -> ca.SX:
-    """``[[R, 0], [[p] R, R]]`` (6x6): wrench in ft_k about its origin -> B about the reference point."""
-    return ca.blockcat([[R, ca.SX.zeros(3, 3)], [ca.mtimes(skew(p), R), R]])
+__all__ = ["BALANCES", "K_DIAG", "check_balance", "features", "knorm2", "n_features", "to_world", "L_casadi", "L_numpy",
+           "L_numpy_jacobian", "residuals_B", "moments", "objective_casadi", "fgls_weight"]
 
 
 def L_casadi(R, p_prime, offsets, prior: Calibration, legs, balance: str) -> ca.SX:
     """``L(theta)`` (6 x n_xi) from K rotations, K translations and K offsets (SX or DM)."""
-    K = len(legs)
-    m, Mb_g, _ = _weights(prior, legs)
-    Ads = [ad_casadi(ca.SX(R[k]), ca.SX(p_prime[k])) for k in range(K)]
-    const = -sum((ca.mtimes(Ads[k], ca.SX(offsets[k])) for k in range(K)), ca.SX.zeros(6, 1))
-    zcol = ca.vertcat(-Mb_g * ca.SX.eye(3), ca.SX.zeros(3, 3))
-    blocks = Ads + [const]
-    if check_balance(balance) == "report":
-        zcol = ca.vertcat(-Mb_g * ca.SX.eye(3), sum((m[k] * skew(ca.SX(p_prime[k])) for k in range(K)), ca.SX.zeros(3, 3)))
-        blocks.append(zcol)
-        for k in range(K):
-            Rk = ca.SX(R[k])
-            blocks.append(ca.vertcat(ca.SX.zeros(3, 9), m[k] * ca.horzcat(*[skew(Rk[:, a]) for a in range(3)])))
-    else:
-        blocks.append(zcol)
-    return ca.horzcat(*blocks)
+    m, Mg = weights(prior, legs)
+    xi = ca.SX.sym("xi", n_features(len(legs), balance))
+    r = residual(xi, [ca.SX(Rk) for Rk in R], [ca.SX(pk) for pk in p_prime], [ca.SX(o) for o in offsets], m, Mg, balance)
+    return ca.jacobian(r, xi)
 
 
-# ----------------------------------------------------------------------------- numpy twins
+@lru_cache(maxsize=None)
+def _L_function(K: int, balance: str) -> ca.Function:
+    """``L`` and its Jacobians in the rotations, translations and offsets, compiled as functions of
+    (rotations, translations, offsets, leg weights, M g): the numeric twins evaluate the same
+    symbolic definition (one call each; the baseline solver calls them every iteration)."""
+    R = [ca.SX.sym(f"R{k}", 3, 3) for k in range(K)]
+    p = [ca.SX.sym(f"p{k}", 3) for k in range(K)]
+    off = [ca.SX.sym(f"o{k}", 6) for k in range(K)]
+    m = ca.SX.sym("m", K)
+    Mg = ca.SX.sym("Mg")
+    xi = ca.SX.sym("xi", n_features(K, balance))
+    L = ca.jacobian(residual(xi, R, p, off, [m[k] for k in range(K)], Mg, balance), xi)
+    Rv, pv, ov = ca.vertcat(*[ca.vec(Rk) for Rk in R]), ca.vertcat(*p), ca.vertcat(*off)
+    vL = ca.vec(L)
+    outs = [L, ca.jacobian(vL, Rv), ca.jacobian(vL, pv), ca.jacobian(vL, ov)]
+    return ca.Function("L_num", [Rv, pv, ov, m, Mg], [ca.densify(o) for o in outs])
 
 
-def ad_numpy(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """numpy twin of :func:`ad_casadi`, batched: R (..., 3, 3), p (..., 3) -> (..., 6, 6)."""
-    out = np.zeros(R.shape[:-2] + (6, 6))
-    out[..., :3, :3] = R
-    out[..., 3:, 3:] = R
-    out[..., 3:, :3] = skew(p) @ R
-    return out
+def _call(R, p_prime, offsets, prior: Calibration, legs, balance: str) -> list[np.ndarray]:
+    m, Mg = weights(prior, legs)
+    return L_values(R, p_prime, offsets, m, Mg, balance)
+
+
+def L_values(R, p_prime, offsets, leg_weights_N, weight_N: float, balance: str) -> list[np.ndarray]:
+    """``[L, dvecL/dR, dvecL/dp', dvecL/dw_o]`` at given leg weights and whole weight, numpy: :func:`_L_function`
+    evaluated straight into numpy arrays (CasADi's function buffer: converting large DM outputs
+    element by element would cost more than the evaluation)."""
+    m, Mg = leg_weights_N, weight_N
+    f = _L_function(len(R), check_balance(balance))
+    args = [np.ascontiguousarray(np.swapaxes(np.asarray(R, float), 1, 2).ravel()), np.asarray(p_prime, float).ravel().copy(),
+            np.asarray(offsets, float).ravel().copy(), np.asarray(m, float).copy(), np.array([float(Mg)])]
+    flat = [np.zeros(f.nnz_out(i)) for i in range(f.n_out())]  # dense outputs, column-major
+    buf, trigger = f.buffer()
+    for i, a in enumerate(args):
+        buf.set_arg(i, memoryview(a))
+    for i, o in enumerate(flat):
+        buf.set_res(i, memoryview(o))
+    trigger()
+    return [o.reshape(f.size_out(i), order="F") for i, o in enumerate(flat)]
 
 
 def L_numpy(R: np.ndarray, p_prime: np.ndarray, offsets: np.ndarray, prior: Calibration, legs, balance: str) -> np.ndarray:
     """numpy twin of :func:`L_casadi`: R (K, 3, 3), p_prime (K, 3), offsets (K, 6) -> (6, n_xi)."""
-    K = len(legs)
-    m, Mb_g, _ = _weights(prior, legs)
-    Ad = ad_numpy(R, p_prime)  # (K, 6, 6)
-    L = np.zeros((6, n_features(K, balance)))
-    L[:, : 6 * K] = np.concatenate(list(Ad), axis=1)
-    L[:, 6 * K] = -np.einsum("kij,kj->i", Ad, offsets)
-    L[:3, 6 * K + 1 : 6 * K + 4] = -Mb_g * np.eye(3)
-    if check_balance(balance) == "report":
-        L[3:, 6 * K + 1 : 6 * K + 4] = np.einsum("k,kij->ij", m, skew(p_prime))
-        Sk = m[:, None, None, None] * skew(np.swapaxes(R, 1, 2))  # [k, a] = m_k [R_k e_a]
-        L[3:, 6 * K + 4 :] = Sk.transpose(2, 0, 1, 3).reshape(3, 9 * K)
-    return L
+    return _call(R, p_prime, offsets, prior, legs, balance)[0]
+
+
+def L_numpy_jacobian(R: np.ndarray, p_prime: np.ndarray, offsets: np.ndarray, prior: Calibration, legs, balance: str,
+                     which: str) -> np.ndarray:
+    """``dL / d(entries of R, p' or offsets)``, (n, 6, n_xi), entries in C order of ``R`` (K, 3, 3),
+    ``p_prime`` (K, 3) or ``offsets`` (K, 6); ``which`` is ``"R"``, ``"p"`` or ``"o"``."""
+    out = _call(R, p_prime, offsets, prior, legs, balance)
+    J = {"R": out[1], "p": out[2], "o": out[3]}[which]
+    n_xi = out[0].shape[1]
+    J = J.reshape(n_xi, 6, -1).transpose(2, 1, 0)  # vec(L) is column-major: row i + 6 j
+    if which == "R":  # vec(R_k) is column-major too: entry (k, i, j) at 9 k + i + 3 j
+        K = len(legs)
+        J = J[[9 * k + i + 3 * j for k in range(K) for i in range(3) for j in range(3)]]
+    return J
 
 
 def residuals_B(L: np.ndarray, xi: np.ndarray) -> np.ndarray:
     """Per-pose residuals in B axes, (P, 6)."""
     return xi @ L.T
-
-
-def to_world(r_B: np.ndarray, R_WB: np.ndarray) -> np.ndarray:
-    """``blockdiag(R_WB, R_WB) r`` per pose: residuals (P, 6) from B to W axes."""
-    return np.concatenate([np.einsum("pij,pj->pi", R_WB, r_B[:, :3]), np.einsum("pij,pj->pi", R_WB, r_B[:, 3:])], axis=1)
-
-
-def knorm2(r: np.ndarray) -> np.ndarray:
-    """``||r_p||_K^2`` per pose (eq. 8), r (P, 6) -> (P,)."""
-    return (r**2) @ K_DIAG
 
 
 def moments(xi: np.ndarray) -> np.ndarray:

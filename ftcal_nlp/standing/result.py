@@ -41,9 +41,10 @@ from scipy.linalg import null_space
 
 from ..calibration import Calibration
 from ..geometry import rotation_to_rotvec, unskew
+from ..results import ResultsMixin, Summary, bic, fmt_pm
+from ..solver import identifiability
 from .problem import K_DIAG, knorm2
 
-REL_EIG_TOL = 1e-5
 FLAG_FRACTION = 0.05
 # Physical scales used to compare how much an undetermined direction moves quantities of different units.
 _UNIT = {"rot": np.radians(1.0), "p_prime": 1e-3, "com_body": 1e-3, "w_o_f": 0.1, "w_o_t": 0.01}
@@ -115,6 +116,7 @@ class Uncertainty:
     unidentified: tuple[str, ...]  # one description per undetermined direction
     unidentified_params: tuple[str, ...]
     dof: int
+    sensitivity: np.ndarray | None = None  # (n_phys, n_h) d(quantities)/d(prior parameters) at the optimum
 
 
 def _describe(c: np.ndarray, labels, ratio: float, top: int = 12) -> tuple[str, np.ndarray]:
@@ -128,8 +130,8 @@ def _describe(c: np.ndarray, labels, ratio: float, top: int = 12) -> tuple[str, 
     return f"{terms}{more} [eigenvalue ratio {max(ratio, 0.0):.1e}]", big
 
 
-def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_tol: float = REL_EIG_TOL,
-                covariance: str = "gauss_newton", W: np.ndarray | None = None) -> Uncertainty:
+def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_tol: float,
+                covariance: str, W: np.ndarray | None = None, J_h: np.ndarray | None = None) -> Uncertainty:
     """Standard errors and undetermined directions at the optimum ``x`` (module docstring).
 
     ``W`` (6x6): the fit was weighted by W = (residual covariance)^-1 (feasible GLS) instead of K:
@@ -154,12 +156,8 @@ def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_to
     A = np.einsum("pin,ij,pjm->nm", Jt, Wm, Jt)
     rss = float(knorm2(r).sum())
     sigma2 = rss / max(6 * P - d, 1)
-    s = np.sqrt(np.diag(A))
-    s = np.where(s > 0, s, 1.0)
-    As = A / np.outer(s, s)
-    lam, V = np.linalg.eigh(As)
-    ratio = lam / lam.max()
-    ok = ratio >= rel_eig_tol
+    ident = identifiability(A, rel_eig_tol)
+    s, lam, V, ratio, ok = ident.scale, ident.eigenvalues, ident.vectors, ident.ratio, ident.determined
     Ainv = (V[:, ok] / lam[ok]) @ V[:, ok].T
     if covariance == "gauss_newton":
         Cs = (sigma2 if W is None else 1.0) * Ainv
@@ -169,6 +167,10 @@ def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_to
     Cx = T @ (Cs / np.outer(s, s)) @ T.T
     D = phys.D
     cov = D @ Cx @ D.T
+    sens = None
+    if J_h is not None:  # implicit-function theorem at the (Gauss-Newton) optimum: dt/dh = -A^+ sum_p Jt^T W J_h
+        B = np.einsum("pin,ij,pjm->nm", Jt, Wm, J_h)
+        sens = D @ T @ (-ident.pinv() @ B)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     descs, flagged = [], np.zeros(len(se), bool)
     units = np.array([_unit_scale(l) for l in phys.labels])
@@ -187,22 +189,24 @@ def uncertainty(cp, x: np.ndarray, xi: np.ndarray, phys: Physical, *, rel_eig_to
     # quantities the model does not estimate (fixed at nominal or prior values) have no se
     se = np.where(np.all(D == 0, axis=1), np.nan, se)
     params = tuple(l for l, f in zip(phys.labels, flagged) if f)
-    return Uncertainty(se, cov, sigma2, ratio, tuple(descs), params, d)
+    return Uncertainty(se, cov, sigma2, ratio, tuple(descs), params, d, sens)
 
 
-def _fmt(v: float, se: float | None) -> str:
-    if se is None or np.isnan(se):
-        return f"{v:.4g} (fixed)"
-    if not np.isfinite(se):
-        return f"{v:.4g} +- inf"
-    if se <= 0:
-        return f"{v:.4g} +- 0"
-    dec = max(0, int(-np.floor(np.log10(se))) + 1)
-    return f"{v:.{dec}f} +- {se:.{dec}f}"
+_PARAM_NAMES = {"rot": "R_tilde"}
+
+
+def param_label(phys_label: str) -> str:
+    """``rot[FL].x`` -> ``FL.R_tilde.x`` (rad), ``p_prime[FL].x`` -> ``FL.p_prime.x`` (m),
+    ``w_o[FL].fx`` -> ``FL.w_o.fx``; ``com_body.x`` stays."""
+    if "[" not in phys_label:
+        return phys_label
+    head, rest = phys_label.split("[", 1)
+    leg, comp = rest.split("].", 1)
+    return f"{leg}.{_PARAM_NAMES.get(head, head)}.{comp}"
 
 
 @dataclass(frozen=True)
-class StandingResult:
+class StandingResult(ResultsMixin):
     """Result of the standing stage (report Sec. III-B) for one model, balance and solver.
 
     ``rotations`` (K, 3, 3) estimated ``R_k`` (ft_k -> B) = ``R_tilde_k R_nominal_k``;
@@ -247,6 +251,36 @@ class StandingResult:
     total_time_s: float = float("nan")   # compile + solve + uncertainty
     weighting: str = "knorm"             # "knorm" (eq. 8's K) or "fgls" (W = residual covariance^-1)
     weight: np.ndarray | None = field(default=None, repr=False)  # the fgls W (6x6, B axes)
+    param_labels: tuple[str, ...] = ()                           # physical labels of ``cov`` (``Physical.labels``)
+    cov: np.ndarray | None = field(default=None, repr=False)      # covariance of those, conditional on the prior
+    se: np.ndarray | None = field(default=None, repr=False)       # their se (inf: undetermined, NaN: not estimated)
+    sensitivity: pd.DataFrame | None = field(default=None, repr=False)  # d params / d prior (hanging) parameters
+
+    # results protocol (results.py); rotations as R_tilde rotation vectors (rad), translations m
+    @property
+    def params(self) -> pd.Series:
+        vals = [self.rotation_errors.ravel(), self.p_prime.ravel()]
+        if self.offsets is not None:
+            vals.append(np.asarray(self.offsets).ravel())
+        if any(l.startswith("com_body") for l in self.param_labels):
+            vals.append(np.asarray(self.com_body_m if self.com_body_m is not None else np.full(3, np.nan), float))
+        v = np.concatenate(vals)
+        names = [param_label(l) for l in self.param_labels] if self.param_labels else [
+            f"{k}.{q}.{c}" for q in ("R_tilde", "p_prime") for k in self.legs for c in "xyz"][: len(v)]
+        if len(names) != len(v):
+            raise ValueError(f"standing result: {len(names)} parameter labels for {len(v)} values")
+        return pd.Series(v, index=names, name="params")
+
+    def _bse_array(self) -> np.ndarray:
+        if self.se is not None:
+            return np.asarray(self.se, float)
+        return np.concatenate([self.rotvec_se.ravel(), self.p_prime_se.ravel()])
+
+    def _cov_array(self) -> np.ndarray:
+        if self.cov is not None:
+            return self.cov
+        b = self._bse_array()
+        return np.diag(np.where(np.isfinite(b), b, 0.0) ** 2)
 
     @property
     def rotation_errors(self) -> np.ndarray:
@@ -256,41 +290,44 @@ class StandingResult:
     @property
     def bic(self) -> float:
         """``P ln(RSS/P) + DOF ln P`` (Sec. IV-2)."""
-        P = self.n_poses
-        return float(P * np.log(self.rss / P) + self.dof * np.log(P))
+        return bic(self.rss, self.n_poses, self.dof)
 
     def table(self) -> pd.DataFrame:
-        """Table II-like: per leg, ``R_tilde`` (deg) and ``p'`` (mm) (and offsets if fitted), value +- se."""
+        """Table II-like: per leg, ``R_tilde`` (deg) and ``p'`` (mm) (and offsets if fitted), ``value ± se``."""
         rows: dict[str, list[str]] = {}
-        rv, rse = np.degrees(self.rotation_errors), np.degrees(self.rotvec_se)
+        rv, rse = self.rotation_errors, self.rotvec_se
         for j, c in enumerate("xyz"):
-            rows[f"R_tilde {c} [deg]"] = [_fmt(rv[k, j], rse[k, j]) for k in range(len(self.legs))]
+            rows[f"R_tilde {c} [deg]"] = [fmt_pm(rv[k, j], rse[k, j], scale=180 / np.pi) for k in range(len(self.legs))]
         for j, c in enumerate("xyz"):
-            rows[f"p' {c} [mm]"] = [_fmt(1e3 * self.p_prime[k, j], 1e3 * self.p_prime_se[k, j]) for k in range(len(self.legs))]
+            rows[f"p' {c} [mm]"] = [fmt_pm(self.p_prime[k, j], self.p_prime_se[k, j], scale=1e3) for k in range(len(self.legs))]
         if self.offsets is not None:
             for j, c in enumerate(_WRENCH):
                 unit = "N" if j < 3 else "N*m"
-                rows[f"w_o {c} [{unit}]"] = [_fmt(self.offsets[k, j], self.offsets_se[k, j]) for k in range(len(self.legs))]
+                rows[f"w_o {c} [{unit}]"] = [fmt_pm(self.offsets[k, j], self.offsets_se[k, j]) for k in range(len(self.legs))]
         df = pd.DataFrame(rows, index=list(self.legs)).T
         df.index.name = "parameter"
         return df
 
-    def summary(self) -> str:
-        """Plain-text summary: model, fit statistics, table, CoM, undetermined directions."""
+    def summary(self) -> Summary:
+        """Model, fit statistics, the parameter table, CoM and undetermined directions."""
         rms = np.sqrt((self.residuals**2).mean(axis=0))
-        lines = [
-            f"standing calibration: model {self.model!r}, {self.balance} balance, solver {self.solver} ({self.solver_status}, "
-            f"{self.solve_time_s * 1e3:.0f} ms)",
-            f"poses {self.n_poses}, DOF {self.dof}, RSS (K-norm) {self.rss:.5g}, BIC {self.bic:.2f}, sigma {np.sqrt(self.sigma2):.3g}",
-            "residual RMS fx fy fz [N] tx ty tz [N*m]: " + " ".join(f"{v:.3g}" for v in rms),
-            self.table().to_string(),
+        facts = [
+            ("model", f"{self.model} ({self.balance} balance, {self.weighting} weighting)"),
+            ("solver", f"{self.solver}: {self.solver_status}, {self.solve_time_s * 1e3:.0f} ms"),
+            ("poses / DOF", f"{self.n_poses} / {self.dof}"),
+            ("RSS (K-norm), BIC", f"{self.rss:.5g}, {self.bic:.2f}"),
+            ("residual RMS f [N]", " ".join(f"{v:.3g}" for v in rms[:3])),
+            ("residual RMS tau [N*m]", " ".join(f"{v:.3g}" for v in rms[3:])),
         ]
         if self.com_body_m is not None:
             se = self.com_body_se_m if self.com_body_se_m is not None else np.full(3, np.nan)  # NaN: kept from the prior
-            lines.append("CoM of body without legs in B [mm]: " + ", ".join(_fmt(1e3 * v, 1e3 * s) for v, s in zip(self.com_body_m, se)))
+            facts.append(("CoM of body without legs in B [mm]", ", ".join(fmt_pm(v, s_, scale=1e3) for v, s_ in zip(self.com_body_m, se))))
         else:
-            lines.append("CoM of body without legs: not identifiable with this model (every transducer translation free)")
+            facts.append(("CoM of body without legs", "not identifiable with this model (every transducer translation free)"))
+        out = Summary(f"Standing calibration: model {self.model}", facts)
+        out.tables.append(("Mounting errors R_tilde (rotation vector of R_k R_nominal_k^T) and p' (ft_k origin from the body CoM), "
+                           "value ± standard error", self.table()))
         if self.unidentified:
-            lines.append(f"{len(self.unidentified)} direction(s) not determined by the poses (se = inf):")
-            lines += [f"  {u}" for u in self.unidentified]
-        return "\n".join(lines)
+            out.notes.append(f"{len(self.unidentified)} direction(s) not determined by the poses (se = inf):")
+            out.notes += list(self.unidentified)
+        return out

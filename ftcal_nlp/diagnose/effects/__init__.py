@@ -1,16 +1,22 @@
 """The effect library (issue 7): every canonical effect of ``OUTPUT_FORMAT.md`` as one plug-in
 with an injector (simulator face) and an augmentation of the calibration model (model face).
 
-``LIBRARY`` is a plain dict, canonical name -> :class:`~.base.Effect`. Importing
-this module registers every injector class in :data:`ftcal_nlp.sim.effects.EFFECTS`,
-so that ``SimConfig.from_dict({"effects": ["tether_force"]})`` and
-``make_effects([{"name": "tether_force", "scale": 1.5, "seed": 3}])`` resolve the
-names (the keyword arguments are ``scale`` in the effect's unit and ``seed``).
+``LIBRARY`` is a plain dict, canonical name -> :class:`~.base.Effect`. This package
+holds the model faces (``base``: what an effect is; ``sensor``, ``body``: the
+augmentations). The injectors, their base :class:`EffectInjector` and sizes
+:class:`Magnitude` live in the simulator (:mod:`ftcal_nlp.sim.injectors`, re-exported
+here) and are registered in :data:`ftcal_nlp.sim.effects.EFFECTS` when
+:mod:`ftcal_nlp.sim` is imported, so that ``SimConfig.from_dict({"effects":
+["tether_force"]})`` and ``make_effects([{"name": "tether_force", "scale": 1.5,
+"seed": 3}])`` resolve the names without the diagnosis (the keyword arguments are
+``scale`` in the effect's unit and ``seed``). Each :class:`Effect` names its
+injector class (``injector_cls``) and takes its ``magnitude`` from it.
 """
 
 from __future__ import annotations
 
-from ...sim.effects import EFFECTS, LIBRARY_EFFECTS
+from ...sim.effects import EFFECTS, LIBRARY_EFFECTS  # noqa: F401  (EFFECTS: kept importable from here)
+from ...sim.injectors import INJECTORS
 from .base import (
     AugContext,
     Effect,
@@ -41,8 +47,9 @@ LIBRARY: dict[str, Effect] = {
 if set(LIBRARY) != set(LIBRARY_EFFECTS):  # the contract's names and ours must not drift apart
     raise RuntimeError(f"effect library {sorted(LIBRARY)} differs from OUTPUT_FORMAT.md's {sorted(LIBRARY_EFFECTS)}")
 
-for _name, _effect in LIBRARY.items():
-    EFFECTS.setdefault(_name, _effect.injector_cls)
+for _name, _effect in LIBRARY.items():  # each model face is paired with the simulator's injector of its name
+    if _effect.injector_cls is not INJECTORS[_name] or _effect.magnitude is not INJECTORS[_name].magnitude:
+        raise RuntimeError(f"effect {_name!r}: injector or magnitude differs from ftcal_nlp.sim.injectors")
 
 
 def resolve_effects(names) -> list[Effect]:

@@ -3,7 +3,10 @@
 Face (a), the injector, adds the effect to simulated readings (the hook of
 ``ftcal_nlp.sim.effects``: ``readings(ctx, w)``, ``orientation(ctx, R)``,
 ``robot(robot)``); its ``scale`` is the effect's size in the unit of
-:class:`Magnitude`.
+:class:`Magnitude`. The injectors, their base :class:`EffectInjector`, their
+formulas and their sizes live in the simulator, :mod:`ftcal_nlp.sim.injectors`
+(re-exported here); an :class:`Effect` names its injector class (``injector_cls``)
+and takes its ``magnitude`` from it.
 
 Face (b), the augmentation, adds a few parameters ``eta`` to the calibration
 model so that it can absorb the effect:
@@ -24,6 +27,10 @@ model so that it can absorb the effect:
 
 Sizes are in ``Magnitude``: a realistic range for an ATI Gamma on an 8 kg
 robot and a test size at which the effect is clearly detectable.
+
+This module holds face (b)'s building blocks: :class:`Effect`, the symbols and
+contexts of the faces (:class:`PoseSym`, :class:`AugContext`, :class:`ParamBlock`,
+:class:`HangingLeg`, :class:`LinearFace`) and :func:`per_leg_face`.
 """
 
 from __future__ import annotations
@@ -34,20 +41,17 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ...sim.effects import NoEffect
+from ...sim.injectors import (  # noqa: F401  (re-exported: the injector face lives in the simulator)
+    HOUR_S,
+    REF_FORCE_N,
+    REF_TORQUE_NM,
+    EffectInjector,
+    Magnitude,
+    rotvec_rotate,
+    shaft_speed,
+)
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
-HOUR_S = 3600.0
-REF_FORCE_N = 20.0    # reference load for loads-dependent effects (a leg's stance load is ~13-25 N)
-REF_TORQUE_NM = 2.0
-
-
-@dataclass(frozen=True)
-class Magnitude:
-    """``unit`` of ``scale``; ``realistic`` (lo, hi) range; ``test`` a clearly detectable size."""
-
-    unit: str
-    realistic: tuple[float, float]
-    test: float
 
 
 @dataclass(frozen=True)
@@ -170,37 +174,13 @@ class HangingLeg:
         return np.hstack([self.f, np.cross(self.r, self.f)])
 
 
-class EffectInjector(NoEffect):
-    """Base of the library's injectors: ``scale`` in the effect's unit, ``seed`` fixes the
-    effect's own random parameters (the same for every recording of a session)."""
-
-    name = "none"
-
-    def __init__(self, scale: float | None = None, seed: int = 0):
-        self.scale = float(self.default_scale() if scale is None else scale)
-        self.seed = int(seed)
-        self.rng = np.random.default_rng(np.random.SeedSequence([self.seed, _name_key(self.name)]))
-
-    @classmethod
-    def default_scale(cls) -> float:
-        from . import LIBRARY
-
-        return LIBRARY[cls.name].magnitude.test
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}(scale={self.scale:g}, seed={self.seed})"
-
-
-def _name_key(name: str) -> int:
-    return int.from_bytes(name.encode()[:8].ljust(8, b"\0"), "little")
-
-
 class Effect:
     """One effect of the library: an injector class and the augmentation faces.
 
     Subclasses set ``name`` (canonical, ``OUTPUT_FORMAT.md``), ``description``,
-    ``explains`` (the dependence localisation should find), ``magnitude`` and
-    ``injector_cls``; they override the faces they have.
+    ``explains`` (the dependence localisation should find), ``injector_cls`` (from
+    :mod:`ftcal_nlp.sim.injectors`) and ``magnitude`` (``injector_cls.magnitude``);
+    they override the faces they have.
     """
 
     name: ClassVar[str] = ""
@@ -259,19 +239,3 @@ def per_leg_face(legs: list[HangingLeg], make, labels) -> LinearFace:
     for l in legs:
         names[l.k] = l.leg
     return LinearFace([make(l) for l in legs], tuple(f"{n or k}.{c}" for k, n in enumerate(names) for c in labels), True)
-
-
-def rotvec_rotate(delta: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors ``v`` (..., 3) by the rotation vectors ``delta`` (..., 3) (Rodrigues)."""
-    th = np.linalg.norm(delta, axis=-1, keepdims=True)
-    ths = np.where(th < 1e-12, 1.0, th)
-    n = delta / ths
-    c, s = np.cos(th), np.sin(th)
-    return v * c + np.cross(n, v) * s + n * np.sum(n * v, axis=-1, keepdims=True) * (1 - c)
-
-
-def shaft_speed(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """``d phi / dt`` (N, K) by central differences on the session clock."""
-    if len(t) < 2:
-        return np.zeros_like(phi)
-    return np.gradient(phi, t, axis=0)

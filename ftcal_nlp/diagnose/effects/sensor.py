@@ -1,15 +1,11 @@
 """Effects inside or at the transducer: offset drift, gain crosstalk, sensor nonlinearity,
-hysteresis, casing load, chassis flex. Each: injector (sim face) + augmentation (model face).
+hysteresis, casing load, chassis flex: the model face (augmentations) of each.
 
-Injected on the noise-free reading ``w = w_a + w_o`` (report eq. 1) of every
-recording (hysteresis: standing only), with ``w_a = ctx.applied``:
-
-* offset_drift        w_o(t) = w_o + d_k (1 - exp(-t/tau)) / (1 - exp(-1 h/tau))   (warm-up, d_k = drift after 1 h)
-* gain_crosstalk      w = w_o + (I + E_k) w_a,  E_k on the 3x3 force block
-* sensor_nonlinearity w = w_o + w_a + q_k (.) w_a^2,  q_kj = s_j scale (1 +- 0.2) / ref_j
-* hysteresis          w = w_a + h (w_a,prev pose - w_a) while standing
-* casing_load         w += [M_k (cos phi, sin phi); 0, 0, 0, 0]  (force in the ft xy plane)
-* chassis_flex        w = w_o + Rot(-delta_k) w_a,  delta_k = c_k (n_k . f_a) / 20 N, c_k horizontal in B
+Their injectors (the simulator face: :class:`OffsetDriftInjector`,
+:class:`GainCrosstalkInjector`, :class:`SensorNonlinearityInjector`,
+:class:`HysteresisInjector`, :class:`CasingLoadInjector`,
+:class:`ChassisFlexInjector`), with the formulas of what they inject, are in
+:mod:`ftcal_nlp.sim.injectors` and re-exported here.
 
 Augmentations (standing face, eq. (A) of base.py; ``t_h`` hours since hanging):
 
@@ -31,6 +27,14 @@ import casadi as ca
 import numpy as np
 
 from ...geometry import skew
+from ...sim.injectors import (  # noqa: F401  (re-exported: the injector face lives in the simulator)
+    CasingLoadInjector,
+    ChassisFlexInjector,
+    GainCrosstalkInjector,
+    HysteresisInjector,
+    OffsetDriftInjector,
+    SensorNonlinearityInjector,
+)
 from .base import (
     HOUR_S,
     REF_FORCE_N,
@@ -38,14 +42,11 @@ from .base import (
     WRENCH,
     AugContext,
     Effect,
-    EffectInjector,
     HangingLeg,
     LinearFace,
-    Magnitude,
     ParamBlock,
     PoseSym,
     per_leg_face,
-    rotvec_rotate,
 )
 
 _REF = np.array([REF_FORCE_N] * 3 + [REF_TORQUE_NM] * 3)
@@ -55,37 +56,11 @@ _DEG = np.pi / 180.0
 # ----------------------------------------------------------------------------- offset drift
 
 
-class OffsetDriftInjector(EffectInjector):
-    """Warm-up drift: ``scale`` N of force drift per leg after one hour (torque: scale x 2 cm)."""
-
-    name = "offset_drift"
-
-    def __init__(self, scale: float | None = None, seed: int = 0, tau_s: float = 1200.0):
-        super().__init__(scale, seed)
-        self.tau_s = float(tau_s)
-        self._dir = None
-
-    def _drift(self, K: int) -> np.ndarray:
-        if self._dir is None or len(self._dir) != K:
-            f = self.rng.normal(size=(K, 3))
-            f /= np.linalg.norm(f, axis=1, keepdims=True)
-            t = self.rng.normal(size=(K, 3))
-            t /= np.linalg.norm(t, axis=1, keepdims=True)
-            amp = self.rng.uniform(0.7, 1.3, (K, 1))
-            self._dir = np.hstack([f, 0.02 * t]) * amp
-        return self.scale * self._dir
-
-    def readings(self, ctx, w):
-        K = w.shape[1]
-        frac = (1 - np.exp(-ctx.t / self.tau_s)) / (1 - np.exp(-HOUR_S / self.tau_s))
-        return w + frac[:, None, None] * self._drift(K)[None]
-
-
 class OffsetDrift(Effect):
     name = "offset_drift"
     description = "offsets change slowly with time over the session (warm-up)"
     explains = "time"
-    magnitude = Magnitude("N of force drift per leg after one hour", (1.0, 4.0), 3.0)
+    magnitude = OffsetDriftInjector.magnitude
     injector_cls = OffsetDriftInjector
     shifts_offsets = True
 
@@ -110,28 +85,11 @@ class OffsetDrift(Effect):
 # ----------------------------------------------------------------------------- gain crosstalk
 
 
-class GainCrosstalkInjector(EffectInjector):
-    """``(I + E_k)`` on the applied force; entries of E_k ~ N(0, scale) (a fraction)."""
-
-    name = "gain_crosstalk"
-
-    def matrices(self, K: int) -> np.ndarray:
-        if not hasattr(self, "_E") or len(self._E) != K:
-            self._E = self.rng.normal(0.0, 1.0, (K, 3, 3))
-        return self.scale * self._E
-
-    def readings(self, ctx, w):
-        E = self.matrices(w.shape[1])
-        out = w.copy()
-        out[..., :3] += np.einsum("kij,nkj->nki", E, ctx.applied[..., :3])
-        return out
-
-
 class GainCrosstalk(Effect):
     name = "gain_crosstalk"
     description = "readings are (I + E) times the applied wrench, E small"
     explains = "load"
-    magnitude = Magnitude("rms of the force-gain matrix entries (fraction)", (0.01, 0.03), 0.02)
+    magnitude = GainCrosstalkInjector.magnitude
     injector_cls = GainCrosstalkInjector
     shifts_offsets = True
 
@@ -165,26 +123,11 @@ class GainCrosstalk(Effect):
 # ----------------------------------------------------------------------------- sensor nonlinearity
 
 
-class SensorNonlinearityInjector(EffectInjector):
-    """``q_kj w_a,j^2``: ``scale`` is the relative error at the reference load (20 N, 2 N*m)."""
-
-    name = "sensor_nonlinearity"
-
-    def coefficients(self, K: int) -> np.ndarray:
-        if not hasattr(self, "_q") or len(self._q) != K:
-            sign = self.rng.choice([-1.0, 1.0], 6)
-            self._q = sign * self.rng.uniform(0.8, 1.2, (K, 6)) / _REF
-        return self.scale * self._q
-
-    def readings(self, ctx, w):
-        return w + self.coefficients(w.shape[1])[None] * ctx.applied**2
-
-
 class SensorNonlinearity(Effect):
     name = "sensor_nonlinearity"
     description = "a small quadratic term per axis"
     explains = "load"
-    magnitude = Magnitude("relative error at 20 N / 2 N*m", (0.003, 0.01), 0.01)
+    magnitude = SensorNonlinearityInjector.magnitude
     injector_cls = SensorNonlinearityInjector
     shifts_offsets = True
 
@@ -216,30 +159,11 @@ class SensorNonlinearity(Effect):
 # ----------------------------------------------------------------------------- hysteresis
 
 
-class HysteresisInjector(EffectInjector):
-    """A standing reading keeps the fraction ``scale`` of the previous pose's load."""
-
-    name = "hysteresis"
-
-    def readings(self, ctx, w):
-        if ctx.kind != "standing":
-            return w
-        idx = ctx.pose_index
-        P = int(idx.max()) + 1
-        last = np.searchsorted(idx, np.arange(P), side="right") - 1  # poses come in order: last sample of each
-        prev_load = np.zeros_like(ctx.applied)
-        has = idx >= 1
-        prev_load[has] = ctx.applied[last[idx[has] - 1]]
-        out = w.copy()
-        out[has] += self.scale * (prev_load[has] - ctx.applied[has])
-        return out
-
-
 class Hysteresis(Effect):
     name = "hysteresis"
     description = "a reading keeps a fraction of the previous pose's load"
     explains = "pose_history"
-    magnitude = Magnitude("fraction of the previous pose's load kept", (0.005, 0.02), 0.02)
+    magnitude = HysteresisInjector.magnitude
     injector_cls = HysteresisInjector
 
     def standing_params(self, ctx):
@@ -253,29 +177,11 @@ class Hysteresis(Effect):
 # ----------------------------------------------------------------------------- casing load
 
 
-class CasingLoadInjector(EffectInjector):
-    """Parasitic force in the ft xy plane, ``M_k (cos phi, sin phi)``, amplitude ~``scale`` N."""
-
-    name = "casing_load"
-
-    def matrices(self, K: int) -> np.ndarray:
-        if not hasattr(self, "_M") or len(self._M) != K:
-            self._M = self.rng.normal(0.0, 1.0 / np.sqrt(2.0), (K, 2, 2))
-        return self.scale * self._M
-
-    def readings(self, ctx, w):
-        M = self.matrices(w.shape[1])
-        cs = np.stack([np.cos(ctx.phi), np.sin(ctx.phi)], axis=-1)  # (N, K, 2)
-        out = w.copy()
-        out[..., :2] += np.einsum("kij,nkj->nki", M, cs)
-        return out
-
-
 class CasingLoad(Effect):
     name = "casing_load"
     description = "a parasitic load on the transducer that depends on shaft angle but not on gravity"
     explains = "shaft_angle"
-    magnitude = Magnitude("N, amplitude of the shaft-angle dependent force", (0.3, 1.5), 1.0)
+    magnitude = CasingLoadInjector.magnitude
     injector_cls = CasingLoadInjector
     shifts_offsets = True
 
@@ -305,36 +211,11 @@ class CasingLoad(Effect):
 # ----------------------------------------------------------------------------- chassis flex
 
 
-class ChassisFlexInjector(EffectInjector):
-    """The transducer tilts by ``scale`` degrees per 20 N of its own vertical load (axis horizontal in B)."""
-
-    name = "chassis_flex"
-
-    def axes(self, truth) -> np.ndarray:
-        """Rotation per newton of vertical load, rad/N, in ft_k (K, 3)."""
-        K = len(truth.legs)
-        if not hasattr(self, "_c") or len(self._c) != K:
-            ang = self.rng.uniform(0, 2 * np.pi, K)
-            amp = self.rng.uniform(0.7, 1.3, K)
-            c_B = np.stack([np.cos(ang), np.sin(ang), np.zeros(K)], axis=1) * amp[:, None]
-            self._c = np.einsum("kji,kj->ki", truth.R, c_B)  # R_k^T c_B
-        return self.scale * _DEG / REF_FORCE_N * self._c
-
-    def readings(self, ctx, w):
-        truth = ctx.truth
-        n = truth.R[:, 2, :]  # R_k^T e_z: the ft axis vertical in B
-        load = np.einsum("ki,nki->nk", n, ctx.applied[..., :3])
-        delta = self.axes(truth)[None] * load[..., None]
-        wa = ctx.applied
-        rot = np.concatenate([rotvec_rotate(-delta, wa[..., :3]), rotvec_rotate(-delta, wa[..., 3:])], axis=-1)
-        return w - wa + rot
-
-
 class ChassisFlex(Effect):
     name = "chassis_flex"
     description = "a transducer's mounting rotation changes with its load"
     explains = "load"
-    magnitude = Magnitude("deg of tilt per 20 N of the transducer's vertical load", (0.3, 1.0), 1.0)
+    magnitude = ChassisFlexInjector.magnitude
     injector_cls = ChassisFlexInjector
     shifts_offsets = True
 

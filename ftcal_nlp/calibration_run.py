@@ -1,0 +1,160 @@
+"""``CalibrationRun``: everything :func:`ftcal_nlp.calibrate` produced, in memory.
+
+It holds the stage results (hanging, pose extraction, model selection,
+standing, the report's baselines beside them, the diagnosis), the
+:class:`~ftcal_nlp.calibration.Calibration` they make, the per-foot ground
+wrenches of the walking recordings, stage times and notes. Reports render from
+it; ``run.py`` writes it to files. It follows the results protocol of
+``results.py``: ``params``, ``bse``, ``cov_params()``, ``conf_int()`` and
+``summary()`` over every calibrated parameter, hanging and standing together.
+
+Joint covariance. The standing fit conditions on the hanging estimates (offsets
+``w_o`` and leg weights ``m_k g`` enter its balance). Its estimates therefore
+move with them, ``theta_s = theta_s(theta_h)``, and the standing block of the
+joint covariance is the conditional one plus the propagated hanging part,
+
+    Cov(theta_s) = Cov(theta_s | theta_h) + G Cov(theta_h) G^T,   Cov(theta_s, theta_h) = G Cov(theta_h),
+
+with ``G = d theta_s / d theta_h`` from the implicit-function theorem at the
+standing optimum (``StandingResult.sensitivity``). When the standing result
+carries no sensitivity (baseline solver) the blocks are joined as independent
+and ``joint_covariance`` says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from . import naive
+from .calibration import Calibration
+from .data import Dataset
+from .results import ResultsMixin, Summary, fmt_pm
+from .settings import CalibrationSettings
+
+__all__ = ["CalibrationRun"]
+
+
+@dataclass
+class CalibrationRun(ResultsMixin):
+    """The result of :func:`ftcal_nlp.calibrate` (module docstring).
+
+    ``hanging``/``hanging_baseline``: :class:`~ftcal_nlp.hanging.HangingResult` (None in an
+    offsets-only run); ``poses``: :class:`~ftcal_nlp.standing.Poses`; ``selection``:
+    :class:`~ftcal_nlp.selection.SelectionResult` (None for a fixed model);
+    ``standing``/``standing_baseline``: :class:`~ftcal_nlp.standing.StandingResult`;
+    ``diagnosis``: the diagnosis result or None; ``truth``: the dataset's
+    ``truth.json`` when it has one; ``corrected``: recording name -> ground-wrench
+    table (``OUTPUT_FORMAT.md`` columns); ``timings``/``cpu_timings``: stage -> wall / CPU seconds.
+    """
+
+    settings: CalibrationSettings
+    dataset: Dataset
+    calibration: Calibration
+    hanging: Any = None
+    hanging_baseline: Any = None
+    poses: Any = None
+    selection: Any = None
+    standing: Any = None
+    standing_baseline: Any = None
+    diagnosis: Any = None
+    truth: Calibration | None = None
+    corrected: dict[str, pd.DataFrame] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    cpu_timings: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    _joint: tuple | None = field(default=None, repr=False)
+
+    # ------------------------------------------------------------------ results protocol
+
+    def _stages(self) -> list:
+        return [r for r in (self.hanging, self.standing) if r is not None]
+
+    def joint_covariance(self) -> tuple[pd.Series, np.ndarray, np.ndarray, str]:
+        """``(params, cov, bse, how)`` over hanging and standing parameters (module docstring)."""
+        if self._joint is not None:
+            return self._joint
+        stages = self._stages()
+        params = pd.concat([s.params for s in stages]) if stages else pd.Series(dtype=float)
+        n = len(params)
+        cov = np.zeros((n, n))
+        bse = np.concatenate([s._bse_array() for s in stages]) if stages else np.zeros(0)
+        i = 0
+        for s in stages:
+            m = len(s.params)
+            cov[i : i + m, i : i + m] = np.nan_to_num(s._cov_array(), nan=0.0, posinf=0.0)
+            i += m
+        how = "hanging only" if self.standing is None else "standing only (offsets-only run)" if self.hanging is None else "independent blocks"
+        G = getattr(self.standing, "sensitivity", None) if self.standing is not None and self.hanging is not None else None
+        if G is not None:
+            nh = len(self.hanging.params)
+            Gm = G.reindex(index=self.standing.params.index, columns=self.hanging.params.index).fillna(0.0).to_numpy()
+            hb = self.hanging._bse_array()
+            Gm[:, ~np.isfinite(hb)] = 0.0  # undetermined hanging parameters carry no finite covariance to pass on
+            Ch = cov[:nh, :nh]
+            cov[nh:, nh:] += Gm @ Ch @ Gm.T
+            cov[nh:, :nh] = Gm @ Ch
+            cov[:nh, nh:] = cov[nh:, :nh].T
+            sb = bse[nh:]
+            fin = np.isfinite(sb)
+            sb[fin] = np.sqrt(np.clip(np.diag(cov[nh:, nh:])[fin], 0, None))
+            bse[nh:] = sb
+            how = "standing conditional on hanging plus the propagated hanging covariance"
+        self._joint = (params, cov, bse, how)
+        return self._joint
+
+    @property
+    def params(self) -> pd.Series:
+        return self.joint_covariance()[0]
+
+    def _bse_array(self) -> np.ndarray:
+        return self.joint_covariance()[2]
+
+    def _cov_array(self) -> np.ndarray:
+        return self.joint_covariance()[1]
+
+    def summary(self) -> Summary:
+        """Key facts of the run, then the stage summaries' tables."""
+        facts = [("robot", f"{len(self.dataset.robot.legs)} legs, {self.dataset.robot.mass_kg:g} kg"),
+                 ("recordings", f"{len(self.dataset.hanging)} hanging, {len(self.dataset.standing)} standing, "
+                                f"{len(self.dataset.walking)} walking"),
+                 ("model", str(self.calibration.model))]
+        if self.poses is not None:
+            facts.append(("poses", " -> ".join(f"{v} {k}" for k, v in self.poses.counts.items())))
+        if self.selection is not None:
+            facts.append(("model selection", f"{self.selection.folds}-fold CV and BIC chose {self.selection.best}"))
+        facts.append(("covariance", self.joint_covariance()[3]))
+        if self.diagnosis is not None:
+            facts.append(("diagnosis", f"{self.diagnosis.verdict}" + (f" ({self.diagnosis.effect})" if self.diagnosis.effect else "")))
+        s = Summary("ftcal_nlp calibration run", facts)
+        for stage in self._stages():
+            sub = stage.summary()
+            s.tables += sub.tables
+            s.notes += sub.notes
+        s.notes += list(self.notes)
+        return s
+
+    # ------------------------------------------------------------------ what the robot reads without the calibration
+
+    def naive_total_residuals(self) -> np.ndarray:
+        """(P, 6) naive-tare total-wrench residual at the poses, W axes about B (``naive.py``)."""
+        robot = self.dataset.robot
+        return naive.naive_total_residuals(self.poses.w_m, self.poses.R_WB, naive.naive_bias(self.dataset.hanging, robot), robot)
+
+    def no_transformation_error_residuals(self) -> np.ndarray:
+        """(P, 6) exact-balance residual with nominal transducer poses and one CoM shift (``naive.py``)."""
+        robot = self.dataset.robot
+        offsets, weights, _, _ = self.calibration.stacked(robot.legs)
+        return naive.no_transformation_error_residuals(self.poses.w_m, self.poses.R_WB, offsets, weights, robot)
+
+    def naive_ground_wrenches(self, rec) -> tuple[np.ndarray, np.ndarray]:
+        """Naive-tare per-foot wrenches of recording ``rec`` and its row mask (``naive.py``)."""
+        robot = self.dataset.robot
+        return naive.naive_ground_wrenches(rec, naive.naive_bias(self.dataset.hanging, robot), robot)
+
+    def format_param(self, name: str, scale: float = 1.0) -> str:
+        """One parameter as ``value ± se`` (times ``scale``)."""
+        return fmt_pm(float(self.params[name]), float(self.bse[name]), scale=scale)

@@ -1,0 +1,170 @@
+"""The sim-to-real gap diagnosis in the report: its section, tables and figures.
+
+Drawn from a :class:`~ftcal_nlp.diagnose.DiagnosisResult` only (no solving):
+the plain-language statement, the held-out RMS before / after the named effect
+beside the noise floor, every candidate effect, the residual per recording
+kind, and two figures (shrinkage; the strongest dependence of the residual).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from ..data import WRENCH_COMPONENTS
+from ..results import PM
+from .render import Figure, Section, Table, Text
+
+if TYPE_CHECKING:
+    from ..diagnose import DiagnosisResult
+
+__all__ = ["diagnosis_section", "fig_shrinkage", "fig_dependence", "shrinkage_table", "ranking_view", "kinds_view"]
+
+
+def _unit(component: str) -> str:
+    return "N" if component.startswith("f") else "N*m"
+
+
+def _g(v: float, digits: int = 3) -> str:
+    return f"{v:.{digits}g}" if np.isfinite(v) else "n/a"
+
+
+def shrinkage_table(d: "DiagnosisResult") -> pd.DataFrame:
+    """Held-out RMS per component before and after the named effect, and the noise floor."""
+    sh = d.shrinkage
+    rows = {"held-out RMS, calibrated model": sh["heldout_rms_before"]}
+    if d.effect:
+        rows[f"held-out RMS with {d.effect}"] = sh["heldout_rms_after"]
+    rows["noise floor"] = sh["noise_floor"]
+    cols = [f"{c} [{_unit(c)}]" for c in WRENCH_COMPONENTS]
+    df = pd.DataFrame({k: [_g(v) for v in np.asarray(r, float)] for k, r in rows.items()}, index=cols).T
+    df.index.name = f"{sh.get('kind', 'standing')} recordings"
+    return df
+
+
+def ranking_view(d: "DiagnosisResult") -> pd.DataFrame:
+    """Every candidate, best first: delta BIC, share of the gap explained, held-out RMS after (forces, torques), status."""
+    t = d.ranking_table()
+    f_cols = [f"{c} after [N]" for c in WRENCH_COMPONENTS[:3]]
+    t_cols = [f"{c} after [N*m]" for c in WRENCH_COMPONENTS[3:]]
+    out = pd.DataFrame(index=t.index)
+    out["delta BIC"] = [f"{v:.1f}" if np.isfinite(v) else "n/a" for v in t["delta BIC"]]
+    out["explains [%]"] = [f"{100 * v:.0f}" for v in t["explained"]]
+    out["held-out RMS fx fy fz [N]"] = [" ".join(_g(v) for v in r) for r in t[f_cols].to_numpy(float)]
+    out["held-out RMS tx ty tz [N*m]"] = [" ".join(_g(v) for v in r) for r in t[t_cols].to_numpy(float)]
+    out["status"] = t["status"]
+    return out
+
+
+def kinds_view(d: "DiagnosisResult") -> pd.DataFrame:
+    """Per recording kind: gap, RMS / floor per component, constant share and what the residual follows."""
+    t = d.kinds_table()
+    out = pd.DataFrame(index=t.index)
+    out["gap"] = t["gap"]
+    for c in WRENCH_COMPONENTS:
+        u = _unit(c)
+        out[f"{c} RMS / floor [{u}]"] = [f"{_g(a)} / {_g(b, 2)}" for a, b in zip(t[f"{c} RMS [{u}]"], t[f"{c} floor [{u}]"])]
+    out["constant share"] = [f"{v:.2f}" for v in t["constant share"]]
+    out["follows"] = t["follows"]
+    return out
+
+
+def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
+    """The report's diagnosis section; draws its figures into ``folder``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    sec = Section("Sim-to-real gap diagnosis")
+    verdict = {"none": "no gap above the noise floor", "effect": f"the gap is explained by **{d.effect}**",
+               "unexplained": "a gap that no candidate effect explains"}[d.verdict]
+    sec.add(Text(f"**Verdict: {d.verdict}**" + ("." if d.statement else f" ({verdict}).")))
+    for line in d.statement:
+        sec.add(Text(line))
+    sec.add(Text("Candidates are ranked by the change of BIC (delta BIC, negative: better than the calibrated model) on the "
+                 "recordings where the gap lies; every held-out number comes from cross-validation folds (standing) or "
+                 "contiguous time blocks (hanging, walking) that the candidate was not fitted to. Noise floors come from the "
+                 "data: within-pose scatter, high-frequency scatter and the part of the residual no measured variable predicts."))
+    sec.add(Table("Held-out RMS per component and the noise floor", shrinkage_table(d)))
+    sec.add(Figure("diagnosis_shrinkage.png", fig_shrinkage(d, folder / "diagnosis_shrinkage.png"),
+                   "Held-out RMS of the calibrated model" + (f", with {d.effect} added," if d.effect else "")
+                   + " and the noise floor, per component (log scale)."))
+    dep = fig_dependence(d, folder / "diagnosis_dependence.png")
+    if dep is not None:
+        sec.add(Figure("diagnosis_dependence.png", dep,
+                       "The residual component with the largest gap against the measured variable that explains it best; "
+                       f"the grey band is {PM} the noise floor."))
+    sec.add(Table("Candidate effects, best first", ranking_view(d)))
+    sec.add(Table("Residual by recording kind (held-out RMS / noise floor)", kinds_view(d)))
+    return sec
+
+
+def fig_shrinkage(d: "DiagnosisResult", path: Path) -> Path:
+    """Held-out RMS per component before and after the named effect, beside the noise floor (log scale)."""
+    sh = d.shrinkage
+    before, after, floor = (np.asarray(sh[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))
+    bars = [(before, "tab:blue", "held-out, calibrated model")]
+    if d.effect:
+        bars.append((after, "tab:orange", f"held-out, with {d.effect}"))
+    bars.append((floor, "0.6", "noise floor"))
+    w = 0.8 / len(bars)
+    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.8))
+    for ax, sl, unit in ((axes[0], slice(0, 3), "N"), (axes[1], slice(3, 6), "N*m")):
+        x = np.arange(3)
+        for i, (vals, color, label) in enumerate(bars):
+            ax.bar(x + (i - (len(bars) - 1) / 2) * w, vals[sl], w, color=color, label=label)
+        ax.set_xticks(x, WRENCH_COMPONENTS[sl])
+        ax.set_yscale("log")
+        ax.set_ylabel(f"RMS [{unit}]")
+        ax.grid(axis="y", which="both", alpha=0.3)
+    h, l = axes[0].get_legend_handles_labels()
+    fig.legend(h, l, loc="upper center", ncol=len(bars), fontsize=8, bbox_to_anchor=(0.5, 0.93), frameon=False)
+    fig.suptitle(f"Gap in the {sh.get('kind', 'standing')} recordings: verdict {d.verdict}" + (f" ({d.effect})" if d.effect else ""),
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.88))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def fig_dependence(d: "DiagnosisResult", path: Path) -> Path | None:
+    """The residual component with the largest gap against the variable that explains it best."""
+    loc = d.localisation.get(d.shrinkage.get("kind_key", d.shrinkage.get("kind", "standing")))
+    if loc is None or not loc.plot or "x" not in loc.plot:
+        return None
+    p = loc.plot
+    x, y = np.asarray(p["x"], float), np.asarray(p["y"], float)
+    n = len(x)
+    if n > 6000:  # a readable scatter of long recordings
+        idx = np.random.default_rng(0).choice(n, 6000, replace=False)
+        xs, ys = x[idx], y[idx]
+    else:
+        xs, ys = x, y
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    fl = float(p.get("floor", np.nan))
+    if np.isfinite(fl):
+        ax.axhspan(-fl, fl, color="0.8", alpha=0.6, label=f"{PM} noise floor", zorder=0)
+    ax.plot(xs, ys, ".", ms=2.5, alpha=0.5, color="tab:blue", label="held-out residual")
+    if np.ptp(x) > 0 and n >= 20:
+        edges = np.quantile(x, np.linspace(0, 1, 16))
+        mid, med = [], []
+        for a, b in zip(edges[:-1], edges[1:]):
+            sel = (x >= a) & (x <= b)
+            if sel.sum() >= 3:
+                mid.append(0.5 * (a + b))
+                med.append(np.median(y[sel]))
+        ax.plot(mid, med, "-", color="tab:red", lw=2, label="binned median")
+    comp = p.get("component", "")
+    unit = _unit(comp) if comp else ""
+    leg = f" (leg {p['leg']})" if "leg" in p else ""
+    ax.set_xlabel(p.get("xlabel", ""))
+    ax.set_ylabel(f"{loc.kind} residual {comp}{leg} [{unit}]")
+    ax.set_title(f"Strongest dependence: {loc.top or 'none above the threshold'}", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

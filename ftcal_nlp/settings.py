@@ -1,0 +1,164 @@
+"""Settings of every stage: the one place their defaults live.
+
+A run config (``config.py``, TOML) fills these frozen dataclasses; Python users
+build them directly and pass them to :func:`ftcal_nlp.calibrate` or to a stage
+(``fit_hanging(..., settings=HangingSettings(...))``). Stage functions take a
+settings object and keyword overrides of its fields; they never restate the
+defaults in their own signatures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+from .models import REPORT_CANDIDATES
+from .solver import REL_EIG_TOL
+
+__all__ = ["PoseExtraction", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
+           "OffsetsOnlySettings", "CalibrationSettings", "with_overrides"]
+
+T = TypeVar("T")
+
+
+def with_overrides(settings: T | None, cls: type[T], overrides: dict[str, Any], where: str) -> T:
+    """``settings`` (default ``cls()``) with the keyword ``overrides`` applied; unknown keys name the known ones.
+
+    Asking for the report's baseline standing solver by keyword implies its K-norm (``weighting``)
+    unless a weighting is given too (then a contradiction is an error, as in a config file)."""
+    s = cls() if settings is None else settings
+    if cls is StandingSettings and overrides.get("solver") == "baseline" and "weighting" not in overrides:
+        overrides = {**overrides, "weighting": "knorm"}
+    if not isinstance(s, cls):
+        raise TypeError(f"{where}: settings must be a {cls.__name__}, got {type(s).__name__}")
+    known = {f.name for f in fields(cls)}
+    bad = sorted(set(overrides) - known)
+    if bad:
+        raise TypeError(f"{where}: unknown setting(s) {bad}; known: {sorted(known)}")
+    return replace(s, **overrides) if overrides else s
+
+
+@dataclass(frozen=True)
+class PoseExtraction:
+    """Settings of the steady-pose detector (report Sec. I-B); thresholds in SI units."""
+
+    window_s: float = 0.31                  # Savitzky-Golay window; rounded to an odd number of samples
+    deriv_threshold_N_s: float = 1.0        # steady when the force-derivative norm is below this
+    min_steady_s: float = 1.5               # shortest steady run that makes a pose
+    polyorder: int = 2                      # the report's 2nd-order filter
+    deriv_norm: str = "legs"                # "legs": norm over all legs' force derivatives; "total": of their sum
+    phi_rate_threshold_rad_s: float = 0.05  # a shaft moving faster than this separates two candidate poses
+    max_mocap_missing: float = 0.0          # largest fraction of NaN orientations tolerated in a steady run
+    max_gap_factor: float = 3.0             # time gaps over this many sample periods split the recording
+
+    def __post_init__(self) -> None:
+        if self.deriv_norm not in ("legs", "total"):
+            raise ValueError(f"PoseExtraction.deriv_norm: expected 'legs' or 'total', got {self.deriv_norm!r}")
+        for name in ("window_s", "deriv_threshold_N_s", "min_steady_s", "phi_rate_threshold_rad_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"PoseExtraction.{name}: expected a positive number, got {getattr(self, name)!r}")
+        if not 0.0 <= self.max_mocap_missing <= 1.0:
+            raise ValueError(f"PoseExtraction.max_mocap_missing: expected a fraction in [0, 1], got {self.max_mocap_missing!r}")
+
+
+HANGING_METHODS = ("nlp", "baseline")
+STANDING_SOLVERS = ("ipopt", "baseline")
+BALANCES = ("exact", "report")
+WEIGHTINGS = ("fgls", "knorm")
+COVARIANCES = ("gauss_newton", "sandwich")
+
+
+def _choice(cls: str, name: str, value, choices, what: str | None = None) -> None:
+    if value not in choices:
+        raise ValueError(f"{cls}.{name}: unknown {what or name} {value!r}; known: {list(choices)}")
+
+
+@dataclass(frozen=True)
+class HangingSettings:
+    """Hanging stage (report Sec. III-A). ``smoothing``: ``"auto"`` (GCV) or the weight
+    ``lam`` (1/m^2) of the CoM curve's second-difference penalty; ``n_grid``: CoM grid points."""
+
+    method: str = "nlp"              # "nlp" or "baseline" (the report's own procedure)
+    n_grid: int = 72
+    smoothing: float | str = "auto"
+    compare_baseline: bool = True    # also fit the report's baseline for the comparison figures
+
+    def __post_init__(self) -> None:
+        _choice("HangingSettings", "method", self.method, HANGING_METHODS, "hanging method")
+        if not (isinstance(self.n_grid, int) and not isinstance(self.n_grid, bool) and self.n_grid >= 8):
+            raise ValueError(f"HangingSettings.n_grid: expected an integer >= 8, got {self.n_grid!r}")
+        if not (self.smoothing == "auto" or (isinstance(self.smoothing, (int, float)) and not isinstance(self.smoothing, bool)
+                                            and self.smoothing >= 0)):
+            raise ValueError(f"HangingSettings.smoothing: expected 'auto' or a non-negative number, got {self.smoothing!r}")
+
+
+@dataclass(frozen=True)
+class StandingSettings:
+    """Standing stage (report Sec. III-B) and the model it fits.
+
+    ``model``: ``"auto"`` (the candidate model selection prefers) or a registered
+    name / ``module:Class``; ``weighting``: the final fit's weight, ``"fgls"``
+    (two-step feasible GLS) or ``"knorm"`` (eq. 8's K; selection always uses K);
+    ``covariance``: ``"gauss_newton"`` or ``"sandwich"``; ``rel_eig_tol``: the
+    identifiability threshold (``solver.py``)."""
+
+    model: str = "auto"
+    candidates: tuple[str, ...] = REPORT_CANDIDATES
+    solver: str = "ipopt"            # "ipopt" or "baseline" (Cayley + alternating least squares)
+    balance: str = "exact"           # "exact" (physics.py (E)) or "report" (eq. 9)
+    weighting: str = "fgls"
+    covariance: str = "gauss_newton"
+    rel_eig_tol: float = REL_EIG_TOL
+    compare_baseline: bool = True
+    poses: PoseExtraction = field(default_factory=PoseExtraction)
+
+    def __post_init__(self) -> None:
+        _choice("StandingSettings", "solver", self.solver, STANDING_SOLVERS)
+        _choice("StandingSettings", "balance", self.balance, BALANCES)
+        _choice("StandingSettings", "weighting", self.weighting, WEIGHTINGS)
+        _choice("StandingSettings", "covariance", self.covariance, COVARIANCES)
+        if self.solver == "baseline" and self.weighting != "knorm":
+            raise ValueError(f"StandingSettings: weighting {self.weighting!r} needs solver 'ipopt': "
+                             'solver = "baseline" is the report\'s K-norm method; set weighting = "knorm"')
+
+
+@dataclass(frozen=True)
+class SelectionSettings:
+    """Model selection (report Sec. IV-2): ``folds``-fold cross-validation with a seeded split, and BIC."""
+
+    folds: int = 5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.folds, int) and self.folds >= 2):
+            raise ValueError(f"SelectionSettings.folds: expected an integer >= 2, got {self.folds!r}")
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """Sim-to-real gap diagnosis: ``effects`` the candidate names (None: the whole library),
+    ``folds``/``seed`` its cross-validation."""
+
+    enabled: bool = True
+    effects: tuple[str, ...] | None = None
+    folds: int = 5
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class OffsetsOnlySettings:
+    """Re-estimate offsets alone from standing poses, keeping an earlier calibration (report Sec. V)."""
+
+    calibration: Path | None = None
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Everything :func:`ftcal_nlp.calibrate` needs besides the dataset."""
+
+    hanging: HangingSettings = field(default_factory=HangingSettings)
+    standing: StandingSettings = field(default_factory=StandingSettings)
+    selection: SelectionSettings = field(default_factory=SelectionSettings)
+    diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
+    seed: int = 0
