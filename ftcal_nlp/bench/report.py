@@ -137,7 +137,8 @@ def fig_z(acc: dict, path: Path, pipeline: str = "nlp") -> Path:
 def speed_table(sp: dict) -> pd.DataFrame:
     t = sp["times"]
     order = ["load", "poses", "hanging", "model selection", "standing", "calibrate() without diagnosis", "diagnosis",
-             "calibrate() with diagnosis", "report"]
+             "calibrate() with diagnosis", "report", "whole run (python -m ftcal_nlp.run) without diagnosis",
+             "whole run (python -m ftcal_nlp.run) with diagnosis"]
     rows = []
     for st in order:
         d = t[t.stage == st].set_index("method")
@@ -276,6 +277,11 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
                    f"wall ({cpu:.2f} s CPU), target < {TARGET_CALIBRATION_S:g} s: **{status}**; baseline {totb:.2f} s "
                    f"(NLP {'no slower' if tot <= totb else 'slower'} than the baseline: ratio baseline/NLP {totb / tot:.2f}).")
         out += [head, "", md_table(speed_table(sp)), "", verdict, ""]
+        tn = sp["totals"]["nlp"]
+        if "whole_run_with_diagnosis_wall_s" in tn:
+            a, b = tn["whole_run_with_diagnosis_wall_s"], tn["whole_run_without_diagnosis_wall_s"]
+            out += [f"Whole run (`python -m ftcal_nlp.run`: load, calibrate, files, report) with the diagnosis **{a:.1f} s**, "
+                    f"without **{b:.1f} s**: ratio {a / b:.2f} (target <= 3: **{'MET' if a <= 3 * b else 'NOT MET'}**).", ""]
     if sc is not None and len(sc["exponents"]):
         ex = sc["exponents"].copy()
         ex = ex[["task", "size", "n_min", "n_max", "time_exponent", "time_exponent_upper", "memory_exponent", "time_at_max_s", "peak_rss_at_max_mb"]]

@@ -60,6 +60,7 @@ class SpeedSettings:
     sim_overrides: dict = field(default_factory=dict)   # SimConfig fields; empty: the default problem
     folds: int = 5
     diagnosis: bool = True                               # also time calibrate() with the diagnosis
+    whole_run: bool = True                               # also time ftcal_nlp.run.run (load .. report) with and without it
 
 
 def timed(fn: Callable, repeats: int) -> tuple[object, list[float], list[float]]:
@@ -96,6 +97,24 @@ def _time_calibrate(ds, cs: CalibrationSettings, repeats: int):
             stage_w.setdefault(k, []).append(v)
             stage_c.setdefault(k, []).append(run.cpu_timings.get(k, np.nan))
     return run, walls, cpus, stage_w, stage_c
+
+
+def _time_whole_run(manifest: Path, tmp: Path, diagnosis: bool, folds: int, repeats: int) -> tuple[list[float], list[float]]:
+    """Wall/CPU of ``ftcal_nlp.run.run`` on the written dataset (load, calibrate, files, report), the run's
+    own defaults but for the diagnosis switch and the folds."""
+    import contextlib
+    import io
+
+    from ..config import load_config
+    from ..run import run
+
+    cfg_path = tmp / f"whole_{int(diagnosis)}.toml"
+    cfg_path.write_text(f'[data]\nmanifest = "{manifest}"\n[output]\ndir = "{tmp / f"whole_out_{int(diagnosis)}"}"\n'
+                        f"[selection]\nfolds = {folds}\n[diagnose]\nenabled = {'true' if diagnosis else 'false'}\nfolds = {folds}\n")
+    cfg = load_config(cfg_path)
+    with contextlib.redirect_stdout(io.StringIO()):  # run prints its end summary
+        _, walls, cpus = timed(lambda: run(cfg, force=True), repeats)
+    return walls, cpus
 
 
 def run_speed(settings: SpeedSettings = SpeedSettings(), progress: bool = True) -> dict:
@@ -141,6 +160,12 @@ def run_speed(settings: SpeedSettings = SpeedSettings(), progress: bool = True) 
         out_dir.mkdir()
         _, w, c = timed(lambda: write_report(report_run, out_dir), 1)
         rows.append(_row("report", "shared", w, c))
+        if settings.whole_run:
+            for diag in (False, True):
+                walls, cpus = _time_whole_run(manifest, Path(tmp), diag, settings.folds, R)
+                label = "whole run (python -m ftcal_nlp.run) " + ("with" if diag else "without") + " diagnosis"
+                rows.append(_row(label, "nlp", walls, cpus))
+                totals["nlp"]["whole_run_" + ("with" if diag else "without") + "_diagnosis_wall_s"] = float(np.median(walls))
         bar.update()
     bar.close()
     times = pd.DataFrame(rows)
