@@ -58,7 +58,7 @@ def stage(name: str, timings: dict[str, float], cpu: dict[str, float] | None = N
     log.info("[%s] done in %.2f s", name, timings[name])
 
 
-def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float]) -> tuple[HangingResult, HangingResult | None]:
+def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float], notes: list[str]) -> tuple[HangingResult, HangingResult | None]:
     with stage("hanging", timings, cpu):
         hang = fit_hanging(ds.hanging, ds.robot, s.hanging)
         for leg in hang.legs.values():
@@ -67,7 +67,11 @@ def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu
     base = None
     if s.hanging.compare_baseline and s.hanging.method != "baseline":
         with stage("hanging (baseline)", timings, cpu):
-            base = fit_hanging(ds.hanging, ds.robot, s.hanging, method="baseline")
+            try:
+                base = fit_hanging(ds.hanging, ds.robot, s.hanging, method="baseline")
+            except (DataFormatError, SolverError) as exc:  # a comparison that cannot run is skipped, not fatal
+                log.warning("the report's baseline hanging calibration was skipped: %s", exc)
+                notes.append(f"the report's baseline hanging calibration was skipped: {exc}")
     return hang, base
 
 
@@ -115,7 +119,7 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
         prior = offsets_only
         log.info("offsets-only re-estimation from an earlier calibration (model %s)", prior.model)
     else:
-        hang, hang_base = _hanging(ds, s, timings, cpu)
+        hang, hang_base = _hanging(ds, s, timings, cpu, notes)
         prior = hang.to_calibration(robot)
     poses = _poses(ds, s, timings, cpu)
 

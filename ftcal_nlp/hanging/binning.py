@@ -125,9 +125,19 @@ def compress_recording(name: str, phi: np.ndarray, y: np.ndarray, n_grid: int) -
     S_xx, S_xy, S_yy = sufficient_stats(phi, y, n_grid)
     support = S_xx.sum(axis=1)  # sum_i w_ig: the weights of a sample add up to 1
     idx = np.flatnonzero(support > 1e-9 * len(phi))
-    L = np.linalg.cholesky(S_xx[np.ix_(idx, idx)])
-    X = np.zeros((len(idx), n_grid))
-    X[:, idx] = L.T
-    Y = np.linalg.solve(L, S_xy[idx])
+    S = S_xx[np.ix_(idx, idx)]
+    try:
+        L = np.linalg.cholesky(S)
+        X = np.zeros((len(idx), n_grid))
+        X[:, idx] = L.T
+        Y = np.linalg.solve(L, S_xy[idx])
+    except np.linalg.LinAlgError:
+        # Fewer samples than supported grid points nearby (a fast shaft): S_xx is singular. The
+        # symmetric square root on its range is exact too (X~^T X~ = S_xx, X~^T Y~ = S_xy), only dense.
+        lam, V = np.linalg.eigh(S)
+        keep = lam > 1e-12 * lam.max()
+        X = np.zeros((int(keep.sum()), n_grid))
+        X[:, idx] = np.sqrt(lam[keep])[:, None] * V[:, keep].T
+        Y = (V[:, keep].T @ S_xy[idx]) / np.sqrt(lam[keep])[:, None]
     pure = np.maximum(S_yy - np.einsum("kc,kc->c", Y, Y), 0.0)
     return RecordingStats(name, len(phi), X, Y, pure, support, float(np.ptp(phi)))
