@@ -43,7 +43,6 @@ import numpy as np
 from ..selection import fold_indices
 from .effects import Effect, design_check
 from .linear_fit import base_linear, recalibrate, score_linear
-from .localise import standing_nugget
 from .scores import KindScore
 from ..solver import SolverError
 from .standing_fit import AugmentedProblem
@@ -150,10 +149,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
         fidx = fold_indices(sv.P, folds, seed)
         x0 = base_prob.x0 if x_start is None or len(x_start) != base_prob.n_model else x_start
         xb, dof_b, held0, in0 = _standing_cv(base_prob, sv, fidx, x0)
-        offsets = prior.stacked(robot.legs)[0]
-        nugget = standing_nugget(sv, held0, offsets)
-        sv = replace(sv, floor=np.maximum(sv.floor, nugget), floor_parts={**sv.floor_parts, "nugget": nugget})
-        views = replace(views, standing=sv)
+        # the floor is the noise model's (floor.py), never raised from the residual it is compared with
         base["standing"] = _kind_score("standing", sv.floor, held0, held0, in0, in0, 0)
         base_off = _transforms(base_prob, xb)[1]
         if rotations_free(base_prob):

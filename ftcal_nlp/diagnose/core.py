@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -32,6 +31,7 @@ from .attribute import (
     ranking_bic,
 )
 from .effects import resolve_effects
+from .perleg import perleg_checks
 from .localise import (
     components_with_gap,
     describe,
@@ -39,7 +39,6 @@ from .localise import (
     localise_series,
     localise_standing,
     standing_legs,
-    standing_nugget,
     strongest_dependence,
 )
 from .result import DiagnosisResult
@@ -87,7 +86,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     sv = None
     if poses is not None and poses.n >= 2 * s.folds:
         spec = resolve(model).build(ModelContext(legs, robot.nominal_rotations(), robot.nominal_positions(), prior))
-        sv = standing_view(dataset, poses, calibration, prior, robot, t_ref, spec.n_dof, s.folds)
+        sv = standing_view(dataset, poses, calibration, prior, robot, t_ref, spec.n_dof, s.folds, balance=balance, model=model, seed=s.seed)
     elif poses is not None:
         notes.append(f"only {poses.n} standing poses: too few for {s.folds}-fold cross-validation; standing not diagnosed")
     hs = hanging_series(hang_recs, hanging_result, robot, t_ref) if (hanging_result is not None and hang_recs) else None
@@ -97,18 +96,6 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     verdict, effect, gap = decide(att)
     views = att.views or views
 
-    if verdict == "effect" and views.standing is not None and effect in att.standing_after:
-        # The nugget of the gap decision holds whatever of the effect the families cannot express;
-        # with the effect added, what is left is the floor to report.
-        sv2 = views.standing
-        nug = standing_nugget(sv2, att.standing_after[effect], prior.stacked(legs)[0])
-        fl = np.maximum(sv2.floor_parts["within"], np.minimum(sv2.floor, nug))
-        views = replace(views, standing=replace(sv2, floor=fl, floor_parts={**sv2.floor_parts, "nugget_after": nug}))
-        if "standing" in att.base:
-            att.base["standing"] = replace(att.base["standing"], floor=fl)
-            for sc in att.scores:
-                if "standing" in sc.kinds:
-                    sc.kinds["standing"] = replace(sc.kinds["standing"], floor=fl)
     loc = {}
     if views.standing is not None and att.standing_heldout is not None:
         loc["standing"] = localise_standing(views.standing, att.standing_heldout, prior.stacked(legs)[0], att.folds, legs)
@@ -134,6 +121,13 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
         elif "design" in gap:
             where["explains"] = "body_tilt"
             where["components"] = ["fx", "fy"]
+    perleg = None
+    if poses is not None:
+        perleg = perleg_checks(dataset, calibration, poses, robot, folds=s.folds, seed=s.seed, balance=balance, swing=sw)
+    noise_statement = views.standing.floor_parts.get("statement") if views.standing is not None else None
+    verdict, effect, where, evidence_notes = _weigh_evidence(verdict, effect, where, perleg, loc, phys, noise_statement)
+    if verdict == "none" and noise_statement and noise_statement not in evidence_notes:
+        evidence_notes.append(noise_statement)
     base = att.base.get(primary)
     by_name = {sc.effect: sc for sc in att.scores}
     before = base.rms_before if base is not None else np.full(6, np.nan)
@@ -150,13 +144,58 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
                         "explained": explained_fraction(sc, gap) if gap else 0.0, "status": sc.status, "note": sc.note})
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
-    statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where)
+    statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + list(evidence_notes)
     effect_fit = by_name[effect].fit if verdict == "effect" else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
-                           str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit)
+                           str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit, perleg,
+                           views.standing.floor_parts.get("noise_model") if views.standing is not None else None)
 
 
 PRIORITY = ("standing", "hanging", "walking swing")
+CONSTANT_SHARE_MIN = 0.3   # a constant bias this large a share of the held-out residual is structure too
+
+
+def _weigh_evidence(verdict: str, effect: str | None, where: dict, perleg, loc: dict, phys: dict, noise_statement: str | None = None):
+    """The verdict with the library-free evidence (``perleg.py``) and the localisation weighed in.
+
+    * An improper reading map on a leg (``det < 0``: swapped or sign-flipped axes) is something no
+      library effect produces: ``unexplained`` on that leg, whatever the library's best candidate.
+    * Per-leg findings that are not shared by most legs (a changed leg, a gain) and that no
+      library effect was named for: ``unexplained`` on those legs.
+    * ``unexplained`` needs evidence: a per-leg finding, a cross-validated dependence on a correlate
+      (``where.explains``) or a material constant bias. A gap with none of these is per-pose scatter
+      the noise model underrates: reported as noise (verdict ``none``) with its size.
+    Returns ``(verdict, effect, where, notes)``.
+    """
+    notes = []
+    findings = [f for f in (perleg.findings if perleg is not None else ()) if not f.shared]
+    improper = [k for k in perleg.linear_map.flagged
+                if any(perleg.linear_map.maps[k].improper(p) for p in perleg.linear_map.maps[k].parts)] if perleg is not None else []
+    where = dict(where)
+    if improper:
+        legs = list(dict.fromkeys(improper))
+        comps = sorted({c for f in findings if f.leg in legs for c in f.components}, key="fx fy fz tx ty tz".split().index)
+        notes += [f.statement for f in findings if f.leg in legs]
+        if effect is not None:
+            notes.append(f"The library's best candidate ({effect}) is set aside: an improper reading map is outside the library.")
+        return "unexplained", None, {**where, "legs": legs, "components": comps or where.get("components", [])}, notes
+    if findings and verdict != "effect":
+        legs = list(dict.fromkeys(f.leg for f in findings))
+        comps = sorted({c for f in findings for c in f.components}, key="fx fy fz tx ty tz".split().index)
+        notes += [f.statement for f in findings]
+        recs = where.get("recordings") or sorted({"standing" if f.kind == "linear_map" else "walking" for f in findings})
+        return "unexplained", None, {**where, "recordings": recs, "legs": legs, "components": comps}, notes
+    if verdict == "unexplained":
+        const = max((loc[k].constant_share for k in phys if k in loc), default=0.0)
+        if where.get("explains") is None and const < CONSTANT_SHARE_MIN and not findings:
+            notes.append("The held-out residual exceeds the noise floor without any structure: no cross-validated dependence on "
+                         "a correlate, no constant bias, no per-leg finding. Reported as measurement noise, not as a gap.")
+            if noise_statement:
+                notes.append(noise_statement)
+            return "none", None, {**where, "legs": [], "explains": None}, notes
+    if findings:
+        notes += [f.statement for f in findings]
+    return verdict, effect, where, notes
 
 
 def _primary(phys: dict, att, verdict: str, effect: str | None) -> str | None:
@@ -175,7 +214,7 @@ def _primary(phys: dict, att, verdict: str, effect: str | None) -> str | None:
 
 def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[str]:
     out = []
-    if verdict == "none":
+    if verdict == "none" and not gap:
         out.append("No gap above the noise floor: every recording kind's held-out residual is at its floor, so no candidate effect is called.")
     elif verdict == "effect":
         b, a, f = (np.asarray(shrink[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))

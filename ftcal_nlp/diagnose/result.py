@@ -48,6 +48,8 @@ class DiagnosisResult:
     time_s: float = float("nan")
     notes: tuple = ()
     effect_fit: Any = None  # the named effect's standing fit (results protocol: params, bse, cov_params, summary)
+    perleg: Any = None      # the library-free per-leg checks (perleg.PerLegFindings) or None
+    noise_model: dict | None = None  # the standing noise floor's parts (floor.py): readings, motion capture, fit
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:
@@ -94,6 +96,12 @@ class DiagnosisResult:
         if self.effect_fit is not None:
             p, se = self.effect_fit.effect_params, self.effect_fit.effect_bse
             out["effect_parameters"] = {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, v, e in zip(p.index, p, se)}
+        if self.noise_model is not None:
+            out["noise_floor_parts"] = self.noise_model
+        if self.perleg is not None:
+            out["per_leg_checks"] = [{"leg": f.leg, "check": f.kind, "components": list(f.components), "statement": f.statement,
+                                      "size": float(f.size), "z": float(f.z) if np.isfinite(f.z) else None, "shared": bool(f.shared)}
+                                     for f in self.perleg.findings]
         if self.notes:
             out["notes"] = list(self.notes)
         return out

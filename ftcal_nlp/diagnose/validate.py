@@ -1,21 +1,28 @@
-"""Withheld-effect validation (issue 7): simulate datasets with one hidden effect each (or none),
-calibrate, diagnose without being told, and score the verdicts.
+"""Withheld-effect validation: simulate datasets with one hidden effect each (or none), calibrate
+with the diagnosis on, and score what it says against what a correct diagnosis should say.
 
-``python -m ftcal_nlp.diagnose.validate problems/diagnose_validation.toml`` (and
-``python -m ftcal_nlp.run`` on a config with a ``[validation]`` table, once the
-run dispatches to :func:`main`). Config::
+``python -m ftcal_nlp.run problems/diagnose_validation.toml`` (any config with a
+``[validation]`` table; or ``python -m ftcal_nlp.diagnose.validate <config>``). Config::
 
     [validation]
-    n_datasets = 24            # datasets simulated
-    seed = 0                   # dataset i uses simulator seed seed * 1000 + i
-    effects = [...]            # effects to withhold (default: the whole library)
-    clean_share = 0.15         # share of datasets without any effect (false-alarm check)
-    magnitude = "realistic"    # "realistic": uniform in each effect's realistic range; "test": its test size
+    design = "sweep"           # "sweep" (issue 13, below) or "random" (issue 7: n_datasets drawn at random);
+                               # without it: "random" when the table has a random-only key, else "sweep"
+    seed = 0                   # dataset i uses simulator (and injector) seed seed * 1000 + i
+    n_clean = 6                # clean datasets (sweep)
+    effects = [...]            # library effects to withhold (default: the whole library)
+    variants = [...]           # off-face injectors (ftcal_nlp.sim.variants; default: all of them; sweep)
+    sizes = "realistic"        # sweep: "realistic" -> each effect's realistic low and high end;
+                               #        "test" -> its test size and half of it
+    tolerance = 1.5            # shrinkage goal: after / clean twin's floor <= this, every component
     model = "full"             # calibration error model (no model selection, for speed)
     folds = 5
-    workers = 1                # parallel processes (the machine's cores are shared: keep 1-2)
+    workers = 1                # joblib n_jobs (-1: every core; the machine's cores are shared: keep 1-2)
+    backend = "loky"           # joblib backend; "loky" = local processes
+    n_datasets = 24            # random design only: datasets, share of clean ones, "realistic" | "test"
+    clean_share = 0.15
+    magnitude = "realistic"
 
-    [validation.simulate]      # SimConfig overrides: reduced sizes keep a run near 10 minutes
+    [validation.simulate]      # SimConfig overrides: reduced sizes keep a run short
     n_poses = 200
     hanging_cycles = 3.0
     walk_cycles = 1.0
@@ -23,17 +30,39 @@ run dispatches to :func:`main`). Config::
     [output]
     dir = "../reports/diagnose_validation"
 
-``moving_com`` datasets are exact physics calibrated with the report's fixed-CoM
-balance (eq. 9); every other dataset uses the exact balance. Datasets cycle
-through ``[none] + effects`` (clean ones as ``clean_share`` asks), so every
-effect is withheld about equally often. Outputs: ``confusion.csv`` and
-``confusion.md`` (rows: withheld, columns: verdict), ``datasets.csv`` (one row
-per dataset) and ``summary.json`` (accuracy, false-alarm rate on clean data,
-shrinkage error, runtime).
+The sweep (issue 13, item 5) runs (a) ``n_clean`` clean datasets, (b) every library
+effect at two sizes, (c) every off-face variant at two sizes (effects whose realistic
+range is one value, the all-or-nothing faults and ``moving_com``, run that value twice,
+on two seeds), each on its own seed, and (d) for every dataset of (b) and (c) its clean
+twin: the same seed without the effect. What a correct diagnosis says: the effect's
+name for library effects; for a variant its ``expect`` (a library effect for a drift or
+casing load of another shape, ``unexplained`` on ``expect_legs`` for a fault outside the
+library, ``none`` for pure measurement noise). An effect outside the library counts as
+found when it is called ``unexplained`` or placed on exactly its leg(s). Shrinkage is
+scored against the clean twin's noise floor on the recording kind the diagnosis reports
+it on (``diagnosis.kinds``): after the named effect, held-out RMS within ``tolerance`` x
+that floor on every component, for each library effect (of either shape) named right.
+``moving_com`` datasets are exact physics calibrated with the report's fixed-CoM balance
+(eq. 9); every other dataset, twins included, uses the exact balance.
 
-Shrinkage error of a correctly named effect: how far the held-out RMS with the
-effect added stays above the noise floor, ``mean_c (after_c / floor_c) - 1``
-(0: the gap is closed to the noise).
+Outputs in the output folder: ``validation.md`` (the table of issue 13: what | measured
+| goal), ``datasets.csv`` (one row per run, twins included), ``scores.csv`` (one row
+per dataset with an effect: expected and named labels and legs, verdict, before / after
+/ floor against the twin's floor per component, time), ``confusion.csv``/``.md`` and
+``summary.json``. The random design writes the confusion matrix and summary of issue 7.
+
+Parallel runs go through joblib: ``Parallel(n_jobs=workers)(delayed(run_one)(...))``,
+by default on local processes (loky). Without a ``backend`` key a surrounding
+``joblib.parallel_config`` decides, so a large sweep can run on a Dask cluster::
+
+    from dask.distributed import Client
+    import joblib
+    client = Client("tcp://scheduler:8786")
+    with joblib.parallel_config(backend="dask"):
+        run_validation({**cfg, "workers": -1}, "reports/sweep")
+
+(or ``backend = "dask"`` in the table, with a client connected). Datasets are
+independent and every seed is explicit, so the rows do not depend on the backend.
 """
 
 from __future__ import annotations
@@ -41,6 +70,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import time
 import tomllib
@@ -48,25 +78,37 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
 
+from ..data import WRENCH_COMPONENTS
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
-from ..sim import SimConfig, simulate
+from ..sim import EFFECTS, SimConfig, simulate
+from ..sim.variants import EXPECT_NONE, EXPECT_UNEXPLAINED, VARIANTS
 from .effects import LIBRARY
 
 log = logging.getLogger("ftcal_nlp.diagnose.validate")
 
-DEFAULTS = {"n_datasets": 24, "seed": 0, "effects": None, "clean_share": 0.15, "magnitude": "realistic", "model": "full",
-            "folds": 5, "workers": 1}
+DEFAULTS = {"design": "sweep", "seed": 0, "n_clean": 6, "effects": None, "variants": None, "sizes": "realistic",
+            "tolerance": 1.5, "model": "full", "folds": 5, "workers": 1, "backend": "loky",
+            "n_datasets": 24, "clean_share": 0.15, "magnitude": "realistic"}
 SIM_DEFAULTS = {"n_poses": 200, "hanging_cycles": 3.0, "walk_cycles": 1.0}
+DESIGNS = ("sweep", "random")
+RANDOM_KEYS = ("n_datasets", "clean_share", "magnitude")        # design "random" only
+SWEEP_KEYS = ("n_clean", "variants", "sizes", "tolerance")       # design "sweep" only
+SIZES = ("realistic", "test")
+GOAL_LIBRARY = 0.9     # issue 13: >= 18/20 library effects named right
+GOAL_SHRINKAGE = 0.8   # issue 13: >= 13/16 within the twin's floor
+COMPONENTS = tuple(WRENCH_COMPONENTS)
+
+
+# ============================================================================= plans
 
 
 def plan(cfg: dict) -> list[dict]:
-    """The datasets of a validation: ``index``, ``seed``, ``effect`` (or "none"), ``scale``."""
-    effects = list(cfg["effects"]) if cfg["effects"] is not None else list(LIBRARY)
-    unknown = [e for e in effects if e not in LIBRARY]
-    if unknown:
-        raise ValueError(f"[validation].effects: unknown effect(s) {unknown}; known effects: {sorted(LIBRARY)}")
+    """The random design (issue 7): ``index``, ``seed``, ``effect`` (or "none"), ``scale``; datasets cycle
+    through ``[none] + effects`` (clean ones as ``clean_share`` asks), shuffled by ``seed``."""
+    effects = _names(cfg.get("effects"), LIBRARY, "effects")
     n = int(cfg["n_datasets"])
     rng = np.random.default_rng(int(cfg["seed"]))
     n_clean = int(round(cfg["clean_share"] * n))
@@ -82,30 +124,111 @@ def plan(cfg: dict) -> list[dict]:
     return out
 
 
+def _names(value, known: dict, key: str) -> list[str]:
+    """The names of ``[validation].<key>`` (None: every name of ``known``), checked."""
+    if value is None:
+        return list(known)
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"[validation].{key}: expected a list of effect names, got {value!r}")
+    unknown = [v for v in value if v not in known]
+    if unknown:
+        raise ValueError(f"[validation].{key}: unknown effect(s) {unknown}; known effects: {sorted(known)}")
+    return list(value)
+
+
+def effect_sizes(name: str, sizes: str) -> tuple[tuple[str, float], tuple[str, float]]:
+    """Two ``(label, scale)`` of effect ``name``: its realistic low and high end, or half its test size and
+    the test size; an all-or-nothing effect (realistic range one value) runs that value twice."""
+    mag = EFFECTS[name].magnitude
+    lo, hi = (float(v) for v in mag.realistic)
+    if lo == hi:
+        return ("lo", lo), ("hi", hi)
+    if sizes == "realistic":
+        return ("lo", lo), ("hi", hi)
+    return ("half", float(mag.test) / 2.0), ("test", float(mag.test))
+
+
+def expectation(name: str, scale: float, seed: int) -> tuple[str, tuple[str, ...]]:
+    """What a correct diagnosis says about effect ``name`` (injected with ``scale``, ``seed``): its label and legs."""
+    if name == "none":
+        return EXPECT_NONE, ()
+    if name in LIBRARY:
+        return name, ()
+    inj = VARIANTS[name](scale=scale, seed=seed)
+    return inj.expect, tuple(inj.expect_legs)
+
+
+def sweep_plan(cfg: dict) -> list[dict]:
+    """The sweep (issue 13): clean datasets, every library effect and off-face variant at two sizes, each on its
+    own seed, then one clean twin (same seed, no effect) per dataset with an effect. Items: ``index``, ``seed``,
+    ``role`` (clean | library | variant | twin), ``effect``, ``size``, ``scale``, ``expect``, ``expect_legs``,
+    ``twin`` (the twin's index; twins: the index of their dataset)."""
+    effects = _names(cfg.get("effects"), LIBRARY, "effects")
+    variants = _names(cfg.get("variants"), VARIANTS, "variants")
+    base = int(cfg["seed"]) * 1000
+    rows = [("clean", "none", "", None) for _ in range(int(cfg["n_clean"]))]
+    for role, names in (("library", effects), ("variant", variants)):
+        for name in names:
+            rows += [(role, name, label, scale) for label, scale in effect_sizes(name, cfg["sizes"])]
+    items = []
+    for i, (role, name, size, scale) in enumerate(rows):
+        expect, legs = expectation(name, scale, base + i)
+        items.append({"index": i, "seed": base + i, "role": role, "effect": name, "size": size, "scale": scale,
+                      "expect": expect, "expect_legs": " ".join(legs), "twin": None})
+    for it in [x for x in items if x["role"] != "clean"]:
+        twin = {"index": len(items), "seed": it["seed"], "role": "twin", "effect": "none", "size": "", "scale": None,
+                "expect": EXPECT_NONE, "expect_legs": "", "twin": it["index"]}
+        it["twin"] = twin["index"]
+        items.append(twin)
+    return items
+
+
+# ============================================================================= one dataset
+
+
+def _settings(cfg: dict, balance: str) -> CalibrationSettings:
+    return CalibrationSettings(
+        hanging=HangingSettings(compare_baseline=False),
+        standing=StandingSettings(model=cfg["model"], balance=balance, compare_baseline=False),
+        diagnose=DiagnoseSettings(folds=int(cfg["folds"]), seed=0))
+
+
+def _diagnosis_fields(d) -> dict:
+    """The row fields of a diagnosis: verdict, named, legs, shrinkage per component, floors per kind."""
+    sh = d.shrinkage
+    b, a, f = (np.asarray(sh[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))
+    kind_key = sh.get("kind_key") or sh.get("kind")
+    kinds = {k: {"floor": [float(x) for x in v["noise_floor"]], "rms": [float(x) for x in v["heldout_rms"]]}
+             for k, v in (d.kinds or {}).items() if "noise_floor" in v}
+    if kind_key not in kinds:  # the reported kind's floor is in the shrinkage itself
+        kinds[kind_key] = {"floor": [float(x) for x in f], "rms": [float(x) for x in b]}
+    design = getattr(d, "design", None)
+    row = {"verdict": d.verdict, "named": d.effect or d.verdict, "legs": " ".join(d.where.get("legs", [])),
+           "components": " ".join(d.where.get("components", [])), "kind": sh.get("kind"), "kind_key": kind_key,
+           "gaps": ";".join(d.gaps), "explains": d.where.get("explains"),
+           "best": d.ranking[0]["effect"] if d.ranking else "", "second": d.ranking[1]["effect"] if len(d.ranking) > 1 else "",
+           "rms_ratio_before": float(np.mean(b / f)), "rms_ratio_after": float(np.mean(a / f)),
+           "shrinkage_error": float(np.mean(a / f) - 1.0), "kinds_json": json.dumps(kinds),
+           "design_tilt_deg": float(np.linalg.norm(design["tilt_deg"])) if design is not None else float("nan"),
+           "design_dbic": float(design["delta_bic"]) if design is not None else float("nan"), "diag_s": d.time_s}
+    for name, v in (("before", b), ("after", a), ("floor", f)):
+        row.update({f"{name}_{c}": float(x) for c, x in zip(COMPONENTS, v)})
+    return row
+
+
 def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
-    """Simulate one dataset and put it through :func:`ftcal_nlp.calibrate` with the diagnosis on; returns its row."""
+    """Simulate one dataset and put it through :func:`ftcal_nlp.calibrate` with the diagnosis on; returns its row.
+    A failure is recorded in the row (``named`` "error"), never raised: it is a finding of the validation."""
     t0 = time.perf_counter()
     lab = item["effect"]
     spec = [] if lab in ("none", "moving_com") else [{"name": lab, "scale": item["scale"], "seed": item["seed"]}]
     balance = "report" if lab == "moving_com" else "exact"
     row = {**item, "balance": balance}
-    settings = CalibrationSettings(
-        hanging=HangingSettings(compare_baseline=False),
-        standing=StandingSettings(model=cfg["model"], balance=balance, compare_baseline=False),
-        diagnose=DiagnoseSettings(folds=int(cfg["folds"]), seed=0))
     try:
         sim = simulate(SimConfig.from_dict({**sim_over, "seed": item["seed"], "effects": spec}))
-        run = calibrate(sim.dataset, settings)
-        d = run.diagnosis
-        t1 = t0 + sum(v for k, v in run.timings.items() if k != "diagnosis")
-        sh = d.shrinkage
-        b, a, f = (np.asarray(sh[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))
-        row.update(verdict=d.verdict, named=d.effect or d.verdict, kind=sh["kind"], gaps=";".join(d.gaps),
-                   explains=d.where.get("explains"), legs=" ".join(d.where.get("legs", [])),
-                   rms_ratio_before=float(np.mean(b / f)), rms_ratio_after=float(np.mean(a / f)),
-                   shrinkage_error=float(np.mean(a / f) - 1.0), best=d.ranking[0]["effect"] if d.ranking else "",
-                   second=d.ranking[1]["effect"] if len(d.ranking) > 1 else "",
-                   calib_s=t1 - t0, diag_s=d.time_s)
+        run = calibrate(sim.dataset, _settings(cfg, balance))
+        row.update(_diagnosis_fields(run.diagnosis))
+        row["calib_s"] = sum(v for k, v in run.timings.items() if k != "diagnosis")
     except Exception as exc:  # one failed dataset is a finding of the validation, not a reason to stop it
         log.exception("dataset %s (%s) failed", item["index"], lab)
         row.update(verdict="error", named="error", error=f"{type(exc).__name__}: {exc}")
@@ -113,17 +236,102 @@ def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
     return row
 
 
+def _parallel(workers: int, backend: str | None) -> Parallel:
+    try:
+        return Parallel(n_jobs=workers, backend=backend, return_as="generator")
+    except ValueError as exc:
+        raise ValueError(f"[validation].backend: {exc}") from exc
+
+
+def backend_name(par: Parallel) -> str:
+    """The joblib backend a ``Parallel`` runs on (e.g. ``LokyBackend``, ``DaskDistributedBackend``)."""
+    return type(getattr(par, "_backend", None)).__name__
+
+
+def run_datasets(items: list[dict], cfg: dict, sim_over: dict, workers: int = 1, backend: str | None = None) -> list[dict]:
+    """Every item through :func:`run_one` with joblib (``n_jobs=workers``; ``backend`` None: the active one, loky
+    unless a ``joblib.parallel_config`` says otherwise); rows in the items' order."""
+    par = _parallel(workers, backend)
+    log.info("%d datasets on %d worker(s), joblib backend %s", len(items), workers, backend_name(par))
+    rows = []
+    for row in par(delayed(run_one)(it, cfg, sim_over) for it in items):
+        rows.append(row)
+        log.info("dataset %d (%s %s %s): -> %s%s (%.0f s)", row["index"], row.get("role", ""), row["effect"], row.get("size", ""),
+                 row["named"], f" legs {row['legs']}" if row.get("legs") else "", row["time_s"])
+    return rows
+
+
+# ============================================================================= scoring
+
+
+def _vec(row, prefix: str) -> np.ndarray:
+    return np.array([row.get(f"{prefix}_{c}", np.nan) for c in COMPONENTS], float)
+
+
+def twin_floor(twin: pd.Series | None, kind_key) -> np.ndarray:
+    """The clean twin's noise floor (6,) on recording kind ``kind_key`` (NaN when it has none)."""
+    if twin is None or twin.get("named") == "error" or not isinstance(twin.get("kinds_json"), str):
+        return np.full(6, np.nan)
+    kinds = json.loads(twin["kinds_json"])
+    return np.asarray(kinds[kind_key]["floor"], float) if kind_key in kinds else np.full(6, np.nan)
+
+
+def is_right(named: str, legs: str, expect: str, expect_legs: str) -> bool:
+    """A correct diagnosis: the expected label; outside the library, ``unexplained`` or exactly the affected leg(s)."""
+    if named == "error":
+        return False
+    if expect == EXPECT_UNEXPLAINED:
+        return named == EXPECT_UNEXPLAINED or right_leg(legs, expect_legs)
+    return named == expect
+
+
+def right_leg(legs: str, expect_legs: str) -> bool:
+    """The legs named are exactly the affected legs (both non-empty)."""
+    a, b = set(str(legs or "").split()), set(str(expect_legs or "").split())
+    return bool(b) and a == b
+
+
+def score(rows: pd.DataFrame, tolerance: float = 1.5) -> pd.DataFrame:
+    """One row per dataset with an effect (sweep): outcome, and before / after / own floor against the clean
+    twin's floor per component on the kind the diagnosis reports (``*_ratio_<c>``); ``shrink_ok`` for library
+    effects named right (NaN otherwise)."""
+    by_index = {int(r["index"]): r for _, r in rows.iterrows()}
+    out = []
+    for _, r in rows[rows["role"].isin(["library", "variant"])].iterrows():
+        twin = by_index.get(int(r["twin"])) if pd.notna(r.get("twin")) else None
+        f = twin_floor(twin, r.get("kind_key"))
+        s = {k: r.get(k) for k in ("index", "seed", "role", "effect", "size", "scale", "expect", "expect_legs",
+                                   "named", "legs", "verdict", "kind", "time_s", "error")}
+        s["twin"] = None if twin is None else int(twin["index"])
+        s["twin_named"] = None if twin is None else twin["named"]
+        s["right"] = is_right(r["named"], r.get("legs"), r["expect"], r.get("expect_legs"))
+        s["right_leg"] = right_leg(r.get("legs"), r.get("expect_legs")) if r.get("expect_legs") else np.nan
+        for name in ("before", "after", "floor"):
+            s.update({f"{name}_ratio_{c}": float(v) for c, v in zip(COMPONENTS, _vec(r, name) / f)})
+        s.update({f"twin_floor_{c}": float(v) for c, v in zip(COMPONENTS, f)})
+        after = _vec(r, "after") / f
+        lib = r["expect"] in LIBRARY
+        s["shrink_ok"] = bool(np.all(after <= tolerance)) if (lib and s["right"]) else np.nan
+        s["worst_after_force"] = float(np.nanmax(after[:3])) if np.isfinite(after[:3]).any() else np.nan
+        s["worst_after_torque"] = float(np.nanmax(after[3:])) if np.isfinite(after[3:]).any() else np.nan
+        out.append(s)
+    return pd.DataFrame(out)
+
+
 def confusion(rows: pd.DataFrame, labels: list[str]) -> pd.DataFrame:
-    cols = ["none"] + [l for l in labels if l != "none"] + ["unexplained", "error"]
-    M = pd.DataFrame(0, index=["none"] + [l for l in labels if l != "none"], columns=cols)
+    """Withheld (rows) x named (columns) counts."""
+    withheld = ["none"] + [l for l in dict.fromkeys(labels) if l != "none"]
+    cols = withheld + [EXPECT_UNEXPLAINED, "error"]
+    M = pd.DataFrame(0, index=withheld, columns=cols)
     for _, r in rows.iterrows():
         M.loc[r["effect"], r["named"] if r["named"] in cols else "error"] += 1
-    M = M.loc[:, (M.sum(axis=0) > 0) | M.columns.isin(["none", "unexplained"] + labels)]
+    M = M.loc[:, (M.sum(axis=0) > 0) | M.columns.isin(["none", EXPECT_UNEXPLAINED] + list(LIBRARY))]
     M.index.name = "withheld"
     return M
 
 
 def summarise(rows: pd.DataFrame, wall_s: float) -> dict:
+    """The random design's summary (issue 7): accuracy, false alarms on clean data, shrinkage error, runtime."""
     ok = rows[rows["named"] != "error"]
     correct = ok["named"] == ok["effect"]
     clean = ok[ok["effect"] == "none"]
@@ -145,55 +353,249 @@ def summarise(rows: pd.DataFrame, wall_s: float) -> dict:
     }
 
 
+def _count(mask) -> tuple[int, int]:
+    m = np.asarray(mask, bool)
+    return int(m.sum()), int(m.size)
+
+
+def sweep_summary(rows: pd.DataFrame, scores: pd.DataFrame, wall_s: float, tolerance: float) -> dict:
+    """Counts of the sweep (issue 13's table): each ``[right, n]``, plus the misses that explain them."""
+    sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "shrink_ok", "effect"])
+    lib = sc[sc["role"] == "library"]
+    shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(LIBRARY))]
+    outside = sc[sc["expect"] == EXPECT_UNEXPLAINED]
+    noise = sc[(sc["role"] == "variant") & (sc["expect"] == EXPECT_NONE)]
+    named_right = sc[sc["expect"].isin(list(LIBRARY)) & (sc["right"] == True)]  # noqa: E712 (object column)
+    clean = rows[rows["role"] == "clean"]
+    twins = rows[rows["role"] == "twin"]
+    return {
+        "library": _count(lib["right"].astype(bool)),
+        "library_shape": _count(shape["right"].astype(bool)),
+        "clean": _count(clean["named"] == "none"),
+        "twins_clean": _count(twins["named"] == "none"),
+        "outside": _count(outside["right"].astype(bool)),
+        "outside_unexplained": _count(outside["named"] == EXPECT_UNEXPLAINED),
+        "outside_right_leg": _count(outside["right_leg"] == True),  # noqa: E712
+        "shrinkage": _count(named_right["shrink_ok"] == True),  # noqa: E712
+        "shrinkage_exact_shape": _count(named_right[named_right["role"] == "library"]["shrink_ok"] == True),  # noqa: E712
+        "noise_none": _count(noise["named"] == EXPECT_NONE),
+        "finished": _count(rows["named"] != "error"),
+        "tolerance": tolerance, "n_runs": len(rows), "wall_time_s": float(wall_s),
+        "mean_time_per_run_s": float(rows["time_s"].mean()) if len(rows) else float("nan"),
+    }
+
+
+# ============================================================================= the table
+
+
+def _goal(n: int, share: float = 1.0) -> str:
+    k = math.ceil(share * n - 1e-9)
+    return f"{n}/{n}" if k >= n else f">= {k}/{n}"
+
+
+def _misses(df: pd.DataFrame, show_legs: bool = False, limit: int = 6) -> str:
+    """``effect -> named`` of the misses in ``df``, grouped, most frequent first."""
+    miss = df[~df["right"].astype(bool)]
+    if not len(miss):
+        return ""
+    keys = []
+    for _, r in miss.iterrows():
+        leg = f" ({r['expect_legs']})" if show_legs and r.get("expect_legs") else ""
+        got = "error" if r["named"] == "error" else f"`{r['named']}`"
+        where = ""
+        if show_legs and r["named"] != "error":
+            where = f", legs {r['legs']}" if r.get("legs") else ", no leg"
+        keys.append(f"{r['effect']}{leg}: {got}{where}")
+    counts = pd.Series(keys).value_counts()
+    parts = [k + (f" x{v}" if v > 1 else "") for k, v in counts.items()]
+    return "; ".join(parts[:limit]) + ("; ..." if len(parts) > limit else "")
+
+
+def _frac(pair) -> str:
+    return f"{pair[0]}/{pair[1]}"
+
+
+def _shrinkage_detail(named_right: pd.DataFrame, rows: pd.DataFrame) -> str:
+    if not len(named_right):
+        return "no library effect named right"
+    f = named_right["worst_after_force"].median()
+    t = named_right["worst_after_torque"].median()
+    twins = rows[(rows["role"] == "twin") & (rows["named"] != "error")]
+    tf = float(np.nanmedian(twins[[f"floor_{c}" for c in COMPONENTS[3:]]].to_numpy(float))) if len(twins) else float("nan")
+    ff = float(np.nanmedian(twins[[f"floor_{c}" for c in COMPONENTS[:3]]].to_numpy(float))) if len(twins) else float("nan")
+    return (f"worst component after / twin floor, median: forces {f:.2g}x, torques {t:.2g}x "
+            f"(twin floors ~{ff:.2g} N, ~{tf:.2g} N*m)")
+
+
+def _label_list(df: pd.DataFrame, unit: str) -> str:
+    parts = []
+    for _, r in df.iterrows():
+        s = f"{r['scale']:g} {unit}: `{r['named']}`"
+        if r["named"] == EXPECT_UNEXPLAINED and r.get("legs"):
+            s += f" (legs {r['legs']})"
+        parts.append(s)
+    return ", ".join(parts) or "-"
+
+
+def validation_table(rows: pd.DataFrame, scores: pd.DataFrame, summary: dict) -> str:
+    """Issue 13's table (what | measured | goal) from the sweep's rows and scores."""
+    sc = scores
+    tol = summary["tolerance"]
+    lines = ["| what | measured | goal |", "|---|---|---|"]
+
+    def add(what: str, pair, detail: str, goal: str) -> None:
+        lines.append(f"| {what} | {_frac(pair)}" + (f" ({detail})" if detail else "") + f" | {goal} |")
+
+    if len(sc):
+        lib = sc[sc["role"] == "library"]
+        shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(LIBRARY))]
+        outside = sc[sc["expect"] == EXPECT_UNEXPLAINED]
+        named_right = sc[sc["expect"].isin(list(LIBRARY)) & sc["right"].astype(bool)]
+    else:
+        lib = shape = outside = named_right = sc
+    s = summary
+    if s["library"][1]:
+        add("library effects named right", s["library"], _misses(lib), _goal(s["library"][1], GOAL_LIBRARY))
+    if s["library_shape"][1]:
+        add("library effects of another shape (drift ramp / step / fast warm-up, casing load 3rd + 5th harmonics) named right",
+            s["library_shape"], _misses(shape), _goal(s["library_shape"][1], GOAL_LIBRARY))
+    clean = rows[rows["role"] == "clean"]
+    cmiss = clean[clean["named"] != "none"]["named"].value_counts()
+    cdetail = ", ".join(f"{v} called `{k}`" for k, v in cmiss.items())
+    if s["twins_clean"][1]:
+        cdetail = (cdetail + "; " if cdetail else "") + f"clean twins called clean {_frac(s['twins_clean'])}"
+    add("clean data called clean", s["clean"], cdetail, _goal(s["clean"][1]))
+    if s["outside"][1]:
+        det = f"`unexplained` {_frac(s['outside_unexplained'])}, right leg {_frac(s['outside_right_leg'])}"
+        m = _misses(outside, show_legs=True)
+        add("outside the library: `unexplained`, or placed on the right leg", s["outside"], det + (f"; misses: {m}" if m else ""),
+            _goal(s["outside"][1]))
+    if s["shrinkage"][1] or s["library"][1]:
+        det = (f"of the library effects named right; exact shape {_frac(s['shrinkage_exact_shape'])}; "
+               + _shrinkage_detail(named_right, rows))
+        add(f"after the named effect, held-out RMS within {tol:g}x the floor of a clean twin, every component", s["shrinkage"], det,
+            _goal(s["shrinkage"][1], GOAL_SHRINKAGE))
+    err = rows[rows["named"] == "error"]
+    edet = "; ".join(f"{r['effect']} {r.get('size') or ''}: {str(r.get('error', ''))[:80]}" for _, r in err.head(4).iterrows())
+    add("runs that finish", s["finished"], edet, _goal(s["finished"][1]))
+    tilt = rows[(rows["role"] == "library") & (rows["effect"] == "mocap_bias")]
+    if len(tilt):
+        parts = []
+        for _, r in tilt.iterrows():
+            p = f"{r['scale']:g} deg: `{r['named']}`"
+            if r["named"] == "none" and np.isfinite(r.get("design_tilt_deg", np.nan)):
+                p += f" (design check tilt {r['design_tilt_deg']:.2f} deg, dBIC {r['design_dbic']:.0f})"
+            parts.append(p)
+        lines.append(f"| a common motion-capture tilt | {', '.join(parts)} | `mocap_bias`, or `none` with the design check saying why |")
+    noise = sc[(sc["role"] == "variant") & (sc["expect"] == EXPECT_NONE)] if len(sc) else sc
+    if len(noise):
+        parts = []
+        for _, r in noise.iterrows():
+            p = f"{r['scale']:g} deg: `{r['named']}`"
+            fr = np.array([r[f"floor_ratio_{c}"] for c in COMPONENTS], float)
+            if np.isfinite(fr).any():
+                p += f" (floor {np.nanmin(fr):.2g}-{np.nanmax(fr):.2g}x the twin's)"
+            parts.append(p)
+        lines.append(f"| larger per-pose motion-capture noise (simulator 0.05 deg per pose) | {', '.join(parts)} | "
+                     "`none` (measurement noise, with its size) |")
+    return "\n".join(lines) + "\n"
+
+
 def _markdown(M: pd.DataFrame, summary: dict) -> str:
+    """The random design's confusion matrix and summary line."""
     cols = [M.index.name or "withheld"] + [str(c) for c in M.columns]
     lines = ["| " + " | ".join(cols) + " |", "|" + "|".join(["---"] + ["---:"] * len(M.columns)) + "|"]
     for idx, r in M.iterrows():
         lines.append("| " + " | ".join([str(idx)] + [(f"**{v}**" if c == idx and v else str(v)) for c, v in r.items()]) + " |")
-    lines += ["", f"accuracy {summary['accuracy']:.2f} ({summary['n_datasets']} datasets, {summary['n_errors']} errors); "
-              f"false-alarm rate on clean data {summary['false_alarm_rate_clean']:.2f} ({summary['n_clean']} clean); "
-              f"shrinkage error (mean held-out RMS / floor - 1, correctly named) median {summary['shrinkage_error_median']:.2f}, "
-              f"max {summary['shrinkage_error_max']:.2f}; wall time {summary['wall_time_s']:.0f} s"]
+    if "accuracy" in summary:
+        lines += ["", f"accuracy {summary['accuracy']:.2f} ({summary['n_datasets']} datasets, {summary['n_errors']} errors); "
+                  f"false-alarm rate on clean data {summary['false_alarm_rate_clean']:.2f} ({summary['n_clean']} clean); "
+                  f"shrinkage error (mean held-out RMS / floor - 1, correctly named) median {summary['shrinkage_error_median']:.2f}, "
+                  f"max {summary['shrinkage_error_max']:.2f}; wall time {summary['wall_time_s']:.0f} s"]
     return "\n".join(lines) + "\n"
+
+
+# ============================================================================= running
+
+
+def check_config(cfg: dict) -> tuple[dict, dict]:
+    """``(settings, simulator overrides)`` of a ``[validation]`` table; errors name the key."""
+    unknown = sorted(set(cfg) - set(DEFAULTS) - {"simulate"})
+    if unknown:
+        raise ValueError(f"[validation]: unknown key(s) {unknown}; known keys: {sorted(DEFAULTS) + ['simulate']}")
+    c = {**DEFAULTS, **{k: v for k, v in cfg.items() if k != "simulate"}}
+    if "design" not in cfg:  # a table of issue 7's keys keeps meaning what it meant
+        c["design"] = "random" if any(k in cfg for k in RANDOM_KEYS) else "sweep"
+    for key in (RANDOM_KEYS if c["design"] == "sweep" else SWEEP_KEYS):
+        if key in cfg:
+            raise ValueError(f"[validation].{key}: only for design = {'random' if c['design'] == 'sweep' else 'sweep'!r} "
+                             f"(this table's design is {c['design']!r})")
+    for key, choices in (("design", DESIGNS), ("sizes", SIZES), ("magnitude", SIZES)):
+        if c[key] not in choices:
+            raise ValueError(f"[validation].{key}: expected one of {list(choices)}, got {c[key]!r}")
+    for key, lo in (("n_clean", 0), ("folds", 2), ("n_datasets", 1), ("seed", 0)):
+        if not (isinstance(c[key], int) and not isinstance(c[key], bool) and c[key] >= lo):
+            raise ValueError(f"[validation].{key}: expected an integer >= {lo}, got {c[key]!r}")
+    if not (isinstance(c["workers"], int) and not isinstance(c["workers"], bool) and c["workers"] != 0):
+        raise ValueError(f"[validation].workers: expected a non-zero integer (joblib n_jobs; -1: every core), got {c['workers']!r}")
+    if not (isinstance(c["tolerance"], (int, float)) and c["tolerance"] > 0):
+        raise ValueError(f"[validation].tolerance: expected a positive factor, got {c['tolerance']!r}")
+    if not isinstance(c["backend"], str):
+        raise ValueError(f"[validation].backend: expected a joblib backend name such as 'loky' or 'dask', got {c['backend']!r}")
+    if not isinstance(c["model"], str):
+        raise ValueError(f"[validation].model: expected a model name, got {c['model']!r}")
+    sim = cfg.get("simulate", {})
+    if not isinstance(sim, dict):
+        raise ValueError("[validation.simulate]: expected a table of SimConfig settings")
+    if "seed" in sim or "effects" in sim:
+        raise ValueError("[validation.simulate]: 'seed' and 'effects' are set per dataset by the validation; remove them")
+    sim_over = {**SIM_DEFAULTS, **sim}
+    SimConfig.from_dict(sim_over, where="[validation.simulate]")  # bad keys fail here, not in every worker
+    return c, sim_over
+
+
+def run_items(items: list[dict], c: dict, sim_over: dict, out_dir: str | Path, backend: str | None = None) -> dict:
+    """Run ``items`` (a plan), score them as ``c["design"]`` asks and write the outputs into ``out_dir``;
+    returns the summary."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rows = pd.DataFrame(run_datasets(items, c, sim_over, int(c["workers"]), backend))
+    wall = time.perf_counter() - t0
+    rows.to_csv(out / "datasets.csv", index=False)
+    if c["design"] == "random":
+        labels = ["none"] + _names(c.get("effects"), LIBRARY, "effects")
+        M = confusion(rows, labels)
+        summary = summarise(rows, wall)
+        M.to_csv(out / "confusion.csv")
+        (out / "confusion.md").write_text(_markdown(M, summary))
+        (out / "summary.json").write_text(json.dumps(summary, indent=1))
+        print(_markdown(M, summary))
+        return summary
+    scores = score(rows, float(c["tolerance"]))
+    summary = sweep_summary(rows, scores, wall, float(c["tolerance"]))
+    summary.update(backend=backend_name(_parallel(int(c["workers"]), backend)), workers=int(c["workers"]),
+                   simulate=sim_over, seed=int(c["seed"]), sizes=c["sizes"])
+    table = validation_table(rows, scores, summary)
+    head = (f"Withheld-effect validation: {summary['n_runs']} runs ({int((rows['role'] == 'twin').sum())} clean twins), "
+            f"sizes {c['sizes']}, seed {c['seed']}, simulator {sim_over}; wall time {wall:.0f} s on {c['workers']} worker(s).\n\n")
+    scores.to_csv(out / "scores.csv", index=False)
+    M = confusion(rows[rows["role"] != "twin"], ["none"] + list(dict.fromkeys(rows["effect"])))
+    M.to_csv(out / "confusion.csv")
+    (out / "confusion.md").write_text(_markdown(M, {}))
+    (out / "validation.md").write_text(head + table)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    print(head + table)
+    return summary
 
 
 def run_validation(cfg: dict, out_dir: str | Path) -> dict:
     """Run the validation of ``cfg`` (the ``[validation]`` table, optionally with a ``simulate``
     sub-table) and write its outputs into ``out_dir``; returns the summary."""
-    unknown = sorted(set(cfg) - set(DEFAULTS) - {"simulate"})
-    if unknown:
-        raise ValueError(f"[validation]: unknown key(s) {unknown}; known keys: {sorted(DEFAULTS) + ['simulate']}")
-    c = {**DEFAULTS, **{k: v for k, v in cfg.items() if k != "simulate"}}
-    if c["magnitude"] not in ("realistic", "test"):
-        raise ValueError(f"[validation].magnitude: expected 'realistic' or 'test', got {c['magnitude']!r}")
-    sim_over = {**SIM_DEFAULTS, **cfg.get("simulate", {})}
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    items = plan(c)
-    t0 = time.perf_counter()
-    rows = []
-    if int(c["workers"]) > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(int(c["workers"])) as ex:
-            for row in ex.map(run_one, items, [c] * len(items), [sim_over] * len(items)):
-                rows.append(row)
-                log.info("dataset %d: withheld %s -> %s (%.0f s)", row["index"], row["effect"], row["named"], row["time_s"])
-    else:
-        for it in items:
-            row = run_one(it, c, sim_over)
-            rows.append(row)
-            log.info("dataset %d: withheld %s (scale %s) -> %s (%.0f s)", row["index"], row["effect"], row.get("scale"), row["named"], row["time_s"])
-    df = pd.DataFrame(rows)
-    labels = ["none"] + (list(c["effects"]) if c["effects"] is not None else list(LIBRARY))
-    M = confusion(df, labels)
-    summary = summarise(df, time.perf_counter() - t0)
-    df.to_csv(out / "datasets.csv", index=False)
-    M.to_csv(out / "confusion.csv")
-    (out / "confusion.md").write_text(_markdown(M, summary))
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    print(_markdown(M, summary))
-    return summary
+    c, sim_over = check_config(cfg)
+    items = sweep_plan(c) if c["design"] == "sweep" else plan(c)
+    # No backend key: joblib's active backend (loky, or that of a surrounding joblib.parallel_config).
+    return run_items(items, c, sim_over, out_dir, backend=cfg.get("backend"))
 
 
 def main(config_path: str | Path) -> int:

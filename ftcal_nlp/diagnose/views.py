@@ -4,12 +4,15 @@ explanatory variables, and noise floors derived from the data (never from simula
 * standing: the static poses (time order kept) with, per pose, the previous
   pose's readings and the steady run it was taken from, found again in the raw
   recording (shafts still between two motions, as in ``standing/poses.py``).
-  Noise floor of the pose-level total wrench (report eq. 8 residual): the
-  within-pose scatter, from the medians of the two halves of each steady run,
-  ``var(median) ~ E[(m_1 - m_2)^2] / 4`` (a half has half the samples, so twice
-  the variance; this holds for correlated noise too), plus the hanging offsets'
-  and leg weights' standard errors carried into the total, plus the
-  cross-validation inflation ``1 + d / (6 P_train)`` of a d-parameter fit.
+  Noise floor of the pose-level total wrench (report eq. 8 residual), from what
+  cannot be the gap (``floor.py``): the readings' part from the within-pose
+  scatter (the medians of the two halves of each steady run,
+  ``var(median) ~ E[(m_1 - m_2)^2] / 4``: a half has half the samples, so twice
+  the variance; this holds for correlated noise too), a per-pose motion-capture
+  tilt variance ``s_theta^2 G_p G_p^T`` fitted by REML to the calibrated fit's own
+  residuals (never to the held-out residuals it is compared with), the hanging
+  offsets' and leg weights' standard errors carried through, and the held-out
+  refit's own parameter error (k-fold, eq. 8's K-norm).
 * hanging: per leg and sample the residual of the hanging fit (report eqs.
   4-7, ``hanging_residuals``) with shaft angle, speed, time and the fitted
   weight vector. Floor: the high-frequency scatter, ``std(diff(e)) / sqrt(2)``
@@ -31,9 +34,21 @@ from scipy.signal import savgol_filter
 from ..balance import residual, to_world
 from ..calibration import Calibration, periodic_interp
 from ..data import Dataset, Recording
-from ..geometry import quat_to_rotation, remove_yaw, skew
+from ..geometry import quat_to_rotation, remove_yaw
+from ..models import ModelContext
 from ..robot import Robot
 from .effects.base import HangingLeg
+from .floor import (
+    MIN_RESIDUAL_DOF_PER_COL,
+    calibrated_residual_B,
+    fit_noise_floor,
+    model_jacobian,
+    physical_columns,
+    physical_jacobian,
+    readings_noise,
+    structure_basis,
+    tilt_sensitivity,
+)
 from .standing_fit import StandingData
 
 PREV_WINDOW_S = 0.5        # the previous pose's readings: median over its last half second
@@ -47,8 +62,12 @@ class StandingView:
     """Standing poses: features for the augmented fits, floors and explanatory variables.
 
     ``data``: :class:`StandingData`; ``t`` (P,) s; ``R_WB`` (P, 3, 3) yaw removed;
-    ``floor`` (6,) N, N*m per component of the pose-level residual (W axes);
-    ``floor_parts`` the pieces of it; ``has_prev`` (P,) whether the previous pose
+    ``floor`` (6,) N, N*m per component of the pose-level residual (W axes): the expected held-out
+    RMS under the noise model of ``floor.py``; ``floor_parts`` the pieces of it (``readings``,
+    ``mocap``, ``calibration``, ``fit`` (6,) RMS each; ``mocap_tilt_deg`` and its ``_se_deg``,
+    ``_upper_deg``; ``cv_inflation`` (6,); ``within`` the floor; ``noise_gap`` and ``statement``: does
+    the residual hold more than the noise model; ``noise_model`` all of it JSON-ready for
+    ``diagnosis.json``); ``has_prev`` (P,) whether the previous pose
     was found; ``n_run`` (P,) samples in each pose's steady run (0 if not found).
     """
 
@@ -157,8 +176,10 @@ def total_residual_B(w: np.ndarray, z: np.ndarray, cal: Calibration, legs) -> np
 
 
 def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Calibration, robot: Robot, t_ref: float,
-                  model_dof: int, folds: int) -> StandingView:
-    """The standing view of ``poses`` (``standing.Poses``; their ``source`` indexes ``dataset.standing``)."""
+                  model_dof: int, folds: int, balance: str | None = None, model=None, seed: int = 0) -> StandingView:
+    """The standing view of ``poses`` (``standing.Poses``; their ``source`` indexes ``dataset.standing``);
+    ``balance`` and ``model`` the calibration's (None: from its ``meta`` (else exact) and ``model``);
+    ``folds``/``seed`` the diagnosis' cross-validation (the floor is the expected held-out RMS of it)."""
     legs = tuple(robot.legs)
     P = poses.n
     prev = poses.w_m.copy()
@@ -175,36 +196,54 @@ def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Cali
         has_prev[idx], n_run[idx] = hp, nr
         diffs.append(dd)
     dd = np.concatenate(diffs, axis=0)
-    ok = np.all(np.isfinite(dd), axis=1)
-    if ok.sum() >= 5:
-        pose_var = np.mean(dd[ok] ** 2, axis=0) / 4.0
-    else:  # steady runs not found again: fall back on the spread of the residuals (conservative)
-        pose_var = np.full(6, np.nan)
-    # Hanging offsets and leg weights are estimates: their errors enter every pose's total.
-    off, m, R, p = calibration.stacked(legs)
-    cal_var = np.zeros(6)
-    for i, k in enumerate(legs):
-        se = prior.legs[k].offset_se
-        if se is None:
-            continue
-        Ad = np.zeros((6, 6))
-        Ad[:3, :3], Ad[3:, 3:] = R[i], R[i]
-        Ad[3:, :3] = skew(p[i]) @ R[i]
-        cal_var += np.einsum("ij,j,ij->i", Ad, np.asarray(se, float) ** 2, Ad)
-    w_se = [prior.legs[k].leg_weight_se_N for k in legs]
-    if all(v is not None for v in w_se):
-        cal_var[2] += float(np.sum(np.square(w_se)))
-    P_train = P * (1.0 - 1.0 / max(folds, 2))
-    inflation = 1.0 + model_dof / max(6.0 * P_train, 1.0)
-    floor = np.sqrt((pose_var + cal_var) * inflation)
+    off = calibration.stacked(legs)[0]
     t_h = (poses.t - t_ref) / 3600.0
+    n_vert = robot.nominal_rotations()[:, 2, :]
+    # The floor (floor.py): readings (within-run scatter) + a motion-capture tilt variance component
+    # fitted by REML to the calibrated fit's own residuals + the hanging estimates' se carried
+    # through the refit + the refit's own parameter error; nothing of it comes from the held-out
+    # residuals it is compared with.
+    bal = balance or _calibration_balance(calibration)
+    try:
+        r_B = calibrated_residual_B(poses.w_m, poses.phi, poses.R_WB, calibration, legs, bal)
+    except ValueError:  # report balance with leg CoM curves undefined at some shaft angles: the exact one
+        bal = "exact"
+        r_B = calibrated_residual_B(poses.w_m, poses.phi, poses.R_WB, calibration, legs, bal)
+    r_W = to_world(r_B, poses.R_WB)
+    G = tilt_sensitivity(poses.w_m, poses.phi, poses.R_WB, calibration, legs, bal)
+    reads = readings_noise(dd, n_run, poses.R_WB)
+    force = poses.w_m[..., :3] - off[None, :, :3]
+    history = np.einsum("ki,pki->pk", n_vert, poses.w_m[..., :3] - prev[..., :3]) if has_prev.any() else None
+    X, names = structure_basis(t_h, poses.phi, force, history, max_cols=max(P // MIN_RESIDUAL_DOF_PER_COL, 1))
+    J_phys = physical_jacobian(poses.w_m, poses.R_WB, calibration, legs)
+    ctx = ModelContext(legs, robot.nominal_rotations(), robot.nominal_positions(), prior)
+    J = model_jacobian(model if model is not None else calibration.model, ctx, J_phys)
+    # Hanging offsets and leg weights are estimates: their errors enter every pose's total.
+    h_cols = physical_columns(len(legs), rotations=False, translations=False, offsets=True, weights=True)
+    C_h = np.concatenate([np.r_[_sq(prior.legs[k].offset_se, 6), _sq(prior.legs[k].leg_weight_se_N, 1)] for k in legs])
+    offsets_only = np.flatnonzero(np.tile(np.r_[np.ones(6, bool), False], len(legs)))   # of h_cols: the offsets
+    noise = fit_noise_floor(r_W, reads, G, X, J=J, J_h=J_phys[:, :, h_cols], C_h=C_h, model_dof=model_dof, folds=folds,
+                            names=names, R_HB=poses.R_WB, J_h_fixed=offsets_only, seed=seed)
+    floor = noise.floor
     rcom = np.stack([prior.legs[k].com(poses.phi[:, i]) for i, k in enumerate(legs)], axis=1)
     rcom = np.where(np.isfinite(rcom), rcom, 0.0)
-    n_vert = robot.nominal_rotations()[:, 2, :]
     data = StandingData(poses.w_m, poses.R_WB[:, 2, :], poses.R_WB, t_h, prev, poses.phi, rcom, n_vert)
-    parts = {"pose_noise": np.sqrt(pose_var), "calibration": np.sqrt(cal_var), "cv_inflation": inflation,
-             "poses_with_run": int(ok.sum()), "within": floor.copy()}
+    parts = {"pose_noise": noise.readings, "readings": noise.readings, "mocap": noise.mocap,
+             "mocap_tilt_deg": noise.s_theta_deg, "mocap_tilt_se_deg": float(np.degrees(noise.s_theta_se_rad)),
+             "mocap_tilt_upper_deg": float(np.degrees(noise.s_theta_upper_rad)), "mocap_identified": noise.identified,
+             "calibration": noise.calibration, "fit": noise.fit, "cv_inflation": noise.cv_inflation, "poses_with_run": reads.n_used,
+             "within": floor.copy(), "noise_gap": noise.gap, "statement": noise.statement, "noise_model": noise.parts()}
     return StandingView(data, poses.t.copy(), poses.R_WB.copy(), floor, parts, has_prev, n_run)
+
+
+def _sq(se, n: int) -> np.ndarray:
+    """Variances (n,) from standard errors (None or NaN: 0, not estimated)."""
+    return np.zeros(n) if se is None else np.nan_to_num(np.broadcast_to(np.square(np.asarray(se, float)), (n,)).copy())
+
+
+def _calibration_balance(cal: Calibration) -> str:
+    meta = cal.meta or {}
+    return meta.get("balance") or (meta.get("standing") or {}).get("balance") or "exact"
 
 
 def _pose_history(rec: Recording, legs, t_pose: np.ndarray, cal: Calibration):

@@ -98,6 +98,18 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
                        f"the grey band is {PM} the noise floor."))
     sec.add(Table("Candidate effects, best first", ranking_view(d)))
     sec.add(Table("Residual by recording kind (held-out RMS / noise floor)", kinds_view(d)))
+    if d.perleg is not None:
+        rows = {f"{f.leg}: {'free linear map (standing)' if f.kind == 'linear_map' else 'swing refit (walking)'}":
+                {"components": " ".join(f.components), "size": f"{f.size:.3g}", "z": f"{f.z:.1f}" if np.isfinite(f.z) else "n/a",
+                 "on most legs": "yes" if f.shared else "no", "finding": f.statement} for f in d.perleg.findings}
+        if rows:
+            tab = pd.DataFrame(rows).T
+            tab.index.name = "leg: check"
+            sec.add(Table("Per-leg checks without the effect library (a free linear map of each leg's readings; each leg's "
+                          "weight and moment refit on its own swing phases)", tab))
+        else:
+            sec.add(Text("Per-leg checks without the effect library (a free linear map of each leg's readings on the standing "
+                         "poses; each leg's weight and moment refit on its own swing phases): no leg stands out."))
     return sec
 
 

@@ -14,6 +14,7 @@ assembly), ``writer`` (files).
 from .config import SimConfig
 from .effects import EFFECTS, InjectionContext, Injector, NoEffect, make_effects
 from .injectors import EffectInjector, Magnitude  # (importing it registers the library's injectors in EFFECTS)
+from .variants import VARIANTS  # noqa: F401  (importing it registers the off-face injectors of issue 13 in EFFECTS)
 from .robot_model import LEGS, TrueRobot, draw_true_robot, nominal_robot
 from .simulate import SimResult, simulate
 from .statics import Stance, board_rotation, contact_forces, internal_forces, solve_stance
