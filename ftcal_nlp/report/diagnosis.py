@@ -85,8 +85,10 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
         sec.add(Text(line))
     sec.add(Text("Candidates are ranked by the change of BIC (delta BIC, negative: better than the calibrated model) on the "
                  "recordings where the gap lies; every held-out number comes from cross-validation folds (standing) or "
-                 "contiguous time blocks (hanging, walking) that the candidate was not fitted to. Noise floors come from the "
-                 "data: within-pose scatter, high-frequency scatter and the part of the residual no measured variable predicts."))
+                 "contiguous time blocks (hanging, walking) that the candidate was not fitted to. Noise floors come from what "
+                 "cannot be the gap: for the standing poses the within-run scatter of the readings plus a per-pose "
+                 "motion-capture tilt error fitted as a variance component on the training residuals; for hanging and "
+                 "walking the high-frequency scatter."))
     sec.add(Table("Held-out RMS per component and the noise floor", shrinkage_table(d)))
     sec.add(Figure("diagnosis_shrinkage.png", fig_shrinkage(d, folder / "diagnosis_shrinkage.png"),
                    "Held-out RMS of the calibrated model" + (f", with {d.effect} added," if d.effect else "")
