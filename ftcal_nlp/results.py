@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import norm
 
-__all__ = ["fmt_pm", "bic", "Summary", "ResultsMixin", "block_diag_cov", "cov_frame"]
+__all__ = ["fmt_pm", "bic", "Summary", "ResultsMixin", "StackedResults", "block_diag_cov", "cov_frame"]
 
 PM = "±"
 
@@ -243,3 +243,24 @@ class ResultsMixin:
         out[:, hit] = np.nan
         out[hit, hit] = np.inf
         return out
+
+
+class StackedResults(ResultsMixin):
+    """Results made of independent parts (one per leg, say): ``params`` concatenated, covariance
+    block-diagonal. Subclasses define ``_parts()``, the part results in order."""
+
+    def _parts(self) -> list:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    @property
+    def params(self) -> pd.Series:
+        parts = self._parts()
+        return pd.concat([r.params for r in parts]) if parts else pd.Series(dtype=float)
+
+    def _cov_array(self) -> np.ndarray:
+        frames = [r.cov_params().fillna(0.0) for r in self._parts()]
+        return block_diag_cov(frames).to_numpy() if frames else np.zeros((0, 0))
+
+    def _bse_array(self) -> np.ndarray:
+        parts = self._parts()
+        return np.concatenate([r._bse_array() for r in parts]) if parts else np.zeros(0)

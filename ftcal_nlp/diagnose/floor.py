@@ -101,7 +101,7 @@ from scipy.stats import chi2
 from ..balance import K_DIAG, check_balance, features, residual
 from ..calibration import Calibration
 from ..data import WRENCH_COMPONENTS
-from ..geometry import skew
+from ..geometry import skew, transform_wrench
 from ..models import ModelContext, resolve
 from ..selection import fold_indices
 from ..standing.result import physical
@@ -194,9 +194,7 @@ def physical_jacobian(w_m: np.ndarray, R_HB: np.ndarray, cal: Calibration, legs)
         J[:, :3, c : c + 3] = -Sf[:, k]
         J[:, 3:, c : c + 3] = -skew(tq[:, k]) - skew(p[k])[None] @ Sf[:, k]
         J[:, 3:, c + 3 : c + 6] = -Sf[:, k]
-        Ad = np.zeros((6, 6))
-        Ad[:3, :3], Ad[3:, 3:], Ad[3:, :3] = R[k], R[k], skew(p[k]) @ R[k]
-        J[:, :, c + 6 : c + 12] = -Ad[None]
+        J[:, :, c + 6 : c + 12] = -transform_wrench(R[k], p[k], np.eye(6)).T[None]  # -Ad_k
         J[:, :3, c + 12] = z
     return _to_world6(R_HB, J)
 

@@ -107,7 +107,7 @@ from ..balance import K_DIAG, features, knorm2, residual
 from ..calibration import Calibration
 from ..data import Dataset
 from ..geometry import rotation_between, rotation_to_rotvec, rotvec_to_rotation, skew, transform_wrench
-from ..results import ResultsMixin, Summary, block_diag_cov, fmt_pm
+from ..results import ResultsMixin, StackedResults, Summary, fmt_pm
 from ..robot import Robot
 from ..solver import identifiability
 from .views import LegSeries, walking_views
@@ -282,7 +282,7 @@ class LinearMapStep:
 
 
 @dataclass(frozen=True)
-class LinearMapCheck(ResultsMixin):
+class LinearMapCheck(StackedResults):
     """Check 1 over every leg (module docstring).
 
     ``rss_cal`` the calibration's K-norm RSS over the poses (in-sample for it); ``rss_base`` the
@@ -323,16 +323,8 @@ class LinearMapCheck(ResultsMixin):
     def free_parts(self, leg: str) -> tuple[str, ...]:
         return tuple(p for p in PARTS if any(k == leg and q in (p, "both") for k, q in self.selected))
 
-    @property
-    def params(self) -> pd.Series:
-        return pd.concat([self.maps[k].params for k in self.legs if k in self.maps]) if self.maps else pd.Series(dtype=float)
-
-    def _cov_array(self) -> np.ndarray:
-        fr = [self.maps[k].cov_params().fillna(0.0) for k in self.legs if k in self.maps]
-        return block_diag_cov(fr).to_numpy() if fr else np.zeros((0, 0))
-
-    def _bse_array(self) -> np.ndarray:
-        return np.concatenate([self.maps[k]._bse_array() for k in self.legs if k in self.maps]) if self.maps else np.zeros(0)
+    def _parts(self) -> list:
+        return [self.maps[k] for k in self.legs if k in self.maps]
 
     def table(self) -> pd.DataFrame:
         rows = {}
@@ -679,7 +671,7 @@ class SwingLegFit(ResultsMixin):
 
 
 @dataclass(frozen=True)
-class SwingCheck(ResultsMixin):
+class SwingCheck(StackedResults):
     """Check 2 over every leg: ``fits`` leg -> :class:`SwingLegFit` (legs with enough swing samples),
     ``flagged`` legs, ``z_bound`` the Bonferroni bound of the weight and moment z (two statistics
     per leg, family-wise ``alpha``), ``min_weight_N`` the smallest change called,
@@ -693,16 +685,8 @@ class SwingCheck(ResultsMixin):
     flagged: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 
-    @property
-    def params(self) -> pd.Series:
-        return pd.concat([self.fits[k].params for k in self.legs if k in self.fits]) if self.fits else pd.Series(dtype=float)
-
-    def _cov_array(self) -> np.ndarray:
-        fr = [self.fits[k].cov_params() for k in self.legs if k in self.fits]
-        return block_diag_cov(fr).to_numpy() if fr else np.zeros((0, 0))
-
-    def _bse_array(self) -> np.ndarray:
-        return np.concatenate([self.fits[k]._bse_array() for k in self.legs if k in self.fits]) if self.fits else np.zeros(0)
+    def _parts(self) -> list:
+        return [self.fits[k] for k in self.legs if k in self.fits]
 
     def table(self) -> pd.DataFrame:
         rows = {}

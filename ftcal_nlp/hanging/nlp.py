@@ -49,9 +49,9 @@ import numpy as np
 from scipy import sparse
 
 from ..geometry import skew, unskew
+from ..solver import SolverError, ipopt
 from .com_qp import second_difference
 from .model import LegState, pseudo_residuals_sx, weighted_sumsq_sx
-from ..solver import SolverError, ipopt
 from .problem import LegProblem
 
 

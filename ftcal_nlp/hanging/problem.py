@@ -28,9 +28,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..solver import SolverError
 from ..data import DataFormatError, Recording, hanging_pairs
 from ..robot import Robot
+from ..solver import SolverError
 from .binning import RecordingStats, compress_recording, periodic_grid
 
 PRIOR_SD_M = 1.0  # weak prior on every CoM grid point (keeps the CoM QP strictly convex)
