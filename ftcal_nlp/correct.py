@@ -21,6 +21,7 @@ import pandas as pd
 
 from .calibration import Calibration
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, ground_wrench_frame, read_table, recording_from_frame
+from .effect_correction import apply_effect
 from .geometry import quat_to_rotation
 from .physics import ground_wrenches
 from .robot import Robot, Transducer
@@ -46,7 +47,9 @@ def correct_recording(cal: Calibration, rec: Recording) -> pd.DataFrame:
         log.warning("%s: dropped %d of %d rows without motion-capture orientation", rec.path or rec.name, int((~ok).sum()), rec.n)
         rec = rec.select(ok)
     legs = cal.leg_names
-    gw = ground_wrenches(rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat), cal)
+    # a calibration written with the diagnosis' named effect corrects the readings for it first
+    w, R = apply_effect(cal, rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat), rec.t, source=str(rec.path or rec.name))
+    gw = ground_wrenches(w, rec.phi_array(legs), R, cal)
     return ground_wrench_frame(rec.t, gw, legs)
 
 

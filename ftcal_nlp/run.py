@@ -87,6 +87,11 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
             df.to_csv(cfg.output_dir / "corrected" / f"{name}.csv", index=False, float_format="%.7g")
     if res.diagnosis is not None:
         (cfg.output_dir / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
+        if res.diagnosis.joint is not None and res.diagnosis.joint.calibration is not None:
+            # the calibration refit with the named effect: `correct` applies the effect's corrections
+            res.diagnosis.joint.calibration.save(cfg.output_dir / "calibration_with_effect.json")
+            for note in res.diagnosis.joint.notes:
+                log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
     with stage("report", res.timings):
         write_report(res, cfg.output_dir)
     print(summary_text(res, cfg))

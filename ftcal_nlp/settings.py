@@ -138,12 +138,14 @@ class SelectionSettings:
 @dataclass(frozen=True)
 class DiagnoseSettings:
     """Sim-to-real gap diagnosis: ``effects`` the candidate names (None: the whole library),
-    ``folds``/``seed`` its cross-validation."""
+    ``folds``/``seed`` its cross-validation; ``joint_refit``: refit the whole calibration with
+    the named effect (``diagnose/joint.py``) and report its shrinkage."""
 
     enabled: bool = True
     effects: tuple[str, ...] | None = None
     folds: int = 5
     seed: int = 0
+    joint_refit: bool = True
 
 
 @dataclass(frozen=True)

@@ -295,8 +295,10 @@ def test_diagnosis_json_follows_the_contract(tmp_path):
     from ftcal_nlp.report.diagnosis import diagnosis_section
 
     sec = diagnosis_section(d, tmp_path)
-    # shrinkage, ranking, kinds, and the per-leg checks when a leg stands out (a table) or not (a sentence)
-    assert sec.title and sec.text and len(sec.tables) == 3 + bool(d.perleg.findings)
+    # shrinkage, the joint refit with the named effect, ranking, kinds, and the per-leg checks when a leg
+    # stands out (a table) or not (a sentence)
+    assert sec.title and sec.text and len(sec.tables) == 3 + (d.joint is not None) + bool(d.perleg.findings)
+    assert d.joint is not None and "joint_refit" in js
     assert "noise_floor_parts" in js and js["noise_floor_parts"]
     for name, path in sec.figures:
         assert path.is_file() and path.stat().st_size > 5000, name

@@ -22,6 +22,7 @@ from ..data import Dataset
 from ..models import ModelContext, resolve
 from ..robot import Robot
 from ..settings import DiagnoseSettings
+from ..solver import SolverError
 from .attribute import (
     GAP_THRESHOLD,
     attribute,
@@ -30,7 +31,8 @@ from .attribute import (
     gap_threshold,
     ranking_bic,
 )
-from .effects import resolve_effects
+from .effects import LIBRARY, resolve_effects
+from .joint import joint_refit
 from .perleg import perleg_checks
 from .localise import (
     components_with_gap,
@@ -135,6 +137,17 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     after = before
     if verdict == "effect" and primary in by_name[effect].kinds:
         after = by_name[effect].kinds[primary].rms_after
+    joint = None
+    if verdict == "effect" and s.joint_refit:
+        try:
+            joint = joint_refit(views, LIBRARY[effect], model, prior, calibration, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
+        except (SolverError, np.linalg.LinAlgError) as exc:
+            views.notes.append(f"joint refit with {effect} failed: {exc}")
+            log.warning("diagnosis: joint refit with %s failed: %s", effect, exc)
+        else:
+            jk = joint.kinds.get(primary)
+            if jk is not None:  # how far it shrinks: the joint model's held-out residual (module joint.py)
+                before, after = jk.rms_before, jk.rms_after
     shrink = {"heldout_rms_before": before, "heldout_rms_after": after, "noise_floor": floor, "kind": KIND_NAMES.get(primary, primary),
               "kind_key": primary}
     ranking = []
@@ -148,7 +161,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     effect_fit = by_name[effect].fit if verdict == "effect" else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
                            str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit, perleg,
-                           views.standing.floor_parts.get("noise_model") if views.standing is not None else None)
+                           views.standing.floor_parts.get("noise_model") if views.standing is not None else None, joint)
 
 
 PRIORITY = ("standing", "hanging", "walking swing")

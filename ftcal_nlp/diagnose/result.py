@@ -50,6 +50,7 @@ class DiagnosisResult:
     effect_fit: Any = None  # the named effect's standing fit (results protocol: params, bse, cov_params, summary)
     perleg: Any = None      # the library-free per-leg checks (perleg.PerLegFindings) or None
     noise_model: dict | None = None  # the standing noise floor's parts (floor.py): readings, motion capture, fit
+    joint: Any = None       # the joint refit with the named effect (joint.JointRefit) or None
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:
@@ -102,6 +103,8 @@ class DiagnosisResult:
             out["per_leg_checks"] = [{"leg": f.leg, "check": f.kind, "components": list(f.components), "statement": f.statement,
                                       "size": float(f.size), "z": float(f.z) if np.isfinite(f.z) else None, "shared": bool(f.shared)}
                                      for f in self.perleg.findings]
+        if self.joint is not None:
+            out["joint_refit"] = self.joint.to_json_dict()
         if self.notes:
             out["notes"] = list(self.notes)
         return out

@@ -26,6 +26,7 @@ explanatory variables, and noise floors derived from the data (never from simula
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,6 +79,7 @@ class StandingView:
     floor_parts: dict
     has_prev: np.ndarray
     n_run: np.ndarray
+    refloor: Callable[[np.ndarray, int], np.ndarray] | None = None
 
     @property
     def P(self) -> int:
@@ -225,6 +227,11 @@ def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Cali
     noise = fit_noise_floor(r_W, reads, G, X, J=J, J_h=J_phys[:, :, h_cols], C_h=C_h, model_dof=model_dof, folds=folds,
                             names=names, R_HB=poses.R_WB, J_h_fixed=offsets_only, seed=seed)
     floor = noise.floor
+
+    def refloor(r_in: np.ndarray, extra_dof: int) -> np.ndarray:
+        return fit_noise_floor(r_in, reads, G, X, J=J, J_h=J_phys[:, :, h_cols], C_h=C_h, model_dof=model_dof + extra_dof, folds=folds,
+                               names=names, R_HB=poses.R_WB, J_h_fixed=offsets_only, seed=seed).floor
+
     rcom = np.stack([prior.legs[k].com(poses.phi[:, i]) for i, k in enumerate(legs)], axis=1)
     rcom = np.where(np.isfinite(rcom), rcom, 0.0)
     data = StandingData(poses.w_m, poses.R_WB[:, 2, :], poses.R_WB, t_h, prev, poses.phi, rcom, n_vert)
@@ -233,7 +240,7 @@ def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Cali
              "mocap_tilt_upper_deg": float(np.degrees(noise.s_theta_upper_rad)), "mocap_identified": noise.identified,
              "calibration": noise.calibration, "fit": noise.fit, "cv_inflation": noise.cv_inflation, "poses_with_run": reads.n_used,
              "within": floor.copy(), "noise_gap": noise.gap, "statement": noise.statement, "noise_model": noise.parts()}
-    return StandingView(data, poses.t.copy(), poses.R_WB.copy(), floor, parts, has_prev, n_run)
+    return StandingView(data, poses.t.copy(), poses.R_WB.copy(), floor, parts, has_prev, n_run, refloor)
 
 
 def _sq(se, n: int) -> np.ndarray:

@@ -46,6 +46,21 @@ def shrinkage_table(d: "DiagnosisResult") -> pd.DataFrame:
     return df
 
 
+def joint_view(d: "DiagnosisResult") -> pd.DataFrame | None:
+    """The joint refit with the named effect: per recording kind and component, held-out RMS
+    before / after and the joint model's floor (``diagnose/joint.py``)."""
+    j = d.joint
+    if j is None:
+        return None
+    rows = {}
+    for kind, k in j.kinds.items():
+        rows[kind] = {f"{c} before / after / floor [{_unit(c)}]": f"{_g(b)} / {_g(a)} / {_g(f, 2)}"
+                      for c, b, a, f in zip(WRENCH_COMPONENTS, k.rms_before, k.rms_after, k.floor)}
+    out = pd.DataFrame(rows).T
+    out.index.name = "recordings"
+    return out
+
+
 def ranking_view(d: "DiagnosisResult") -> pd.DataFrame:
     """Every candidate, best first: delta BIC, share of the gap explained, held-out RMS after (forces, torques), status."""
     t = d.ranking_table()
@@ -98,6 +113,12 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
         sec.add(Figure("diagnosis_dependence.png", dep,
                        "The residual component with the largest gap against the measured variable that explains it best; "
                        f"the grey band is {PM} the noise floor."))
+    jv = joint_view(d)
+    if jv is not None:
+        sec.add(Table(f"Joint refit: the whole calibration refit with {d.effect} (hanging, standing and walking swing "
+                      "together, cross-validated; `calibration_with_effect.json`, which `correct` applies)", jv))
+        for line in d.joint.notes:
+            sec.add(Text(line))
     sec.add(Table("Candidate effects, best first", ranking_view(d)))
     sec.add(Table("Residual by recording kind (held-out RMS / noise floor)", kinds_view(d)))
     if d.perleg is not None:

@@ -9,7 +9,7 @@ calibration uses the report's fixed-CoM balance, eq. 9).
 
 Augmentations (standing face, eq. (A) of base.py):
 
-* tether_force   e_p = [R_HB^T f; R_HB^T tau]                      6 parameters
+* tether_force   e_p = [R_HB^T f; a x R_HB^T f]  (a cable at point a)  6 parameters
 * robot_mass     e_p = dM g [z; 0]                                 1
 * mocap_bias     z~ = Cay(q) z                                     3 (exactly absorbed by
                  free transducer rotations and translations: then the design face,
@@ -54,11 +54,14 @@ class TetherForce(Effect):
     injector_cls = TetherForceInjector
 
     def standing_params(self, ctx):
-        return ParamBlock.bounded(("f.x [N]", "f.y [N]", "f.z [N]", "tau.x [N*m]", "tau.y [N*m]", "tau.z [N*m]"), 20.0)
+        names = ("f.x [N]", "f.y [N]", "f.z [N]", "a.x [cm]", "a.y [cm]", "a.z [cm]")
+        return ParamBlock(names, np.zeros(6), np.r_[np.full(3, -20.0), np.full(3, -50.0)], np.r_[np.full(3, 20.0), np.full(3, 50.0)])
 
     def standing(self, eta, pose, ctx):
-        Rt = pose.R_HB.T
-        return pose.w, None, ca.vertcat(ca.mtimes(Rt, eta[0:3]), ca.mtimes(Rt, eta[3:6]))
+        # A cable pulls with a force fixed in the heading frame at a point a of the body: its
+        # torque about the reference point, a x f, turns with the body (a constant torque would not)
+        f_B = ca.mtimes(pose.R_HB.T, eta[0:3])
+        return pose.w, None, ca.vertcat(f_B, ca.cross(0.01 * eta[3:6], f_B))
 
     def swing_features(self, legs):
         def make(l):

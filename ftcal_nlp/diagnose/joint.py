@@ -1,0 +1,360 @@
+"""Joint refit: the named effect added to the whole calibration problem, cross-validated.
+
+Attribution (``attribute.py``) scores each candidate face by face; this module
+refits the calibration *with* the effect, so that "how far it shrinks" is the
+held-out residual of one joint model on every recording kind, beside its floor.
+
+* hanging (report eqs. 4-7): the fitted model's residual ``e_i`` of a sample is
+  regressed on the effect's hanging features ``X_i`` together with the
+  calibration's own first-order directions (a Gauss-Newton step from the
+  calibrated optimum, exact for the parameters that enter linearly):
+
+      e_i ~ J_i dtheta_h + X_i beta,   per leg  J_i = [ I_6 | -a_i / m g | T_ij | C_i(phi) ]
+
+  with ``a_i = [f; r x f]`` the modelled applied wrench, ``I_6`` the offsets,
+  ``-a_i / m g`` the leg weight, ``T_ij = [[f]x; [r]x [f]x]`` the hanging tilt of
+  recording j (``delta x f``) and ``C_i = [0; [f]x h(phi)^T]`` the CoM curve's
+  correction in a few harmonics ``h = (1, cos phi, sin phi, cos 2phi, sin 2phi)``.
+  Floor-standardised, accumulated per fold (contiguous time blocks, as
+  ``linear_fit.py``); the "before" is the same regression without ``X``, so both
+  sides spend the calibration's parameters on the same folds.
+* standing (eq. 8 with the balance of ``balance.py``): the selected error model
+  plus the effect's standing face (``standing_fit.py``) refit on the poses with
+  the offsets and leg weights of the joint hanging fit as its prior; the same
+  k-fold poses as the attribution. "Before" is the calibration model alone.
+* walking swing: a foot in the air predicted with the joint calibration (the
+  standing fit's rotations, the joint offsets and weights; ``linear_fit.recalibrate``)
+  plus the effect's swing face, time-block folds.
+
+The result carries, per kind and component, the held-out RMS before and after
+and the floor of ``views.py`` (never estimated from these residuals), the joint
+calibration (``Calibration``, writable as ``calibration.json``) and the effect's
+parameters with standard errors, so that :mod:`ftcal_nlp.effect_correction`
+can apply the effect's reading corrections when correcting a recording.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ..calibration import Calibration
+from ..geometry import skew
+from ..selection import fold_indices
+from ..solver import SolverError
+from .effects.base import Effect, HangingLeg, LinearFace
+from .linear_fit import RIDGE, score_linear, time_folds
+from .standing_fit import AugmentedProblem
+from .views import LegSeries, Views, to_world
+
+log = logging.getLogger(__name__)
+
+FULL_MODEL = "full"    # the most flexible built-in error model (rotations, translations free)
+WORSE_RATIO = 1.2      # a kind the joint model predicts this much worse than the calibration alone (and than its floor)
+COM_HARMONICS = 2       # the CoM curve's correction: constant plus this many harmonics of phi
+
+
+@dataclass(frozen=True)
+class KindRefit:
+    """One recording kind under the joint refit: held-out RMS (6,) before / after, floor (6,), samples."""
+
+    kind: str
+    rms_before: np.ndarray
+    rms_after: np.ndarray
+    floor: np.ndarray
+    n: int
+
+    def to_json_dict(self) -> dict:
+        return {"heldout_rms_before": [float(v) for v in self.rms_before], "heldout_rms_after": [float(v) for v in self.rms_after],
+                "noise_floor": [float(v) for v in self.floor], "n": int(self.n)}
+
+
+@dataclass(frozen=True)
+class JointRefit:
+    """The joint calibration with the effect: per-kind shrinkage, the calibration, the effect's parameters.
+
+    ``parameters``: name -> (value, se) of the effect (standing face names as in
+    ``effect_parameters``; hanging-face names prefixed ``hanging:``); ``calibration`` the
+    refit calibration (offsets and leg weights from the joint hanging fit, or the standing
+    model's offsets where it fits them; rotations and, with the exact balance, positions
+    from the joint standing fit); ``eta`` the standing face's parameter vector (scaled units
+    of ``Effect.standing_params``), what :mod:`ftcal_nlp.effect_correction` evaluates.
+    """
+
+    effect: str
+    kinds: dict
+    calibration: Calibration | None
+    parameters: dict
+    eta: np.ndarray | None
+    t_ref: float
+    notes: tuple = ()
+
+    def to_json_dict(self) -> dict:
+        return {"effect": self.effect, "kinds": {k: v.to_json_dict() for k, v in self.kinds.items()},
+                "parameters": {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in self.parameters.items()},
+                **({"notes": list(self.notes)} if self.notes else {})}
+
+    def effect_block(self) -> dict:
+        """What ``calibration.json`` carries about the effect (``effect_correction.py`` reads it)."""
+        return {"name": self.effect, "eta": [float(v) for v in (self.eta if self.eta is not None else [])], "t_ref_s": float(self.t_ref),
+                "parameters": {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in self.parameters.items()}}
+
+
+# ----------------------------------------------------------------------------- hanging
+
+
+def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS) -> tuple[np.ndarray, list[str]]:
+    """``J_i`` (N, 6, q) of the module docstring for one leg, with labels."""
+    N = len(l.t)
+    Fx = skew(l.f)                                       # (N, 3, 3) [f]x
+    cols, names = [], []
+    I = np.zeros((N, 6, 6))
+    I[:, np.arange(6), np.arange(6)] = 1.0
+    cols.append(I)
+    names += [f"{l.leg}.w_o.{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]
+    cols.append((-l.applied / l.mg)[:, :, None])
+    names.append(f"{l.leg}.mg")
+    T = np.concatenate([Fx, np.einsum("nij,njk->nik", skew(l.r), Fx)], axis=1)   # (N, 6, 3)
+    for j in range(n_rec):
+        cols.append(T * (l.rec == j)[:, None, None])
+        names += [f"{l.leg}.tilt[{j}].{a}" for a in "xyz"]
+    h = [np.ones(N)]
+    for m in range(1, harmonics + 1):
+        h += [np.cos(m * l.phi), np.sin(m * l.phi)]
+    for j, hj in enumerate(h):
+        C = np.zeros((N, 6, 3))
+        C[:, 3:, :] = Fx * hj[:, None, None]
+        cols.append(C)
+        names += [f"{l.leg}.r[{j}].{a}" for a in "xyz"]
+    return np.concatenate(cols, axis=2), names
+
+
+def hanging_joint(series: LegSeries, face: LinearFace | None, folds: int) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, np.ndarray]:
+    """Joint hanging regression (module docstring) with and without the effect's face.
+
+    Returns the kind's refit, the effect's hanging parameters ``name -> (value, se)``,
+    the offsets' shifts (K, 6), the leg weights' shifts (K,) N (both from the joint fit with
+    the effect, on all samples) and the per-leg number of nuisance parameters.
+    """
+    legs = series.legs
+    K = max(l.k for l in legs) + 1
+    n_rec = int(max(l.rec.max() for l in legs)) + 1
+    J = [hanging_nuisance(l, n_rec) for l in legs]
+    qn = J[0][0].shape[2]
+    q = face.blocks[0].shape[2] if face is not None else 0
+    m_eff = (K * q if face.per_leg else q) if face is not None else 0
+    n_tot = K * qn + m_eff
+    fl = np.where(series.floor > 0, series.floor, 1.0)
+    fidx = time_folds(series, folds)
+
+    def accumulate(with_effect: bool):
+        A = np.zeros((folds, n_tot, n_tot))
+        b = np.zeros((folds, n_tot))
+        parts = []
+        for i, l in enumerate(legs):
+            X = J[i][0]
+            idx = list(range(l.k * qn, (l.k + 1) * qn))
+            if with_effect and face is not None:
+                X = np.concatenate([X, face.blocks[i]], axis=2)
+                off = K * qn + (l.k * q if face.per_leg else 0)
+                idx += list(range(off, off + q))
+            idx = np.asarray(idx)
+            s = fl[l.k]
+            Xs, ys = X / s[None, :, None], l.e / s[None, :]
+            Af = np.zeros((folds, 6, len(idx), len(idx)))
+            bf = np.zeros((folds, 6, len(idx)))
+            yy = np.zeros((folds, 6))
+            for f in range(folds):
+                sel = fidx[i] == f
+                if sel.any():
+                    Af[f] = np.einsum("nca,ncb->cab", Xs[sel], Xs[sel])
+                    bf[f] = np.einsum("nca,nc->ca", Xs[sel], ys[sel])
+                    yy[f] = (ys[sel] ** 2).sum(axis=0)
+            A[:, idx[:, None], idx[None, :]] += Af.sum(axis=1)
+            b[:, idx] += bf.sum(axis=1)
+            parts.append((idx, Af, bf, yy, s))
+        return A, b, parts
+
+    def cv(A, b, parts, active):
+        A_tot, b_tot = A.sum(0), b.sum(0)
+        scale = max(np.trace(A_tot[np.ix_(active, active)]) / max(len(active), 1), 1e-300)
+        reg = RIDGE * scale * np.eye(n_tot)
+        ss = np.zeros(6)
+        for f in range(folds):
+            beta = np.zeros(n_tot)
+            Af, bf = A_tot - A[f] + reg, b_tot - b[f]
+            beta[active] = np.linalg.solve(Af[np.ix_(active, active)], bf[active])
+            for idx, Afl, bfl, yy, s in parts:
+                bl = beta[idx]
+                ssf = yy[f] - 2 * bfl[f] @ bl + np.einsum("m,cmn,n->c", bl, Afl[f], bl)
+                ss += ssf * s**2
+        beta = np.zeros(n_tot)
+        M = (A_tot + reg)[np.ix_(active, active)]
+        beta[active] = np.linalg.solve(M, b_tot[active])
+        cov = np.full((n_tot, n_tot), np.nan)
+        cov[np.ix_(active, active)] = np.linalg.inv(M)
+        return ss, beta, cov
+
+    n_all = series.n
+    active0 = np.arange(K * qn)
+    A0, b0, p0 = accumulate(False)
+    ss0, _, _ = cv(A0, b0, p0, active0)
+    A1, b1, p1 = accumulate(True)
+    ss1, beta, cov = cv(A1, b1, p1, np.arange(n_tot))
+    floor = np.sqrt(np.mean(np.square(series.floor[[l.k for l in legs]]), axis=0))
+    kind = KindRefit(series.kind, np.sqrt(ss0 / n_all), np.sqrt(ss1 / n_all), floor, n_all)
+    params = {}
+    if face is not None:
+        # floor-standardised regression: the parameters' covariance is (X^T X)^-1 up to the
+        # residual variance ratio, which the held-out excess measures
+        ratio = max(float(np.mean(ss1 / n_all / np.where(floor > 0, floor, 1.0) ** 2)), 1.0)
+        for j, name in enumerate(face.names):
+            c = K * qn + j
+            params[f"hanging:{name}"] = (float(beta[c]), float(np.sqrt(cov[c, c] * ratio)))
+    d_off = np.zeros((K, 6))
+    d_mg = np.zeros(K)
+    for l in legs:
+        d_off[l.k] = beta[l.k * qn : l.k * qn + 6]
+        d_mg[l.k] = beta[l.k * qn + 6]
+    return kind, params, d_off, d_mg, qn
+
+
+# ----------------------------------------------------------------------------- standing
+
+
+def _standing_cv(problem: AugmentedProblem, view, fidx: list, x0: np.ndarray):
+    Phi = problem.design(view.data)
+    P = view.P
+    x = problem.fit(Phi, np.full(P, 1.0 / P), x0)
+    held = np.zeros((P, 6))
+    for test in fidx:
+        w = np.full(P, 1.0 / (P - len(test)))
+        w[test] = 0.0
+        held[test] = problem.residuals(problem.fit(Phi, w, x), Phi[test])
+    return x, to_world(held, view.R_WB), Phi
+
+
+def _evaluate(problem: AugmentedProblem, x: np.ndarray):
+    """Rotations (K, 3, 3), positions (K, 3) and offsets (K, 6) or None of the model part of ``x``."""
+    xm = x[: problem.n_model]
+    f = lambda e: np.asarray(ca.Function("f", [problem.spec.x], [e])(xm), float)
+    R = np.stack([f(Rk) for Rk in problem.spec.R])
+    p = np.stack([f(pk).ravel() for pk in problem.spec.p_prime])
+    off = np.stack([f(o).ravel() for o in problem.spec.offsets]) if problem.spec.offsets is not None else None
+    return R, p, off
+
+
+def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray) -> Calibration:
+    """``prior`` with the offsets and leg weights moved by the joint hanging fit."""
+    legs = {}
+    for k, leg in enumerate(prior.leg_names):
+        l = prior.legs[leg]
+        legs[leg] = replace(l, offset=np.asarray(l.offset, float) + d_off[k], leg_weight_N=float(l.leg_weight_N + d_mg[k]))
+    return replace(prior, legs=legs)
+
+
+# ----------------------------------------------------------------------------- the joint refit
+
+
+def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, calibration: Calibration, robot,
+                balance: str, *, folds: int = 5, seed: int = 0, x_start: np.ndarray | None = None) -> JointRefit:
+    """The calibration refit with ``effect`` on every recording kind of ``views`` (module docstring).
+
+    ``prior``: the hanging calibration the standing fit starts from; ``calibration``: the
+    finished calibration (what the joint calibration replaces values of).
+    """
+    legs = tuple(robot.legs)
+    kinds, params, notes = {}, {}, []
+    d_off, d_mg = np.zeros((len(legs), 6)), np.zeros(len(legs))
+    if views.hanging is not None:
+        face = effect.hanging_features(views.hanging.legs)
+        kinds["hanging"], hp, d_off, d_mg, _ = hanging_joint(views.hanging, face, folds)
+        params.update(hp)
+    prior_j = shifted_prior(prior, d_off, d_mg)
+    cal = shifted_prior(calibration, d_off, d_mg)
+    eta = None
+    R_new = off_new = None
+    best = None
+    sv = views.standing
+    if sv is not None:
+        fidx = fold_indices(sv.P, folds, seed)
+        base = AugmentedProblem(model, prior, robot, balance)
+        x0 = base.x0 if x_start is None or len(x_start) != base.n_model else x_start
+        xb, held0, Phi0 = _standing_cv(base, sv, fidx, x0)
+        base_dof = base.effective_dof(xb, Phi0)
+        # The error model is refit too: an effect the calibration did not know about can make model
+        # selection settle on a smaller model (a drift taken for translations), so the joint fit
+        # also tries the full model and keeps the one with the smaller held-out residual.
+        best = None
+        for m in dict.fromkeys([model, FULL_MODEL]):
+            prob = AugmentedProblem(m, prior_j, robot, balance, effect)
+            start = np.concatenate([xb, prob.x0[prob.n_model:]]) if m == model else prob.x0
+            try:
+                x, held1, Phi = _standing_cv(prob, sv, fidx, start)
+            except SolverError as exc:
+                notes.append(f"joint standing refit with model {m!r} failed ({exc.status})")
+                continue
+            z = float(((held1 / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum())
+            if best is None or z < best[0]:
+                best = (z, m, prob, x, held1, Phi)
+        if best is None:
+            notes.append("joint standing refit failed; the standing kind is left out")
+        else:
+            _, m_used, prob, x, held1, Phi = best
+            if m_used != model:
+                notes.append(f"with {effect.name} the standing error model {m_used!r} predicts held-out poses better than {model!r}")
+            fit = prob.result(x, Phi)
+            # The floor of the joint model: the same noise model refit to the joint fit's own
+            # in-sample residuals (an effect the calibration lacked inflates the calibration's floor)
+            floor = sv.floor
+            if sv.refloor is not None:
+                floor = sv.refloor(to_world(prob.residuals(x, Phi), sv.R_WB), max(fit.rank - base_dof, 0))
+            kinds["standing"] = KindRefit("standing", np.sqrt((held0**2).mean(0)), np.sqrt((held1**2).mean(0)), floor, sv.P)
+            for n, v, s in zip(fit.effect_params.index, fit.effect_params, fit.effect_bse):
+                params[n] = (float(v), float(s))
+            eta = prob.eta(x)
+            R_new, p_new, off_new = _evaluate(prob, x)
+            new_legs = {}
+            for k, leg in enumerate(legs):
+                kw = {"rotation_to_body": R_new[k]}
+                if prob.balance == "exact" and balance == "exact":
+                    kw["position_from_com_m"] = p_new[k]
+                if off_new is not None:
+                    kw["offset"] = off_new[k]
+                new_legs[leg] = replace(cal.legs[leg], **kw)
+            cal = replace(cal, legs=new_legs)
+            if balance != "exact":
+                notes.append("report balance: the joint calibration keeps the calibration's positions (its p' are relative to a moving CoM)")
+    if views.swing is not None:
+        kinds["walking swing"] = _swing_joint(views.swing, effect, calibration, cal, legs, folds)
+    worse = [k for k, v in kinds.items() if np.any(v.rms_after > WORSE_RATIO * np.maximum(v.rms_before, v.floor))]
+    if worse:
+        # the effect's face does not fit these recordings' shape (issue 13, item 4): say so rather
+        # than hand `correct` a calibration that is worse there
+        notes.append(f"the joint model predicts the {', '.join(worse)} recordings worse than the calibration alone: the "
+                     f"effect's face does not follow the data there; correcting with calibration_with_effect.json is not advised")
+    cal = replace(cal, model=m_used if sv is not None and best is not None else cal.model)
+    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes))
+    meta = dict(cal.meta)
+    meta["effect"] = {**out.effect_block(), "R_nominal": np.asarray(robot.nominal_rotations(), float).tolist()}
+    return replace(out, calibration=replace(cal, meta=meta))
+
+
+def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calibration, legs, folds: int) -> KindRefit:
+    """Swing residuals with the joint calibration (rotations, offsets, weights) plus the swing face."""
+    out = []
+    for l in series.legs:
+        lo, ln = old.legs[legs[l.k]], new.legs[legs[l.k]]
+        R = np.asarray(ln.rotation_to_body, float)
+        f_new = (R.T @ (l.R_cal @ l.f.T)).T * (ln.leg_weight_N / lo.leg_weight_N)
+        df = l.f - f_new
+        e = l.e + np.hstack([df, np.cross(l.r, df)]) - (np.asarray(ln.offset, float) - np.asarray(lo.offset, float))
+        out.append(replace(l, e=e, f=f_new, R_cal=R, mg=float(ln.leg_weight_N)))
+    after = replace(series, legs=out)
+    face = effect.swing_features(after.legs)
+    sc, _ = score_linear(series, face, folds, after=after)
+    return KindRefit(series.kind, np.sqrt(sc.mse_before), np.sqrt(sc.mse_after), sc.floor, series.n)
