@@ -67,6 +67,11 @@ class EffectScore:
     fit: Any = None                  # AugmentedFit of the standing face on every pose (results protocol), or None
     note: str = ""
     time_s: float = 0.0
+    model_effect: Any = None         # the Effect variant scored (faces of the chosen flexibility)
+
+    @property
+    def label(self) -> str:
+        return self.model_effect.label if self.model_effect is not None else self.effect
 
     @property
     def delta_bic(self) -> float:
@@ -159,11 +164,10 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
     if views.swing is not None:
         base["walking swing"] = base_linear(views.swing)
 
-    scores, after = [], {}
-    for eff in effects:
+    def score_one(eff: Effect) -> tuple[EffectScore, np.ndarray | None]:
         t0 = time.perf_counter()
         kinds: dict = {}
-        status, note, fit, recal = "ok", "", None, None
+        status, note, fit, recal, held = "ok", "", None, None, None
         try:
             if sv is not None and eff.needs_report_balance and balance != "report":
                 note = "not applicable: the calibration already uses the exact balance (moving CoMs included)"
@@ -173,7 +177,6 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
                     x0 = np.concatenate([xb, prob.x0[prob.n_model :]])
                     x, dof, held, r_in = _standing_cv(prob, sv, fidx, x0)
                     kinds["standing"] = _kind_score("standing", sv.floor, held0, held, in0, r_in, dof - dof_b)
-                    after[eff.name] = held
                     fit = prob.result(x, prob.design(sv.data))
                     recal = _transforms(prob, x)
             if views.hanging is not None:
@@ -197,7 +200,19 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
             note = note or "no face on these recordings"
             if status == "ok":
                 status = "not applicable"
-        scores.append(EffectScore(eff.name, kinds, status, dsg, fit, note, time.perf_counter() - t0))
+        return EffectScore(eff.name, kinds, status, dsg, fit, note, time.perf_counter() - t0, eff), held
+
+    scores, after = [], {}
+    for eff in effects:
+        # Faces flexible in their correlate (issue 13, item 4): every variant is scored and the one
+        # with the smallest held-out residual (summed over kinds, in floor units) is kept.
+        tried = [score_one(v) for v in eff.variants()]
+        best, held = min(tried, key=lambda sh: (sh[0].status != "ok", sum(k.z_after for k in sh[0].kinds.values())))
+        if len(tried) > 1:
+            best = replace(best, time_s=sum(sc.time_s for sc, _ in tried))
+        scores.append(best)
+        if held is not None:
+            after[eff.name] = held
     att = Attribution(base, scores, design, held0, after, getattr(base_prob.model, "name", str(model)) if base_prob else str(model),
                       balance, views, fidx or [])
     return replace(att, scores=ranked(att))

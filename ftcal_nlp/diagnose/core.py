@@ -140,7 +140,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     joint = None
     if verdict == "effect" and s.joint_refit:
         try:
-            joint = joint_refit(views, LIBRARY[effect], model, prior, calibration, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
+            joint = joint_refit(views, by_name[effect].model_effect or LIBRARY[effect], model, prior, calibration, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
         except (SolverError, np.linalg.LinAlgError) as exc:
             views.notes.append(f"joint refit with {effect} failed: {exc}")
             log.warning("diagnosis: joint refit with %s failed: %s", effect, exc)
@@ -154,7 +154,8 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     for sc in att.scores:
         k = sc.kinds.get(primary)
         ranking.append({"effect": sc.effect, "delta_bic": ranking_bic(sc, gap), "heldout_rms_after": k.rms_after if k is not None else before,
-                        "explained": explained_fraction(sc, gap) if gap else 0.0, "status": sc.status, "note": sc.note})
+                        "explained": explained_fraction(sc, gap) if gap else 0.0, "status": sc.status, "note": sc.note,
+                        "variant": dict(sc.model_effect.variant) if sc.model_effect is not None else {}})
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
     statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + list(evidence_notes)

@@ -36,7 +36,7 @@ can apply the effect's reading corrections when correcting a recording.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import casadi as ca
@@ -46,7 +46,7 @@ from ..calibration import Calibration
 from ..geometry import skew
 from ..selection import fold_indices
 from ..solver import SolverError
-from .effects.base import Effect, HangingLeg, LinearFace
+from .effects.base import AugContext, Effect, HangingLeg, LinearFace
 from .linear_fit import RIDGE, score_linear, time_folds
 from .standing_fit import AugmentedProblem
 from .views import LegSeries, Views, to_world
@@ -92,15 +92,16 @@ class JointRefit:
     eta: np.ndarray | None
     t_ref: float
     notes: tuple = ()
+    variant: dict = field(default_factory=dict)
 
     def to_json_dict(self) -> dict:
-        return {"effect": self.effect, "kinds": {k: v.to_json_dict() for k, v in self.kinds.items()},
+        return {"effect": self.effect, "variant": dict(self.variant), "kinds": {k: v.to_json_dict() for k, v in self.kinds.items()},
                 "parameters": {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in self.parameters.items()},
                 **({"notes": list(self.notes)} if self.notes else {})}
 
     def effect_block(self) -> dict:
         """What ``calibration.json`` carries about the effect (``effect_correction.py`` reads it)."""
-        return {"name": self.effect, "eta": [float(v) for v in (self.eta if self.eta is not None else [])], "t_ref_s": float(self.t_ref),
+        return {"name": self.effect, "variant": dict(self.variant), "eta": [float(v) for v in (self.eta if self.eta is not None else [])], "t_ref_s": float(self.t_ref),
                 "parameters": {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in self.parameters.items()}}
 
 
@@ -248,6 +249,20 @@ def _evaluate(problem: AugmentedProblem, x: np.ndarray):
     return R, p, off
 
 
+def _hold_shared(prob: AugmentedProblem, effect: Effect, prior: Calibration, robot, hanging: dict) -> None:
+    """Hold the standing-face parameters that the hanging face estimated at those values (one parameter,
+    one value across faces: ``Effect.standing_from_hanging``)."""
+    if not hanging or prob.params is None:
+        return
+    legs = tuple(robot.legs)
+    ctx = AugContext(legs, [ca.DM(prior.legs[k].offset) for k in legs], robot.nominal_rotations(),
+                     np.array([prior.legs[k].leg_weight_N for k in legs]), prior.g)
+    for i, v in effect.standing_from_hanging(hanging, ctx).items():
+        j = prob.n_model + i
+        v = float(np.clip(v, prob.lbx[j], prob.ubx[j]))
+        prob.lbx[j] = prob.ubx[j] = prob.x0[j] = v
+
+
 def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray) -> Calibration:
     """``prior`` with the offsets and leg weights moved by the joint hanging fit."""
     legs = {}
@@ -267,13 +282,16 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     ``prior``: the hanging calibration the standing fit starts from; ``calibration``: the
     finished calibration (what the joint calibration replaces values of).
     """
+    effect = effect.joint_variant()
     legs = tuple(robot.legs)
     kinds, params, notes = {}, {}, []
+    hang_values: dict = {}
     d_off, d_mg = np.zeros((len(legs), 6)), np.zeros(len(legs))
     if views.hanging is not None:
         face = effect.hanging_features(views.hanging.legs)
         kinds["hanging"], hp, d_off, d_mg, _ = hanging_joint(views.hanging, face, folds)
         params.update(hp)
+        hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}
     prior_j = shifted_prior(prior, d_off, d_mg)
     cal = shifted_prior(calibration, d_off, d_mg)
     eta = None
@@ -292,6 +310,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         best = None
         for m in dict.fromkeys([model, FULL_MODEL]):
             prob = AugmentedProblem(m, prior_j, robot, balance, effect)
+            _hold_shared(prob, effect, prior_j, robot, hang_values)
             start = np.concatenate([xb, prob.x0[prob.n_model:]]) if m == model else prob.x0
             try:
                 x, held1, Phi = _standing_cv(prob, sv, fidx, start)
@@ -338,7 +357,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         notes.append(f"the joint model predicts the {', '.join(worse)} recordings worse than the calibration alone: the "
                      f"effect's face does not follow the data there; correcting with calibration_with_effect.json is not advised")
     cal = replace(cal, model=m_used if sv is not None and best is not None else cal.model)
-    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes))
+    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes), dict(effect.variant))
     meta = dict(cal.meta)
     meta["effect"] = {**out.effect_block(), "R_nominal": np.asarray(robot.nominal_rotations(), float).tolist()}
     return replace(out, calibration=replace(cal, meta=meta))

@@ -81,7 +81,8 @@ class DiagnosisResult:
             "ranking": [
                 {"effect": r["effect"], "delta_bic": None if not np.isfinite(r["delta_bic"]) else float(r["delta_bic"]),
                  "heldout_rms_after": _lst(r["heldout_rms_after"]), "explained": float(r.get("explained", 0.0)),
-                 "status": r.get("status", "ok"), **({"note": r["note"]} if r.get("note") else {})}
+                 "status": r.get("status", "ok"), **({"note": r["note"]} if r.get("note") else {}),
+                 **({"variant": r["variant"]} if r.get("variant") else {})}
                 for r in self.ranking
             ],
             "statement": list(self.statement),
@@ -139,7 +140,8 @@ class DiagnosisResult:
             # notes often restate the status ("not applicable: ..."): say it once
             row["status"] = note if note.startswith(status) else (f"{status} ({note})" if note else status)
             rows.append(row)
-            names.append(r["effect"])
+            v = r.get("variant") or {}
+            names.append(r["effect"] + (" (" + ", ".join(f"{k} {x}" for k, x in v.items()) + ")" if v else ""))
         return pd.DataFrame(rows, index=pd.Index(names, name="effect"))
 
     def kinds_table(self) -> pd.DataFrame:

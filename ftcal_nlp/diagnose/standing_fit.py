@@ -54,7 +54,7 @@ from ..robot import Robot
 from ..balance import K_DIAG, check_balance
 from ..results import ResultsMixin, Summary, fmt_pm
 from ..solver import REL_EIG_TOL, SolverError, identifiability, ipopt, solve_checked
-from .effects.base import AugContext, Effect, ParamBlock, PoseSym
+from .effects.base import HARMONICS, TIME_BASIS, AugContext, Effect, ParamBlock, PoseSym
 
 
 
@@ -66,7 +66,8 @@ class StandingData:
     without heading; ``t_h`` (P,) hours since the hanging reference time; ``prev``
     (P, K, 6) previous pose's raw readings (= ``w`` where unknown); ``phi`` (P, K);
     ``rcom`` (P, K, 3) leg CoMs at phi (hanging curves, ft_k, m); ``n_vert`` (K, 3)
-    the design-vertical ft axes.
+    the design-vertical ft axes; ``t_span`` (first, last) hours of the smooth time basis
+    (None: the range of ``t_h``; subsets keep their parent's).
     """
 
     w: np.ndarray
@@ -77,6 +78,18 @@ class StandingData:
     phi: np.ndarray
     rcom: np.ndarray
     n_vert: np.ndarray
+    t_span: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if self.t_span is None:
+            t = np.asarray(self.t_h, float)
+            object.__setattr__(self, "t_span", (float(t.min()), float(t.max())) if len(t) else (0.0, 1.0))
+
+    def time_basis(self) -> np.ndarray:
+        """Legendre polynomials P_1..P_TIME_BASIS of the time scaled to [-1, 1] over ``t_span`` (P, TIME_BASIS)."""
+        a, b = self.t_span
+        tau = 2.0 * (self.t_h - a) / (b - a) - 1.0 if b > a else np.zeros(self.P)
+        return np.stack([np.polynomial.legendre.legval(tau, np.eye(TIME_BASIS + 1)[j]) for j in range(1, TIME_BASIS + 1)], axis=1)
 
     @property
     def P(self) -> int:
@@ -88,7 +101,7 @@ class StandingData:
 
     def subset(self, idx) -> StandingData:
         return StandingData(self.w[idx], self.z[idx], self.R_HB[idx], self.t_h[idx], self.prev[idx], self.phi[idx],
-                            self.rcom[idx], self.n_vert)
+                            self.rcom[idx], self.n_vert, self.t_span)
 
     def features(self) -> np.ndarray:
         """``phi_p`` (P, n_phi) in the order of :func:`pose_symbols`."""
@@ -99,12 +112,13 @@ class StandingData:
             self.w.reshape(P, -1), self.z, self.R_HB.reshape(P, 9), self.t_h[:, None], self.t_h[:, None] ** 2,
             self.prev.reshape(P, -1), np.cos(self.phi), np.sin(self.phi), (self.w**2).reshape(P, -1),
             (nf[..., None] * self.w).reshape(P, -1), self.rcom.reshape(P, -1), rz.reshape(P, -1),
+            self.time_basis(), *[f(m * self.phi) for m in range(2, HARMONICS + 1) for f in (np.cos, np.sin)],
         ], axis=1)
 
 
 def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
     """One pose's features as an SX vector and its named views (columns of :meth:`StandingData.features`)."""
-    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K
+    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K + TIME_BASIS + 2 * K * (HARMONICS - 1)
     d = ca.SX.sym("phi", n)
     i = 0
 
@@ -129,10 +143,12 @@ def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
     nfw = take(6 * K)
     rcom = take(3 * K)
     rz = take(9 * K)
+    tb = take(TIME_BASIS)
+    harm = [(cphi, sphi)] + [(take(K), take(K)) for _ in range(2, HARMONICS + 1)]
     return d, PoseSym(
         w=legs6(w), z=z, R_HB=R, t_h=t_h, t_h2=t_h2, prev=legs6(prev), cphi=cphi, sphi=sphi, w2=legs6(w2),
         nfw=legs6(nfw), rcom=[rcom[3 * k : 3 * k + 3] for k in range(K)],
-        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)],
+        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)], tb=tb, harm=harm,
     )
 
 

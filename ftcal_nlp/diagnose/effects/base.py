@@ -52,6 +52,8 @@ from ...sim.injectors import (  # noqa: F401  (re-exported: the injector face li
 )
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+TIME_BASIS = 4      # smooth time basis of the standing features (flexible drift faces choose how many terms)
+HARMONICS = 3       # harmonics of the shaft angle in the standing features (flexible shaft-angle faces)
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,9 @@ class PoseSym:
     the shaft angles; ``w2`` K squared readings (6,); ``nfw`` K products
     ``(n_k . f_k) w_k`` with ``n_k`` the design-vertical ft axis; ``rcom`` K leg
     CoMs (3,) at the shaft angles (hanging curves, ft_k, m); ``rz`` K 3x3
-    products ``r_a z_l``.
+    products ``r_a z_l``; ``tb`` (TIME_BASIS,) a smooth basis of time over the standing
+    session (Legendre P_1.. of the scaled time); ``harm`` per harmonic m = 1..HARMONICS the
+    pair (cos m phi, sin m phi), each (K,).
     """
 
     w: list
@@ -85,6 +89,8 @@ class PoseSym:
     nfw: list
     rcom: list
     rz: list
+    tb: Any = None
+    harm: list = None
 
 
 @dataclass(frozen=True)
@@ -194,6 +200,25 @@ class Effect:
     #: face gets a constant wrench in B (6 parameters) for the shifted offsets
     shifts_offsets: ClassVar[bool] = False
 
+    def variants(self) -> tuple[Effect, ...]:
+        """The same effect with faces of different flexibility in its correlate (issue 13, item 4);
+        attribution scores each and keeps the one that predicts held-out data best. Default: itself."""
+        return (self,)
+
+    def joint_variant(self) -> Effect:
+        """The variant the joint refit uses (``diagnose/joint.py``); default: this one."""
+        return self
+
+    @property
+    def variant(self) -> dict:
+        """The keyword arguments that rebuild this variant (``type(self)(**variant)``)."""
+        return {}
+
+    @property
+    def label(self) -> str:
+        """The effect's name with its variant, e.g. ``casing_load (harmonics=2)``."""
+        return self.name + (" (" + ", ".join(f"{k}={v}" for k, v in self.variant.items()) + ")" if self.variant else "")
+
     def injector(self, scale: float | None = None, seed: int = 0) -> EffectInjector:
         return self.injector_cls(scale=scale, seed=seed)
 
@@ -206,6 +231,13 @@ class Effect:
         vector (``z~ = zmap z``; None: unchanged) and an extra wrench (6,) (or None),
         all linear in the pose's feature symbols."""
         return pose.w, None, None
+
+    def standing_from_hanging(self, hanging: dict, ctx: AugContext) -> dict:
+        """Standing-face parameters that mean the same as parameters of the hanging face
+        (index into ``standing_params`` -> value from ``hanging``, names as the hanging face's
+        ``LinearFace.names``). A joint refit holds them at the hanging estimates: the hanging legs
+        sweep every shaft angle and load direction, standing poses see only the sum in B."""
+        return {}
 
     def standing_balance(self, balance: str) -> str:
         """The balance the augmented standing problem uses (only ``moving_com`` changes it)."""

@@ -9,11 +9,12 @@ Their injectors (the simulator face: :class:`OffsetDriftInjector`,
 
 Augmentations (standing face, eq. (A) of base.py; ``t_h`` hours since hanging):
 
-* offset_drift        e_p = -(D1 t_h + D2 t_h^2)                  12 parameters (B axes)
-* gain_crosstalk      c_k = w - [diag(g_k) (f - f_o); 0]           3K (hanging, swing: a full E_k on the weight)
+* offset_drift        e_p = -sum_j D_j P_j(tau)  (Legendre, j <= degree 1, 2 or 4)   6 x degree (B axes)
+* gain_crosstalk      c_k = w - [diag(g_k) (f - f_o); 0]           3K (hanging, swing: a full E_k on the weight;
+                      the joint refit: c_k = w - [E_k (f - f_o); 0], E_k held at the hanging estimate)
 * sensor_nonlinearity c_k = w - q_k (.) (w - w_o)^2               K + 6 (vertical axis per leg, others shared)
 * hysteresis          c_k = w - h (w_prev - w)                    1
-* casing_load         c_k = w - [M_k (cos phi, sin phi); 0]        4K
+* casing_load         c_k = w - [sum_m M_km (cos m phi, sin m phi); 0]  (m <= 1, 2 or 3)  4K x harmonics
 * chassis_flex        c_k = w + [delta x f; delta x tau], delta = c_k (n_k . f)/20 N   3K
 
 Every effect here acts while hanging too, so the hanging offsets absorbed part of it:
@@ -36,7 +37,9 @@ from ...sim.injectors import (  # noqa: F401  (re-exported: the injector face li
     SensorNonlinearityInjector,
 )
 from .base import (
+    HARMONICS,
     HOUR_S,
+    TIME_BASIS,
     REF_FORCE_N,
     REF_TORQUE_NM,
     WRENCH,
@@ -63,13 +66,27 @@ class OffsetDrift(Effect):
     magnitude = OffsetDriftInjector.magnitude
     injector_cls = OffsetDriftInjector
     shifts_offsets = True
+    DEGREES = (1, 2, 4)   # the smooth time bases tried (attribution keeps the best held-out)
+
+    def __init__(self, degree: int = 2):
+        if not 1 <= degree <= TIME_BASIS:
+            raise ValueError(f"offset_drift: degree must be 1..{TIME_BASIS}, got {degree}")
+        self.degree = int(degree)
+
+    def variants(self):
+        return tuple(OffsetDrift(d) for d in self.DEGREES)
+
+    @property
+    def variant(self):
+        return {"degree": self.degree}
 
     def standing_params(self, ctx):
-        return ParamBlock.bounded(tuple(f"D1.{c} [/h]" for c in WRENCH) + tuple(f"D2.{c} [/h^2]" for c in WRENCH), 100.0)
+        return ParamBlock.bounded(tuple(f"D{j}.{c} [N]" for j in range(1, self.degree + 1) for c in WRENCH), 20.0)
 
     def standing(self, eta, pose: PoseSym, ctx):
-        # (plus the offset shift: the hanging offsets average a drift that was already moving)
-        return pose.w, None, -(eta[0:6] * pose.t_h + eta[6:12] * pose.t_h2)
+        # A drift of any shape, smooth in time: Legendre terms P_1..P_d of the session time (the
+        # constant is the offset shift: the hanging offsets average a drift that was already moving)
+        return pose.w, None, -sum(eta[6 * j : 6 * j + 6] * pose.tb[j] for j in range(self.degree))
 
     def hanging_features(self, legs):
         def make(l: HangingLeg):
@@ -93,15 +110,44 @@ class GainCrosstalk(Effect):
     injector_cls = GainCrosstalkInjector
     shifts_offsets = True
 
+    def __init__(self, full: bool = False):
+        self.full = bool(full)
+
+    @property
+    def variant(self):
+        return {"full": True} if self.full else {}
+
+    def joint_variant(self):
+        # Standing poses alone determine only the diagonal gains (attribution uses those); the joint
+        # refit holds the full E_k of every leg at the hanging estimate (standing_from_hanging)
+        return GainCrosstalk(full=True)
+
+    def _entries(self):
+        return [f"E{a}{b}" for a in "xyz" for b in "xyz"] if self.full else [f"E{a}{a}" for a in "xyz"]
+
     def standing_params(self, ctx):
-        return ParamBlock.bounded((f"g[{k}].{c} [%]" for k in ctx.legs for c in "xyz"), 10.0)
+        return ParamBlock.bounded((f"g[{k}].{c} [%]" for k in ctx.legs for c in self._entries()), 10.0)
+
+    def standing_from_hanging(self, hanging, ctx):
+        # The same E_k entries as the hanging face's (both in %), off the diagonal only: four hanging
+        # directions pin the crosstalk, while the gains along the loaded axes are what the standing
+        # poses' large vertical loads determine best (they stay free)
+        out = {}
+        for i, (k, c) in enumerate((k, c) for k in ctx.legs for c in self._entries()):
+            if c[1] != c[2] and f"{k}.{c}%" in hanging:
+                out[i] = hanging[f"{k}.{c}%"]
+        return out
 
     def standing(self, eta, pose, ctx):
         out = []
         for k, w in enumerate(pose.w):
-            g = 0.01 * eta[3 * k : 3 * k + 3]
             f = w[0:3] - ctx.w_o[k][0:3]
-            out.append(ca.vertcat(w[0:3] - g * f, w[3:6]))
+            if self.full:
+                E = 0.01 * ca.reshape(eta[9 * k : 9 * k + 9], 3, 3).T        # stored row by row
+                out.append(ca.vertcat(w[0:3] - ca.mtimes(E, f), w[3:6]))
+            else:
+                g = 0.01 * eta[3 * k : 3 * k + 3]
+                out.append(ca.vertcat(w[0:3] - g * f, w[3:6]))
         return out, None, None
 
     def hanging_features(self, legs):
@@ -184,26 +230,56 @@ class CasingLoad(Effect):
     magnitude = CasingLoadInjector.magnitude
     injector_cls = CasingLoadInjector
     shifts_offsets = True
+    HARMONICS_TRIED = (1, 2, 3)   # attribution keeps the number of harmonics that predicts held-out data best
+
+    def __init__(self, harmonics: int = 1):
+        if not 1 <= harmonics <= HARMONICS:
+            raise ValueError(f"casing_load: harmonics must be 1..{HARMONICS}, got {harmonics}")
+        self.harmonics = int(harmonics)
+
+    def variants(self):
+        return tuple(CasingLoad(h) for h in self.HARMONICS_TRIED)
+
+    @property
+    def variant(self):
+        return {"harmonics": self.harmonics}
+
+    def _labels(self):
+        return tuple(f"{a}_{f}{m if m > 1 else ''}" for m in range(1, self.harmonics + 1) for a in "xy" for f in ("cos", "sin"))
 
     def standing_params(self, ctx):
-        return ParamBlock.bounded((f"M[{k}].{c} [N]" for k in ctx.legs for c in ("x_cos", "x_sin", "y_cos", "y_sin")), 10.0)
+        return ParamBlock.bounded((f"M[{k}].{c} [N]" for k in ctx.legs for c in self._labels()), 10.0)
+
+    def standing_from_hanging(self, hanging, ctx):
+        # same load M_km on the same leg: the hanging face's X = (cos, sin) on fx, fy is the standing c_k's
+        out = {}
+        for i, (k, c) in enumerate((k, c) for k in ctx.legs for c in self._labels()):
+            if f"{k}.{c}" in hanging:
+                out[i] = hanging[f"{k}.{c}"]
+        return out
 
     def standing(self, eta, pose, ctx):
         out = []
+        q = 4 * self.harmonics
         for k, w in enumerate(pose.w):
-            a = eta[4 * k : 4 * k + 4]
-            c, s = pose.cphi[k], pose.sphi[k]
-            out.append(w - ca.vertcat(a[0] * c + a[1] * s, a[2] * c + a[3] * s, 0, 0, 0, 0))
+            a = eta[q * k : q * k + q]
+            fx = fy = 0
+            for m in range(self.harmonics):
+                c, s = pose.harm[m][0][k], pose.harm[m][1][k]
+                fx = fx + a[4 * m] * c + a[4 * m + 1] * s
+                fy = fy + a[4 * m + 2] * c + a[4 * m + 3] * s
+            out.append(w - ca.vertcat(fx, fy, 0, 0, 0, 0))
         return out, None, None
 
     def hanging_features(self, legs):
         def make(l: HangingLeg):
-            X = np.zeros((len(l.t), 6, 4))
-            c, s = np.cos(l.phi), np.sin(l.phi)
-            X[:, 0, 0], X[:, 0, 1], X[:, 1, 2], X[:, 1, 3] = c, s, c, s
+            X = np.zeros((len(l.t), 6, 4 * self.harmonics))
+            for m in range(self.harmonics):
+                c, s = np.cos((m + 1) * l.phi), np.sin((m + 1) * l.phi)
+                X[:, 0, 4 * m], X[:, 0, 4 * m + 1], X[:, 1, 4 * m + 2], X[:, 1, 4 * m + 3] = c, s, c, s
             return X
 
-        return per_leg_face(legs, make, ("x_cos", "x_sin", "y_cos", "y_sin"))
+        return per_leg_face(legs, make, self._labels())
 
     swing_features = hanging_features
 
