@@ -2,8 +2,10 @@
 
 The command line around :func:`ftcal_nlp.calibrate`: it reads the config, loads
 (or simulates and writes) the dataset, calls ``calibrate`` with the config's
-settings, and writes what the run produced: ``calibration.json``, the corrected
-walking recordings in ``corrected/``, ``diagnosis.json`` and the report
+settings, and writes what the run produced: ``calibration.json`` (and its joint
+covariance ``calibration_cov.npz``, named in its ``meta.covariance_file``), the
+corrected walking recordings in ``corrected/`` (with se and contact columns;
+``tracked_offsets/`` with ``[correct] track_offsets``), ``diagnosis.json`` and the report
 (tables, figures, ``report.md``, ``report.html``), then prints a short summary.
 With ``[offsets_only] calibration = ...`` only the offsets are re-estimated from
 the standing poses and everything else is kept (report Sec. V). A config with a

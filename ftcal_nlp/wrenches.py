@@ -14,8 +14,9 @@ through the recording from the swing phases (``tracking.py``):
 3. correct with the final offsets; their covariance replaces the calibration's
    offset covariance in the standard errors.
 
-Thresholds use the median standard error of a subsample (``SE_SAMPLES`` rows);
-the se columns are computed on every row at the end.
+Contact thresholds use each foot's median standard error of the normal force
+(while tracking: of a subsample of ``SE_SAMPLES`` rows, the offsets changing
+between passes); the se columns are computed on every row at the end.
 """
 
 from __future__ import annotations
@@ -94,27 +95,29 @@ def correct_arrays(cal: Calibration, t: np.ndarray, w_m: np.ndarray, phi: np.nda
     without one)."""
     legs = cal.leg_names
     noise = cov.noise if cov is not None and cov.noise is not None else noise_of(cal)
-    gw = ground_wrenches(w_m, phi, R_WB, cal)
-    se_sub = _fz_se(w_m, phi, R_WB, cal, cov, noise)
-    contact = _contact(t, gw, se_sub, settings, legs, baseline=True)
-    tracked = None
-    w_used, cov_used, off_cov = w_m, cov, None
-    if settings.track_offsets and len(t) >= 2:
-        y = swing_offset_readings(w_m, phi, R_WB, cal)
-        off_cal = np.stack([cal.legs[k].offset for k in legs])
-        cov_used = cov.without_offsets() if cov is not None else None
-        for _ in range(TRACKING_PASSES):
-            tracked = track_offsets(t, y, ~contact.stance, cal, settings, phi=phi, R_WB=R_WB, cov=cov)
-            off, off_cov = tracked.at(t)
-            w_used = w_m - (off - off_cal[None])
-            gw = ground_wrenches(w_used, phi, R_WB, cal)
-            se_sub = _fz_se(w_used, phi, R_WB, cal, cov_used, noise, off_cov)
-            contact = _contact(t, gw, se_sub, settings, legs, baseline=False)
-    unc = None
-    if cov_used is not None or noise is not None:
-        unc = ground_wrench_se(w_used, phi, R_WB, cal, cov_used, noise, off_cov)
-    else:
+    has_se = cov is not None or noise is not None
+    if not has_se:
         log.warning("no calibration covariance and no sensor noise: the se columns are NaN")
+    gw = ground_wrenches(w_m, phi, R_WB, cal)
+    if not (settings.track_offsets and len(t) >= 2):
+        unc = ground_wrench_se(w_m, phi, R_WB, cal, cov, noise) if has_se else None
+        contact = _contact(t, gw, None if unc is None else unc.se[:, :-1, 2], settings, legs, baseline=True)
+        return _correction(t, gw, unc, contact, None, legs)
+    contact = _contact(t, gw, _fz_se(w_m, phi, R_WB, cal, cov, noise), settings, legs, baseline=True)
+    y = swing_offset_readings(w_m, phi, R_WB, cal)
+    off_cal = np.stack([cal.legs[k].offset for k in legs])
+    cov_used = cov.without_offsets() if cov is not None else None
+    for _ in range(TRACKING_PASSES):
+        tracked = track_offsets(t, y, ~contact.stance, cal, settings, phi=phi, R_WB=R_WB, cov=cov)
+        off, off_cov = tracked.at(t)
+        w_used = w_m - (off - off_cal[None])
+        gw = ground_wrenches(w_used, phi, R_WB, cal)
+        contact = _contact(t, gw, _fz_se(w_used, phi, R_WB, cal, cov_used, noise, off_cov), settings, legs, baseline=False)
+    unc = ground_wrench_se(w_used, phi, R_WB, cal, cov_used, noise, off_cov) if has_se else None
+    return _correction(t, gw, unc, contact, tracked, legs)
+
+
+def _correction(t, gw, unc, contact, tracked, legs) -> Correction:
     frame = ground_wrench_frame(t, gw, legs)
     se = unc.se if unc is not None else np.full((len(t), len(legs) + 1, 6), np.nan)
     extra = pd.DataFrame(se.reshape(len(t), -1), columns=se_columns(legs), index=frame.index)
