@@ -48,6 +48,17 @@ def periodic_interp(phi: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np
     return out
 
 
+def interp_cells(phi: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cells of :func:`periodic_interp` at ``phi`` (N,): grid indices ``i0``, ``i1`` (N,) and the weight
+    ``a`` (N,) of ``i1`` (value = (1 - a) v[i0] + a v[i1])."""
+    G = len(grid)
+    x = np.mod(phi, 2 * np.pi)
+    xp = np.concatenate([grid, [grid[0] + 2 * np.pi]])
+    i = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, G - 1)
+    a = np.clip((x - xp[i]) / (xp[i + 1] - xp[i]), 0.0, 1.0)  # np.interp holds the first value below grid[0]
+    return i, (i + 1) % G, a
+
+
 def _nulls(x):
     """Nested lists / dicts with non-finite floats replaced by None (strict JSON); other values as they are."""
     if isinstance(x, (list, tuple)):

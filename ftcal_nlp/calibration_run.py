@@ -48,7 +48,9 @@ class CalibrationRun(ResultsMixin):
     ``standing``/``standing_baseline``: :class:`~ftcal_nlp.standing.StandingResult`;
     ``diagnosis``: the diagnosis result or None; ``truth``: the dataset's
     ``truth.json`` when it has one; ``corrected``: recording name -> ground-wrench
-    table (``OUTPUT_FORMAT.md`` columns); ``timings``/``cpu_timings``: stage -> wall / CPU seconds.
+    table (``OUTPUT_FORMAT.md`` columns, then se and contact columns); ``timings``/``cpu_timings``: stage -> wall / CPU
+    seconds; ``uncertainty``: the covariance and sensor noise the se come from; ``tracked_offsets``: per walking
+    recording the offsets tracked from its swing phases (``[correct] track_offsets``).
     """
 
     settings: CalibrationSettings
@@ -66,6 +68,8 @@ class CalibrationRun(ResultsMixin):
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    uncertainty: Any = None        # uncertainty.CalibrationCovariance: joint covariance and sensor noise for the se columns
+    tracked_offsets: dict[str, Any] = field(default_factory=dict)   # recording name -> tracking.TrackedOffsets
     _joint: tuple | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ results protocol

@@ -30,6 +30,7 @@ from .settings import (
     STANDING_SOLVERS,
     WEIGHTINGS,
     CalibrationSettings,
+    CorrectSettings,
     DiagnoseSettings,
     HangingSettings,
     OffsetsOnlySettings,
@@ -56,11 +57,12 @@ class RunConfig:
     diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
     offsets_only: OffsetsOnlySettings = field(default_factory=OffsetsOnlySettings)
     seed: int = 0
+    correct: CorrectSettings = field(default_factory=CorrectSettings)
 
     @property
     def settings(self) -> CalibrationSettings:
         """What :func:`ftcal_nlp.calibrate` needs of this config."""
-        return CalibrationSettings(self.hanging, self.standing, self.selection, self.diagnose, self.seed)
+        return CalibrationSettings(self.hanging, self.standing, self.selection, self.diagnose, self.seed, self.correct)
 
 
 # key-level choices: checked here too so that the error names the key before the dataclass sees it
@@ -129,7 +131,7 @@ def load_config(path: str | Path) -> RunConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
     base = path.parent
-    allowed = {"data", "simulate", "output", "hanging", "standing", "selection", "diagnose", "offsets_only", "seed"}
+    allowed = {"data", "simulate", "output", "hanging", "standing", "selection", "diagnose", "offsets_only", "seed", "correct"}
     unknown = sorted(set(d) - allowed)
     if unknown:
         raise ConfigError(f"{path}: unknown section(s) {unknown}; known: {sorted(allowed)}")
@@ -189,4 +191,5 @@ def load_config(path: str | Path) -> RunConfig:
         diagnose=_build(DiagnoseSettings, d.get("diagnose", {}), f"{path} [diagnose]", "diagnose"),
         offsets_only=off,
         seed=seed,
+        correct=_build(CorrectSettings, d.get("correct", {}), f"{path} [correct]", "correct"),
     )

@@ -1,12 +1,19 @@
 """Turn any recording into per-foot ground contact wrenches with a finished calibration.
 
-``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv [--bag out_bag]``
+``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv [--bag out_bag] [--track-offsets]``
 
 Each foot's ground wrench is the reading less the offset less the leg's weight
 wrench (report eq. 3), moved to the heading frame about the robot's CoM at that
 instant (``OUTPUT_FORMAT.md``, corrected recordings); see :mod:`ftcal_nlp.physics`.
 Rows without a motion-capture orientation cannot be put in the heading frame and
-are dropped with a count in the log.
+are dropped with a count in the log. Beside the contract's columns: standard
+errors ``{leg}_{c}_se`` / ``total_{c}_se`` (the calibration's covariance, from the
+file its ``meta.covariance_file`` names, and the sensor noise in its
+``meta.sensor_noise``; ``uncertainty.py``) and each foot's contact state
+``{leg}_contact`` (1 stance, 0 swing; ``contact.py``). ``--track-offsets``
+re-estimates every leg's offsets over the recording from its swing phases
+(``tracking.py``), corrects with them, logs each leg's change since calibration
+and its significance, and writes them beside the output (``<out>_offsets.csv``).
 """
 
 from __future__ import annotations
@@ -20,11 +27,14 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
-from .data import WRENCH_COMPONENTS, DataFormatError, Recording, ground_wrench_frame, read_table, recording_from_frame
+from .data import WRENCH_COMPONENTS, DataFormatError, Recording, read_table, recording_from_frame
 from .effect_correction import apply_effect
 from .geometry import quat_to_rotation
-from .physics import ground_wrenches
 from .robot import Robot, Transducer
+from .settings import CorrectSettings
+from .tracking import TrackedOffsets, log_changes
+from .uncertainty import CalibrationCovariance
+from .wrenches import Correction, correct_arrays, noise_of
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +45,20 @@ def robot_from_calibration(cal: Calibration) -> Robot:
     return Robot("calibrated", cal.mass_kg, cal.g, cal.leg_names, tr)
 
 
-def correct_recording(cal: Calibration, rec: Recording) -> pd.DataFrame:
-    """Per-foot ground contact wrenches and their total, in the columns of ``OUTPUT_FORMAT.md``.
+def correct_recording(cal: Calibration, rec: Recording, cov: CalibrationCovariance | None = None,
+                      settings: CorrectSettings = CorrectSettings()) -> pd.DataFrame:
+    """Per-foot ground contact wrenches and their total, in the columns of ``OUTPUT_FORMAT.md``, then their
+    standard errors and each foot's contact state (module docstring).
 
     Rows whose orientation is NaN are dropped (counted in the log).
     """
+    return correct_recording_full(cal, rec, cov, settings).frame
+
+
+def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCovariance | None = None,
+                           settings: CorrectSettings = CorrectSettings()) -> Correction:
+    """:func:`correct_recording` with everything it found (``wrenches.Correction``: uncertainty parts,
+    contact state, tracked offsets)."""
     if rec.quat is None:
         raise DataFormatError(f"{rec.path or rec.name}: correction needs the orientation columns qw, qx, qy, qz")
     ok = np.all(np.isfinite(rec.quat), axis=1)
@@ -49,15 +68,43 @@ def correct_recording(cal: Calibration, rec: Recording) -> pd.DataFrame:
     legs = cal.leg_names
     # a calibration written with the diagnosis' named effect corrects the readings for it first
     w, R = apply_effect(cal, rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat), rec.t, source=str(rec.path or rec.name))
-    gw = ground_wrenches(w, rec.phi_array(legs), R, cal)
-    return ground_wrench_frame(rec.t, gw, legs)
+    return correct_arrays(cal, rec.t, w, rec.phi_array(legs), R, cov, settings)
 
 
-def correct_file(cal: Calibration, path: str | Path) -> pd.DataFrame:
-    """Read a CSV/Parquet recording in the interchange format and correct it."""
+def load_covariance(cal: Calibration, calibration_path: str | Path) -> CalibrationCovariance | None:
+    """The covariance file named in ``cal.meta["covariance_file"]`` (relative to the calibration file) with the
+    sensor noise of ``cal.meta["sensor_noise"]``; None (logged) when the calibration names none."""
+    name = cal.meta.get("covariance_file") if isinstance(cal.meta, dict) else None
+    if name is None:
+        log.warning("%s names no covariance file (meta.covariance_file): standard errors from the sensor noise alone%s",
+                    calibration_path, "" if noise_of(cal) is not None else " (none stored either: se columns NaN)")
+        return None
+    return CalibrationCovariance.load(Path(calibration_path).parent / name, noise_of(cal))
+
+
+def correct_file(cal: Calibration, path: str | Path, cov: CalibrationCovariance | None = None,
+                 settings: CorrectSettings = CorrectSettings()) -> pd.DataFrame:
+    """Read a CSV/Parquet recording in the interchange format and correct it (the output table)."""
+    return correct_file_full(cal, path, cov, settings).frame
+
+
+def correct_file_full(cal: Calibration, path: str | Path, cov: CalibrationCovariance | None = None,
+                      settings: CorrectSettings = CorrectSettings()) -> Correction:
+    """:func:`correct_file` with everything the correction found (``wrenches.Correction``)."""
     path = Path(path)
     rec = recording_from_frame(read_table(path), robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
-    return correct_recording(cal, rec)
+    return correct_recording_full(cal, rec, cov, settings)
+
+
+def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
+    """Tracked offsets and their se per sample: ``t``, ``{leg}_w_o_{c}``, ``{leg}_w_o_{c}_se`` (ft_k, N and N*m)."""
+    off, cov = tr.at(t)
+    se = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    cols = {"t": t}
+    for i, k in enumerate(tr.legs):
+        cols.update({f"{k}_w_o_{c}": off[:, i, j] for j, c in enumerate(WRENCH_COMPONENTS)})
+        cols.update({f"{k}_w_o_{c}_se": se[:, i, j] for j, c in enumerate(WRENCH_COMPONENTS)})
+    return pd.DataFrame(cols)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,22 +114,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("-o", "--output", required=True, help="output CSV of ground contact wrenches")
     ap.add_argument("--bag", help="also write a ROS 2 MCAP bag with one WrenchStamped topic per foot")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    ap.add_argument("--track-offsets", action="store_true",
+                    help="re-estimate each leg's offsets over the recording from its swing phases and correct with them")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.output)
-    for target in [out] + ([Path(args.bag)] if args.bag else []):
+    off_out = out.with_name(out.stem + "_offsets.csv")
+    for target in [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else []):
         if target.exists() and not args.force:
             print(f"error: {target} exists; pass --force to overwrite", file=sys.stderr)
             return 2
     try:
         cal = Calibration.load(args.calibration)
-        df = correct_file(cal, args.recording)
+        res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration), CorrectSettings(track_offsets=args.track_offsets))
+        df = res.frame
     except (DataFormatError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(out, index=False, float_format="%.7g")
     log.info("wrote %s (%d rows)", out, len(df))
+    if res.tracking is not None:
+        offsets_frame(df["t"].to_numpy(), res.tracking).to_csv(off_out, index=False, float_format="%.7g")
+        log.info("wrote %s (tracked offsets)", off_out)
+        for line in log_changes(res.tracking):
+            print(line)
     if args.bag:
         from .ros.bagio import write_ground_wrench_bag
 

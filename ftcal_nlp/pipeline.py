@@ -32,14 +32,16 @@ import numpy as np
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
-from .correct import correct_recording
+from .correct import correct_recording_full
 from .data import DataFormatError, Dataset
 from .diagnose import diagnose_run
 from .hanging import HangingResult, fit_hanging
 from .selection import select_models
+from .sensor_noise import SensorNoise, estimate_sensor_noise
 from .settings import CalibrationSettings
 from .solver import SolverError
 from .standing import Poses, extract_poses, fit_standing
+from .uncertainty import CalibrationCovariance
 
 __all__ = ["calibrate"]
 
@@ -101,6 +103,17 @@ def _with_joint_se(run: CalibrationRun) -> Calibration:
     return replace(run.calibration, legs=legs, meta=meta)
 
 
+def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> SensorNoise | None:
+    """Per-sample noise of the readings and the motion capture from the standing recordings' steady runs
+    (``sensor_noise.py``); None (noted) when they have none."""
+    try:
+        return estimate_sensor_noise(list(ds.standing), ds.robot, s.standing.poses)
+    except ValueError as exc:
+        log.warning("sensor noise not estimated (the se columns then carry the calibration part only): %s", exc)
+        notes.append(f"sensor noise not estimated: {exc}")
+        return None
+
+
 def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
               offsets_only: Calibration | None = None) -> CalibrationRun:
     """Calibrate ``dataset`` (interchange format, ``data.read_dataset``) with ``settings`` (module docstring).
@@ -154,9 +167,17 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
     cal = replace(standing.calibration, model=str(model_name), meta={**standing.calibration.meta, **meta})
     run = CalibrationRun(s, ds, cal, hang, hang_base, poses, selection, standing, standing_base, timings=timings, cpu_timings=cpu, notes=notes)
     run.calibration = _with_joint_se(run)
+    with stage("sensor noise", timings, cpu):
+        noise = _sensor_noise(ds, s, notes)
+    run.uncertainty = CalibrationCovariance.from_results(run, noise)
+    if noise is not None:
+        run.calibration = replace(run.calibration, meta={**run.calibration.meta, "sensor_noise": noise.to_json_dict()})
     with stage("correct walking", timings, cpu):
         for rec in ds.walking:
-            run.corrected[rec.name] = correct_recording(cal, rec)
+            c = correct_recording_full(run.calibration, rec, run.uncertainty, s.correct)
+            run.corrected[rec.name] = c.frame
+            if c.tracking is not None:
+                run.tracked_offsets[rec.name] = c.tracking
             log.info("corrected %s: %d rows", rec.name, len(run.corrected[rec.name]))
     if s.diagnose.enabled:
         with stage("diagnosis", timings, cpu):

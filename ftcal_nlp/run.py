@@ -2,8 +2,10 @@
 
 The command line around :func:`ftcal_nlp.calibrate`: it reads the config, loads
 (or simulates and writes) the dataset, calls ``calibrate`` with the config's
-settings, and writes what the run produced: ``calibration.json``, the corrected
-walking recordings in ``corrected/``, ``diagnosis.json`` and the report
+settings, and writes what the run produced: ``calibration.json`` (and its joint
+covariance ``calibration_cov.npz``, named in its ``meta.covariance_file``), the
+corrected walking recordings in ``corrected/`` (with se and contact columns;
+``tracked_offsets/`` with ``[correct] track_offsets``), ``diagnosis.json`` and the report
 (tables, figures, ``report.md``, ``report.html``), then prints a short summary.
 With ``[offsets_only] calibration = ...`` only the offsets are re-estimated from
 the standing poses and everything else is kept (report Sec. V). A config with a
@@ -28,11 +30,15 @@ from threadpoolctl import threadpool_limits
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
 from .config import ConfigError, RunConfig, load_config
+from .correct import offsets_frame
 from .data import DataFormatError, Dataset, read_dataset
 from .diagnose.validate import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
+from .tracking import log_changes
+
+COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
 
 log = logging.getLogger("ftcal_nlp.run")
 
@@ -78,13 +84,14 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
     res = calibrate(ds, cfg.settings, offsets_only=prior)
     res.truth = truth
     res.timings = {"load": t_load, **res.timings}
-    res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta})
+    cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
+    res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta})
     with stage("write calibration", res.timings):
         res.calibration.save(cfg.output_dir / "calibration.json")
+        if res.uncertainty is not None:
+            res.uncertainty.save(cfg.output_dir / COVARIANCE_FILE)
     with stage("write corrected", res.timings):
-        (cfg.output_dir / "corrected").mkdir(exist_ok=True)
-        for name, df in res.corrected.items():
-            df.to_csv(cfg.output_dir / "corrected" / f"{name}.csv", index=False, float_format="%.7g")
+        write_corrected(res, cfg.output_dir)
     if res.diagnosis is not None:
         (cfg.output_dir / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
         if res.diagnosis.joint is not None and res.diagnosis.joint.calibration is not None:
@@ -96,6 +103,19 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
         write_report(res, cfg.output_dir)
     print(summary_text(res, cfg))
     return res
+
+
+def write_corrected(res: CalibrationRun, folder: Path) -> None:
+    """``corrected/<name>.csv`` for every walking recording and, where offsets were tracked,
+    ``tracked_offsets/<name>.csv`` (``correct.offsets_frame``)."""
+    (folder / "corrected").mkdir(exist_ok=True)
+    for name, df in res.corrected.items():
+        df.to_csv(folder / "corrected" / f"{name}.csv", index=False, float_format="%.7g")
+    if res.tracked_offsets:
+        (folder / "tracked_offsets").mkdir(exist_ok=True)
+    for name, tr in res.tracked_offsets.items():
+        offsets_frame(res.corrected[name]["t"].to_numpy(), tr).to_csv(folder / "tracked_offsets" / f"{name}.csv", index=False, float_format="%.7g")
+        log_changes(tr)
 
 
 def summary_text(res: CalibrationRun, cfg: RunConfig) -> str:

@@ -17,7 +17,7 @@ from .models import REPORT_CANDIDATES
 from .solver import REL_EIG_TOL
 
 __all__ = ["PoseExtraction", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
-           "OffsetsOnlySettings", "CalibrationSettings", "with_overrides"]
+           "OffsetsOnlySettings", "CorrectSettings", "CalibrationSettings", "with_overrides"]
 
 T = TypeVar("T")
 
@@ -156,6 +156,40 @@ class OffsetsOnlySettings:
 
 
 @dataclass(frozen=True)
+class CorrectSettings:
+    """Correction of walking recordings (``contact.py``, ``tracking.py``, ``uncertainty.py``).
+
+    ``track_offsets``: re-estimate each leg's offsets over the recording from its swing phases;
+    ``knot_s``: knot spacing (s) of their cubic B-spline, ``penalty``: weight of its second-difference
+    penalty relative to the data's; contact: a foot is in swing when its normal force above the
+    swing baseline drops below ``contact_enter_z`` standard errors and in stance again above
+    ``contact_leave_z``; the baseline is the ``contact_quantile`` of the normal force in windows of
+    ``contact_window_s`` whose ``1 - contact_quantile`` quantile exceeds it by ``contact_min_gap_N``
+    (about half a foot's share of the weight; windows without swing keep the calibration's zero)."""
+
+    track_offsets: bool = False
+    knot_s: float = 20.0
+    penalty: float = 1e-3
+    contact_window_s: float = 30.0
+    contact_quantile: float = 0.1
+    contact_enter_z: float = 5.0
+    contact_leave_z: float = 10.0
+    contact_min_gap_N: float = 8.0
+
+    def __post_init__(self) -> None:
+        for name in ("knot_s", "contact_window_s", "contact_enter_z", "contact_leave_z", "contact_min_gap_N"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"CorrectSettings.{name}: expected a positive number, got {getattr(self, name)!r}")
+        if not self.penalty >= 0:
+            raise ValueError(f"CorrectSettings.penalty: expected a number >= 0, got {self.penalty!r}")
+        if not 0 < self.contact_quantile < 0.5:
+            raise ValueError(f"CorrectSettings.contact_quantile: expected a number in (0, 0.5), got {self.contact_quantile!r}")
+        if not self.contact_leave_z >= self.contact_enter_z:
+            raise ValueError(f"CorrectSettings: contact_leave_z ({self.contact_leave_z}) must be >= contact_enter_z "
+                             f"({self.contact_enter_z}) (hysteresis)")
+
+
+@dataclass(frozen=True)
 class CalibrationSettings:
     """Everything :func:`ftcal_nlp.calibrate` needs besides the dataset."""
 
@@ -164,3 +198,4 @@ class CalibrationSettings:
     selection: SelectionSettings = field(default_factory=SelectionSettings)
     diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
     seed: int = 0
+    correct: CorrectSettings = field(default_factory=CorrectSettings)

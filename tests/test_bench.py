@@ -196,8 +196,12 @@ def test_bench_runs_end_to_end_at_a_tiny_size(tmp_path):
                  "scaling_exponents.csv", "scaling.png", "profile_hot_spots.csv", "profile_top_self.csv"):
         assert (tmp_path / name).is_file() and (tmp_path / name).stat().st_size > 0, name
     text = (tmp_path / "summary.md").read_text()
-    for head in ("### Accuracy", "### Speed", "### Scaling", "### Where the time goes"):
+    for head in ("### Accuracy", "### Speed", "### Scaling", "### Where the time goes", "### Correction"):
         assert head in text
+    corr = res["correction"]
+    assert list(corr["table"].task) == ["ground wrenches only", "with se and contact state", "with se, contact and tracked offsets"]
+    assert np.all(corr["table"].samples_per_s > 0) and (tmp_path / "correction.csv").is_file()
+    assert np.isfinite(corr["accuracy"]["ratio_tracked_over_reference_max"])  # accuracy: test_tracking.py
     acc = res["accuracy"]["summary"]
     assert set(acc.group) == {"offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com"}
     assert np.all(np.isfinite(acc.ratio)) and np.all(acc.ratio > 0)

@@ -64,7 +64,11 @@ def test_outputs_follow_the_contract(small_run):
         assert head[0] in ("parameter", "Model") and not any(c.startswith("(") for c in head), (stem, list(head))
     corrected = pd.read_csv(out / "corrected" / "walk.csv")
     expected = ["t"] + [f"{k}_{c}" for k in legs for c in COMPONENTS] + [f"total_{c}" for c in COMPONENTS]
-    assert list(corrected.columns) == expected
+    assert list(corrected.columns[: len(expected)]) == expected  # the contract's columns first, as they were
+    assert list(corrected.columns[len(expected):]) == ([f"{k}_{c}_se" for k in (*legs, "total") for c in COMPONENTS]
+                                                       + [f"{k}_contact" for k in legs])
+    assert (out / "calibration_cov.npz").is_file() and cal["meta"]["covariance_file"] == "calibration_cov.npz"
+    assert set(cal["meta"]["sensor_noise"]["readings"]) == set(legs)
 
 
 def _z_scores(res, cal: Calibration, truth: Calibration) -> np.ndarray:

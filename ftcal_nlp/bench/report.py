@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from .accuracy import GROUPS
+from .correction import correction_markdown
 
 TARGET_RATIO = 1.2
 TARGET_CALIBRATION_S = 5.0
@@ -229,7 +230,8 @@ def profile_frames(prof: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
 # ----------------------------------------------------------------------------- summary
 
 
-def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str) -> str:
+def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
+                     corr: dict | None = None) -> str:
     now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = f" Machine load average at the speed bench: {sp['load_average']:.1f} on 2 cores." if sp else ""
     out = [f"## Benchmarks (`python -m ftcal_nlp.bench{' --quick' if mode == 'quick' else ''}`)", "",
@@ -290,6 +292,8 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
         errs = sc["points"][sc["points"]["error"].notna()] if "error" in sc["points"] else []
         if len(errs):
             out += [f"{len(errs)} scaling point(s) failed: " + "; ".join(f"{r.task} n={r.n}: {r.error}" for r in errs.itertuples()), ""]
+    if corr is not None:
+        out += correction_markdown(corr, md_table)
     if prof:
         out += ["### Where the time goes (cProfile; fraction of each profiled stage, cumulative)", ""]
         for stage, v in prof.items():
@@ -383,7 +387,8 @@ def recommendations(prof: dict, sp: dict | None) -> list[str]:
     return out
 
 
-def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str) -> str:
+def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
+              corr: dict | None = None) -> str:
     """Write every table, figure, ``summary.md`` and ``bench.json`` into ``folder``; returns the summary text."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -416,7 +421,10 @@ def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, 
             stem = k.replace(" ", "_").replace("(", "").replace(")", "").replace(".", "")
             (folder / f"profile_{stem}.txt").write_text(v["text"])
         js["profile"] = hs.to_dict(orient="records")
-    text = summary_markdown(acc, sp, sc, prof, mode)
+    if corr is not None:
+        write_table(corr["table"], folder, "correction")
+        js["correction"] = {"table": corr["table"].to_dict(orient="records"), "accuracy": corr["accuracy"]}
+    text = summary_markdown(acc, sp, sc, prof, mode, corr)
     (folder / "summary.md").write_text(text)
     (folder / "bench.json").write_text(json.dumps(js, indent=1, default=_json_default))
     return text

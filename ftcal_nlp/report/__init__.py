@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..results import PM, Summary
+from ..data import WRENCH_COMPONENTS
+from ..results import PM, Summary, fmt_pm
 from . import figures
 from .diagnosis import diagnosis_section
 from .render import Bullets, Definitions, Figure, Section, Table, Text, render_html, render_markdown
@@ -266,14 +267,35 @@ def _walking(res: "CalibrationRun", folder: Path) -> Section:
     sec = Section("Walking: ground contact wrenches")
     sec.add(Text("Every walking recording corrected with the calibration, one CSV per recording in `corrected/` "
                  f"({', '.join(f'`{n}.csv`' for n in res.corrected)}): per foot the ground force (N) and its torque about "
-                 "the robot's CoM (N*m), in the heading frame."))
+                 "the robot's CoM (N*m), in the heading frame; then their standard errors (`{leg}_{c}_se`, `total_{c}_se`: "
+                 "the calibration's joint covariance and the sensor noise estimated at calibration, by the delta method) "
+                 "and each foot's contact state (`{leg}_contact`, 1 stance, 0 swing)."))
+    for name, tr in res.tracked_offsets.items():
+        sec.add(Table(f"Offsets tracked from the swing phases of {name}: change since calibration (time mean, "
+                      f"value {PM} se) and significance (chi^2 on 6 dof, p < 0.001)", _tracked_table(tr)))
     for rec in res.dataset.walking:
         if rec.name not in res.corrected:
             continue
         name = f"walking_{rec.name}.png"
         sec.add(Figure(name, _try_figure(figures.fig_walking, res, rec, folder / name),
-                       f"Ground contact forces of {rec.name}, calibrated (solid) vs naive taring (dotted), one colour per leg."))
+                       f"Ground contact forces of {rec.name}, calibrated (solid, with its {PM}1.96 se band) vs naive taring "
+                       "(dotted), one colour per leg; bottom row: the normal force near zero, swing phases shaded."))
     return sec
+
+
+def _tracked_table(tr) -> pd.DataFrame:
+    """Per leg: each component's change since calibration as ``value ± se``, then p and significance."""
+    tab = tr.change_table()
+    rows = {}
+    for k, r in tab.iterrows():
+        if not r["tracked"]:
+            rows[k] = {c: "not tracked" for c in WRENCH_COMPONENTS} | {"p": "", "significant": ""}
+            continue
+        rows[k] = {c: fmt_pm(r[f"change_{c}"], r[f"change_{c}_se"]) for c in WRENCH_COMPONENTS}
+        rows[k] |= {"p": f"{r['p']:.2g}", "significant": "yes" if r["significant"] else "no"}
+    df = pd.DataFrame(rows).T
+    df.index.name = "leg"
+    return df
 
 
 def build_sections(res: "CalibrationRun", folder: Path) -> list[Section]:

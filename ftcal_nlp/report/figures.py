@@ -179,6 +179,8 @@ def fig_hanging_residuals(res: "CalibrationRun", path: Path) -> Path:
 
 
 def fig_walking(res: "CalibrationRun", rec, path: Path) -> Path:
+    """Per tripod: ground forces, calibrated (with their +-1.96 se bands) and naive; the last row zooms on the
+    normal force near zero, where the swing phases (shaded: contact state 0) and the bands can be seen."""
     legs = list(res.dataset.robot.legs)
     naive, _ = res.naive_ground_wrenches(rec)
     df = res.corrected[rec.name]
@@ -188,22 +190,41 @@ def fig_walking(res: "CalibrationRun", rec, path: Path) -> Path:
     if not all(tripods):
         tripods = (tuple(legs[::2]), tuple(legs[1::2]))
     colors = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
-    fig, axes = plt.subplots(3, 2, figsize=(13, 8.4), sharex=True)
+    has_se = f"{legs[0]}_fz_se" in df.columns
+    fig, axes = plt.subplots(4, 2, figsize=(13, 10.5), sharex=True)
     for col, tp in enumerate(tripods):
         for j in range(3):
             ax = axes[j, col]
             for c, k in zip(colors, tp):
                 i = legs.index(k)
-                ax.plot(t, df[f"{k}_{('fx', 'fy', 'fz')[j]}"], lw=1, color=c)
+                y = df[f"{k}_{('fx', 'fy', 'fz')[j]}"].to_numpy()
+                ax.plot(t, y, lw=1, color=c)
+                if has_se:
+                    band = 1.96 * df[f"{k}_{('fx', 'fy', 'fz')[j]}_se"].to_numpy()
+                    ax.fill_between(t, y - band, y + band, color=c, alpha=0.3, lw=0)
                 ax.plot(t, naive[:, i, j], lw=0.8, ls=":", color=c)
             ax.set_ylabel(f"ground force {FORCE[j]}")
             ax.grid(alpha=0.3)
+        ax = axes[3, col]
+        for c, k in zip(colors, tp):
+            y = df[f"{k}_fz"].to_numpy()
+            ax.plot(t, y, lw=0.4, color=c)
+            if has_se:
+                band = 1.96 * df[f"{k}_fz_se"].to_numpy()
+                ax.fill_between(t, y - band, y + band, color=c, alpha=0.35, lw=0)
+            if f"{k}_contact" in df.columns:
+                ax.fill_between(t, -0.5, 0.5, where=df[f"{k}_contact"].to_numpy() == 0, color=c, alpha=0.07, lw=0)
+        ax.set_ylim(-0.5, 0.5)
+        ax.set_ylabel("normal force near 0 [N]")
+        ax.grid(alpha=0.3)
         handles = [Line2D([], [], color=c, lw=2, label=k) for c, k in zip(colors, tp)]
         handles += [Line2D([], [], color="0.3", lw=1.5, label="calibrated"), Line2D([], [], color="0.3", lw=1.5, ls=":", label="naive taring")]
+        if has_se:
+            handles.append(Patch(color="0.3", alpha=0.3, label="± 1.96 se"))
         axes[0, col].legend(handles=handles, fontsize=7, ncol=len(handles), loc="lower left", bbox_to_anchor=(0, 1.0), frameon=False)
         axes[-1, col].set_xlabel("t [s]")
     fig.suptitle(f"Ground contact forces while walking ({rec.name}), heading frame: left column tripod {', '.join(tripods[0])}, "
-                 f"right column tripod {', '.join(tripods[1])} (cf. report Figs. 8, 9)", fontsize=10)
+                 f"right column tripod {', '.join(tripods[1])} (cf. report Figs. 8, 9); bottom: swing (shaded) and se bands", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     return _save(fig, path, tight=False)
 

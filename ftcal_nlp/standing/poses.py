@@ -109,16 +109,14 @@ def _odd_window(window_s: float, dt: float, polyorder: int, n: int) -> int:
     return min(w, n if n % 2 else n - 1)
 
 
-def extract_poses(recording: Recording, robot: Robot, settings: PoseExtraction = PoseExtraction()) -> Poses:
-    """Static poses of a standing ``recording`` (Sec. I-B, stages in the module docstring).
+def steady_runs(recording: Recording, robot: Robot, settings: PoseExtraction = PoseExtraction()) -> tuple[list[tuple[int, int]], int]:
+    """Half-open sample ranges of the steady runs of a standing ``recording`` (stages 1 and 2 of the
+    module docstring) and the number of candidate poses (stage 1).
 
-    Raises ``ValueError`` naming the recording if it has no orientation columns
-    or is too short for the filter.
+    Raises ``ValueError`` naming the recording if it has no interval without shaft motion.
     """
     s = settings
     where = recording.path or recording.name
-    if recording.quat is None:
-        raise ValueError(f"{where}: standing recording without orientation columns qw, qx, qy, qz")
     legs = robot.legs
     t = recording.t
     W = recording.wrench_array(legs)       # (N, K, 6)
@@ -150,6 +148,24 @@ def extract_poses(recording: Recording, robot: Robot, settings: PoseExtraction =
         r0, r1 = max(runs, key=lambda r: r[1] - r[0])
         if (r1 - r0) * dt >= s.min_steady_s:
             steady.append((c0 + r0, c0 + r1))
+    return steady, len(still_runs)
+
+
+def extract_poses(recording: Recording, robot: Robot, settings: PoseExtraction = PoseExtraction()) -> Poses:
+    """Static poses of a standing ``recording`` (Sec. I-B, stages in the module docstring).
+
+    Raises ``ValueError`` naming the recording if it has no orientation columns
+    or is too short for the filter.
+    """
+    s = settings
+    where = recording.path or recording.name
+    if recording.quat is None:
+        raise ValueError(f"{where}: standing recording without orientation columns qw, qx, qy, qz")
+    legs = robot.legs
+    t = recording.t
+    W = recording.wrench_array(legs)       # (N, K, 6)
+    phi = recording.phi_array(legs)        # (N, K)
+    steady, n_candidates = steady_runs(recording, robot, s)
 
     q = recording.quat
     keep = []
@@ -167,5 +183,5 @@ def extract_poses(recording: Recording, robot: Robot, settings: PoseExtraction =
         ph[i] = np.median(phi[r0:r1], axis=0)
         R_WB[i] = remove_yaw(quat_to_rotation(_median_quaternion(q[r0:r1][valid])))
         tt[i] = 0.5 * (t[r0] + t[r1 - 1])
-    counts = {"transitions": len(still_runs), "steady": len(steady), "with_mocap": P}
+    counts = {"transitions": n_candidates, "steady": len(steady), "with_mocap": P}
     return Poses(w_m, ph, R_WB, tt, tuple(legs), counts, np.zeros(P, dtype=int))
