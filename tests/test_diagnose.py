@@ -264,10 +264,10 @@ def test_each_effect_alone_is_named(effect):
     worst = int(np.argmax(b / f))
     assert b[worst] > 1.2 * f[worst], "a named effect must have had a gap to explain"
     if effect == "gain_crosstalk":
-        # The standing face carries diagonal gains only, so against the honest floor (floor.py: never raised
-        # from the residual it is compared with) the named effect shrinks the gap but does not close it
-        # (fz 0.91 -> 0.17 N against a 0.008 N floor): issue 13 item 4, faces that tolerate the shape, is open.
-        assert a[worst] < 0.5 * b[worst], (b, a, f)
+        # Standing poses determine the gains along the loaded axes; the crosstalk comes from the four hanging
+        # directions (the joint refit holds it there). Against the honest floor (floor.py) the joint model
+        # brings fz from 0.92 to ~0.03 N (floor 0.008 N): most of the gap, not all of it (issue 13 stays open).
+        assert a[worst] < 0.1 * b[worst], (b, a, f)
         return
     assert a[worst] < 0.5 * b[worst] and a[worst] < 2.0 * f[worst], (b, a, f)
 

@@ -282,14 +282,21 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     ``prior``: the hanging calibration the standing fit starts from; ``calibration``: the
     finished calibration (what the joint calibration replaces values of).
     """
-    effect = effect.joint_variant()
     legs = tuple(robot.legs)
     kinds, params, notes = {}, {}, []
     hang_values: dict = {}
     d_off, d_mg = np.zeros((len(legs), 6)), np.zeros(len(legs))
+    cands = effect.joint_variants()
+    effect = cands[0]
     if views.hanging is not None:
-        face = effect.hanging_features(views.hanging.legs)
-        kinds["hanging"], hp, d_off, d_mg, _ = hanging_joint(views.hanging, face, folds)
+        best_h = None
+        for v in cands:   # the face's flexibility, chosen by the hanging held-out residual (in floor units)
+            face = v.hanging_features(views.hanging.legs)
+            res = hanging_joint(views.hanging, face, folds)
+            z = float(np.sum((res[0].rms_after / np.where(res[0].floor > 0, res[0].floor, 1.0)) ** 2))
+            if best_h is None or z < best_h[0]:
+                best_h = (z, v, res)
+        _, effect, (kinds["hanging"], hp, d_off, d_mg, _) = best_h
         params.update(hp)
         hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}
     prior_j = shifted_prior(prior, d_off, d_mg)
@@ -349,7 +356,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             if balance != "exact":
                 notes.append("report balance: the joint calibration keeps the calibration's positions (its p' are relative to a moving CoM)")
     if views.swing is not None:
-        kinds["walking swing"] = _swing_joint(views.swing, effect, calibration, cal, legs, folds)
+        kinds["walking swing"] = _swing_joint(views.swing, effect, calibration, cal, legs, folds, hang_values)
     worse = [k for k, v in kinds.items() if np.any(v.rms_after > WORSE_RATIO * np.maximum(v.rms_before, v.floor))]
     if worse:
         # the effect's face does not fit these recordings' shape (issue 13, item 4): say so rather
@@ -363,8 +370,13 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     return replace(out, calibration=replace(cal, meta=meta))
 
 
-def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calibration, legs, folds: int) -> KindRefit:
-    """Swing residuals with the joint calibration (rotations, offsets, weights) plus the swing face."""
+def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calibration, legs, folds: int,
+                 hanging: dict | None = None) -> KindRefit:
+    """Swing residuals with the joint calibration (rotations, offsets, weights) plus the swing face.
+
+    A swing face whose parameters are the hanging face's (same names: a per-leg casing load, drift
+    rate or gain matrix) takes the hanging estimates, nothing is fitted to the swing samples (so the
+    residual is held-out as it is); other faces (a tether's tilts) are fitted with time-block folds."""
     out = []
     for l in series.legs:
         lo, ln = old.legs[legs[l.k]], new.legs[legs[l.k]]
@@ -375,5 +387,14 @@ def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calib
         out.append(replace(l, e=e, f=f_new, R_cal=R, mg=float(ln.leg_weight_N)))
     after = replace(series, legs=out)
     face = effect.swing_features(after.legs)
+    if face is not None and hanging and all(n in hanging for n in face.names):
+        beta = np.array([hanging[n] for n in face.names])
+        q = face.blocks[0].shape[2]
+        base = score_linear(series, None, folds)[0]
+        ss = np.zeros(6)
+        for l, X in zip(after.legs, face.blocks):
+            b = beta[l.k * q : (l.k + 1) * q] if face.per_leg else beta
+            ss += ((l.e - X @ b) ** 2).sum(axis=0)
+        return KindRefit(series.kind, np.sqrt(base.mse_before), np.sqrt(ss / series.n), base.floor, series.n)
     sc, _ = score_linear(series, face, folds, after=after)
     return KindRefit(series.kind, np.sqrt(sc.mse_before), np.sqrt(sc.mse_after), sc.floor, series.n)

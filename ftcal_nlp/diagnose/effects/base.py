@@ -53,7 +53,7 @@ from ...sim.injectors import (  # noqa: F401  (re-exported: the injector face li
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 TIME_BASIS = 4      # smooth time basis of the standing features (flexible drift faces choose how many terms)
-HARMONICS = 3       # harmonics of the shaft angle in the standing features (flexible shaft-angle faces)
+HARMONICS = 6       # harmonics of the shaft angle in the standing features (flexible shaft-angle faces)
 
 
 @dataclass(frozen=True)
@@ -208,6 +208,11 @@ class Effect:
     def joint_variant(self) -> Effect:
         """The variant the joint refit uses (``diagnose/joint.py``); default: this one."""
         return self
+
+    def joint_variants(self) -> tuple[Effect, ...]:
+        """Variants the joint refit chooses among by the hanging face's held-out residual (the hanging
+        legs sweep every shaft angle, so a flexible face is cheap there); default: ``joint_variant``."""
+        return (self.joint_variant(),)
 
     @property
     def variant(self) -> dict:

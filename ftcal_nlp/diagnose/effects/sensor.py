@@ -240,6 +240,11 @@ class CasingLoad(Effect):
     def variants(self):
         return tuple(CasingLoad(h) for h in self.HARMONICS_TRIED)
 
+    def joint_variants(self):
+        # the joint refit holds every standing harmonic at the hanging estimate, so it can afford up
+        # to HARMONICS of them; the hanging face's held-out residual chooses how many
+        return tuple(CasingLoad(h) for h in range(1, HARMONICS + 1))
+
     @property
     def variant(self):
         return {"harmonics": self.harmonics}
