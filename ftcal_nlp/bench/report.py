@@ -229,7 +229,17 @@ def profile_frames(prof: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
 # ----------------------------------------------------------------------------- summary
 
 
-def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str) -> str:
+def correction_markdown(corr: dict) -> list[str]:
+    """The correction speed section: compiled C per sample and the batched Python throughput."""
+    t = corr["table"].copy()
+    t["met"] = t["met"].map({True: "yes", False: "no"})
+    return [f"### Correction speed ({corr['legs']} legs, {int(t.samples.iloc[0])} samples of the simulated walk, best of "
+            f"{corr['settings'].repeats})", "", md_table(t[["path", "us_per_sample", "samples_per_s", "goal", "met"]]), "",
+            f"Compiled C and numpy agree to {corr['max_abs_diff_N']:.1e} N / N*m (largest difference).", ""]
+
+
+def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
+                     corr: dict | None = None) -> str:
     now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = f" Machine load average at the speed bench: {sp['load_average']:.1f} on 2 cores." if sp else ""
     out = [f"## Benchmarks (`python -m ftcal_nlp.bench{' --quick' if mode == 'quick' else ''}`)", "",
@@ -282,6 +292,8 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
             a, b = tn["whole_run_with_diagnosis_wall_s"], tn["whole_run_without_diagnosis_wall_s"]
             out += [f"Whole run (`python -m ftcal_nlp.run`: load, calibrate, files, report) with the diagnosis **{a:.1f} s**, "
                     f"without **{b:.1f} s**: ratio {a / b:.2f} (target <= 3: **{'MET' if a <= 3 * b else 'NOT MET'}**).", ""]
+    if corr is not None:
+        out += correction_markdown(corr)
     if sc is not None and len(sc["exponents"]):
         ex = sc["exponents"].copy()
         ex = ex[["task", "size", "n_min", "n_max", "time_exponent", "time_exponent_upper", "memory_exponent", "time_at_max_s", "peak_rss_at_max_mb"]]
@@ -383,7 +395,8 @@ def recommendations(prof: dict, sp: dict | None) -> list[str]:
     return out
 
 
-def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str) -> str:
+def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
+              corr: dict | None = None) -> str:
     """Write every table, figure, ``summary.md`` and ``bench.json`` into ``folder``; returns the summary text."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -416,7 +429,10 @@ def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, 
             stem = k.replace(" ", "_").replace("(", "").replace(")", "").replace(".", "")
             (folder / f"profile_{stem}.txt").write_text(v["text"])
         js["profile"] = hs.to_dict(orient="records")
-    text = summary_markdown(acc, sp, sc, prof, mode)
+    if corr is not None:
+        write_table(corr["table"], folder, "correction_speed")
+        js["correction"] = corr["table"].to_dict(orient="records")
+    text = summary_markdown(acc, sp, sc, prof, mode, corr=corr)
     (folder / "summary.md").write_text(text)
     (folder / "bench.json").write_text(json.dumps(js, indent=1, default=_json_default))
     return text

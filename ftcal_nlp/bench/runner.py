@@ -2,7 +2,8 @@
 
 Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
 (speed.py), ``scaling`` (scaling.py), ``profile`` (profile.py, on the speed
-bench's problem). Results are written by report.py into ``out``.
+bench's problem), ``correction`` (correction.py: the exported C and the batched
+numpy correction). Results are written by report.py into ``out``.
 """
 
 from __future__ import annotations
@@ -12,10 +13,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .accuracy import AccuracySettings
+from .correction import CorrectionSettings
 from .scaling import HANGING_TASKS, ScalingSettings
 from .speed import SpeedSettings
 
-PARTS = ("accuracy", "speed", "scaling", "profile")
+PARTS = ("accuracy", "speed", "scaling", "profile", "correction")
 
 
 @dataclass(frozen=True)
@@ -23,6 +25,7 @@ class BenchSettings:
     accuracy: AccuracySettings = field(default_factory=AccuracySettings)
     speed: SpeedSettings = field(default_factory=SpeedSettings)
     scaling: ScalingSettings = field(default_factory=ScalingSettings)
+    correction: CorrectionSettings = field(default_factory=CorrectionSettings)
     profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
     profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
     parts: tuple[str, ...] = PARTS
@@ -41,6 +44,7 @@ def quick_settings() -> BenchSettings:
         speed=SpeedSettings(repeats=1),
         scaling=ScalingSettings(poses=(100, 1000, 10000), hanging_samples=(10_000, 30_000, 100_000),
                                 standing_tasks=("selection_nlp",), hanging_tasks=HANGING_TASKS, tracemalloc=False),
+        correction=CorrectionSettings(n_samples=300_000, repeats=3),
         profile_all=False,
         profile_count=1,
         mode="quick",
@@ -55,6 +59,7 @@ def tiny_settings() -> BenchSettings:
         speed=SpeedSettings(repeats=1, sim_overrides=sim_small, folds=3, diagnosis=False),
         scaling=ScalingSettings(poses=(100, 200), hanging_samples=(), standing_tasks=("standing_nlp",), hanging_tasks=(),
                                 base_sim={"hanging_cycles": 1.5, "n_poses": 60}, tracemalloc=False),
+        correction=CorrectionSettings(n_samples=2_000, repeats=1),
         profile_all=False,
         profile_count=1,
         mode="tiny",
@@ -83,11 +88,12 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
 
     from . import report
     from .accuracy import run_accuracy
+    from .correction import run_correction
     from .profile import profile_stages
     from .scaling import run_scaling
     from .speed import profile_targets, run_speed
 
-    acc = sp = sc = prof = None
+    acc = sp = sc = prof = corr = None
     with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
         if "accuracy" in settings.parts:
             acc = run_accuracy(settings.accuracy, progress=progress)
@@ -99,8 +105,10 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
                 prof = profile_stages(profile_targets(sp["context"], Path(tmp), keep))
         if "scaling" in settings.parts:
             sc = run_scaling(settings.scaling, progress=progress)
-    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode)
-    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "summary": text}
+        if "correction" in settings.parts:
+            corr = run_correction(settings.correction)
+    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr)
+    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "summary": text}
 
 
 __all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]
