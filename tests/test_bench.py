@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.bench import crb
+from ftcal_nlp import crb
 from ftcal_nlp.bench.accuracy import summarize
 from ftcal_nlp.bench.scaling import fit_exponent, replicate_poses
 from ftcal_nlp.calibration import periodic_interp
