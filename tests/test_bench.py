@@ -193,14 +193,17 @@ def test_bench_runs_end_to_end_at_a_tiny_size(tmp_path):
     res = run_bench(tiny_settings(), tmp_path, progress=False)
     for name in ("summary.md", "bench.json", "accuracy.csv", "accuracy.md", "accuracy.png", "accuracy_groups.csv",
                  "accuracy_params.csv.gz", "speed.csv", "speed.md", "speed.png", "scaling_points.csv",
-                 "scaling_exponents.csv", "scaling.png", "profile_hot_spots.csv", "profile_top_self.csv", "correction_speed.csv"):
+                 "scaling_exponents.csv", "scaling.png", "profile_hot_spots.csv", "profile_top_self.csv", "correction_speed.csv", "plan_check.csv"):
         assert (tmp_path / name).is_file() and (tmp_path / name).stat().st_size > 0, name
     text = (tmp_path / "summary.md").read_text()
-    for head in ("### Accuracy", "### Speed", "### Scaling", "### Where the time goes", "### Correction speed"):
+    for head in ("### Accuracy", "### Speed", "### Scaling", "### Where the time goes", "### Correction speed", "### Plan check"):
         assert head in text
     corr = res["correction"]
     assert len(corr["table"]) == 3 and np.all(corr["table"].us_per_sample > 0)
     assert corr["max_abs_diff_N"] < 1e-9  # compiled C and numpy are the same function
+    plan = res["plan"]["table"]
+    assert set(plan.group) == {"offsets_force", "offsets_torque", "leg_weights", "com_curves", "com_curves_unsmoothed",
+                               "rotations", "translations", "total_com"} and np.all(plan.predicted_se > 0)
     acc = res["accuracy"]["summary"]
     assert set(acc.group) == {"offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com"}
     assert np.all(np.isfinite(acc.ratio)) and np.all(acc.ratio > 0)

@@ -3,7 +3,8 @@
 Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
 (speed.py), ``scaling`` (scaling.py), ``profile`` (profile.py, on the speed
 bench's problem), ``correction`` (correction.py: the exported C and the batched
-numpy correction). Results are written by report.py into ``out``.
+numpy correction), ``plan`` (plan_check.py: the plan's predicted se against the
+calibration's reported se and the spread over seeds). Results are written by report.py into ``out``.
 """
 
 from __future__ import annotations
@@ -14,10 +15,12 @@ from pathlib import Path
 
 from .accuracy import AccuracySettings
 from .correction import CorrectionSettings
+from .plan_check import PlanCheckSettings
+from ..plan import Protocol
 from .scaling import HANGING_TASKS, ScalingSettings
 from .speed import SpeedSettings
 
-PARTS = ("accuracy", "speed", "scaling", "profile", "correction")
+PARTS = ("accuracy", "speed", "scaling", "profile", "correction", "plan")
 
 
 @dataclass(frozen=True)
@@ -26,6 +29,7 @@ class BenchSettings:
     speed: SpeedSettings = field(default_factory=SpeedSettings)
     scaling: ScalingSettings = field(default_factory=ScalingSettings)
     correction: CorrectionSettings = field(default_factory=CorrectionSettings)
+    plan: PlanCheckSettings = field(default_factory=PlanCheckSettings)
     profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
     profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
     parts: tuple[str, ...] = PARTS
@@ -45,6 +49,7 @@ def quick_settings() -> BenchSettings:
         scaling=ScalingSettings(poses=(100, 1000, 10000), hanging_samples=(10_000, 30_000, 100_000),
                                 standing_tasks=("selection_nlp",), hanging_tasks=HANGING_TASKS, tracemalloc=False),
         correction=CorrectionSettings(n_samples=300_000, repeats=3),
+        plan=PlanCheckSettings(seeds=(0, 1, 2, 3)),
         profile_all=False,
         profile_count=1,
         mode="quick",
@@ -60,6 +65,7 @@ def tiny_settings() -> BenchSettings:
         scaling=ScalingSettings(poses=(100, 200), hanging_samples=(), standing_tasks=("standing_nlp",), hanging_tasks=(),
                                 base_sim={"hanging_cycles": 1.5, "n_poses": 60}, tracemalloc=False),
         correction=CorrectionSettings(n_samples=2_000, repeats=1),
+        plan=PlanCheckSettings(reference=Protocol(hanging_turns=0.5, n_poses=20), seeds=(0,), halves=False),
         profile_all=False,
         profile_count=1,
         mode="tiny",
@@ -89,11 +95,12 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
     from . import report
     from .accuracy import run_accuracy
     from .correction import run_correction
+    from .plan_check import run_plan_check
     from .profile import profile_stages
     from .scaling import run_scaling
     from .speed import profile_targets, run_speed
 
-    acc = sp = sc = prof = corr = None
+    acc = sp = sc = prof = corr = plan = None
     with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
         if "accuracy" in settings.parts:
             acc = run_accuracy(settings.accuracy, progress=progress)
@@ -107,8 +114,10 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
             sc = run_scaling(settings.scaling, progress=progress)
         if "correction" in settings.parts:
             corr = run_correction(settings.correction)
-    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr)
-    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "summary": text}
+        if "plan" in settings.parts:
+            plan = run_plan_check(settings.plan)
+    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr, plan=plan)
+    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "plan": plan, "summary": text}
 
 
 __all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]
