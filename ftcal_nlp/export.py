@@ -174,7 +174,8 @@ Heading frame: origin at the robot's CoM at that instant (body and legs, from th
 calibration and the shaft angles), z up against gravity, x the body's x axis projected
 on the horizontal plane; torques are about that CoM. Standing still, `total` is
 `[0, 0, {cal.mass_kg * cal.g:.6g}, 0, 0, 0]` (the robot's weight, N); a foot in the air reads zero.
-This is what `python -m ftcal_nlp.correct` writes (`OUTPUT_FORMAT.md`), to rounding.
+This is what `python -m ftcal_nlp.correct` writes (`OUTPUT_FORMAT.md`), to rounding. Without a
+motion-capture orientation (NaN quaternion) the outputs are NaN: `correct` drops such rows.
 The leg CoM curves are interpolated linearly on the calibration's periodic grid.
 
 ## Build
