@@ -38,14 +38,38 @@ class LegCalibration:
 
 
 def periodic_interp(phi: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Interpolate ``values`` (G, d) given on the periodic ``grid`` (G,) at ``phi`` (N,)."""
-    x = np.mod(phi, 2 * np.pi)
+    """Interpolate ``values`` (G, d) given on the periodic ``grid`` (G,) at ``phi`` (any shape).
+
+    ``np.interp`` on the grid extended by one period (held at ``values[0]`` below
+    the first point). Several curves on one grid: ``values`` (K, G, d) and ``phi``
+    (..., K) give (..., K, d), curve k at ``phi[..., k]``. On a uniform grid from 0
+    with finite values (the calibration's CoM grids) the interval and the fraction
+    ``t`` come straight from ``phi G / 2pi`` and one gather of (value, difference)
+    serves all columns: ``fp[j] + t (fp[j+1] - fp[j])``, equal to np.interp to rounding.
+    """
+    G, d = values.shape[-2:]
+    multi = values.ndim == 3
     xp = np.concatenate([grid, [grid[0] + 2 * np.pi]])
-    out = np.empty(x.shape + (values.shape[1],))
-    for j in range(values.shape[1]):
-        fp = np.concatenate([values[:, j], values[:1, j]])
-        out[..., j] = np.interp(x, xp, fp)
-    return out
+    fp = np.concatenate([values, values[..., :1, :]], axis=-2)
+    step = np.diff(xp)
+    if grid[0] == 0 and np.allclose(step, step[0], rtol=1e-12, atol=0) and np.all(np.isfinite(values)):
+        y = np.asarray(phi, float) * (G / (2 * np.pi))
+        fl = np.floor(y)
+        t = (y - fl)[..., None]
+        with np.errstate(invalid="ignore"):  # a NaN angle takes any interval; t keeps it NaN
+            j = fl.astype(np.intp) % G
+        table = np.concatenate([fp[..., :-1, :], np.diff(fp, axis=-2)], axis=-1)  # (.., G, 2d)
+        row = np.take(table.reshape(-1, 2 * d), j + G * np.arange(values.shape[0]) if multi else j, axis=0)
+        return row[..., :d] + row[..., d:] * t
+    x = np.maximum(np.mod(phi, 2 * np.pi), xp[0])
+    j = np.minimum(np.searchsorted(xp, x, side="right") - 1, G - 1)
+    k = (np.arange(values.shape[0]),) if multi else ()
+    with np.errstate(invalid="ignore"):
+        slope = np.diff(fp, axis=-2) / step[:, None]
+        dx = (x - xp[j])[..., None]
+        out = fp[k + (j,)] + slope[k + (j,)] * dx
+    # on a grid point next to a missing value: that point's value, as np.interp
+    return np.where(dx == 0, fp[k + (j,)], out)
 
 
 def interp_cells(phi: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,6 +126,14 @@ class Calibration:
             np.stack([l.rotation_to_body for l in L]),
             np.stack([l.position_from_com_m for l in L]),
         )
+
+    def leg_coms(self, phi: np.ndarray) -> np.ndarray:
+        """Every leg's CoM ``r_k(phi_k)`` in its ft_k, (N, K, 3) m, from shaft angles ``phi`` (N, K) in leg order."""
+        L = list(self.legs.values())
+        phi = np.asarray(phi, float)
+        if all(np.array_equal(l.com_phi, L[0].com_phi) for l in L):  # one grid: all legs in one pass
+            return periodic_interp(phi, L[0].com_phi, np.stack([l.com_xyz for l in L]))
+        return np.stack([l.com(phi[:, i]) for i, l in enumerate(L)], axis=1)
 
     def to_json_dict(self) -> dict:
         def lst(a):

@@ -363,14 +363,15 @@ def recording_to_frame(rec: Recording, legs: Iterable[str]) -> pd.DataFrame:
 def ground_wrench_frame(t: np.ndarray, ground: np.ndarray, legs: Iterable[str]) -> pd.DataFrame:
     """Table of a corrected recording (``OUTPUT_FORMAT.md``): ``t``, ``{leg}_fx..tz`` per foot and
     ``total_fx..tz``, from per-foot wrenches ``ground`` (N, K, 6) in the heading frame."""
-    cols: dict[str, np.ndarray] = {"t": t}
-    for i, k in enumerate(legs):
-        for j, c in enumerate(WRENCH_COMPONENTS):
-            cols[f"{k}_{c}"] = ground[:, i, j]
-    total = ground.sum(axis=1)
-    for j, c in enumerate(WRENCH_COMPONENTS):
-        cols[f"total_{c}"] = total[:, j]
-    return pd.DataFrame(cols)
+    legs = tuple(legs)
+    N, K = ground.shape[:2]
+    # one float block filled in place: pandas keeps it as is (a dict of strided columns costs a copy each)
+    table = np.empty((N, 1 + 6 * (K + 1)))
+    table[:, 0] = t
+    table[:, 1 : 1 + 6 * K] = ground.reshape(N, 6 * K)
+    np.einsum("nkj->nj", ground, out=table[:, 1 + 6 * K :])  # the total; far faster than ground.sum(axis=1)
+    cols = ["t"] + [f"{k}_{c}" for k in legs + ("total",) for c in WRENCH_COMPONENTS]
+    return pd.DataFrame(table, columns=cols, copy=False)
 
 
 def write_robot(robot: Robot, path: str | Path) -> None:

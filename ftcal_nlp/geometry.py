@@ -153,19 +153,24 @@ def transform_wrench(R: ArrayLike, p: ArrayLike, w: ArrayLike) -> ArrayLike:
 def quat_to_rotation(q: np.ndarray) -> np.ndarray:
     """Rotation matrices from quaternions ``[qw, qx, qy, qz]`` (..., 4); normalised first.
 
-    NaN quaternions give NaN matrices (motion capture lost).
+    NaN quaternions give NaN matrices (motion capture lost). CasADi: a 4-vector gives 3x3.
     """
+    if _is_symbolic(q):
+        q = q / ca.norm_2(q)
+        w, x, y, z = q[0], q[1], q[2], q[3]
+        return ca.vertcat(
+            ca.horzcat(1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            ca.horzcat(2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            ca.horzcat(2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+        )
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return R
 
 
 def rotation_to_quat(R: np.ndarray) -> np.ndarray:
@@ -204,14 +209,30 @@ def yaw_of(R_WB: np.ndarray) -> np.ndarray:
     return np.arctan2(R_WB[..., 1, 0], R_WB[..., 0, 0])
 
 
-def remove_yaw(R_WB: np.ndarray) -> np.ndarray:
+def remove_yaw(R_WB: ArrayLike) -> ArrayLike:
     """Rotation from B to the heading frame: ``Rz(-yaw) R_WB``; x of the result's
-    frame is the body x axis projected on the horizontal plane, z stays up."""
-    psi = yaw_of(R_WB)
-    c, s = np.cos(-psi), np.sin(-psi)
-    Rz = np.zeros(np.shape(psi) + (3, 3))
-    Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
-    return Rz @ R_WB
+    frame is the body x axis projected on the horizontal plane, z stays up (numpy or CasADi).
+
+    ``Rz(-yaw)`` from the projected x axis ``(R_00, R_10) / h`` directly, no angle
+    (identity when the body x axis is vertical, as ``atan2(0, 0) = 0``).
+    """
+    if _is_symbolic(R_WB):
+        h = ca.sqrt(R_WB[0, 0] ** 2 + R_WB[1, 0] ** 2)
+        c = ca.if_else(h > 0, R_WB[0, 0] / h, 1)
+        s = ca.if_else(h > 0, R_WB[1, 0] / h, 0)
+        return ca.vertcat(c * R_WB[0, :] + s * R_WB[1, :], c * R_WB[1, :] - s * R_WB[0, :], R_WB[2, :])
+    R_WB = np.asarray(R_WB, dtype=float)
+    x0, x1 = R_WB[..., 0, 0], R_WB[..., 1, 0]
+    h = np.hypot(x0, x1)
+    flat = h == 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.where(flat, 1.0, x0 / h)[..., None]
+        s = np.where(flat, 0.0, x1 / h)[..., None]
+    out = np.empty(R_WB.shape)
+    out[..., 0, :] = c * R_WB[..., 0, :] + s * R_WB[..., 1, :]
+    out[..., 1, :] = c * R_WB[..., 1, :] - s * R_WB[..., 0, :]
+    out[..., 2, :] = R_WB[..., 2, :]
+    return out
 
 
 def is_rotation(R: np.ndarray, tol: float = 1e-6) -> bool:

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.bench import crb
+from ftcal_nlp import crb
 from ftcal_nlp.bench.accuracy import summarize
 from ftcal_nlp.bench.scaling import fit_exponent, replicate_poses
 from ftcal_nlp.calibration import periodic_interp
@@ -193,15 +193,22 @@ def test_bench_runs_end_to_end_at_a_tiny_size(tmp_path):
     res = run_bench(tiny_settings(), tmp_path, progress=False)
     for name in ("summary.md", "bench.json", "accuracy.csv", "accuracy.md", "accuracy.png", "accuracy_groups.csv",
                  "accuracy_params.csv.gz", "speed.csv", "speed.md", "speed.png", "scaling_points.csv",
-                 "scaling_exponents.csv", "scaling.png", "profile_hot_spots.csv", "profile_top_self.csv"):
+                 "scaling_exponents.csv", "scaling.png", "profile_hot_spots.csv", "profile_top_self.csv", "correction_speed.csv", "plan_check.csv"):
         assert (tmp_path / name).is_file() and (tmp_path / name).stat().st_size > 0, name
     text = (tmp_path / "summary.md").read_text()
-    for head in ("### Accuracy", "### Speed", "### Scaling", "### Where the time goes", "### Correction"):
+    for head in ("### Accuracy", "### Speed", "### Scaling", "### Where the time goes", "### Correction", "### Correction speed",
+                 "### Plan check"):
         assert head in text
     corr = res["correction"]
     assert list(corr["table"].task) == ["ground wrenches only", "with se and contact state", "with se, contact and tracked offsets"]
     assert np.all(corr["table"].samples_per_s > 0) and (tmp_path / "correction.csv").is_file()
     assert np.isfinite(corr["accuracy"]["ratio_tracked_over_reference_max"])  # accuracy: test_tracking.py
+    exp = res["export"]
+    assert len(exp["table"]) == 3 and np.all(exp["table"].us_per_sample > 0)
+    assert exp["max_abs_diff_N"] < 1e-9  # compiled C and numpy are the same function
+    plan = res["plan"]["table"]
+    assert set(plan.group) == {"offsets_force", "offsets_torque", "leg_weights", "com_curves", "com_curves_unsmoothed",
+                               "rotations", "translations", "total_com"} and np.all(plan.predicted_se > 0)
     acc = res["accuracy"]["summary"]
     assert set(acc.group) == {"offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com"}
     assert np.all(np.isfinite(acc.ratio)) and np.all(acc.ratio > 0)

@@ -810,7 +810,7 @@ def test_unreadable_bag_paths_get_clear_errors(session, tmp_path):
     import shutil
 
     shutil.copy(session["root"] / "standing.bag", tmp_path / "standing_ros1")
-    with pytest.raises(BagError, match=r"standing_ros1: a file not named \*.bag; a ROS 1 bag must end in .bag"):
+    with pytest.raises(BagError, match=r"standing_ros1: a file not named \*.bag or \*.mcap; a ROS 1 bag must end in .bag"):
         bagio.read_streams(tmp_path / "standing_ros1", wrench_topics=[])
     (tmp_path / "empty").mkdir()
     with pytest.raises(BagError, match=r"empty: folder without metadata.yaml"):

@@ -42,7 +42,8 @@ from ..geometry import rotation_to_rotvec
 from ..physics import total_com_from_body_com
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
-from . import crb
+from .. import crb
+from ..crb import DatasetBounds, dataset_bounds
 
 GROUPS = ("offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com")
 GROUP_UNITS = {"offsets": "N, N*m", "leg_weights": "N", "com_curves": "mm", "com_curves_vs_sinusoid": "mm", "rotations": "deg",
@@ -94,27 +95,6 @@ def _maha(e: np.ndarray, C: np.ndarray) -> tuple[float, int]:
     keep = w > 1e-10 * w.max()
     q = V[:, keep].T @ e
     return float(np.sum(q**2 / w[keep])), int(keep.sum())
-
-
-@dataclass(frozen=True)
-class DatasetBounds:
-    """The bounds of one simulated dataset (computed once, used for every pipeline)."""
-
-    hanging: crb.HangingBound
-    standing: crb.StandingBound
-    com_cov: np.ndarray
-    com_ref: dict
-    interp_bias: dict
-    com_sd_sin: dict
-
-
-def dataset_bounds(sim, poses) -> DatasetBounds:
-    hb = crb.hanging_bound(sim)
-    sb = crb.standing_bound(sim, poses, hb)
-    ref = {"ls_ratio": sb.ls_cov, "two_stage_ratio": sb.two_stage_cov, "gls_const_ratio": sb.gls_const_cov}
-    com_ref = {k: crb.total_com_cov(sim, hb, C) for k, C in ref.items()}
-    return DatasetBounds(hb, sb, crb.total_com_cov(sim, hb, sb.bound.cov), com_ref,
-                         {leg: crb.interpolation_bias(sim, leg) for leg in hb.legs}, {leg: hb.com_sd_sinusoid(leg) for leg in hb.legs})
 
 
 def pipeline_errors(seed: int, pipeline: str, hang, stand, sim, bounds: DatasetBounds) -> tuple[list[dict], list[dict]]:

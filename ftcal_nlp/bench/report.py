@@ -230,8 +230,30 @@ def profile_frames(prof: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
 # ----------------------------------------------------------------------------- summary
 
 
+def export_speed_markdown(corr: dict) -> list[str]:
+    """The correction speed section: compiled C per sample and the batched Python throughput."""
+    t = corr["table"].copy()
+    t["met"] = t["met"].map({True: "yes", False: "no"})
+    return [f"### Correction speed ({corr['legs']} legs, {int(t.samples.iloc[0])} samples of the simulated walk, best of "
+            f"{corr['settings'].repeats})", "", md_table(t[["path", "us_per_sample", "samples_per_s", "goal", "met"]]), "",
+            f"Compiled C and numpy agree to {corr['max_abs_diff_N']:.1e} N / N*m (largest difference).", ""]
+
+
+def plan_check_markdown(res: dict) -> list[str]:
+    """The plan check section: predicted se against the reported se and the spread over seeds."""
+    t = res["table"]
+    cols = ["protocol", "group", "unit", "predicted_se", "reported_ratio", "spread_ratio", "spread_ratio_sd"]
+    (rn, rd), (sn, sd) = res["within"]["reported"], res["within"]["spread"]
+    tol = res["tolerance"]
+    ref = res["settings"].reference
+    return [f"### Plan check: predicted se vs the calibration's ({len(res['settings'].seeds)} seeds; reference protocol "
+            f"{ref.hanging_turns:g} turns x 4 hanging, {ref.n_poses} poses)", "", md_table(t[cols]), "",
+            f"Reported se within {100 * tol:.0f} % of the prediction: {rn}/{rd}; spread over seeds within "
+            f"{100 * tol:.0f} %: {sn}/{sd} (the unsmoothed CoM bound is a reference, not checked).", ""]
+
+
 def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
-                     corr: dict | None = None) -> str:
+                     corr: dict | None = None, plan: dict | None = None, export: dict | None = None) -> str:
     now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = f" Machine load average at the speed bench: {sp['load_average']:.1f} on 2 cores." if sp else ""
     out = [f"## Benchmarks (`python -m ftcal_nlp.bench{' --quick' if mode == 'quick' else ''}`)", "",
@@ -284,6 +306,10 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
             a, b = tn["whole_run_with_diagnosis_wall_s"], tn["whole_run_without_diagnosis_wall_s"]
             out += [f"Whole run (`python -m ftcal_nlp.run`: load, calibrate, files, report) with the diagnosis **{a:.1f} s**, "
                     f"without **{b:.1f} s**: ratio {a / b:.2f} (target <= 3: **{'MET' if a <= 3 * b else 'NOT MET'}**).", ""]
+    if export is not None:
+        out += export_speed_markdown(export)
+    if plan is not None:
+        out += plan_check_markdown(plan)
     if sc is not None and len(sc["exponents"]):
         ex = sc["exponents"].copy()
         ex = ex[["task", "size", "n_min", "n_max", "time_exponent", "time_exponent_upper", "memory_exponent", "time_at_max_s", "peak_rss_at_max_mb"]]
@@ -388,7 +414,7 @@ def recommendations(prof: dict, sp: dict | None) -> list[str]:
 
 
 def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
-              corr: dict | None = None) -> str:
+              corr: dict | None = None, export: dict | None = None, plan: dict | None = None) -> str:
     """Write every table, figure, ``summary.md`` and ``bench.json`` into ``folder``; returns the summary text."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -424,7 +450,13 @@ def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, 
     if corr is not None:
         write_table(corr["table"], folder, "correction")
         js["correction"] = {"table": corr["table"].to_dict(orient="records"), "accuracy": corr["accuracy"]}
-    text = summary_markdown(acc, sp, sc, prof, mode, corr)
+    if export is not None:
+        write_table(export["table"], folder, "correction_speed")
+        js["export"] = export["table"].to_dict(orient="records")
+    if plan is not None:
+        write_table(plan["table"], folder, "plan_check")
+        js["plan_check"] = {"table": plan["table"].to_dict(orient="records"), "within": plan["within"]}
+    text = summary_markdown(acc, sp, sc, prof, mode, corr=corr, plan=plan, export=export)
     (folder / "summary.md").write_text(text)
     (folder / "bench.json").write_text(json.dumps(js, indent=1, default=_json_default))
     return text

@@ -2,7 +2,9 @@
 
 Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
 (speed.py), ``scaling`` (scaling.py), ``profile`` (profile.py, on the speed
-bench's problem), ``correction`` (correction.py: se throughput, offset tracking). Results are written by report.py into ``out``.
+bench's problem), ``correction`` (correction.py: se throughput, offset tracking), ``export`` (export_speed.py: the
+exported C and the batched numpy correction), ``plan`` (plan_check.py: the plan's predicted se against the
+calibration's reported se and the spread over seeds). Results are written by report.py into ``out``.
 """
 
 from __future__ import annotations
@@ -13,10 +15,13 @@ from pathlib import Path
 
 from .accuracy import AccuracySettings
 from .correction import CorrectionBenchSettings
+from .export_speed import ExportSpeedSettings
+from .plan_check import PlanCheckSettings
+from ..plan import Protocol
 from .scaling import HANGING_TASKS, ScalingSettings
 from .speed import SpeedSettings
 
-PARTS = ("accuracy", "speed", "scaling", "profile", "correction")
+PARTS = ("accuracy", "speed", "scaling", "profile", "correction", "export", "plan")
 
 
 @dataclass(frozen=True)
@@ -25,6 +30,8 @@ class BenchSettings:
     speed: SpeedSettings = field(default_factory=SpeedSettings)
     scaling: ScalingSettings = field(default_factory=ScalingSettings)
     correction: CorrectionBenchSettings = field(default_factory=CorrectionBenchSettings)
+    export: ExportSpeedSettings = field(default_factory=ExportSpeedSettings)
+    plan: PlanCheckSettings = field(default_factory=PlanCheckSettings)
     profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
     profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
     parts: tuple[str, ...] = PARTS
@@ -43,6 +50,8 @@ def quick_settings() -> BenchSettings:
         speed=SpeedSettings(repeats=1),
         scaling=ScalingSettings(poses=(100, 1000, 10000), hanging_samples=(10_000, 30_000, 100_000),
                                 standing_tasks=("selection_nlp",), hanging_tasks=HANGING_TASKS, tracemalloc=False),
+        export=ExportSpeedSettings(n_samples=300_000, repeats=3),
+        plan=PlanCheckSettings(seeds=(0, 1, 2, 3)),
         profile_all=False,
         profile_count=1,
         mode="quick",
@@ -58,6 +67,8 @@ def tiny_settings() -> BenchSettings:
         scaling=ScalingSettings(poses=(100, 200), hanging_samples=(), standing_tasks=("standing_nlp",), hanging_tasks=(),
                                 base_sim={"hanging_cycles": 1.5, "n_poses": 60}, tracemalloc=False),
         correction=CorrectionBenchSettings(walk_minutes=0.25, sim_overrides={"n_poses": 60, "hanging_cycles": 1.5, "walk_cycles": 0.0}),
+        export=ExportSpeedSettings(n_samples=2_000, repeats=1),
+        plan=PlanCheckSettings(reference=Protocol(hanging_turns=0.5, n_poses=20), seeds=(0,), halves=False),
         profile_all=False,
         profile_count=1,
         mode="tiny",
@@ -87,11 +98,13 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
     from . import report
     from .accuracy import run_accuracy
     from .correction import run_correction
+    from .export_speed import run_export_speed
+    from .plan_check import run_plan_check
     from .profile import profile_stages
     from .scaling import run_scaling
     from .speed import profile_targets, run_speed
 
-    acc = sp = sc = prof = corr = None
+    acc = sp = sc = prof = corr = exp = plan = None
     with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
         if "accuracy" in settings.parts:
             acc = run_accuracy(settings.accuracy, progress=progress)
@@ -105,8 +118,14 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
             sc = run_scaling(settings.scaling, progress=progress)
         if "correction" in settings.parts:
             corr = run_correction(settings.correction, progress=progress)
-    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr)
-    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "summary": text}
+        if "export" in settings.parts:
+            exp = run_export_speed(settings.export)
+        if "plan" in settings.parts:
+            plan = run_plan_check(settings.plan)
+    text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr,
+                            export=exp, plan=plan)
+    return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "export": exp, "plan": plan,
+            "summary": text}
 
 
 __all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]

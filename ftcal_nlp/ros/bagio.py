@@ -1,7 +1,8 @@
 """Reading and writing ROS bags with ``rosbags`` (pure Python, no ROS installation).
 
 Reading: any bag ``rosbags.highlevel.AnyReader`` opens (a ROS 2 bag folder with
-sqlite3 or MCAP storage, or a ROS 1 ``.bag``) is turned into plain arrays, one
+sqlite3 or MCAP storage, a bare ROS 2 ``.mcap`` file as Foxglove or the mcap CLI
+write it (rosbags >= 0.11), or a ROS 1 ``.bag``) is turned into plain arrays, one
 :class:`Stream` per topic (per joint for ``sensor_msgs/JointState``), with both
 the header stamps and the bag's receive stamps in integer nanoseconds.
 
@@ -93,9 +94,10 @@ class BagStreams:
 
 def _reader_checks(path: Path) -> None:
     if not path.exists():
-        raise BagError(f"{path}: bag not found (expected a ROS 2 bag folder or a ROS 1 .bag file)")
-    if path.is_file() and path.suffix != ".bag":
-        raise BagError(f"{path}: a file not named *.bag; a ROS 1 bag must end in .bag, a ROS 2 bag is the folder holding metadata.yaml")
+        raise BagError(f"{path}: bag not found (expected a ROS 2 bag folder, a bare ROS 2 .mcap file or a ROS 1 .bag file)")
+    if path.is_file() and path.suffix not in (".bag", ".mcap"):
+        raise BagError(f"{path}: a file not named *.bag or *.mcap; a ROS 1 bag must end in .bag, a bare ROS 2 MCAP file "
+                       "(Foxglove, the mcap CLI) in .mcap, a ROS 2 bag is the folder holding metadata.yaml")
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         raise BagError(f"{path}: folder without metadata.yaml; expected a ROS 2 bag folder")
 

@@ -180,7 +180,12 @@ def _scan_mcap_file(file: Path, connections: dict[int, Connection], chunks: list
 
 
 def scan_mcap(folder: Path) -> RawBag:
-    """A ROS 2 bag folder whose storage is MCAP files (``*.mcap``), scanned."""
+    """A ROS 2 bag folder whose storage is MCAP files (``*.mcap``), or a bare ``.mcap`` file, scanned."""
+    if folder.is_file():  # a bare file (Foxglove, the mcap CLI): no metadata, one file
+        connections: dict[int, Connection] = {}
+        chunks: list[Chunk] = []
+        _scan_mcap_file(folder, connections, chunks)
+        return _indexed(RawBag(folder, True, connections, chunks), folder)
     meta = (folder / "metadata.yaml").read_text() if (folder / "metadata.yaml").is_file() else ""
     mode = re.search(r"compression_mode:\s*(\S*)", meta)
     if mode and mode.group(1).strip("'\"") not in ("", "none", "NONE"):
@@ -193,10 +198,16 @@ def scan_mcap(folder: Path) -> RawBag:
     if len(files) > 1:
         raise RawScanError(f"{folder}: split into several MCAP files (channel ids may differ between them)")
     _scan_mcap_file(files[0], connections, chunks)
-    for c in chunks:
+    return _indexed(RawBag(folder, True, connections, chunks), files[0])
+
+
+def _indexed(bag: RawBag, file: Path) -> RawBag:
+    if not bag.chunks:
+        raise RawScanError(f"{file}: no chunks (unchunked MCAP)")
+    for c in bag.chunks:
         if not c.index:
-            raise RawScanError(f"{files[0]}: a chunk without message index")
-    return RawBag(folder, True, connections, chunks)
+            raise RawScanError(f"{file}: a chunk without message index")
+    return bag
 
 
 def _mcap_messages(buf: np.ndarray, cid: int, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -290,16 +301,16 @@ def _ros1_messages(buf: np.ndarray, cid: int, offsets: np.ndarray) -> tuple[np.n
 
 
 def scan(path: Path) -> RawBag:
-    """Scan a ROS 1 ``.bag`` or a ROS 2 MCAP bag folder (else :class:`RawScanError`)."""
+    """Scan a ROS 1 ``.bag``, a ROS 2 MCAP bag folder or a bare ``.mcap`` file (else :class:`RawScanError`)."""
     path = Path(path)
     try:
         if path.is_file() and path.suffix == ".bag":
             return scan_ros1(path)
-        if path.is_dir():
+        if path.is_dir() or (path.is_file() and path.suffix == ".mcap"):
             return scan_mcap(path)
     except (struct.error, KeyError, UnicodeDecodeError, ValueError) as exc:
         raise RawScanError(f"{path}: {type(exc).__name__}: {exc}") from exc
-    raise RawScanError(f"{path}: neither a .bag file nor a bag folder")
+    raise RawScanError(f"{path}: neither a .bag file, a .mcap file nor a bag folder")
 
 
 def batches(bag: RawBag, ids: Iterable[int]) -> Iterator[tuple[int, Packed, np.ndarray, np.ndarray]]:

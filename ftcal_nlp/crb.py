@@ -57,10 +57,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import skew
-from ..hanging.binning import interp_weights, periodic_grid
-from ..standing.problem import K_DIAG
-from ..solver import REL_EIG_TOL
+from .geometry import skew
+from .hanging.binning import interp_weights, periodic_grid
+from .standing.problem import K_DIAG
+from .solver import REL_EIG_TOL
 
 MEDIAN_EFFICIENCY = np.pi / 2  # var(median of n Gaussian samples) ~ (pi/2) sigma^2 / n
 
@@ -441,18 +441,35 @@ class StandingBound:
     """
 
     bound: Bound
-    ls_cov: np.ndarray
-    two_stage_cov: np.ndarray
-    gls_const_cov: np.ndarray
+    ls_cov: np.ndarray | None
+    two_stage_cov: np.ndarray | None
+    gls_const_cov: np.ndarray | None
     fisher: np.ndarray
     residual_check: float
     n_samples_median: float
     sigma_z_median: float
 
 
-def standing_bound(sim, poses, hbound: HangingBound | None = None, rel_tol: float = REL_EIG_TOL) -> StandingBound:
-    """CRB of the full model's transforms at the truth of ``sim`` for the extracted ``poses``."""
-    from ..physics import balance_residual_exact
+def pose_orientation_sd(n_samples: np.ndarray, jitter_rad: float, per_pose_rad: float) -> np.ndarray:
+    """sd (rad, per axis) of each pose's orientation: the median of white jitter plus the per-pose error."""
+    return np.sqrt(MEDIAN_EFFICIENCY * jitter_rad**2 / np.asarray(n_samples, float) + per_pose_rad**2)
+
+
+def standing_bound_at(poses, R: np.ndarray, p_prime: np.ndarray, offsets: np.ndarray, Mb_g: float, sigma: np.ndarray,
+                      n_samples: np.ndarray, sigma_z: np.ndarray, rel_tol: float = REL_EIG_TOL) -> Bound:
+    """The standing CRB (module docstring) at given transforms (``R`` (K, 3, 3), ``p_prime`` (K, 3), ``offsets``
+    (K, 6)) for ``poses``: e.g. a pilot dataset's poses with its calibration standing in for the truth."""
+    Sig = pose_noise_cov(R, p_prime, poses.R_WB, Mb_g, sigma, n_samples, sigma_z)
+    J_s, _ = standing_jacobians(poses.w_m, poses.R_WB, R, p_prime, offsets)
+    return crb(fisher_information(J_s, Sig), rel_tol)
+
+
+def standing_bound(sim, poses, hbound: HangingBound | None = None, rel_tol: float = REL_EIG_TOL,
+                   references: bool = True) -> StandingBound:
+    """CRB of the full model's transforms at the truth of ``sim`` for the extracted ``poses``.
+
+    ``references=False`` skips the least-squares reference covariances (most of the time; left None)."""
+    from .physics import balance_residual_exact
 
     tr = sim.true_robot
     cfg = sim.config
@@ -461,22 +478,22 @@ def standing_bound(sim, poses, hbound: HangingBound | None = None, rel_tol: floa
     n = pose_sample_counts(poses.t, sim.pose_windows, cfg.rate_hz)
     jit = np.radians(getattr(cfg, "mocap_jitter_deg", 0.0))
     per_pose = np.radians(getattr(cfg, "mocap_pose_error_deg", 0.0))
-    sigma_z = np.sqrt(MEDIAN_EFFICIENCY * jit**2 / n + per_pose**2)
+    sigma_z = pose_orientation_sd(n, jit, per_pose)
     Sig = pose_noise_cov(tr.R, tr.p_prime, poses.R_WB, Mb_g, sensor_sigma(cfg), n, sigma_z)
     J_s, J_h = standing_jacobians(poses.w_m, poses.R_WB, tr.R, tr.p_prime, tr.offsets)
     F = fisher_information(J_s, Sig)
     b = crb(F, rel_tol)
-    ls = ls_covariance(J_s, Sig)
-    gls = ls_covariance(J_s, Sig, np.linalg.inv(Sig.mean(axis=0)))
+    ls = ls_covariance(J_s, Sig) if references else None
+    gls = ls_covariance(J_s, Sig, np.linalg.inv(Sig.mean(axis=0))) if references else None
     C_h = np.zeros((7 * K, 7 * K))
-    if hbound is not None:
+    if hbound is not None and references:
         for k, leg in enumerate(tr.legs):
             C_h[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] = hbound.offset_cov(leg)
             C_h[6 * K + k, 6 * K + k] = hbound.weight_var(leg)
             lay = hbound.layouts[leg]
             C_h[6 * k : 6 * k + 6, 6 * K + k] = hbound.bounds[leg].cov[lay.w_o, lay.mg]
             C_h[6 * K + k, 6 * k : 6 * k + 6] = hbound.bounds[leg].cov[lay.mg, lay.w_o]
-    two = ls_covariance(J_s, Sig, None, J_h, C_h)
+    two = ls_covariance(J_s, Sig, None, J_h, C_h) if references else None
     r = balance_residual_exact(poses.w_m, np.eye(3)[None].repeat(poses.n, 0), tr.offsets, tr.R, tr.p_prime, 0.0)
     r[:, :3] -= Mb_g * poses.R_WB[:, 2, :]  # residual in B: sum_k Ad_k v - M_b g [z; 0]
     L = np.linalg.cholesky(Sig)
@@ -520,3 +537,29 @@ def total_com_cov(sim, hbound: HangingBound, C_s: np.ndarray, grid_index: int = 
         Gk = G_h[:, 4 * k : 4 * k + 4]
         C += Gk @ marginal(hbound.bounds[leg], idx) @ Gk.T
     return C
+
+
+# ----------------------------------------------------------------------------- one dataset
+
+
+@dataclass(frozen=True)
+class DatasetBounds:
+    """The bounds of one simulated dataset: hanging, standing (with its reference covariances), the total CoM
+    (bound and references), the grid model's interpolation bias and the CoM bound of the sinusoid family."""
+
+    hanging: HangingBound
+    standing: StandingBound
+    com_cov: np.ndarray
+    com_ref: dict
+    interp_bias: dict
+    com_sd_sin: dict
+
+
+def dataset_bounds(sim, poses) -> DatasetBounds:
+    """Every bound of one simulated dataset at its truth, for the extracted ``poses``."""
+    hb = hanging_bound(sim)
+    sb = standing_bound(sim, poses, hb)
+    ref = {"ls_ratio": sb.ls_cov, "two_stage_ratio": sb.two_stage_cov, "gls_const_ratio": sb.gls_const_cov}
+    com_ref = {k: total_com_cov(sim, hb, C) for k, C in ref.items()}
+    return DatasetBounds(hb, sb, total_com_cov(sim, hb, sb.bound.cov), com_ref,
+                         {leg: interpolation_bias(sim, leg) for leg in hb.legs}, {leg: hb.com_sd_sinusoid(leg) for leg in hb.legs})
