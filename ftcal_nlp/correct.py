@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
-from .data import WRENCH_COMPONENTS, DataFormatError, Recording, ground_wrench_frame, read_table, recording_from_frame
+from .data import WRENCH_COMPONENTS, DataFormatError, Recording, ground_wrench_frame, legs_in_frame, read_table, recording_from_frame
 from .geometry import quat_to_rotation
 from .physics import ground_wrenches
 from .robot import Robot, Transducer
@@ -53,7 +53,12 @@ def correct_recording(cal: Calibration, rec: Recording) -> pd.DataFrame:
 def correct_file(cal: Calibration, path: str | Path) -> pd.DataFrame:
     """Read a CSV/Parquet recording in the interchange format and correct it."""
     path = Path(path)
-    rec = recording_from_frame(read_table(path), robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
+    df = read_table(path)
+    uncovered = [k for k in legs_in_frame(df) if k not in cal.legs]
+    if uncovered:  # a total without those legs would be silently wrong
+        raise DataFormatError(f"{path}: columns of leg(s) {uncovered} ({uncovered[0]}_fx ...) but the calibration covers only "
+                              f"{list(cal.leg_names)}; expected a calibration of every leg of the recording")
+    rec = recording_from_frame(df, robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
     return correct_recording(cal, rec)
 
 
