@@ -5,8 +5,8 @@ hanging, standing poses, model selection, standing, per-foot ground wrenches, an
 sim-to-real gap diagnosis); :mod:`ftcal_nlp.settings` holds every setting with its default.
 """
 
-from .calibration_run import CalibrationRun
-from .pipeline import calibrate
+from typing import TYPE_CHECKING
+
 from .settings import (
     CalibrationSettings,
     DiagnoseSettings,
@@ -15,6 +15,25 @@ from .settings import (
     SelectionSettings,
     StandingSettings,
 )
+
+if TYPE_CHECKING:
+    from .calibration_run import CalibrationRun
+    from .pipeline import calibrate
+
+
+def __getattr__(name: str):
+    # imported on first use, so that ``python -m ftcal_nlp.correct`` (which the pipeline imports) does not
+    # find its own module already loaded by the package (runpy's RuntimeWarning)
+    if name == "calibrate":
+        from .pipeline import calibrate
+
+        return calibrate
+    if name == "CalibrationRun":
+        from .calibration_run import CalibrationRun
+
+        return CalibrationRun
+    raise AttributeError(f"module 'ftcal_nlp' has no attribute {name!r}")
+
 
 __all__ = ["calibrate", "CalibrationRun", "CalibrationSettings", "HangingSettings", "StandingSettings",
            "SelectionSettings", "DiagnoseSettings", "PoseExtraction"]

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .data import DataFormatError
+
 
 @dataclass(frozen=True)
 class LegCalibration:
@@ -179,16 +181,16 @@ class Calibration:
                 return None
             a = np.array([[np.nan if v is None else v for v in r] for r in x] if x and isinstance(x[0], list) else [np.nan if v is None else v for v in x], dtype=float)
             if shape is not None and a.shape != shape:
-                raise ValueError(f"{source}: expected shape {shape}, got {a.shape}")
+                raise DataFormatError(f"{source}: expected shape {shape}, got {a.shape}")
             return a
 
         if "legs" not in d:
-            raise ValueError(f"{source}: missing key 'legs'")
+            raise DataFormatError(f"{source}: missing key 'legs'")
         legs = {}
         for k, l in d["legs"].items():
             for key in ("offset", "leg_weight_N", "leg_com_grid", "rotation_to_body", "position_from_com_m"):
                 if key not in l:
-                    raise ValueError(f"{source}: legs.{k} is missing key '{key}'")
+                    raise DataFormatError(f"{source}: legs.{k} is missing key '{key}'")
             grid = l["leg_com_grid"]
             legs[k] = LegCalibration(
                 offset=arr(l["offset"], (6,)),
@@ -206,13 +208,25 @@ class Calibration:
         m = d.get("mass_kg", d.get("mass_true_kg", mass_kg))
         gg = d.get("g", g)
         if m is None or gg is None:
-            raise ValueError(f"{source}: mass_kg and g are needed (in the file or as arguments)")
+            raise DataFormatError(f"{source}: mass_kg and g are needed (in the file or as arguments)")
         com = d.get("com_body_m")
         return cls(legs, float(m), float(gg), d.get("model", "truth"), None if com is None else arr(com, (3,)), d.get("meta", {}))
 
     @classmethod
     def load(cls, path: str | Path, **kw) -> "Calibration":
+        """Read ``calibration.json``; any fault is a :class:`~ftcal_nlp.data.DataFormatError` naming the file."""
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: calibration file not found")
-        return cls.from_json_dict(json.loads(path.read_text()), source=str(path), **kw)
+            raise DataFormatError(f"{path}: calibration file not found")
+        try:
+            d = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise DataFormatError(f"{path}: not valid JSON ({exc}); expected a calibration.json written by a run (truncated?)") from exc
+        if not isinstance(d, dict):
+            raise DataFormatError(f"{path}: expected a JSON object with key 'legs', got {type(d).__name__}")
+        try:
+            return cls.from_json_dict(d, source=str(path), **kw)
+        except DataFormatError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+            raise DataFormatError(f"{path}: not a calibration ({type(exc).__name__}: {exc}); expected the keys of OUTPUT_FORMAT.md") from exc

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
-from .data import WRENCH_COMPONENTS, DataFormatError, Recording, read_table, recording_from_frame
+from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import apply_effect
 from .geometry import quat_to_rotation
 from .robot import Robot, Transducer
@@ -71,13 +71,14 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     return correct_arrays(cal, rec.t, w, rec.phi_array(legs), R, cov, settings)
 
 
-def load_covariance(cal: Calibration, calibration_path: str | Path) -> CalibrationCovariance | None:
+def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: bool = True) -> CalibrationCovariance | None:
     """The covariance file named in ``cal.meta["covariance_file"]`` (relative to the calibration file) with the
     sensor noise of ``cal.meta["sensor_noise"]``; None (logged) when the calibration names none."""
     name = cal.meta.get("covariance_file") if isinstance(cal.meta, dict) else None
     if name is None:
-        log.warning("%s names no covariance file (meta.covariance_file): standard errors from the sensor noise alone%s",
-                    calibration_path, "" if noise_of(cal) is not None else " (none stored either: se columns NaN)")
+        if warn:
+            log.warning("%s names no covariance file (meta.covariance_file): standard errors from the sensor noise alone%s",
+                        calibration_path, "" if noise_of(cal) is not None else " (none stored either: se columns NaN)")
         return None
     return CalibrationCovariance.load(Path(calibration_path).parent / name, noise_of(cal))
 
@@ -92,7 +93,12 @@ def correct_file_full(cal: Calibration, path: str | Path, cov: CalibrationCovari
                       settings: CorrectSettings = CorrectSettings()) -> Correction:
     """:func:`correct_file` with everything the correction found (``wrenches.Correction``)."""
     path = Path(path)
-    rec = recording_from_frame(read_table(path), robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
+    df = read_table(path)
+    uncovered = [k for k in legs_in_frame(df) if k not in cal.legs]
+    if uncovered:  # a total without those legs would be silently wrong
+        raise DataFormatError(f"{path}: columns of leg(s) {uncovered} ({uncovered[0]}_fx ...) but the calibration covers only "
+                              f"{list(cal.leg_names)}; expected a calibration of every leg of the recording")
+    rec = recording_from_frame(df, robot_from_calibration(cal), name=path.stem, kind="walking", source=str(path), path=path)
     return correct_recording_full(cal, rec, cov, settings)
 
 
@@ -126,8 +132,12 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     try:
         cal = Calibration.load(args.calibration)
-        res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration), CorrectSettings(track_offsets=args.track_offsets))
+        # the missing-covariance warning comes after the correction succeeded: a failure is one line
+        res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
+                                CorrectSettings(track_offsets=args.track_offsets))
         df = res.frame
+        if cal.meta.get("covariance_file") is None:
+            load_covariance(cal, args.calibration)   # logs what the se then rest on
     except (DataFormatError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

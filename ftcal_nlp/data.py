@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import tomllib
-import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable
@@ -101,6 +100,8 @@ class Dataset:
     robot: Robot
     recordings: tuple[Recording, ...]
     root: Path | None = None
+    manifest: Path | None = None
+    robot_path: Path | None = None
 
     def of_kind(self, kind: str) -> tuple[Recording, ...]:
         return tuple(r for r in self.recordings if r.kind == kind)
@@ -192,14 +193,40 @@ def read_table(path: Path) -> pd.DataFrame:
     if not path.is_file():
         raise DataFormatError(f"{path}: recording file not found")
     suffix = path.suffix.lower()
-    if suffix == ".parquet":
-        return pd.read_parquet(path)
-    if suffix in (".csv", ".txt"):
+    if suffix not in (".parquet", ".csv", ".txt"):
+        raise DataFormatError(f"{path}: unknown recording type '{suffix}' (expected .csv or .parquet)")
+    try:
+        if suffix == ".parquet":
+            return pd.read_parquet(path)
         try:
             return pd.read_csv(path, engine="pyarrow")
         except Exception:  # the C engine gives the clearer message on malformed CSV
             return pd.read_csv(path, engine="c")
-    raise DataFormatError(f"{path}: unknown recording type '{suffix}' (expected .csv or .parquet)")
+    except Exception as exc:  # pyarrow, pandas and OS errors alike: the file cannot be read as a table
+        kind = "Parquet" if suffix == ".parquet" else "CSV"
+        raise DataFormatError(f"{path}: cannot be read as {kind} ({type(exc).__name__}: {exc}); truncated or not a {kind} file?") from exc
+
+
+def _numeric(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
+    """The columns ``cols`` as floats (N, len(cols)); a cell that is not a number, or a column without
+    any number, is an error naming the column."""
+    out = np.empty((len(df), len(cols)))
+    for j, c in enumerate(cols):
+        col = df[c]
+        if not pd.api.types.is_numeric_dtype(col):
+            num = pd.to_numeric(col, errors="coerce")
+            bad = num.isna() & col.notna()
+            if bad.any():
+                i = int(np.flatnonzero(bad.to_numpy())[0])
+                raise DataFormatError(f"{where}: column '{c}' row {i + 1} holds {col.iloc[i]!r}; expected a number")
+            col = num
+        out[:, j] = col.to_numpy(dtype=float)
+    empty = [c for j, c in enumerate(cols) if len(df) and not np.isfinite(out[:, j]).any()]
+    if empty:
+        what = ("the motion-capture orientation of B, empty only where tracking was lost" if set(empty) <= set(QUAT_COLUMNS)
+                else "numbers")
+        raise DataFormatError(f"{where}: column(s) {empty} hold no finite value; expected {what}")
+    return out
 
 
 def recording_from_frame(
@@ -225,39 +252,46 @@ def recording_from_frame(
         raise DataFormatError(f"{where}: missing column(s) {missing}")
     extra = [c for c in df.columns if c not in expected and not (c in QUAT_COLUMNS)]
     if extra:
-        warnings.warn(f"{where}: extra column(s) ignored: {extra}", stacklevel=2)
+        log.warning("%s: extra column(s) ignored: %s", where, extra)
     reading_cols = ["t"] + [f"{k}_{c}" for k in robot.legs for c in ("phi",) + WRENCH_COMPONENTS]
-    values = df[reading_cols].to_numpy(dtype=float)
-    bad = ~np.all(np.isfinite(values), axis=1)
+    cols = reading_cols + (list(QUAT_COLUMNS) if needs_quat else [])
+    values = _numeric(df, cols, where)
+    bad = ~np.all(np.isfinite(values[:, : len(reading_cols)]), axis=1)
     n_bad = int(bad.sum())
     if n_bad:
         log.warning("%s: dropped %d of %d rows with NaN or infinite readings", where, n_bad, len(df))
-        df = df.loc[~bad]
         values = values[~bad]
-    if len(df) < 2:
-        raise DataFormatError(f"{where}: fewer than 2 valid rows")
+    if len(values) < 2:
+        raise DataFormatError(f"{where}: fewer than 2 rows with finite readings ({len(values)} of {len(df)}); expected a recording")
     t = values[:, 0]
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})")
     phi, wrench = {}, {}
-    for k in robot.legs:
-        phi[k] = df[f"{k}_phi"].to_numpy(dtype=float, copy=True)
-        wrench[k] = df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy(dtype=float, copy=True)
+    for i, k in enumerate(robot.legs):
+        phi[k] = values[:, 1 + 7 * i].copy()
+        wrench[k] = values[:, 2 + 7 * i: 8 + 7 * i].copy()
         _check_units(wrench[k], robot, where, k)
     quat = None
     if needs_quat:
-        quat = df[list(QUAT_COLUMNS)].to_numpy(dtype=float, copy=True)
+        quat = values[:, len(reading_cols):].copy()
         ok = np.all(np.isfinite(quat), axis=1)
         norms = np.linalg.norm(quat[ok], axis=1)
         if ok.any() and np.any(np.abs(norms - 1.0) > 1e-2):
-            raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}..{norms.max():.3g})")
+            raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}..{norms.max():.3g}); "
+                                  "expected norm 1 within 0.01")
         quat[~ok] = np.nan
     if kind == "hanging":
         if gravity_body is None:
             raise DataFormatError(f"{where}: hanging recording needs 'gravity_body' in the manifest")
     return Recording(name, kind, t, phi, wrench, quat, gravity_body, path, n_bad)
+
+
+def legs_in_frame(df: pd.DataFrame) -> tuple[str, ...]:
+    """Names ``X`` for which the table holds every reading column ``X_phi``, ``X_fx`` .. ``X_tz``, in column order."""
+    legs = [c[: -len("_fx")] for c in df.columns if str(c).endswith("_fx")]
+    return tuple(k for k in legs if all(f"{k}_{c}" in df.columns for c in ("phi",) + WRENCH_COMPONENTS))
 
 
 def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
@@ -311,7 +345,7 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
         if kinds is not None and kind not in kinds:
             continue
         recs.append(read_recording(manifest.parent / file, robot, kind=kind, gravity_body=gb, name=Path(file).stem))
-    ds = Dataset(robot, tuple(recs), manifest.parent)
+    ds = Dataset(robot, tuple(recs), manifest.parent, manifest, robot_path)
     if kinds is None or "hanging" in kinds:
         hanging_pairs(ds.hanging)
     return ds

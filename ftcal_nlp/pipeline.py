@@ -15,6 +15,12 @@ bars (tqdm, off when not on a terminal). ``run.py`` is the command line around
 it (config, files, printing); the diagnosis' validation and every benchmark call
 it too, so what they measure is what a run does.
 
+Before any fit, :mod:`ftcal_nlp.checks` tests the physics of the data (units,
+signs, quaternion order, shaft angles in radians); after the standing fit it
+bounds the rotations against the design. Optional comparisons (the report's
+baselines) and the diagnosis that cannot run on a dataset are skipped with one
+warning and a note in ``run.notes`` (the report lists them).
+
 With ``offsets_only=<earlier Calibration>`` only the offsets are re-estimated
 from the standing poses and everything else of the earlier calibration is kept
 (report Sec. V); no hanging stage runs.
@@ -26,12 +32,13 @@ import logging
 import time
 from contextlib import contextmanager
 from dataclasses import replace
-from typing import Iterator
+from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
+from .checks import check_dataset, check_transducer_poses
 from .correct import correct_recording_full
 from .data import DataFormatError, Dataset
 from .diagnose import diagnose_run
@@ -39,13 +46,28 @@ from .hanging import HangingResult, fit_hanging
 from .selection import select_models
 from .sensor_noise import SensorNoise, estimate_sensor_noise
 from .settings import CalibrationSettings
-from .solver import SolverError
 from .standing import Poses, extract_poses, fit_standing
 from .uncertainty import CalibrationCovariance
 
 __all__ = ["calibrate"]
 
 log = logging.getLogger("ftcal_nlp.pipeline")
+
+T = TypeVar("T")
+
+
+def optional(what: str, notes: list[str], fn: Callable[[], T]) -> T | None:
+    """Run an optional comparison or stage; if it cannot run on this dataset, log one warning saying why,
+    record it in ``notes`` (the report lists them) and return None: the main estimate stands without it."""
+    try:
+        return fn()
+    except Exception as exc:  # noqa: BLE001 -- whatever stops a comparison must not stop the run
+        why = str(exc) if isinstance(exc, (ValueError, RuntimeError)) and str(exc) else f"{type(exc).__name__}: {exc}"
+        msg = f"{what} was skipped: {why}"
+        log.warning("%s", msg)
+        log.debug("%s", what, exc_info=True)
+        notes.append(msg)
+        return None
 
 
 @contextmanager
@@ -62,18 +84,12 @@ def stage(name: str, timings: dict[str, float], cpu: dict[str, float] | None = N
 
 def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float], notes: list[str]) -> tuple[HangingResult, HangingResult | None]:
     with stage("hanging", timings, cpu):
-        hang = fit_hanging(ds.hanging, ds.robot, s.hanging)
-        for leg in hang.legs.values():
-            for w in leg.warnings:
-                log.warning("%s", w)
+        hang = fit_hanging(ds.hanging, ds.robot, s.hanging)  # logs its own warnings
     base = None
     if s.hanging.compare_baseline and s.hanging.method != "baseline":
         with stage("hanging (baseline)", timings, cpu):
-            try:
-                base = fit_hanging(ds.hanging, ds.robot, s.hanging, method="baseline")
-            except (DataFormatError, SolverError) as exc:  # a comparison that cannot run is skipped, not fatal
-                log.warning("the report's baseline hanging calibration was skipped: %s", exc)
-                notes.append(f"the report's baseline hanging calibration was skipped: {exc}")
+            base = optional("the report's baseline hanging calibration", notes,
+                            lambda: fit_hanging(ds.hanging, ds.robot, s.hanging, method="baseline"))
     return hang, base
 
 
@@ -83,7 +99,21 @@ def _poses(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: 
             raise DataFormatError(f"{ds.manifest or 'dataset'}: no standing recording; the transformation errors need standing poses")
         poses = Poses.concat([extract_poses(r, ds.robot, s.standing.poses) for r in ds.standing])
         log.info("poses: %s", " -> ".join(f"{v} {k}" for k, v in poses.counts.items()))
+        if poses.n < _MIN_POSES:
+            p = s.standing.poses
+            raise DataFormatError(
+                f"{', '.join(str(r.path or r.name) for r in ds.standing)}: {poses.n} static pose(s) found "
+                f"({', '.join(f'{v} {k}' for k, v in poses.counts.items())}); expected at least {_MIN_POSES}: poses where no "
+                f"column {{leg}}_phi moves faster than {p.phi_rate_threshold_rad_s:g} rad/s and the forces settle below "
+                f"{p.deriv_threshold_N_s:g} N/s for {p.min_steady_s:g} s with the orientation qw..qz tracked; does the robot ever "
+                "stand still? ([standing.poses] in the config sets the thresholds)"
+            )
     return poses
+
+
+# The full model has 6 x 6 transformation parameters fitted to 6 components per pose: fewer poses
+# than this cannot determine it, and a fit on them is no calibration.
+_MIN_POSES = 10
 
 
 def _with_joint_se(run: CalibrationRun) -> Calibration:
@@ -128,13 +158,15 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
     cpu: dict[str, float] = {}
     notes: list[str] = []
     hang = hang_base = None
+    with stage("plausibility checks", timings, cpu):
+        check_dataset(ds, offsets_only)
+    poses = _poses(ds, s, timings, cpu)  # before hanging: a dataset without poses fails fast
     if offsets_only is not None:
         prior = offsets_only
         log.info("offsets-only re-estimation from an earlier calibration (model %s)", prior.model)
     else:
         hang, hang_base = _hanging(ds, s, timings, cpu, notes)
         prior = hang.to_calibration(robot)
-    poses = _poses(ds, s, timings, cpu)
 
     st = s.standing
     selection = standing_base = None
@@ -156,11 +188,9 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
                 standing = fit_standing(poses, prior, robot, st, model=model_name)
         if st.compare_baseline and st.solver != "baseline":
             with stage("standing (baseline)", timings, cpu):
-                try:
-                    standing_base = fit_standing(poses, prior, robot, st, model=model_name, solver="baseline", weighting="knorm")
-                except SolverError as exc:  # a failed baseline is a finding, not a reason to stop
-                    log.warning("baseline standing solver failed: %s", exc)
-                    notes.append(f"the report's baseline standing solver failed: {exc}")
+                standing_base = optional("the report's baseline standing solver", notes, lambda: fit_standing(
+                    poses, prior, robot, st, model=model_name, solver="baseline", weighting="knorm"))
+        notes += check_transducer_poses(standing.calibration, robot, str(ds.manifest or "dataset"))
     meta = {"solver": st.solver, "balance": st.balance, "weighting": standing.weighting,
             # null standard errors in calibration.json are these: directions the poses do not determine
             "unidentified": list(standing.unidentified_params)}
@@ -181,5 +211,5 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
             log.info("corrected %s: %d rows", rec.name, len(run.corrected[rec.name]))
     if s.diagnose.enabled:
         with stage("diagnosis", timings, cpu):
-            run.diagnosis = diagnose_run(run)
+            run.diagnosis = optional("the sim-to-real gap diagnosis", notes, lambda: diagnose_run(run))
     return run

@@ -36,6 +36,7 @@ from .diagnose.validate import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
+from .solver import SolverError
 from .tracking import log_changes
 
 COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
@@ -47,11 +48,13 @@ class OutputExistsError(RuntimeError):
     pass
 
 
-def prepare_output(folder: Path, force: bool) -> None:
-    """Create the output folder; refuse to write into a non-empty one unless ``force``."""
+def prepare_output(folder: Path, force: bool, *, create: bool = True) -> None:
+    """Refuse to write into a non-empty output folder unless ``force``; create it (unless ``create`` is false:
+    a run creates it only once it has a result, so that a failed run leaves no trace)."""
     if folder.exists() and any(folder.iterdir()) and not force:
         raise OutputExistsError(f"{folder} exists and is not empty; pass --force to overwrite it")
-    folder.mkdir(parents=True, exist_ok=True)
+    if create:
+        folder.mkdir(parents=True, exist_ok=True)
 
 
 def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration | None]:
@@ -72,8 +75,8 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
 
 
 def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
-    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir``."""
-    prepare_output(cfg.output_dir, force)
+    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails)."""
+    prepare_output(cfg.output_dir, force, create=False)
     t0 = time.perf_counter()
     ds, truth = load_or_simulate(cfg, force)
     t_load = time.perf_counter() - t0
@@ -86,6 +89,7 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
     res.timings = {"load": t_load, **res.timings}
     cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
     res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta})
+    prepare_output(cfg.output_dir, force)
     with stage("write calibration", res.timings):
         res.calibration.save(cfg.output_dir / "calibration.json")
         if res.uncertainty is not None:
@@ -181,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         # many small LAPACK calls: threaded BLAS only adds contention on a few cores
         with threadpool_limits(limits=1):
             run(cfg, force=args.force)
-    except (ConfigError, DataFormatError, OutputExistsError, FileExistsError) as exc:
+    except (ConfigError, DataFormatError, OutputExistsError, FileExistsError, SolverError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

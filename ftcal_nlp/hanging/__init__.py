@@ -22,12 +22,12 @@ Thin data: one opposite pair leaves the CoM along its gravity axis unknown
 the force offset across the axis (NaN, warned); grid angles the shaft never
 reached are NaN (``com_mask``); no opposite pair, or a shaft that never turns,
 raise :class:`HangingDataError` naming the leg and recordings. Warnings are
-also issued as :class:`HangingWarning`.
+logged once each (logger ``ftcal_nlp.hanging``) and kept in ``LegHangingResult.warnings``.
 """
 
 from __future__ import annotations
 
-import warnings
+import logging
 from typing import Sequence
 
 import numpy as np
@@ -41,11 +41,13 @@ from .baseline import fit_leg_baseline
 from .estimate import fit_leg_nlp
 from .model import sample_prediction
 from .nlp import HangingNLP
-from .problem import HangingDataError, HangingSolveError, HangingWarning, build_leg_problem, check_recordings
+from .problem import HangingDataError, HangingSolveError, build_leg_problem, check_recordings
 from .result import HangingResult, LegHangingResult
 
 __all__ = ["fit_hanging", "hanging_residuals", "HangingResult", "LegHangingResult", "HangingDataError", "HangingSolveError",
-           "HangingWarning", "METHODS"]
+           "METHODS"]
+
+log = logging.getLogger(__name__)
 
 def fit_hanging(recordings: Sequence[Recording], robot: Robot, settings: HangingSettings | None = None, **overrides) -> HangingResult:
     """Calibrate every leg of ``robot`` from its hanging recordings.
@@ -72,7 +74,7 @@ def fit_hanging(recordings: Sequence[Recording], robot: Robot, settings: Hanging
             build_leg_problem(leg, recordings, robot, pairs, n_grid)  # the same data checks
             legs[leg] = fit_leg_baseline(leg, recordings, robot, pairs, n_grid)
         for msg in legs[leg].warnings:
-            warnings.warn(msg, HangingWarning, stacklevel=2)
+            log.warning("%s", msg)
     return HangingResult(legs, method)
 
 

@@ -50,10 +50,6 @@ class HangingDataError(DataFormatError):
     """Hanging recordings that cannot calibrate a leg; the message names leg and recordings."""
 
 
-class HangingWarning(UserWarning):
-    """Something the hanging data leave unidentified (a CoM direction, grid angles, an offset component)."""
-
-
 HangingSolveError = SolverError  # IPOPT or Clarabel failed on a hanging problem (the one solver error, solver.py)
 
 

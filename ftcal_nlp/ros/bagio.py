@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import warnings
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -537,7 +536,7 @@ def write_ground_wrench_bag(
     if storage is None:
         storage = "mcap" if mcap_supported() else "sqlite3"
         if storage == "sqlite3":
-            warnings.warn("the installed rosbags cannot write MCAP; writing a sqlite3 ROS 2 bag instead", stacklevel=2)
+            log.warning("%s: the installed rosbags cannot write MCAP; writing a sqlite3 ROS 2 bag instead", path)
     if storage == "ros1":
         raise ValueError("write_ground_wrench_bag writes ROS 2 bags (storage 'mcap' or 'sqlite3')")
     stamps = int(epoch_ns) + np.round(t * 1e9).astype(np.int64)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from ..data import Recording
+from ..data import DataFormatError, Recording
 from ..geometry import quat_to_rotation, remove_yaw
 from ..robot import Robot
 from ..settings import PoseExtraction
@@ -113,10 +113,13 @@ def steady_runs(recording: Recording, robot: Robot, settings: PoseExtraction = P
     """Half-open sample ranges of the steady runs of a standing ``recording`` (stages 1 and 2 of the
     module docstring) and the number of candidate poses (stage 1).
 
-    Raises ``ValueError`` naming the recording if it has no interval without shaft motion.
+    Raises :class:`~ftcal_nlp.data.DataFormatError` naming the recording if it has no
+    orientation columns or no interval without shaft motion.
     """
     s = settings
     where = recording.path or recording.name
+    if recording.quat is None:
+        raise DataFormatError(f"{where}: standing recording without orientation columns qw, qx, qy, qz")
     legs = robot.legs
     t = recording.t
     W = recording.wrench_array(legs)       # (N, K, 6)
@@ -138,7 +141,9 @@ def steady_runs(recording: Recording, robot: Robot, settings: PoseExtraction = P
         for c0, c1 in _runs(still):
             still_runs.append((a + c0, a + c1, norm[c0:c1] < s.deriv_threshold_N_s))
     if not still_runs:
-        raise ValueError(f"{where}: no interval without shaft motion; too short or phi columns never still")
+        raise DataFormatError(f"{where}: columns {{leg}}_phi: no interval in which every shaft stands still (|d phi/dt| <= "
+                              f"{s.phi_rate_threshold_rad_s:g} rad/s, [standing.poses] phi_rate_threshold_rad_s); expected static poses "
+                              "with transitions between them")
 
     steady: list[tuple[int, int]] = []
     for c0, c1, ok in still_runs:

@@ -1,0 +1,503 @@
+"""Physics plausibility of a dataset before fitting, and of the fitted rotations after.
+
+Each check is a pure function on a :class:`~ftcal_nlp.data.Dataset` (or its parts)
+and the :class:`~ftcal_nlp.robot.Robot`; it raises
+:class:`~ftcal_nlp.data.DataFormatError` naming the file, the column or key, what
+was seen and what was expected, so that a unit, sign or order convention that is
+off stops the run instead of giving a wrong calibration (issue 14). Each
+threshold below lies between what the sample, the simulator with every effect
+injector (``sim/injectors.py``, ``sim/variants.py``; seeds 0-3, tilted-board
+poses) and what the faults produce; the unit checks have margins of 10x and
+more, the sign and order checks the margins stated with them (1.5x and more).
+All thresholds are logged at every run (:data:`THRESHOLDS`).
+
+Hanging, opposite pair ``(+, -)`` with nominal gravity axis ``a = R_nom^T g_body+``
+in ft_k (report eqs. 4-5; the tilt ``R_j`` is a few degrees)::
+
+    d_k = (mean f+ - mean f-) / 2 ~= m_k g a,     o_k = (mean f+ + mean f-) / 2 ~= f_o,k
+
+* magnitudes: ``sum_k |d_k|`` over ``m g`` lies in ``[LEG_SHARE_MIN, LEG_SHARE_MAX]``
+  (legs weigh something, and less than the robot): forces in kN or ``mass_kg`` in
+  grams give ~1e-3 of the share;
+* lever arms: ``|mean_k r_k x a| = |torque half difference| / |d_k|``, the legs'
+  mean CoM off their transducers (0.13 m on BigAnt), has a median over legs
+  within [``LEVER_MIN_M``, ``LEVER_MAX_M``]: torques in N*mm or kN*m leave it;
+* directions: the angle between ``d_k`` and ``a``: most legs of every pair beyond
+  ``REVERSED_DEG`` means negated readings (of one pair only: its ``gravity_body``
+  swapped); more than ``MAX_FAULTY_LEGS`` legs beyond ``LEG_DIRECTION_WARN_DEG``
+  means robot.toml's rotations are in another frame. One leg off is a wiring
+  fault left to the diagnosis, logged as a warning naming the leg;
+* shaft angles: the leg's torque ``r_k(phi) x m_k g a + tau_o`` is 2 pi periodic
+  in ``phi``; binned by ``phi mod 2 pi`` (``N_BINS`` bins) its within-bin sum of
+  squares is ``DEGREES_RATIO`` times larger than when binned by
+  ``phi pi / 180`` only when the column holds degrees. Any recording's 99th
+  percentile of ``|d phi / dt|`` above ``MAX_PHI_RATE_RAD_S`` is degrees too.
+
+Standing (exact balance, ``DATA_FORMAT.md`` section 1): the readings less offsets,
+summed in B with the nominal rotations, are ``S_B = R_WB^T e_z (m g - sum_k m_k g)``:
+
+* tilt: the angle between ``S_B`` and the quaternion's up axis ``R_WB^T e_z``
+  is below ``TILT_DEG`` in ``TILT_PERCENTILE`` % of the samples (mounting errors
+  are a few degrees, the tilt of the board enters both; one leg's wiring fault
+  reaches 18 deg); if not, the message says which reading of the columns (x, y,
+  z, w order, the conjugate, another order) would agree. On the still rows (no
+  shaft moving: no leg inertia) the 99th percentile may exceed ``TILT_MIN_DEG``
+  (a wiring fault's board poses reach 60 deg) only if no other reading of the
+  columns comes ``QUAT_ORDER_RATIO`` times closer: orders that agree on level
+  poses at a heading near 180 deg (the sample's) differ on the tilted ones;
+* magnitude: median ``|S_B|`` over ``m g - sum_k m_k g`` lies within a factor
+  ``BODY_WEIGHT_FACTOR``;
+* torque axes: on the rows where no shaft moves (``STILL_RAD_S``), the moments
+  ``sum_k (R_k tau_k + p_k x R_k f_k)`` balance ``c x S_B`` (``c`` the body CoM,
+  fitted by least squares). No other order or sign of the torque columns (the
+  47 other signed permutations, the same for every leg) may leave less than
+  ``TORQUE_MAP_RATIO`` times the RMS residual of the columns as given: negated
+  torques give 0.16x on the sample, a single column's sign flipped (tx or tz,
+  which standing poses excite least) 0.58x; the best alternative of any simulator
+  effect (three seeds, tilted-board poses) is >= 1.04x, the wiring variants the
+  nearest.
+
+After fitting, every rotation ``R_k`` lies within ``ROTATION_BOUND_DEG`` of its
+design rotation (angle of ``R_k R_nom,k^T``); when more than ``MAX_FAULTY_LEGS``
+legs do not, the message names the convention that is probably off. One leg
+beyond the bound is that leg's fault (wiring, a wrong ``rotation`` in robot.toml:
+the simulator's ``leg_axes_swapped`` and ``leg_axis_flipped`` give 50-120 deg),
+logged as a warning and recorded in the run's notes for the diagnosis to place.
+The fitted positions ``p'_k`` relative to their mean against the design
+positions relative to theirs (the unknown CoM cancels) beyond
+``TRANSLATION_BOUND_M`` are a warning only: the columns of two legs exchanged
+leave it, but so does one leg's wiring fault, through the balance, on every leg
+(the simulator's variants reach 180 mm).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .data import Dataset, DataFormatError, Recording, hanging_pairs
+from .geometry import quat_to_rotation, rotation_to_rotvec, skew
+from .robot import Robot
+
+log = logging.getLogger(__name__)
+
+LEG_SHARE_MIN = 0.01
+LEG_SHARE_MAX = 1.0
+REVERSED_DEG = 90.0
+LEVER_MIN_M = 0.002
+LEVER_MAX_M = 3.0
+TRANSLATION_BOUND_M = 0.05
+LEG_DIRECTION_WARN_DEG = 45.0
+N_BINS = 36
+DEGREES_RATIO = 4.0
+MIN_PERIODICITY_SAMPLES = 4 * N_BINS
+MAX_PHI_RATE_RAD_S = 50.0
+TILT_DEG = 30.0
+TILT_PERCENTILE = 90
+TILT_MIN_DEG = 10.0
+QUAT_ORDER_RATIO = 0.5
+TORQUE_MAP_RATIO = 0.7
+STILL_RAD_S = 0.05
+STILL_STRIDE = 5
+BODY_WEIGHT_FACTOR = 3.0
+ROTATION_BOUND_DEG = 20.0
+# One leg off is a wiring fault of that leg (the diagnosis places it); more legs share a convention.
+MAX_FAULTY_LEGS = 1
+
+THRESHOLDS = (
+    f"leg weights {LEG_SHARE_MIN:.0%}..{LEG_SHARE_MAX:.0%} of m g, lever arms {LEVER_MIN_M:g}..{LEVER_MAX_M:g} m, hanging force direction < {REVERSED_DEG:.0f} deg, "
+    f"shaft-angle periodicity ratio < {DEGREES_RATIO:g} and rate < {MAX_PHI_RATE_RAD_S:g} rad/s, standing tilt < {TILT_DEG:.0f} deg (p{TILT_PERCENTILE}; "
+    f"p99 of still rows < {TILT_MIN_DEG:g} deg unless another quaternion order is {QUAT_ORDER_RATIO:g}x closer), "
+    f"moment residual of any other torque order or sign > {TORQUE_MAP_RATIO:g}x as given, "
+    f"body weight within {BODY_WEIGHT_FACTOR:g}x, fitted rotations < {ROTATION_BOUND_DEG:.0f} deg "
+    f"from the design (relative translations < {TRANSLATION_BOUND_M * 1e3:.0f} mm: a warning)"
+)
+
+
+def _src(rec: Recording) -> str:
+    return str(rec.path or rec.name)
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between the vectors along the last axis (degrees)."""
+    c = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+@dataclass(frozen=True)
+class PairForces:
+    """Means of one opposite hanging pair, per leg in ft_k: ``weight`` (K, 3) ``d_k`` (N); ``offset`` (K, 6)
+    the mean wrench ``o_k`` (N, N*m; the offsets when the shafts turn full circles); ``axis`` (K, 3) the
+    nominal unit gravity axis ``a``; ``torque`` (K, 3) the half difference of the mean torques (N*m)."""
+
+    plus: Recording
+    minus: Recording
+    weight: np.ndarray
+    offset: np.ndarray
+    axis: np.ndarray
+    torque: np.ndarray
+
+    @property
+    def where(self) -> str:
+        return f"{_src(self.plus)} / {_src(self.minus)}"
+
+
+def pair_forces(ds: Dataset) -> list[PairForces]:
+    """Half difference and mean of the mean forces of every opposite hanging pair (module docstring)."""
+    legs, out = ds.robot.legs, []
+    R_nom = ds.robot.nominal_rotations()
+    for p, m in hanging_pairs(ds.hanging):
+        wp = np.stack([p.wrench[k].mean(axis=0) for k in legs])
+        wm = np.stack([m.wrench[k].mean(axis=0) for k in legs])
+        axis = np.einsum("kji,j->ki", R_nom, p.gravity_body / np.linalg.norm(p.gravity_body))
+        out.append(PairForces(p, m, (wp - wm)[:, :3] / 2, (wp + wm) / 2, axis, (wp - wm)[:, 3:] / 2))
+    return out
+
+
+def check_leg_weights(pairs: list[PairForces], robot: Robot, robot_source: str) -> np.ndarray:
+    """Leg weights ``|d_k|`` (K,) N, averaged over the pairs, against the robot's weight (catches kN and grams)."""
+    w = np.mean([np.linalg.norm(p.weight, axis=1) for p in pairs], axis=0)
+    share = float(w.sum() / robot.weight_N)
+    if not LEG_SHARE_MIN <= share <= LEG_SHARE_MAX:
+        cols = ", ".join(f"{k}_fx..{k}_fz" for k in robot.legs[:2]) + ", ..."
+        hint = ("are the force columns in kN, or mass_kg in grams?" if share < LEG_SHARE_MIN
+                else "are the force columns in mN (or lbf), or mass_kg too small?")
+        raise DataFormatError(
+            f"{pairs[0].where}: the hanging leg weights (half the difference of opposite recordings, columns {cols}) sum to "
+            f"{w.sum():.4g} N, {share:.3g} of the robot's weight {robot.weight_N:.4g} N (key mass_kg = {robot.mass_kg:g} in "
+            f"{robot_source}); expected between {LEG_SHARE_MIN:g} and {LEG_SHARE_MAX:g} of it: {hint}"
+        )
+    return w
+
+
+def check_lever_arms(pairs: list[PairForces]) -> None:
+    """Torque over force of the hanging legs, ``|mean r_k x a|``, within [``LEVER_MIN_M``, ``LEVER_MAX_M``] (catches
+    torques in N*mm or kN*m while the forces are in N)."""
+    lever = np.max([np.linalg.norm(p.torque, axis=1) / np.maximum(np.linalg.norm(p.weight, axis=1), 1e-12) for p in pairs], axis=0)
+    med = float(np.median(lever))
+    if not LEVER_MIN_M <= med <= LEVER_MAX_M:
+        hint = "are the torque columns in kN*m (or the forces in mN)?" if med < LEVER_MIN_M else "are the torque columns in N*mm?"
+        raise DataFormatError(
+            f"{pairs[0].where}: the hanging torques over the leg weights (columns {{leg}}_tx..{{leg}}_tz over {{leg}}_fx..{{leg}}_fz) "
+            f"put the legs' centres of mass a median {med:.3g} m from their transducers; expected {LEVER_MIN_M:g} to "
+            f"{LEVER_MAX_M:g} m (torques in N*m): {hint}"
+        )
+
+
+def check_force_directions(pairs: list[PairForces], robot: Robot, robot_source: str = "robot.toml") -> None:
+    """Hanging force ``d_k`` along the nominal gravity axis (catches negated readings, a swapped ``gravity_body``,
+    rotations of robot.toml in another frame); one leg off is logged for the diagnosis (module docstring)."""
+    reversed_pairs, faulty = [], {}
+    for p in pairs:
+        ang = _angle_deg(p.weight, p.axis)
+        rev = ang > REVERSED_DEG
+        if rev.sum() * 2 > len(ang) and np.median(ang) > 180 - LEG_DIRECTION_WARN_DEG:  # turned round, not sideways
+            reversed_pairs.append((p, ang))
+            continue
+        for k, a in zip(robot.legs, ang):
+            if a > LEG_DIRECTION_WARN_DEG:
+                faulty.setdefault(k, []).append(f"{a:.0f} deg in {p.where}")
+    if reversed_pairs:
+        desc = "; ".join(f"{p.where}: median {np.median(a):.0f} deg" for p, a in reversed_pairs)
+        if len(reversed_pairs) == len(pairs):
+            raise DataFormatError(
+                f"hanging force readings ({{leg}}_fx..{{leg}}_fz) point against gravity_body in every pair ({desc}); expected "
+                f"within {REVERSED_DEG:.0f} deg of the nominal gravity axis: a reading is the wrench the leg exerts on the "
+                "transducer (DATA_FORMAT.md section 1); are the readings negated (sign convention reversed)?"
+            )
+        raise DataFormatError(
+            f"hanging force readings point against gravity_body ({desc}), while the other pairs agree; expected within "
+            f"{REVERSED_DEG:.0f} deg: are the gravity_body keys of these two recordings in the manifest swapped?"
+        )
+    if len(faulty) > MAX_FAULTY_LEGS:
+        listing = "; ".join(f"{k} ({', '.join(v)})" for k, v in faulty.items())
+        raise DataFormatError(
+            f"hanging force readings of legs {listing} are off the nominal gravity axis R_nom^T gravity_body; expected within "
+            f"{LEG_DIRECTION_WARN_DEG:.0f} deg for all but {MAX_FAULTY_LEGS} leg: are the [transducers.*] rotation keys of "
+            f"{robot_source} in another frame (expected ft_k -> B), or the columns {{leg}}_fx, {{leg}}_fy, {{leg}}_fz in another order?"
+        )
+    for k, v in faulty.items():
+        log.warning("leg %s: hanging force (columns %s_fx..%s_fz) off the nominal gravity axis: %s (other legs agree; "
+                    "expected within %.0f deg): a mis-signed channel or a wrong rotation in robot.toml for this leg?",
+                    k, k, k, ", ".join(v), LEG_DIRECTION_WARN_DEG)
+
+
+def _within_bin_ss(angle: np.ndarray, y: np.ndarray) -> float:
+    """Sum of squares of ``y`` (N, d) about its mean in each of ``N_BINS`` bins of ``angle mod 2 pi``."""
+    b = np.floor(np.mod(angle, 2 * np.pi) / (2 * np.pi) * N_BINS).astype(int).clip(0, N_BINS - 1)
+    n = np.bincount(b, minlength=N_BINS).astype(float)
+    ss = 0.0
+    for j in range(y.shape[1]):
+        s1 = np.bincount(b, y[:, j], minlength=N_BINS)
+        s2 = np.bincount(b, y[:, j] ** 2, minlength=N_BINS)
+        ss += float(np.sum(s2[n > 0] - s1[n > 0] ** 2 / n[n > 0]))
+    return ss
+
+
+def degrees_ratio(rec: Recording, legs: tuple[str, ...]) -> float:
+    """Within-bin torque sum of squares binned by ``phi`` over binned by ``phi pi/180`` (module docstring)."""
+    ss_rad = ss_deg = 0.0
+    for k in legs:
+        tau = rec.wrench[k][:, 3:] - rec.wrench[k][:, 3:].mean(axis=0)
+        ss_rad += _within_bin_ss(rec.phi[k], tau)
+        ss_deg += _within_bin_ss(np.radians(rec.phi[k]), tau)
+    return ss_rad / ss_deg if ss_deg > 0 else 1.0
+
+
+def check_shaft_angles(ds: Dataset) -> None:
+    """Shaft angles in radians: torque periodicity in hanging, and a plausible rate everywhere (catches degrees)."""
+    legs = ds.robot.legs
+    for rec in ds.recordings:
+        phi = rec.phi_array(legs)
+        if rec.n >= 2:
+            rate = np.abs(np.diff(phi, axis=0)) / np.diff(rec.t)[:, None]
+            r99 = np.percentile(rate, 99, axis=0)
+            if r99.max() > MAX_PHI_RATE_RAD_S:
+                k = legs[int(np.argmax(r99))]
+                raise DataFormatError(
+                    f"{_src(rec)}: column {k}_phi turns at {r99.max():.4g} rad/s (99th percentile); expected radians, below "
+                    f"{MAX_PHI_RATE_RAD_S:g} rad/s for a leg: is it in degrees?"
+                )
+        if rec.kind == "hanging" and rec.n >= MIN_PERIODICITY_SAMPLES:
+            ratio = degrees_ratio(rec, legs)
+            if ratio > DEGREES_RATIO:
+                raise DataFormatError(
+                    f"{_src(rec)}: columns {{leg}}_phi: the hanging torques repeat every 360 units of phi, not every 2 pi "
+                    f"(within-bin scatter {ratio:.3g}x larger binned by phi as radians than as degrees; expected below "
+                    f"{DEGREES_RATIO:g}); expected radians: are the shaft angles in degrees?"
+                )
+
+
+def _up_angles(S_B: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """Angle (deg) between the readings' up direction ``S_B`` (N, 3) and the quaternions' ``R_WB^T e_z``."""
+    up = quat_to_rotation(quat)[:, 2, :]
+    return _angle_deg(S_B, up)
+
+
+def check_standing(ds: Dataset, offsets: np.ndarray, leg_weights: np.ndarray) -> None:
+    """Readings' gravity vs. the quaternion's tilt, and the body weight, in every standing recording.
+
+    ``offsets`` (K, 6) offsets in ft_k and ``leg_weights`` (K,) N: from the hanging pairs or an
+    earlier calibration.
+    """
+    robot, legs = ds.robot, ds.robot.legs
+    R_nom = robot.nominal_rotations()
+    offsets = np.asarray(offsets, float)
+    body = robot.weight_N - float(np.sum(leg_weights))
+    for rec in ds.standing:
+        src = _src(rec)
+        q = rec.quat
+        ok = np.all(np.isfinite(q), axis=1)
+        if not ok.any():
+            raise DataFormatError(f"{src}: columns qw, qx, qy, qz hold no finite row; a standing recording needs the "
+                                  "motion-capture orientation of B (empty only where tracking was lost)")
+        F = np.stack([rec.wrench[k][ok, :3] for k in legs], axis=1) - offsets[:, :3]  # (N, K, 3)
+        S_B = np.einsum("kij,nkj->ni", R_nom, F)
+        ratio = float(np.median(np.linalg.norm(S_B, axis=1)) / body) if body > 0 else np.inf
+        if not 1 / BODY_WEIGHT_FACTOR <= ratio <= BODY_WEIGHT_FACTOR:
+            raise DataFormatError(
+                f"{src}: standing, the readings less the hanging offsets (columns {{leg}}_fx..{{leg}}_fz) sum to a median "
+                f"{ratio * body:.4g} N; expected about the weight of the body without legs, {body:.4g} N (mass_kg = "
+                f"{robot.mass_kg:g} less the hanging leg weights), within a factor {BODY_WEIGHT_FACTOR:g}: are the forces, or "
+                "mass_kg, in another unit?"
+            )
+        check_torque_axes(rec, robot, offsets)
+        check_quaternion(rec, S_B, ok)
+
+
+def _quaternion_readings() -> dict[str, list[int] | np.ndarray]:
+    """Other readings of the four columns qw..qz: every other order (as index lists) and the conjugate (signs)."""
+    names = ("qw", "qx", "qy", "qz")
+    out: dict[str, list[int] | np.ndarray] = {
+        "the quaternion columns hold x, y, z, w (not w, x, y, z)": [3, 0, 1, 2],
+        "the quaternion maps world to body (its conjugate is expected)": np.array([1.0, -1, -1, -1]),
+    }
+    for perm in itertools.permutations(range(4)):
+        if list(perm) not in ([0, 1, 2, 3], [3, 0, 1, 2]):
+            out[f"the columns are taken in the order {', '.join(names[i] for i in perm)}"] = list(perm)
+    return out
+
+
+def check_quaternion(rec: Recording, S_B: np.ndarray, ok: np.ndarray) -> None:
+    """The quaternion's up axis against the readings' (``S_B`` (N, 3) on the rows ``ok`` with an orientation):
+    beyond ``TILT_DEG`` in ``TILT_PERCENTILE`` % of the samples, or, on the still rows, beyond ``TILT_MIN_DEG`` at
+    the 99th percentile while another reading of the columns is ``QUAT_ORDER_RATIO`` times closer (module docstring)."""
+    q = rec.quat[ok]
+    phi = rec.phi_array()[ok]
+    still = np.r_[False, np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(rec.t[ok])[:, None], axis=1)]
+
+    def stats(qq: np.ndarray) -> tuple[float, float]:
+        a = _up_angles(S_B, qq)
+        return float(np.percentile(a, TILT_PERCENTILE)), float(np.percentile(a[still], 99)) if still.sum() > 10 else 0.0
+
+    given, given99 = stats(q)
+    if given <= TILT_DEG and given99 <= TILT_MIN_DEG:
+        return
+    alt = {k: stats(q[:, v] if isinstance(v, list) else q * v) for k, v in _quaternion_readings().items()}
+    best = min(alt, key=lambda k: alt[k][1])
+    if given > TILT_DEG:
+        best = min(alt, key=lambda k: alt[k][0])
+        hint = (f"they agree within {alt[best][0]:.0f} deg if {best}" if alt[best][0] <= TILT_DEG
+                else "no other order of the columns agrees: check the frames of qw..qz and the rotations in robot.toml")
+        raise DataFormatError(
+            f"{_src(rec)}: columns qw, qx, qy, qz: the body's up direction from the quaternion is {given:.0f} deg "
+            f"({TILT_PERCENTILE}th percentile of the samples) from the direction of the summed force readings; expected within "
+            f"{TILT_DEG:.0f} deg (qw..qz map B to the world, DATA_FORMAT.md section 3): {hint}"
+        )
+    if alt[best][1] < QUAT_ORDER_RATIO * given99:
+        raise DataFormatError(
+            f"{_src(rec)}: columns qw, qx, qy, qz: on the still rows the body's up direction from the quaternion is up to "
+            f"{given99:.0f} deg (99th percentile) from the summed force readings', {alt[best][1]:.0f} deg if {best}; expected "
+            f"the columns as given to agree best (qw..qz map B to the world, DATA_FORMAT.md section 3)"
+        )
+
+
+def moment_residual(rec: Recording, robot: Robot, offsets: np.ndarray, torque_map: np.ndarray | None = None) -> float:
+    """RMS moment residual (N*m) of the still rows of a standing recording: ``sum_k (R_k P tau_k + p_k x R_k f_k)``
+    (nominal poses, readings less ``offsets``, ``P = torque_map`` applied to the torque columns, identity by default)
+    less ``c x sum_k R_k f_k`` with the body CoM ``c`` fitted by least squares."""
+    legs = robot.legs
+    phi = rec.phi_array(legs)
+    still = np.r_[False, np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(rec.t)[:, None], axis=1)]
+    W = rec.wrench_array(legs)[still][::STILL_STRIDE] - offsets
+    tau = W[:, :, 3:] if torque_map is None else W[:, :, 3:] @ np.asarray(torque_map).T
+    F = np.einsum("kij,nkj->nki", robot.nominal_rotations(), W[:, :, :3])
+    T = np.einsum("kij,nkj->nki", robot.nominal_rotations(), tau)
+    M = (T.sum(axis=1) + np.cross(robot.nominal_positions()[None], F).sum(axis=1)).reshape(-1)
+    A = -skew(F.sum(axis=1)).reshape(-1, 3)  # c x S = -[S]_x c
+    if len(M) < 6:
+        return float("nan")
+    c, *_ = np.linalg.lstsq(A, M, rcond=None)
+    return float(np.sqrt(np.mean((M - A @ c) ** 2)))
+
+
+def _signed_permutations() -> list[np.ndarray]:
+    """The 47 signed permutation matrices other than the identity (torque columns reordered or mis-signed)."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            P = np.zeros((3, 3))
+            P[range(3), perm] = signs
+            if not np.allclose(P, np.eye(3)):
+                out.append(P)
+    return out
+
+
+def _describe_map(P: np.ndarray) -> str:
+    names = ("tx", "ty", "tz")
+    return ", ".join(f"{n} <- {'-' if P[i].sum() < 0 else ''}{names[int(np.argmax(np.abs(P[i])))]}" for i, n in enumerate(names))
+
+
+def check_torque_axes(rec: Recording, robot: Robot, offsets: np.ndarray) -> None:
+    """Standing moment balance with the torque columns as given against every other order and sign (module docstring)."""
+    given = moment_residual(rec, robot, offsets)
+    if not np.isfinite(given):
+        return
+    alt = [(moment_residual(rec, robot, offsets, P), P) for P in _signed_permutations()]
+    best, P = min(alt, key=lambda a: a[0])
+    if best < TORQUE_MAP_RATIO * given:
+        what = ("are the torque readings negated (their sign convention reversed)?" if np.allclose(P, -np.eye(3))
+                else f"are the torque columns in another order or sign ({_describe_map(P)} balances)?")
+        raise DataFormatError(
+            f"{_src(rec)}: columns {{leg}}_tx..{{leg}}_tz: the standing moment balance about the body's CoM leaves {given:.3g} N*m "
+            f"RMS with the torques as given and {best:.3g} N*m with {_describe_map(P)}; expected the torques as given to "
+            f"balance best (no other order or sign below {TORQUE_MAP_RATIO:g}x): {what}"
+        )
+
+
+def check_hanging_span(pairs: list[PairForces]) -> None:
+    """The standing fit needs every offset and leg CoM: two non-parallel hanging pairs (``DATA_FORMAT.md`` section 4)."""
+    g = np.stack([p.plus.gravity_body / np.linalg.norm(p.plus.gravity_body) for p in pairs])
+    if np.linalg.matrix_rank(g, tol=0.2) < 2:
+        names = "; ".join(p.where for p in pairs)
+        raise DataFormatError(
+            f"hanging recordings ({names}): gravity_body of every pair is along {np.round(g[0], 3).tolist()}; the torque "
+            "offsets and the leg CoM along that axis are then unknown and the standing fit needs them: expected at least "
+            "two opposite pairs with non-parallel gravity_body (DATA_FORMAT.md section 4)"
+        )
+
+
+def check_dataset(ds: Dataset, prior=None) -> None:
+    """Every plausibility check before fitting (module docstring); ``prior`` an earlier
+    :class:`~ftcal_nlp.calibration.Calibration` when only the offsets are re-estimated (no hanging)."""
+    log.info("plausibility checks: %s", THRESHOLDS)
+    robot_source = str(ds.robot_path or "robot.toml")
+    check_shaft_angles(ds)
+    if prior is None:
+        if not ds.hanging:
+            raise DataFormatError(f"{ds.manifest or 'dataset'}: no hanging recording; expected at least two opposite pairs "
+                                  "(DATA_FORMAT.md section 4)")
+        pairs = pair_forces(ds)
+        weights = check_leg_weights(pairs, ds.robot, robot_source)
+        check_lever_arms(pairs)
+        check_force_directions(pairs, ds.robot, robot_source)
+        check_hanging_span(pairs)
+        offsets = np.mean([p.offset for p in pairs], axis=0)
+    else:
+        missing = [k for k in ds.robot.legs if k not in prior.legs]
+        if missing:
+            raise DataFormatError(f"the earlier calibration ([offsets_only] calibration): no calibration for leg(s) {missing} of "
+                                  f"{robot_source}; expected every leg of the robot")
+        offsets, weights, _, _ = prior.stacked(ds.robot.legs)
+        if not (np.all(np.isfinite(offsets)) and np.all(np.isfinite(weights))):
+            raise DataFormatError("the earlier calibration ([offsets_only] calibration): offsets or leg weights are null; "
+                                  "expected a complete calibration (from two or more hanging pairs)")
+    check_standing(ds, offsets, weights)
+
+
+def rotation_errors_deg(cal, robot: Robot) -> np.ndarray:
+    """Angle (deg) of ``R_k R_nom,k^T`` per leg of ``robot``."""
+    R = np.stack([cal.legs[k].rotation_to_body for k in robot.legs])
+    return np.degrees(np.linalg.norm(rotation_to_rotvec(R @ np.swapaxes(robot.nominal_rotations(), 1, 2)), axis=1))
+
+
+def check_rotations(cal, robot: Robot, where: str) -> list[str]:
+    """The fitted rotations against the design (module docstring); returns warnings for single legs beyond the bound."""
+    err = rotation_errors_deg(cal, robot)
+    off = err > ROTATION_BOUND_DEG
+    if not off.any():
+        return []
+    listing = ", ".join(f"{k} {e:.0f} deg" for k, e, o in zip(robot.legs, err, off) if o)
+    if off.sum() > MAX_FAULTY_LEGS:
+        R = np.stack([cal.legs[k].rotation_to_body for k in robot.legs])
+        transposed = np.degrees(np.linalg.norm(rotation_to_rotvec(R @ robot.nominal_rotations()), axis=1))
+        if np.all(transposed <= ROTATION_BOUND_DEG):
+            hint = "the fit agrees with the transposed design rotations: are robot.toml's rotations B -> ft_k instead of ft_k -> B?"
+        elif np.median(err[off]) > 120:
+            hint = ("a half-turn: are the readings negated (sign convention), or the quaternion columns in x, y, z, w order, "
+                    "or the quaternion world -> body?")
+        else:
+            hint = ("is the quaternion world -> body instead of body -> world, or are robot.toml's [transducers.*] rotation "
+                    "keys in another frame (expected ft_k -> B)?")
+        raise DataFormatError(
+            f"{where}: the fitted transducer rotations are far from the design rotations of robot.toml ({listing}); "
+            f"expected within {ROTATION_BOUND_DEG:.0f} deg: a convention is probably off: {hint}"
+        )
+    msg = (f"{where}: fitted rotation of leg(s) {listing} from the design rotation (bound {ROTATION_BOUND_DEG:.0f} deg, "
+           "the other legs agree): a wiring fault of that leg or a wrong rotation for it in robot.toml?")
+    log.warning("%s", msg)
+    return [msg]
+
+
+def translation_errors_m(cal, robot: Robot) -> np.ndarray:
+    """Distance (m) per leg between the fitted ``p'_k`` and the design position, each less its mean over legs."""
+    p = np.stack([cal.legs[k].position_from_com_m for k in robot.legs])
+    nom = robot.nominal_positions()
+    return np.linalg.norm((p - p.mean(axis=0)) - (nom - nom.mean(axis=0)), axis=1)
+
+
+def check_transducer_poses(cal, robot: Robot, where: str) -> list[str]:
+    """Rotations (:func:`check_rotations`) and relative translations against the design; returns the warnings."""
+    notes = check_rotations(cal, robot, where)
+    err = translation_errors_m(cal, robot)
+    off = err > TRANSLATION_BOUND_M
+    if off.any():
+        listing = ", ".join(f"{k} {e * 1e3:.0f} mm" for k, e, o in zip(robot.legs, err, off) if o)
+        msg = (f"{where}: fitted transducer positions far from robot.toml's position_m ({listing}, relative to their mean; "
+               f"expected within {TRANSLATION_BOUND_M * 1e3:.0f} mm): columns of two legs exchanged, a leg's wiring, or position_m?")
+        log.warning("%s", msg)
+        notes.append(msg)
+    return notes
