@@ -82,7 +82,12 @@ def _fz_se(w_m, phi, R_WB, cal, cov, noise, offset_cov=None) -> np.ndarray | Non
 
 def _contact(t, gw, se_sub, settings, legs, baseline: bool) -> ContactState:
     # the thresholds only need each foot's typical se: a subsample's median stands for all rows
-    se = None if se_sub is None else np.broadcast_to(np.nanmedian(se_sub, axis=0), gw.shape[:2])
+    se = None
+    if se_sub is not None:
+        med = np.full(se_sub.shape[1], np.nan)      # a foot without any finite se keeps NaN (no numpy warning)
+        ok = np.isfinite(se_sub).any(axis=0)
+        med[ok] = np.nanmedian(se_sub[:, ok], axis=0)
+        se = np.broadcast_to(med, gw.shape[:2])
     return detect_contact(t, gw[..., 2], se, settings, baseline=baseline, legs=legs)
 
 
