@@ -159,13 +159,10 @@ def steady_runs(recording: Recording, robot: Robot, settings: PoseExtraction = P
 def extract_poses(recording: Recording, robot: Robot, settings: PoseExtraction = PoseExtraction()) -> Poses:
     """Static poses of a standing ``recording`` (Sec. I-B, stages in the module docstring).
 
-    Raises ``ValueError`` naming the recording if it has no orientation columns
-    or is too short for the filter.
+    Raises :class:`~ftcal_nlp.data.DataFormatError` (from :func:`steady_runs`) naming the recording if it
+    has no orientation columns or no interval without shaft motion.
     """
     s = settings
-    where = recording.path or recording.name
-    if recording.quat is None:
-        raise ValueError(f"{where}: standing recording without orientation columns qw, qx, qy, qz")
     legs = robot.legs
     t = recording.t
     W = recording.wrench_array(legs)       # (N, K, 6)
