@@ -366,23 +366,27 @@ def check_quaternion(rec: Recording, S_B: np.ndarray, ok: np.ndarray) -> None:
         )
 
 
-def moment_residual(rec: Recording, robot: Robot, offsets: np.ndarray, torque_map: np.ndarray | None = None) -> float:
-    """RMS moment residual (N*m) of the still rows of a standing recording: ``sum_k (R_k P tau_k + p_k x R_k f_k)``
-    (nominal poses, readings less ``offsets``, ``P = torque_map`` applied to the torque columns, identity by default)
-    less ``c x sum_k R_k f_k`` with the body CoM ``c`` fitted by least squares."""
+def moment_residuals(rec: Recording, robot: Robot, offsets: np.ndarray, torque_maps: list[np.ndarray]) -> np.ndarray:
+    """RMS moment residual (N*m) of the still rows of a standing recording for each ``P`` of ``torque_maps``:
+    ``sum_k (R_k P tau_k + p_k x R_k f_k)`` (nominal poses, readings less ``offsets``, ``P`` applied to the torque
+    columns) less ``c x sum_k R_k f_k`` with the body CoM ``c`` fitted by least squares. The sum is linear in ``P``
+    and the fit's projector is the same for every ``P``: both are formed once (NaN with too few rows)."""
     legs = robot.legs
     phi = rec.phi_array(legs)
     still = np.r_[False, np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(rec.t)[:, None], axis=1)]
     W = rec.wrench_array(legs)[still][::STILL_STRIDE] - offsets
-    tau = W[:, :, 3:] if torque_map is None else W[:, :, 3:] @ np.asarray(torque_map).T
-    F = np.einsum("kij,nkj->nki", robot.nominal_rotations(), W[:, :, :3])
-    T = np.einsum("kij,nkj->nki", robot.nominal_rotations(), tau)
-    M = (T.sum(axis=1) + np.cross(robot.nominal_positions()[None], F).sum(axis=1)).reshape(-1)
-    A = -skew(F.sum(axis=1)).reshape(-1, 3)  # c x S = -[S]_x c
-    if len(M) < 6:
-        return float("nan")
-    c, *_ = np.linalg.lstsq(A, M, rcond=None)
-    return float(np.sqrt(np.mean((M - A @ c) ** 2)))
+    R = robot.nominal_rotations()
+    if 3 * len(W) < 6:
+        return np.full(len(torque_maps), np.nan)
+    F = np.einsum("kij,nkj->nki", R, W[:, :, :3])
+    G = np.einsum("kia,nkb->niab", R, W[:, :, 3:])                      # sum_k R_k P tau_k = G : P
+    C = np.cross(robot.nominal_positions()[None], F).sum(axis=1)        # (N, 3)
+    Q, _ = np.linalg.qr(-skew(F.sum(axis=1)).reshape(-1, 3))            # c x S = -[S]_x c
+    out = []
+    for P in torque_maps:
+        M = (np.einsum("niab,ab->ni", G, P) + C).reshape(-1)
+        out.append(float(np.sqrt(np.mean((M - Q @ (Q.T @ M)) ** 2))))
+    return np.asarray(out)
 
 
 def _signed_permutations() -> list[np.ndarray]:
@@ -404,11 +408,13 @@ def _describe_map(P: np.ndarray) -> str:
 
 def check_torque_axes(rec: Recording, robot: Robot, offsets: np.ndarray) -> None:
     """Standing moment balance with the torque columns as given against every other order and sign (module docstring)."""
-    given = moment_residual(rec, robot, offsets)
+    maps = _signed_permutations()
+    res = moment_residuals(rec, robot, offsets, [np.eye(3)] + maps)
+    given = res[0]
     if not np.isfinite(given):
         return
-    alt = [(moment_residual(rec, robot, offsets, P), P) for P in _signed_permutations()]
-    best, P = min(alt, key=lambda a: a[0])
+    i = int(np.argmin(res[1:]))
+    best, P = res[1 + i], maps[i]
     if best < TORQUE_MAP_RATIO * given:
         what = ("are the torque readings negated (their sign convention reversed)?" if np.allclose(P, -np.eye(3))
                 else f"are the torque columns in another order or sign ({_describe_map(P)} balances)?")
