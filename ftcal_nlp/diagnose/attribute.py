@@ -46,7 +46,7 @@ from .linear_fit import base_linear, recalibrate, score_linear
 from .scores import KindScore
 from ..solver import SolverError
 from .standing_fit import AugmentedProblem
-from .views import Views, to_world
+from .views import Views
 
 log = logging.getLogger(__name__)
 
@@ -101,37 +101,11 @@ class Attribution:
     folds: list = field(default_factory=list)
 
 
-def _standing_cv(problem: AugmentedProblem, view, folds: list, x0: np.ndarray):
-    """Full fit, effective dof and held-out residuals (P, 6, W axes) of one problem."""
-    Phi = problem.design(view.data)
-    P = view.P
-    x = problem.fit(Phi, np.full(P, 1.0 / P), x0)
-    dof = problem.effective_dof(x, Phi)
-    held = np.zeros((P, 6))
-    for test in folds:
-        w = np.full(P, 1.0 / (P - len(test)))
-        w[test] = 0.0
-        xf = problem.fit(Phi, w, x)
-        held[test] = problem.residuals(xf, Phi[test])
-    r_in = to_world(problem.residuals(x, Phi), view.R_WB)
-    return x, dof, to_world(held, view.R_WB), r_in
-
-
 def _kind_score(kind, floor, held_before, held_after, in_before, in_after, dof) -> KindScore:
     s = np.where(floor > 0, floor, 1.0)
     return KindScore(kind, (held_before**2).mean(0), (held_after**2).mean(0), floor,
                      float(((held_before / s) ** 2).sum()), float(((held_after / s) ** 2).sum()),
                      float(((in_before / s) ** 2).sum()), float(((in_after / s) ** 2).sum()), held_before.size, int(dof))
-
-
-def _transforms(problem: AugmentedProblem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """The fitted rotations (K, 3, 3) and, for models that fit them, offsets (K, 6) at ``x``."""
-    xm = x[: problem.n_model]
-    R = np.stack([np.asarray(ca.Function("R", [problem.spec.x], [Rk])(xm)) for Rk in problem.spec.R])
-    off = None
-    if problem.spec.offsets is not None:
-        off = np.stack([np.asarray(ca.Function("o", [problem.spec.x], [o])(xm)).ravel() for o in problem.spec.offsets])
-    return R, off
 
 
 def rotations_free(problem: AugmentedProblem) -> bool:
@@ -153,12 +127,13 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
         base_prob = AugmentedProblem(model, prior, robot, balance)
         fidx = fold_indices(sv.P, folds, seed)
         x0 = base_prob.x0 if x_start is None or len(x_start) != base_prob.n_model else x_start
-        xb, dof_b, held0, in0 = _standing_cv(base_prob, sv, fidx, x0)
+        cv0 = base_prob.cross_validate(sv.data, sv.R_WB, fidx, x0)
+        xb, dof_b, held0, in0 = cv0.x, cv0.dof, cv0.held, cv0.r_in
         # the floor is the noise model's (floor.py), never raised from the residual it is compared with
         base["standing"] = _kind_score("standing", sv.floor, held0, held0, in0, in0, 0)
-        base_off = _transforms(base_prob, xb)[1]
+        R_b, _, base_off = base_prob.transforms(xb)
         if rotations_free(base_prob):
-            design = design_check(_transforms(base_prob, xb)[0], robot.nominal_rotations())
+            design = design_check(R_b, robot.nominal_rotations())
     if views.hanging is not None:
         base["hanging"] = base_linear(views.hanging)
     if views.swing is not None:
@@ -175,10 +150,12 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
                 prob = AugmentedProblem(model, prior, robot, balance, eff)
                 if prob.n_eta > 0 or prob.balance != balance:
                     x0 = np.concatenate([xb, prob.x0[prob.n_model :]])
-                    x, dof, held, r_in = _standing_cv(prob, sv, fidx, x0)
+                    cv = prob.cross_validate(sv.data, sv.R_WB, fidx, x0)
+                    x, dof, held, r_in = cv.x, cv.dof, cv.held, cv.r_in
                     kinds["standing"] = _kind_score("standing", sv.floor, held0, held, in0, r_in, dof - dof_b)
                     fit = prob.result(x, prob.design(sv.data))
-                    recal = _transforms(prob, x)
+                    R_e, _, off_e = prob.transforms(x)
+                    recal = (R_e, off_e)
             if views.hanging is not None:
                 face = eff.hanging_features(views.hanging.legs)
                 if face is not None:

@@ -49,7 +49,7 @@ from ..solver import SolverError
 from .effects.base import AugContext, Effect, HangingLeg, LinearFace
 from .linear_fit import RIDGE, score_linear, time_folds
 from .standing_fit import AugmentedProblem
-from .views import LegSeries, Views, to_world
+from .views import LegSeries, Views
 
 log = logging.getLogger(__name__)
 
@@ -227,28 +227,6 @@ def hanging_joint(series: LegSeries, face: LinearFace | None, folds: int) -> tup
 # ----------------------------------------------------------------------------- standing
 
 
-def _standing_cv(problem: AugmentedProblem, view, fidx: list, x0: np.ndarray):
-    Phi = problem.design(view.data)
-    P = view.P
-    x = problem.fit(Phi, np.full(P, 1.0 / P), x0)
-    held = np.zeros((P, 6))
-    for test in fidx:
-        w = np.full(P, 1.0 / (P - len(test)))
-        w[test] = 0.0
-        held[test] = problem.residuals(problem.fit(Phi, w, x), Phi[test])
-    return x, to_world(held, view.R_WB), Phi
-
-
-def _evaluate(problem: AugmentedProblem, x: np.ndarray):
-    """Rotations (K, 3, 3), positions (K, 3) and offsets (K, 6) or None of the model part of ``x``."""
-    xm = x[: problem.n_model]
-    f = lambda e: np.asarray(ca.Function("f", [problem.spec.x], [e])(xm), float)
-    R = np.stack([f(Rk) for Rk in problem.spec.R])
-    p = np.stack([f(pk).ravel() for pk in problem.spec.p_prime])
-    off = np.stack([f(o).ravel() for o in problem.spec.offsets]) if problem.spec.offsets is not None else None
-    return R, p, off
-
-
 def _hold_shared(prob: AugmentedProblem, effect: Effect, prior: Calibration, robot, hanging: dict) -> None:
     """Hold the standing-face parameters that the hanging face estimated at those values (one parameter,
     one value across faces: ``Effect.standing_from_hanging``)."""
@@ -309,8 +287,8 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         fidx = fold_indices(sv.P, folds, seed)
         base = AugmentedProblem(model, prior, robot, balance)
         x0 = base.x0 if x_start is None or len(x_start) != base.n_model else x_start
-        xb, held0, Phi0 = _standing_cv(base, sv, fidx, x0)
-        base_dof = base.effective_dof(xb, Phi0)
+        cv0 = base.cross_validate(sv.data, sv.R_WB, fidx, x0)
+        xb, held0, base_dof = cv0.x, cv0.held, cv0.dof
         # The error model is refit too: an effect the calibration did not know about can make model
         # selection settle on a smaller model (a drift taken for translations), so the joint fit
         # also tries the full model and keeps the one with the smaller held-out residual.
@@ -320,17 +298,18 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             _hold_shared(prob, effect, prior_j, robot, hang_values)
             start = np.concatenate([xb, prob.x0[prob.n_model:]]) if m == model else prob.x0
             try:
-                x, held1, Phi = _standing_cv(prob, sv, fidx, start)
+                cv = prob.cross_validate(sv.data, sv.R_WB, fidx, start)
+                x, held1, Phi, r_in = cv.x, cv.held, cv.Phi, cv.r_in
             except SolverError as exc:
                 notes.append(f"joint standing refit with model {m!r} failed ({exc.status})")
                 continue
             z = float(((held1 / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum())
             if best is None or z < best[0]:
-                best = (z, m, prob, x, held1, Phi)
+                best = (z, m, prob, x, held1, Phi, r_in)
         if best is None:
             notes.append("joint standing refit failed; the standing kind is left out")
         else:
-            _, m_used, prob, x, held1, Phi = best
+            _, m_used, prob, x, held1, Phi, r_in = best
             if m_used != model:
                 notes.append(f"with {effect.name} the standing error model {m_used!r} predicts held-out poses better than {model!r}")
             fit = prob.result(x, Phi)
@@ -338,12 +317,12 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             # in-sample residuals (an effect the calibration lacked inflates the calibration's floor)
             floor = sv.floor
             if sv.refloor is not None:
-                floor = sv.refloor(to_world(prob.residuals(x, Phi), sv.R_WB), max(fit.rank - base_dof, 0))
+                floor = sv.refloor(r_in, max(fit.rank - base_dof, 0))
             kinds["standing"] = KindRefit("standing", np.sqrt((held0**2).mean(0)), np.sqrt((held1**2).mean(0)), floor, sv.P)
             for n, v, s in zip(fit.effect_params.index, fit.effect_params, fit.effect_bse):
                 params[n] = (float(v), float(s))
             eta = prob.eta(x)
-            R_new, p_new, off_new = _evaluate(prob, x)
+            R_new, p_new, off_new = prob.transforms(x)
             new_legs = {}
             for k, leg in enumerate(legs):
                 kw = {"rotation_to_body": R_new[k]}

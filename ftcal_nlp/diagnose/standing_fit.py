@@ -51,7 +51,7 @@ from ..calibration import Calibration
 from ..balance import residual
 from ..models import ModelContext, resolve
 from ..robot import Robot
-from ..balance import K_DIAG, check_balance
+from ..balance import K_DIAG, check_balance, to_world
 from ..results import ResultsMixin, Summary, fmt_pm
 from ..solver import REL_EIG_TOL, SolverError, identifiability, ipopt, solve_checked
 from .effects.base import HARMONICS, TIME_BASIS, AugContext, Effect, ParamBlock, PoseSym
@@ -310,6 +310,39 @@ class AugmentedProblem:
 
     def eta(self, x: np.ndarray) -> np.ndarray:
         return x[self.n_model :]
+
+    def transforms(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The fitted rotations (K, 3, 3), positions ``p'`` (K, 3) and, for models that fit them, offsets (K, 6) at ``x``."""
+        xm = x[: self.n_model]
+        f = lambda e: np.asarray(ca.Function("f", [self.spec.x], [e])(xm), float)
+        R = np.stack([f(Rk) for Rk in self.spec.R])
+        p = np.stack([f(pk).ravel() for pk in self.spec.p_prime])
+        off = np.stack([f(o).ravel() for o in self.spec.offsets]) if self.spec.offsets is not None else None
+        return R, p, off
+
+    def cross_validate(self, data: StandingData, R_WB: np.ndarray, folds: list, x0: np.ndarray) -> CrossValidated:
+        """The fit on every pose and, per fold, the refit without the fold's poses scored on them (K-fold)."""
+        Phi = self.design(data)
+        P = data.P
+        x = self.fit(Phi, np.full(P, 1.0 / P), x0)
+        held = np.zeros((P, 6))
+        for test in folds:
+            w = np.full(P, 1.0 / (P - len(test)))
+            w[test] = 0.0
+            held[test] = self.residuals(self.fit(Phi, w, x), Phi[test])
+        return CrossValidated(x, self.effective_dof(x, Phi), to_world(held, R_WB), to_world(self.residuals(x, Phi), R_WB), Phi)
+
+
+@dataclass(frozen=True)
+class CrossValidated:
+    """A K-fold cross-validated fit: ``x`` on every pose, its effective dof, held-out and in-sample
+    residuals (P, 6, W axes) and the design ``Phi`` the fit used."""
+
+    x: np.ndarray
+    dof: int
+    held: np.ndarray
+    r_in: np.ndarray
+    Phi: np.ndarray
 
 
 @dataclass(frozen=True)
