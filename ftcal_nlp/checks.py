@@ -324,13 +324,18 @@ def _quaternion_readings() -> dict[str, list[int] | np.ndarray]:
     return out
 
 
+def _still_rows(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Rows (N,) whose shafts did not move since the previous row (no leg inertia in the readings)."""
+    return np.r_[False, np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(t)[:, None], axis=1)]
+
+
 def check_quaternion(rec: Recording, S_B: np.ndarray, ok: np.ndarray) -> None:
     """The quaternion's up axis against the readings' (``S_B`` (N, 3) on the rows ``ok`` with an orientation):
     beyond ``TILT_DEG`` in ``TILT_PERCENTILE`` % of the samples, or, on the still rows, beyond ``TILT_MIN_DEG`` at
     the 99th percentile while another reading of the columns is ``QUAT_ORDER_RATIO`` times closer (module docstring)."""
     q = rec.quat[ok]
     phi = rec.phi_array()[ok]
-    still = np.r_[False, np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(rec.t[ok])[:, None], axis=1)]
+    still = _still_rows(rec.t[ok], phi)
 
     def stats(qq: np.ndarray) -> tuple[float, float]:
         a = _up_angles(S_B, qq)
@@ -372,8 +377,7 @@ def moment_residuals(rec: Recording, robot: Robot, offsets: np.ndarray, torque_m
     columns) less ``c x sum_k R_k f_k`` with the body CoM ``c`` fitted by least squares. The sum is linear in ``P``
     and the fit's projector is the same for every ``P``: both are formed once (NaN with too few rows)."""
     legs = robot.legs
-    phi = rec.phi_array(legs)
-    still = np.r_[False, np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(rec.t)[:, None], axis=1)]
+    still = _still_rows(rec.t, rec.phi_array(legs))
     W = rec.wrench_array(legs)[still][::STILL_STRIDE] - offsets
     R = robot.nominal_rotations()
     if 3 * len(W) < 6:

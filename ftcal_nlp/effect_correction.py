@@ -53,14 +53,12 @@ def _context(cal: Calibration, block: dict, source: str):
     R_nom = np.asarray(block.get("R_nominal", [cal.legs[k].rotation_to_body for k in legs]), float)
     if R_nom.shape != (len(legs), 3, 3):
         raise ValueError(f"{source}: meta.effect.R_nominal must be ({len(legs)}, 3, 3), got {R_nom.shape}")
-    offsets = [ca.DM(np.asarray(cal.legs[k].offset, float)) for k in legs]
-    mg = np.array([cal.legs[k].leg_weight_N for k in legs])
     variant = block.get("variant") or {}
     try:
         eff = type(LIBRARY[name])(**variant) if variant else LIBRARY[name]
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{source}: meta.effect.variant {variant!r} does not rebuild {name}: {exc}") from None
-    return eff, AugContext(legs, offsets, R_nom, mg, cal.g)
+    return eff, AugContext.from_calibration(cal, legs, R_nom)
 
 
 def apply_effect(cal: Calibration, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t: np.ndarray,

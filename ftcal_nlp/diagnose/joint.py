@@ -39,7 +39,6 @@ import logging
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
 from ..calibration import Calibration
@@ -47,7 +46,7 @@ from ..geometry import skew
 from ..selection import fold_indices
 from ..solver import SolverError
 from .effects.base import AugContext, Effect, HangingLeg, LinearFace
-from .linear_fit import RIDGE, score_linear, time_folds
+from .linear_fit import RIDGE, recalibrate, score_linear, time_folds
 from .standing_fit import AugmentedProblem
 from .views import LegSeries, Views
 
@@ -232,9 +231,7 @@ def _hold_shared(prob: AugmentedProblem, effect: Effect, prior: Calibration, rob
     one value across faces: ``Effect.standing_from_hanging``)."""
     if not hanging or prob.params is None:
         return
-    legs = tuple(robot.legs)
-    ctx = AugContext(legs, [ca.DM(prior.legs[k].offset) for k in legs], robot.nominal_rotations(),
-                     np.array([prior.legs[k].leg_weight_N for k in legs]), prior.g)
+    ctx = AugContext.from_calibration(prior, tuple(robot.legs), robot.nominal_rotations())
     for i, v in effect.standing_from_hanging(hanging, ctx).items():
         j = prob.n_model + i
         v = float(np.clip(v, prob.lbx[j], prob.ubx[j]))
@@ -356,15 +353,9 @@ def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calib
     A swing face whose parameters are the hanging face's (same names: a per-leg casing load, drift
     rate or gain matrix) takes the hanging estimates, nothing is fitted to the swing samples (so the
     residual is held-out as it is); other faces (a tether's tilts) are fitted with time-block folds."""
-    out = []
-    for l in series.legs:
-        lo, ln = old.legs[legs[l.k]], new.legs[legs[l.k]]
-        R = np.asarray(ln.rotation_to_body, float)
-        f_new = (R.T @ (l.R_cal @ l.f.T)).T * (ln.leg_weight_N / lo.leg_weight_N)
-        df = l.f - f_new
-        e = l.e + np.hstack([df, np.cross(l.r, df)]) - (np.asarray(ln.offset, float) - np.asarray(lo.offset, float))
-        out.append(replace(l, e=e, f=f_new, R_cal=R, mg=float(ln.leg_weight_N)))
-    after = replace(series, legs=out)
+    stack = lambda cal, key: np.array([np.asarray(getattr(cal.legs[k], key), float) for k in legs])
+    after = recalibrate(series, stack(new, "rotation_to_body"), stack(new, "offset"), stack(old, "offset"),
+                        stack(new, "leg_weight_N"))
     face = effect.swing_features(after.legs)
     if face is not None and hanging and all(n in hanging for n in face.names):
         beta = np.array([hanging[n] for n in face.names])

@@ -121,18 +121,21 @@ def score_linear(series: LegSeries, face: LinearFace | None, folds: int = 5, aft
     return score, beta_all
 
 
-def recalibrate(series: LegSeries, R_new: np.ndarray, off_new: np.ndarray | None, off_old: np.ndarray | None) -> LegSeries:
-    """Swing residuals with other transducer rotations ``R_new`` (K, 3, 3) (and offsets).
+def recalibrate(series: LegSeries, R_new: np.ndarray, off_new: np.ndarray | None, off_old: np.ndarray | None,
+                mg_new: np.ndarray | None = None) -> LegSeries:
+    """Swing residuals with other transducer rotations ``R_new`` (K, 3, 3) (and offsets, and leg weights
+    ``mg_new`` (K,) N).
 
     ``e = w - w_o - [f; r x f]`` with ``f = m R_k^T u``; the gravity direction ``u`` in B
-    is ``R_cal f / m``, so ``f' = R_new^T R_cal f`` and ``e' = e + [f - f'; r x (f - f')]``.
+    is ``R_cal f / m``, so ``f' = (m' / m) R_new^T R_cal f`` and ``e' = e + [f - f'; r x (f - f')]``.
     """
     out = []
     for l in series.legs:
-        f_new = (R_new[l.k].T @ (l.R_cal @ l.f.T)).T
+        scale = 1.0 if mg_new is None else float(mg_new[l.k]) / l.mg
+        f_new = scale * (R_new[l.k].T @ (l.R_cal @ l.f.T)).T
         df = l.f - f_new
         e = l.e + np.hstack([df, np.cross(l.r, df)])
         if off_new is not None and off_old is not None:
             e = e - (off_new[l.k] - off_old[l.k])
-        out.append(replace(l, e=e, f=f_new, R_cal=R_new[l.k]))
+        out.append(replace(l, e=e, f=f_new, R_cal=R_new[l.k], mg=l.mg * scale))
     return replace(series, legs=out)

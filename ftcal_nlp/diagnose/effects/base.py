@@ -105,6 +105,14 @@ class AugContext:
     leg_weight_N: np.ndarray
     g: float
 
+    @classmethod
+    def from_calibration(cls, cal, legs: tuple[str, ...], R_nominal: np.ndarray) -> AugContext:
+        """The context of a finished calibration: its offsets (numbers) and leg weights."""
+        import casadi as ca
+
+        return cls(legs, [ca.DM(np.asarray(cal.legs[k].offset, float)) for k in legs], np.asarray(R_nominal, float),
+                   np.array([cal.legs[k].leg_weight_N for k in legs]), cal.g)
+
     @property
     def K(self) -> int:
         return len(self.legs)
