@@ -71,38 +71,92 @@ def apply_effect(cal: Calibration, w: np.ndarray, phi: np.ndarray, R_WB: np.ndar
     block = effect_block(cal)
     if block is None:
         return w, R_WB
-    from .diagnose.standing_fit import StandingData, pose_symbols
+    from .diagnose.standing_fit import pose_symbols
 
     eff, ctx = _context(cal, block, source)
     legs, K, N = ctx.legs, ctx.K, len(t)
     t_h = (np.asarray(t, float) - float(block.get("t_ref_s", 0.0))) / HOUR_S
     if eff.name == "offset_drift":
-        D = np.zeros((K, 6))
-        par = block.get("parameters", {})
-        for k, leg in enumerate(legs):
-            for c, comp in enumerate(("fx", "fy", "fz", "tx", "ty", "tz")):
-                v = par.get(f"hanging:{leg}.{comp}/h")
-                D[k, c] = v["value"] if isinstance(v, dict) and v.get("value") is not None else 0.0
+        D = _drift_rates(block, legs, "value")
         log.info("%s: offset_drift: offsets follow the per-leg drift rates of the joint fit (a straight line in time)", source)
         return w - t_h[:, None, None] * D[None], R_WB
     if eff.name in BODY_EFFECTS:
         log.info("%s: %s acts on the body, not on the transducers' readings: per-foot wrenches are unchanged", source, eff.name)
         return w, R_WB
+    eta = _eta(eff, ctx, block, source)
+    d, pose = pose_symbols(K)
+    e = ca.SX.sym("eta", len(eta))
+    c, zmap, _ = eff.standing(e, pose, ctx)
+    Z = zmap if zmap is not None else ca.SX.eye(3)
+    fn = ca.Function("effect", [d, e], [ca.vertcat(*c), ca.reshape(Z, 9, 1)])
+    cw, Zf = fn(_features(cal, ctx, w, phi, R_WB, t_h).T, eta)
+    w_new = np.asarray(cw, float).T.reshape(N, K, 6)
+    Zs = np.asarray(Zf, float).T.reshape(N, 3, 3).transpose(0, 2, 1)   # columns of Z were stacked (CasADi is column-major)
+    return w_new, np.einsum("nij,nkj->nik", R_WB, Zs)
+
+
+def _drift_rates(block: dict, legs, key: str) -> np.ndarray:
+    """Offset drift's per-leg rates (K, 6) N/h (``key`` "value") or their se ("se"); missing: 0."""
+    D = np.zeros((len(legs), 6))
+    par = block.get("parameters", {})
+    for k, leg in enumerate(legs):
+        for c, comp in enumerate(("fx", "fy", "fz", "tx", "ty", "tz")):
+            v = par.get(f"hanging:{leg}.{comp}/h")
+            D[k, c] = v[key] if isinstance(v, dict) and v.get(key) is not None else 0.0
+    return D
+
+
+def _eta(eff, ctx, block: dict, source: str) -> np.ndarray:
     block_p = eff.standing_params(ctx)
     m = block_p.m if block_p is not None else 0
     eta = np.asarray(block.get("eta", []), float)[:m]
     if len(eta) != m:
         raise ValueError(f"{source}: meta.effect.eta has {len(eta)} values, {eff.name} needs {m}")
-    d, pose = pose_symbols(K)
-    e = ca.SX.sym("eta", m)
-    c, zmap, _ = eff.standing(e, pose, ctx)
-    Z = zmap if zmap is not None else ca.SX.eye(3)
-    fn = ca.Function("effect", [d, e], [ca.vertcat(*c), ca.reshape(Z, 9, 1)])
-    z = R_WB[:, 2, :]                                   # R_WB^T e_z, the up direction in B
-    rcom = np.stack([cal.legs[k].com(phi[:, i]) for i, k in enumerate(legs)], axis=1)
+    return eta
+
+
+def _features(cal: Calibration, ctx, w, phi, R_WB, t_h) -> np.ndarray:
+    """The standing features of every sample (``StandingData.features``; the previous pose is the sample itself)."""
+    from .diagnose.standing_fit import StandingData
+
+    rcom = np.stack([cal.legs[k].com(phi[:, i]) for i, k in enumerate(ctx.legs)], axis=1)
     n_vert = np.einsum("kji,j->ki", ctx.R_nominal, np.array([0.0, 0.0, 1.0]))
-    data = StandingData(w, z, remove_yaw(R_WB), t_h, w, phi, np.nan_to_num(rcom), n_vert)
-    cw, Zf = fn(data.features().T, eta)
-    w_new = np.asarray(cw, float).T.reshape(N, K, 6)
-    Zs = np.asarray(Zf, float).T.reshape(N, 3, 3).transpose(0, 2, 1)   # columns of Z were stacked (CasADi is column-major)
-    return w_new, np.einsum("nij,nkj->nik", R_WB, Zs)
+    return StandingData(w, R_WB[:, 2, :], remove_yaw(R_WB), t_h, w, phi, np.nan_to_num(rcom), n_vert).features()
+
+
+def effect_reading_cov(cal: Calibration, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t: np.ndarray,
+                       *, source: str = "calibration") -> np.ndarray | None:
+    """Covariance (N, K, 6, 6) of the corrected readings from the effect's parameter uncertainty, or None.
+
+    First order: ``J_k Sigma_eta J_k^T`` with ``J_k = d c_k / d eta`` (the CasADi face's Jacobian)
+    and ``Sigma_eta`` the joint standing fit's covariance of ``eta`` (``meta.effect.eta_cov``);
+    offset drift: ``diag((t - t_ref)^2 / 1 h^2 se(D_k)^2)`` (its rates' se, correlations not
+    stored). It enters the ground wrenches' se like reading noise (``uncertainty.ground_wrench_se``'s
+    ``offset_cov``). The orientation map of a motion-capture bias is not propagated.
+    """
+    block = effect_block(cal)
+    if block is None:
+        return None
+    eff, ctx = _context(cal, block, source)
+    N, K = len(t), ctx.K
+    t_h = (np.asarray(t, float) - float(block.get("t_ref_s", 0.0))) / HOUR_S
+    out = np.zeros((N, K, 6, 6))
+    if eff.name == "offset_drift":
+        se = _drift_rates(block, ctx.legs, "se")
+        out[..., np.arange(6), np.arange(6)] = (t_h[:, None, None] * se[None]) ** 2
+        return out
+    if eff.name in BODY_EFFECTS or "eta_cov" not in block:
+        return None
+    from .diagnose.standing_fit import pose_symbols
+
+    eta = _eta(eff, ctx, block, source)
+    C = np.asarray(block["eta_cov"], float)
+    if C.shape != (len(eta), len(eta)):
+        raise ValueError(f"{source}: meta.effect.eta_cov must be {len(eta)}x{len(eta)}, got {C.shape}")
+    d, pose = pose_symbols(K)
+    e = ca.SX.sym("eta", len(eta))
+    c = ca.vertcat(*eff.standing(e, pose, ctx)[0])
+    jac = ca.Function("effect_jac", [d, e], [ca.jacobian(c, e)])
+    J = np.asarray(jac(_features(cal, ctx, w, phi, R_WB, t_h).T, eta), float)       # (6K, N m), sample blocks side by side
+    J = J.reshape(6 * K, N, len(eta)).transpose(1, 0, 2).reshape(N, K, 6, len(eta))
+    return np.einsum("nkam,mq,nkbq->nkab", J, C, J)

@@ -17,7 +17,15 @@ held-out residual of one joint model on every recording kind, beside its floor.
   correction in a few harmonics ``h = (1, cos phi, sin phi, cos 2phi, sin 2phi)``.
   Floor-standardised, accumulated per fold (contiguous time blocks, as
   ``linear_fit.py``); the "before" is the same regression without ``X``, so both
-  sides spend the calibration's parameters on the same folds.
+  sides spend the calibration's parameters on the same folds. With the effect, the
+  step is iterated first (Gauss-Newton, :func:`relinearise`): each step moves the
+  offsets, the leg weight (``m g <- m g - b_m``), the recording's tilt (``f <- exp([-b_j]) f``)
+  and the CoM curve exactly, and recomputes the residual, until nothing moves by
+  more than ``GN_TOL`` floors. An effect the calibrated fit absorbed (a warm-up of a
+  few N reads as tilts of tens of degrees) leaves the one-step leg weights off by
+  a few percent of its size; the iterated ones are at truth (``tests/test_joint.py``).
+  The effect's flexible hanging faces (``Effect.joint_variants``) are chosen here by
+  the held-out residual.
 * standing (eq. 8 with the balance of ``balance.py``): the selected error model
   plus the effect's standing face (``standing_fit.py``) refit on the poses with
   the offsets and leg weights of the joint hanging fit as its prior; the same
@@ -42,10 +50,10 @@ from typing import Any
 import numpy as np
 
 from ..calibration import Calibration
-from ..geometry import skew
+from ..geometry import rotvec_to_rotation, skew
 from ..selection import fold_indices
 from ..solver import SolverError
-from .effects.base import AugContext, Effect, HangingLeg, LinearFace
+from .effects.base import AugContext, Effect, HangingLeg
 from .linear_fit import RIDGE, recalibrate, score_linear, time_folds
 from .standing_fit import AugmentedProblem
 from .views import LegSeries, Views
@@ -55,6 +63,9 @@ log = logging.getLogger(__name__)
 FULL_MODEL = "full"    # the most flexible built-in error model (rotations, translations free)
 WORSE_RATIO = 1.2      # a kind the joint model predicts this much worse than the calibration alone (and than its floor)
 COM_HARMONICS = 2       # the CoM curve's correction: constant plus this many harmonics of phi
+GN_ITERATIONS = 8       # Gauss-Newton steps of the joint hanging fit (relinearise)
+GN_TOL = 1e-3           # ... until no residual moves by more than this many floors
+GN_SAMPLES = 20000      # ... taken on about this many hanging samples (every n-th)
 
 
 @dataclass(frozen=True)
@@ -81,7 +92,8 @@ class JointRefit:
     refit calibration (offsets and leg weights from the joint hanging fit, or the standing
     model's offsets where it fits them; rotations and, with the exact balance, positions
     from the joint standing fit); ``eta`` the standing face's parameter vector (scaled units
-    of ``Effect.standing_params``), what :mod:`ftcal_nlp.effect_correction` evaluates.
+    of ``Effect.standing_params``), what :mod:`ftcal_nlp.effect_correction` evaluates, and
+    ``eta_cov`` its covariance (what the correction's standard errors carry).
     """
 
     effect: str
@@ -92,6 +104,7 @@ class JointRefit:
     t_ref: float
     notes: tuple = ()
     variant: dict = field(default_factory=dict)
+    eta_cov: np.ndarray | None = None
 
     def to_json_dict(self) -> dict:
         return {"effect": self.effect, "variant": dict(self.variant), "kinds": {k: v.to_json_dict() for k, v in self.kinds.items()},
@@ -100,7 +113,8 @@ class JointRefit:
 
     def effect_block(self) -> dict:
         """What ``calibration.json`` carries about the effect (``effect_correction.py`` reads it)."""
-        return {"name": self.effect, "variant": dict(self.variant), "eta": [float(v) for v in (self.eta if self.eta is not None else [])], "t_ref_s": float(self.t_ref),
+        cov = {} if self.eta_cov is None else {"eta_cov": np.nan_to_num(np.asarray(self.eta_cov, float)).tolist()}
+        return {"name": self.effect, "variant": dict(self.variant), "eta": [float(v) for v in (self.eta if self.eta is not None else [])], "t_ref_s": float(self.t_ref), **cov,
                 "parameters": {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in self.parameters.items()}}
 
 
@@ -133,14 +147,78 @@ def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS) 
     return np.concatenate(cols, axis=2), names
 
 
-def hanging_joint(series: LegSeries, face: LinearFace | None, folds: int) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, np.ndarray]:
-    """Joint hanging regression (module docstring) with and without the effect's face.
+def _nuisance_update(l: HangingLeg, b: np.ndarray, n_rec: int, harmonics: int = COM_HARMONICS) -> HangingLeg:
+    """``l`` moved by the nuisance step ``b`` (the columns of :func:`hanging_nuisance`), exactly.
 
-    Returns the kind's refit, the effect's hanging parameters ``name -> (value, se)``,
-    the offsets' shifts (K, 6), the leg weights' shifts (K,) N (both from the joint fit with
-    the effect, on all samples) and the per-leg number of nuisance parameters.
-    """
-    legs = series.legs
+    The regression says the model should add ``J b``: offsets ``+ b_o``; leg weight ``- b_m``
+    (column ``-a / m g``); tilt of recording j ``f <- exp([-b_j]) f`` (column ``[f]x``:
+    ``f + f x b_j``); CoM curve ``r <- r - h(phi) b_r`` (column ``[f]x h``: ``(r - h b_r) x f``).
+    The residual ``e`` follows the new model exactly (no linearisation left in it)."""
+    mg_new = l.mg - b[6]
+    f = l.f * (mg_new / l.mg)
+    for j in range(n_rec):
+        sel = l.rec == j
+        if sel.any():
+            f[sel] = f[sel] @ rotvec_to_rotation(-b[7 + 3 * j : 10 + 3 * j]).T
+    h = [np.ones(len(l.t))]
+    for m in range(1, harmonics + 1):
+        h += [np.cos(m * l.phi), np.sin(m * l.phi)]
+    c0 = 7 + 3 * n_rec
+    r = l.r - sum(hj[:, None] * b[c0 + 3 * i : c0 + 3 * i + 3][None, :] for i, hj in enumerate(h))
+    a_new = np.hstack([f, np.cross(r, f)])
+    e = l.e - (a_new - l.applied) - b[:6][None, :]
+    return replace(l, e=e, f=f, r=r, mg=float(mg_new))
+
+
+def relinearise(series: LegSeries, face_fn, iterations: int | None = None) -> tuple[LegSeries, np.ndarray, np.ndarray]:
+    """Gauss-Newton on the hanging model with the effect's face: the series at the joint optimum.
+
+    The calibrated hanging fit absorbed the effect (a warm-up of a few N reads as tilts of
+    tens of degrees and a biased leg weight); one linear step from there leaves that
+    nonlinearity in the leg weights, which the opposite-pair differences then carry into the
+    standing balance. Returns the moved series and the accumulated offset (K, 6) and leg
+    weight (K,) shifts."""
+    legs = list(series.legs)
+    K = max(l.k for l in legs) + 1
+    n_rec = int(max(l.rec.max() for l in legs)) + 1
+    d_off, d_mg = np.zeros((K, 6)), np.zeros(K)
+    fl = np.where(series.floor > 0, series.floor, 1.0)
+    # The steps are taken on every stride-th sample (the nonlinearity is in a few parameters, not in
+    # the noise); the full series follows each step, and the held-out fit uses all of it
+    stride = max(1, series.n // GN_SAMPLES)
+    sub = [_every(l, stride) for l in legs]
+    for _ in range(GN_ITERATIONS if iterations is None else iterations):
+        face = face_fn(sub) if face_fn is not None else None
+        A, b, _, qn, _ = _normal_equations(sub, face, [np.zeros(len(l.t), int) for l in sub], 1, fl, True)
+        reg = RIDGE * max(np.trace(A[0]) / len(A[0]), 1e-300) * np.eye(len(A[0]))
+        beta = np.linalg.solve(A[0] + reg, b[0])
+        step = 0.0
+        for i, l in enumerate(sub):
+            bl = beta[l.k * qn : (l.k + 1) * qn]
+            moved = _nuisance_update(l, bl, n_rec)
+            step = max(step, float(np.max(np.abs(moved.e - l.e) / fl[l.k])))
+            sub[i] = moved
+            legs[i] = _nuisance_update(legs[i], bl, n_rec)
+            d_off[l.k] += bl[:6]
+            d_mg[l.k] -= bl[6]
+        if step < GN_TOL:
+            break
+    return replace(series, legs=legs), d_off, d_mg
+
+
+def _every(l: HangingLeg, stride: int) -> HangingLeg:
+    """Every ``stride``-th sample of ``l``."""
+    if stride == 1:
+        return l
+    cut = slice(None, None, stride)
+    return replace(l, e=l.e[cut], t=l.t[cut], phi=l.phi[cut], omega=l.omega[cut], rec=l.rec[cut], f=l.f[cut], r=l.r[cut],
+                   r_dd=l.r_dd[cut])
+
+
+def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect: bool):
+    """Per-fold normal equations of the floor-standardised joint regression (nuisance ``J`` of every
+    leg, then the face's parameters): ``A`` (folds, n, n), ``b`` (folds, n), the per-leg parts the
+    held-out sums need, ``qn`` nuisance columns per leg and ``n`` in all."""
     K = max(l.k for l in legs) + 1
     n_rec = int(max(l.rec.max() for l in legs)) + 1
     J = [hanging_nuisance(l, n_rec) for l in legs]
@@ -148,38 +226,55 @@ def hanging_joint(series: LegSeries, face: LinearFace | None, folds: int) -> tup
     q = face.blocks[0].shape[2] if face is not None else 0
     m_eff = (K * q if face.per_leg else q) if face is not None else 0
     n_tot = K * qn + m_eff
+    A = np.zeros((folds, n_tot, n_tot))
+    b = np.zeros((folds, n_tot))
+    parts = []
+    for i, l in enumerate(legs):
+        X = J[i][0]
+        idx = list(range(l.k * qn, (l.k + 1) * qn))
+        if with_effect and face is not None:
+            X = np.concatenate([X, face.blocks[i]], axis=2)
+            off = K * qn + (l.k * q if face.per_leg else 0)
+            idx += list(range(off, off + q))
+        idx = np.asarray(idx)
+        s = fl[l.k]
+        Xs, ys = X / s[None, :, None], l.e / s[None, :]
+        Af = np.zeros((folds, 6, len(idx), len(idx)))
+        bf = np.zeros((folds, 6, len(idx)))
+        yy = np.zeros((folds, 6))
+        for f in range(folds):
+            sel = fidx[i] == f
+            if sel.any():
+                Xt = np.ascontiguousarray(Xs[sel].transpose(1, 2, 0))          # (6, q, n): batched BLAS products
+                Af[f] = Xt @ Xt.transpose(0, 2, 1)
+                bf[f] = (Xt @ ys[sel].T[:, :, None])[..., 0]
+                yy[f] = (ys[sel] ** 2).sum(axis=0)
+        A[:, idx[:, None], idx[None, :]] += Af.sum(axis=1)
+        b[:, idx] += bf.sum(axis=1)
+        parts.append((idx, Af, bf, yy, s))
+    return A, b, parts, qn, n_tot
+
+
+def hanging_joint(series: LegSeries, face_fn, folds: int, before: np.ndarray | None = None) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, int]:
+    """Joint hanging regression (module docstring) with and without the effect's face.
+
+    ``face_fn(legs) -> LinearFace`` (``Effect.hanging_features``) or None. With the face, the
+    series is first moved to the joint optimum (:func:`relinearise`); the held-out residual is
+    then that of the regression at the optimum. Returns the kind's refit, the effect's hanging
+    parameters ``name -> (value, se)``, the offsets' shifts (K, 6), the leg weights' shifts (K,) N
+    (both from the joint fit with the effect, on all samples) and the per-leg number of
+    nuisance parameters. ``before``: the held-out RMS (6,) without the face, if known (it is the
+    same for every face).
+    """
+    moved, d_off0, d_mg0 = relinearise(series, face_fn) if face_fn is not None else (series, 0.0, 0.0)
+    legs0 = series.legs
+    legs = moved.legs
+    face = face_fn(legs) if face_fn is not None else None
+    K = max(l.k for l in legs) + 1
     fl = np.where(series.floor > 0, series.floor, 1.0)
     fidx = time_folds(series, folds)
 
-    def accumulate(with_effect: bool):
-        A = np.zeros((folds, n_tot, n_tot))
-        b = np.zeros((folds, n_tot))
-        parts = []
-        for i, l in enumerate(legs):
-            X = J[i][0]
-            idx = list(range(l.k * qn, (l.k + 1) * qn))
-            if with_effect and face is not None:
-                X = np.concatenate([X, face.blocks[i]], axis=2)
-                off = K * qn + (l.k * q if face.per_leg else 0)
-                idx += list(range(off, off + q))
-            idx = np.asarray(idx)
-            s = fl[l.k]
-            Xs, ys = X / s[None, :, None], l.e / s[None, :]
-            Af = np.zeros((folds, 6, len(idx), len(idx)))
-            bf = np.zeros((folds, 6, len(idx)))
-            yy = np.zeros((folds, 6))
-            for f in range(folds):
-                sel = fidx[i] == f
-                if sel.any():
-                    Af[f] = np.einsum("nca,ncb->cab", Xs[sel], Xs[sel])
-                    bf[f] = np.einsum("nca,nc->ca", Xs[sel], ys[sel])
-                    yy[f] = (ys[sel] ** 2).sum(axis=0)
-            A[:, idx[:, None], idx[None, :]] += Af.sum(axis=1)
-            b[:, idx] += bf.sum(axis=1)
-            parts.append((idx, Af, bf, yy, s))
-        return A, b, parts
-
-    def cv(A, b, parts, active):
+    def cv(A, b, parts, active, n_tot):
         A_tot, b_tot = A.sum(0), b.sum(0)
         scale = max(np.trace(A_tot[np.ix_(active, active)]) / max(len(active), 1), 1e-300)
         reg = RIDGE * scale * np.eye(n_tot)
@@ -200,13 +295,13 @@ def hanging_joint(series: LegSeries, face: LinearFace | None, folds: int) -> tup
         return ss, beta, cov
 
     n_all = series.n
-    active0 = np.arange(K * qn)
-    A0, b0, p0 = accumulate(False)
-    ss0, _, _ = cv(A0, b0, p0, active0)
-    A1, b1, p1 = accumulate(True)
-    ss1, beta, cov = cv(A1, b1, p1, np.arange(n_tot))
+    if before is None:
+        A0, b0, p0, qn, n0 = _normal_equations(legs0, None, fidx, folds, fl, False)
+        before = np.sqrt(cv(A0, b0, p0, np.arange(n0), n0)[0] / series.n)
+    A1, b1, p1, qn, n_tot = _normal_equations(legs, face, fidx, folds, fl, True)
+    ss1, beta, cov = cv(A1, b1, p1, np.arange(n_tot), n_tot)
     floor = np.sqrt(np.mean(np.square(series.floor[[l.k for l in legs]]), axis=0))
-    kind = KindRefit(series.kind, np.sqrt(ss0 / n_all), np.sqrt(ss1 / n_all), floor, n_all)
+    kind = KindRefit(series.kind, before, np.sqrt(ss1 / n_all), floor, n_all)
     params = {}
     if face is not None:
         # floor-standardised regression: the parameters' covariance is (X^T X)^-1 up to the
@@ -215,11 +310,11 @@ def hanging_joint(series: LegSeries, face: LinearFace | None, folds: int) -> tup
         for j, name in enumerate(face.names):
             c = K * qn + j
             params[f"hanging:{name}"] = (float(beta[c]), float(np.sqrt(cov[c, c] * ratio)))
-    d_off = np.zeros((K, 6))
-    d_mg = np.zeros(K)
+    d_off = np.zeros((K, 6)) + d_off0
+    d_mg = np.zeros(K) + d_mg0
     for l in legs:
-        d_off[l.k] = beta[l.k * qn : l.k * qn + 6]
-        d_mg[l.k] = beta[l.k * qn + 6]
+        d_off[l.k] += beta[l.k * qn : l.k * qn + 6]
+        d_mg[l.k] -= beta[l.k * qn + 6]   # the column is -a / m g: the model's derivative is +a / m g
     return kind, params, d_off, d_mg, qn
 
 
@@ -266,8 +361,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     if views.hanging is not None:
         best_h = None
         for v in cands:   # the face's flexibility, chosen by the hanging held-out residual (in floor units)
-            face = v.hanging_features(views.hanging.legs)
-            res = hanging_joint(views.hanging, face, folds)
+            res = hanging_joint(views.hanging, v.hanging_features, folds, None if best_h is None else best_h[2][0].rms_before)
             z = float(np.sum((res[0].rms_after / np.where(res[0].floor > 0, res[0].floor, 1.0)) ** 2))
             if best_h is None or z < best_h[0]:
                 best_h = (z, v, res)
@@ -276,7 +370,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}
     prior_j = shifted_prior(prior, d_off, d_mg)
     cal = shifted_prior(calibration, d_off, d_mg)
-    eta = None
+    eta = eta_cov = None
     R_new = off_new = None
     best = None
     sv = views.standing
@@ -319,6 +413,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             for n, v, s in zip(fit.effect_params.index, fit.effect_params, fit.effect_bse):
                 params[n] = (float(v), float(s))
             eta = prob.eta(x)
+            eta_cov = np.asarray(fit.cov, float)[prob.n_model :, prob.n_model :]   # held parameters: rows of zeros
             R_new, p_new, off_new = prob.transforms(x)
             new_legs = {}
             for k, leg in enumerate(legs):
@@ -340,7 +435,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         notes.append(f"the joint model predicts the {', '.join(worse)} recordings worse than the calibration alone: the "
                      f"effect's face does not follow the data there; correcting with calibration_with_effect.json is not advised")
     cal = replace(cal, model=m_used if sv is not None and best is not None else cal.model)
-    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes), dict(effect.variant))
+    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes), dict(effect.variant), eta_cov)
     meta = dict(cal.meta)
     meta["effect"] = {**out.effect_block(), "R_nominal": np.asarray(robot.nominal_rotations(), float).tolist()}
     return replace(out, calibration=replace(cal, meta=meta))

@@ -67,7 +67,9 @@ class StandingData:
     (P, K, 6) previous pose's raw readings (= ``w`` where unknown); ``phi`` (P, K);
     ``rcom`` (P, K, 3) leg CoMs at phi (hanging curves, ft_k, m); ``n_vert`` (K, 3)
     the design-vertical ft axes; ``t_span`` (first, last) hours of the smooth time basis
-    (None: the range of ``t_h``; subsets keep their parent's).
+    (None: the range of ``t_h``; subsets keep their parent's); ``t_step`` hours, the change
+    point of the calibration's residual (``views.change_point``; the feature ``step`` is
+    ``t_h > t_step``; None: no step feature, zeros).
     """
 
     w: np.ndarray
@@ -79,6 +81,7 @@ class StandingData:
     rcom: np.ndarray
     n_vert: np.ndarray
     t_span: tuple[float, float] | None = None
+    t_step: float | None = None
 
     def __post_init__(self):
         if self.t_span is None:
@@ -101,7 +104,7 @@ class StandingData:
 
     def subset(self, idx) -> StandingData:
         return StandingData(self.w[idx], self.z[idx], self.R_HB[idx], self.t_h[idx], self.prev[idx], self.phi[idx],
-                            self.rcom[idx], self.n_vert, self.t_span)
+                            self.rcom[idx], self.n_vert, self.t_span, self.t_step)
 
     def features(self) -> np.ndarray:
         """``phi_p`` (P, n_phi) in the order of :func:`pose_symbols`."""
@@ -113,12 +116,13 @@ class StandingData:
             self.prev.reshape(P, -1), np.cos(self.phi), np.sin(self.phi), (self.w**2).reshape(P, -1),
             (nf[..., None] * self.w).reshape(P, -1), self.rcom.reshape(P, -1), rz.reshape(P, -1),
             self.time_basis(), *[f(m * self.phi) for m in range(2, HARMONICS + 1) for f in (np.cos, np.sin)],
+            (self.t_h > self.t_step)[:, None].astype(float) if self.t_step is not None else np.zeros((P, 1)),
         ], axis=1)
 
 
 def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
     """One pose's features as an SX vector and its named views (columns of :meth:`StandingData.features`)."""
-    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K + TIME_BASIS + 2 * K * (HARMONICS - 1)
+    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K + TIME_BASIS + 2 * K * (HARMONICS - 1) + 1
     d = ca.SX.sym("phi", n)
     i = 0
 
@@ -145,10 +149,11 @@ def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
     rz = take(9 * K)
     tb = take(TIME_BASIS)
     harm = [(cphi, sphi)] + [(take(K), take(K)) for _ in range(2, HARMONICS + 1)]
+    step = take(1)
     return d, PoseSym(
         w=legs6(w), z=z, R_HB=R, t_h=t_h, t_h2=t_h2, prev=legs6(prev), cphi=cphi, sphi=sphi, w2=legs6(w2),
         nfw=legs6(nfw), rcom=[rcom[3 * k : 3 * k + 3] for k in range(K)],
-        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)], tb=tb, harm=harm,
+        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)], tb=tb, harm=harm, step=step,
     )
 
 

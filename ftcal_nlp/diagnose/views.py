@@ -234,7 +234,8 @@ def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Cali
 
     rcom = np.stack([prior.legs[k].com(poses.phi[:, i]) for i, k in enumerate(legs)], axis=1)
     rcom = np.where(np.isfinite(rcom), rcom, 0.0)
-    data = StandingData(poses.w_m, poses.R_WB[:, 2, :], poses.R_WB, t_h, prev, poses.phi, rcom, n_vert)
+    data = StandingData(poses.w_m, poses.R_WB[:, 2, :], poses.R_WB, t_h, prev, poses.phi, rcom, n_vert,
+                        t_step=change_point(t_h, r_B))
     parts = {"pose_noise": noise.readings, "readings": noise.readings, "mocap": noise.mocap,
              "mocap_tilt_deg": noise.s_theta_deg, "mocap_tilt_se_deg": float(np.degrees(noise.s_theta_se_rad)),
              "mocap_tilt_upper_deg": float(np.degrees(noise.s_theta_upper_rad)), "mocap_identified": noise.identified,
@@ -294,6 +295,37 @@ def _pose_history(rec: Recording, legs, t_pose: np.ndarray, cal: Calibration):
 
 
 # ----------------------------------------------------------------------------- hanging
+
+
+MIN_SEGMENT_POSES = 5    # a change point leaves at least this many poses on either side
+
+
+def change_point(t_h: np.ndarray, r: np.ndarray, min_segment: int = MIN_SEGMENT_POSES) -> float | None:
+    """The time (hours, midway between two poses) of the likeliest single step in the residual ``r`` (P, m).
+
+    Per component, ``r ~ a + b t + c [t > s]`` by least squares; the split ``s`` with the smallest
+    residual sum, each component standardised by its own scatter (a drift of any direction counts),
+    wins. A feature of the data like the time basis (what ``PoseSym.step`` indicates): whether a
+    face with a step explains the poses better is for cross-validation to say. None: too few poses.
+    """
+    t = np.asarray(t_h, float)
+    order = np.argsort(t, kind="stable")
+    t, y = t[order], np.asarray(r, float)[order]
+    P = len(t)
+    if P < 2 * min_segment + 1:
+        return None
+    y = (y - y.mean(0)) / np.where(y.std(0) > 0, y.std(0), 1.0)
+    tc = (t - t.mean()) / max(float(np.ptp(t)), 1e-12)
+    best = (np.inf, None)
+    for i in range(min_segment, P - min_segment + 1):
+        if t[i] <= t[i - 1]:
+            continue
+        X = np.column_stack([np.ones(P), tc, (np.arange(P) >= i).astype(float)])
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        rss = float(((y - X @ coef) ** 2).sum())
+        if rss < best[0]:
+            best = (rss, 0.5 * (t[i - 1] + t[i]))
+    return best[1]
 
 
 def hanging_series(recordings, hanging, robot: Robot, t_ref: float) -> LegSeries:

@@ -74,7 +74,8 @@ class PoseSym:
     CoMs (3,) at the shaft angles (hanging curves, ft_k, m); ``rz`` K 3x3
     products ``r_a z_l``; ``tb`` (TIME_BASIS,) a smooth basis of time over the standing
     session (Legendre P_1.. of the scaled time); ``harm`` per harmonic m = 1..HARMONICS the
-    pair (cos m phi, sin m phi), each (K,).
+    pair (cos m phi, sin m phi), each (K,); ``step`` (1,) 1 after the change point of the
+    calibration's standing residual (``views.change_point``), else 0.
     """
 
     w: list
@@ -91,6 +92,7 @@ class PoseSym:
     rz: list
     tb: Any = None
     harm: list = None
+    step: Any = None
 
 
 @dataclass(frozen=True)
