@@ -52,6 +52,7 @@ import numpy as np
 import pandas as pd
 
 from . import crb
+from .detection import POWER, detection_sizes
 from .hanging import fit_hanging
 from .hanging.com_qp import second_difference
 from .hanging.problem import PRIOR_SD_M
@@ -162,6 +163,7 @@ class Prediction:
     per_param: dict[str, np.ndarray]
     n_poses_found: int
     smoothing: dict[str, float]
+    detection: tuple = ()            # DetectionSize per library effect (detection.py); empty: not asked for
 
     def table(self) -> pd.DataFrame:
         rows = []
@@ -171,11 +173,21 @@ class Prediction:
                          "met": None if t is None else bool(self.se[g] <= t)})
         return pd.DataFrame(rows)
 
+    def detection_table(self) -> pd.DataFrame:
+        """Per library effect: the smallest size detected with power 0.8, its unit, the kind that sees it first,
+        the realistic range and where the size lies against it (``detection.py``)."""
+        return pd.DataFrame([{"effect": d.effect, "detection_size": d.size, "kind": d.kind or "n/a",
+                              "realistic": f"{d.realistic[0]:g}-{d.realistic[1]:g}", "in_range": d.in_realistic_range,
+                              "vs_range": d.position, "unit": d.unit} for d in self.detection])
+
     def to_json_dict(self) -> dict:
-        return {"protocol": {k: v for k, v in asdict(self.protocol).items()}, "duration_s": self.protocol.duration_s,
-                "n_poses_extracted": self.n_poses_found,
-                "groups": {r.group: {"se": r.predicted_se, "unit": r.unit, "target": r.target, "met": r.met}
-                           for r in self.table().itertuples()}}
+        js = {"protocol": {k: v for k, v in asdict(self.protocol).items()}, "duration_s": self.protocol.duration_s,
+              "n_poses_extracted": self.n_poses_found,
+              "groups": {r.group: {"se": r.predicted_se, "unit": r.unit, "target": r.target, "met": r.met}
+                         for r in self.table().itertuples()}}
+        if self.detection:
+            js["detection"] = {"power": POWER, **{d.effect: d.to_json_dict() for d in self.detection}}
+        return js
 
 
 def _rms(x: np.ndarray) -> float:
@@ -213,9 +225,10 @@ class Pilot:
         return b.sd * np.sqrt(self.poses.n / protocol.n_poses)
 
 
-def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = None) -> Prediction:
+def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = None, detection: bool = False) -> Prediction:
     """The predicted se of every group for ``protocol`` (module docstring); with a ``pilot``, the mounting
-    rotations and positions come from the pilot's own pose geometry."""
+    rotations and positions come from the pilot's own pose geometry; ``detection``: also the detection size
+    of every library effect (:mod:`ftcal_nlp.detection`, ~20 s more on the default protocol)."""
     from .sim import simulate
     from .standing import extract_poses
 
@@ -244,7 +257,10 @@ def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = N
         sd = pilot.standing_sd(protocol)
         per["rotations"], per["translations"] = sd[: 3 * K], sd[3 * K :]
     se = {g: _rms(per[g]) * GROUPS[g][1] for g in GROUPS}
-    return Prediction(protocol, se, per, int(poses.n), lam)
+    det = ()
+    if detection:
+        det = tuple(detection_sizes(protocol, sim, hang, poses, float(np.median(list(lam.values()))), seed=seed))
+    return Prediction(protocol, se, per, int(poses.n), lam, det)
 
 
 def reported_se(calibration) -> dict[str, float]:
@@ -273,12 +289,13 @@ def _scaled(p: Protocol, turns: float, n_poses: int) -> Protocol:
     return replace(p, hanging_turns=float(max(0.5, np.ceil(2 * turns) / 2)), n_poses=int(min(GRID_POSES, max(8, np.ceil(n_poses)))))
 
 
-def search(protocol: Protocol, rounds: int = 4, pilot: Pilot | None = None) -> tuple[Prediction, list[dict]]:
+def search(protocol: Protocol, rounds: int = 4, pilot: Pilot | None = None, detection: bool = False) -> tuple[Prediction, list[dict]]:
     """The shortest protocol (hanging turns, number of poses; speed, hold time and noise as given) whose
     predicted se meet ``protocol.targets``: scaled by ``1/sqrt(time)`` (hanging groups) and ``1/sqrt(n_poses)``
     (standing groups, and both for the total CoM), then predicted again, for a few rounds.
 
-    Returns the last prediction and the trail of every protocol tried. Raises :class:`PlanError` when no
+    Returns the last prediction (with ``detection``, the detection sizes on it) and the trail of every
+    protocol tried. Raises :class:`PlanError` when no
     target is given; the last prediction says (``met``) which targets the pose grid cannot reach.
     """
     if not protocol.targets:
@@ -298,6 +315,8 @@ def search(protocol: Protocol, rounds: int = 4, pilot: Pilot | None = None) -> t
         if (nxt.hanging_turns, nxt.n_poses) == (pred.protocol.hanging_turns, pred.protocol.n_poses):
             break
         pred = predict(nxt, pilot=pilot)
+    if detection:  # of the protocol found only (a prediction of its own)
+        pred = predict(pred.protocol, pilot=pilot, detection=True)
     return pred, trail
 
 
@@ -363,6 +382,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("-o", "--output", default="plan.json", help="plan file (default plan.json)")
     ap.add_argument("--search", action="store_true", help="search the shortest protocol meeting [targets]")
     ap.add_argument("--force", action="store_true", help="overwrite the output")
+    ap.add_argument("--no-detection", action="store_true", help="skip the detection size of the library effects (~20 s)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.output)
@@ -372,9 +392,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         protocol, pilot = load_input(args.input, args.protocol)
         if args.search:
-            pred, trail = search(protocol, pilot=pilot)
+            pred, trail = search(protocol, pilot=pilot, detection=not args.no_detection)
         else:
-            pred, trail = predict(protocol, pilot=pilot), []
+            pred, trail = predict(protocol, pilot=pilot, detection=not args.no_detection), []
     except (PlanError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -388,6 +408,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"protocol: {p.hanging_turns:g} turns x {p.turn_s:g} s per hanging recording (x{HANGING_RECORDINGS}), "
           f"{p.n_poses} poses x {p.pose_s:g} s ({100 * p.board_share:.0f} % on the board): {p.duration_s / 60:.1f} min recorded")
     print(t.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if pred.detection:
+        print(f"smallest effect size detected with power {POWER:g} (diagnosis' gap threshold):")
+        print(pred.detection_table().to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     print(f"wrote {out}")
     return 0
 
