@@ -72,7 +72,7 @@ def run_detect_check(settings: DetectCheckSettings = DetectCheckSettings()) -> d
     t0 = time.perf_counter()
     pred = predict(settings.protocol, seed=0, detection=True)
     t_pred = time.perf_counter() - t0
-    sizes = {d.effect: d for d in pred.detection}
+    sizes = {d.effect: d for d in pred.detection.sizes}
     rows = []
     for e in settings.effects:
         d = sizes[e]
