@@ -80,15 +80,16 @@ def swing_baseline(t: np.ndarray, fz: np.ndarray, settings: CorrectSettings = Co
 def _hysteresis(x: np.ndarray, enter: np.ndarray, leave: np.ndarray) -> np.ndarray:
     """Stance (N, K) of ``x`` (N, K) with thresholds (K,): below ``enter`` swing, above ``leave`` stance,
     otherwise the state of the last crossing (before any: the nearer threshold's side)."""
-    N = len(x)
-    up, down = x > leave, x < enter
-    # index of each foot's last crossing (-1: none yet), carried forward; int32 halves the memory traffic
-    it = np.int32 if N < 2**31 - 1 else np.int64
-    idx = np.where(up | down, np.arange(N, dtype=it)[:, None], it(-1))
-    last = np.maximum.accumulate(idx, axis=0)
-    first = x > 0.5 * (enter + leave)
-    state = np.take_along_axis(up, np.maximum(last, 0), axis=0)
-    return np.where(last >= 0, state, first)
+    N, K = x.shape
+    out = np.empty((N, K), bool)
+    it = np.int32 if N < 2**31 - 1 else np.int64  # half the memory traffic of int64
+    order = np.arange(N, dtype=it)
+    for k in range(K):  # one contiguous foot at a time: the (N, K) columns are strided
+        xk = np.ascontiguousarray(x[:, k])
+        up = xk > leave[k]
+        last = np.maximum.accumulate(np.where(up | (xk < enter[k]), order, it(-1)))  # last crossing, carried forward
+        out[:, k] = np.where(last >= 0, up[np.maximum(last, 0)], xk > 0.5 * (enter[k] + leave[k]))
+    return out
 
 
 def detect_contact(t: np.ndarray, fz: np.ndarray, fz_se: np.ndarray | None, settings: CorrectSettings = CorrectSettings(),
