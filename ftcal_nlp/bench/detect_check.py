@@ -70,7 +70,7 @@ def _rate(x) -> tuple[float, float]:
 def run_detect_check(settings: DetectCheckSettings = DetectCheckSettings()) -> dict:
     """The check of the module docstring: per-run rows and per-effect rates."""
     t0 = time.perf_counter()
-    pred = predict(settings.protocol, seed=0, detection=True)
+    pred = predict(settings.protocol, seed=0, detection=tuple(settings.effects))
     t_pred = time.perf_counter() - t0
     sizes = {d.effect: d for d in pred.detection.sizes}
     rows = []
