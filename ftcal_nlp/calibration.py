@@ -48,30 +48,47 @@ def periodic_interp(phi: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np
     with finite values (the calibration's CoM grids) the interval and the fraction
     ``t`` come straight from ``phi G / 2pi`` and one gather of (value, difference)
     serves all columns: ``fp[j] + t (fp[j+1] - fp[j])``, equal to np.interp to rounding.
+    :class:`PeriodicInterpolator` prepares the grid once for many calls.
     """
-    G, d = values.shape[-2:]
-    multi = values.ndim == 3
-    xp = np.concatenate([grid, [grid[0] + 2 * np.pi]])
-    fp = np.concatenate([values, values[..., :1, :]], axis=-2)
-    step = np.diff(xp)
-    if grid[0] == 0 and np.allclose(step, step[0], rtol=1e-12, atol=0) and np.all(np.isfinite(values)):
-        y = np.asarray(phi, float) * (G / (2 * np.pi))
-        fl = np.floor(y)
-        t = (y - fl)[..., None]
-        with np.errstate(invalid="ignore"):  # a NaN angle takes any interval; t keeps it NaN
-            j = fl.astype(np.intp) % G
-        table = np.concatenate([fp[..., :-1, :], np.diff(fp, axis=-2)], axis=-1)  # (.., G, 2d)
-        row = np.take(table.reshape(-1, 2 * d), j + G * np.arange(values.shape[0]) if multi else j, axis=0)
-        return row[..., :d] + row[..., d:] * t
-    x = np.maximum(np.mod(phi, 2 * np.pi), xp[0])
-    j = np.minimum(np.searchsorted(xp, x, side="right") - 1, G - 1)
-    k = (np.arange(values.shape[0]),) if multi else ()
-    with np.errstate(invalid="ignore"):
-        slope = np.diff(fp, axis=-2) / step[:, None]
+    return PeriodicInterpolator(grid, values)(phi)
+
+
+class PeriodicInterpolator:
+    """:func:`periodic_interp` with the grid's tables formed once (a caller evaluating block after block)."""
+
+    def __init__(self, grid: np.ndarray, values: np.ndarray):
+        G, d = values.shape[-2:]
+        self.G, self.d, self.multi = G, d, values.ndim == 3
+        self.xp = np.concatenate([grid, [grid[0] + 2 * np.pi]])
+        self.fp = np.concatenate([values, values[..., :1, :]], axis=-2)
+        self.step = np.diff(self.xp)
+        self.fast = bool(grid[0] == 0 and np.allclose(self.step, self.step[0], rtol=1e-12, atol=0) and np.all(np.isfinite(values)))
+        if self.fast:
+            table = np.concatenate([self.fp[..., :-1, :], np.diff(self.fp, axis=-2)], axis=-1)  # (.., G, 2d)
+            self.table = table.reshape(-1, 2 * d)
+            self.offset = G * np.arange(values.shape[0]) if self.multi else 0
+        else:
+            with np.errstate(invalid="ignore"):
+                self.slope = np.diff(self.fp, axis=-2) / self.step[:, None]
+            self.k = (np.arange(values.shape[0]),) if self.multi else ()
+
+    def __call__(self, phi: np.ndarray) -> np.ndarray:
+        G, d = self.G, self.d
+        if self.fast:
+            y = np.asarray(phi, float) * (G / (2 * np.pi))
+            fl = np.floor(y)
+            t = (y - fl)[..., None]
+            with np.errstate(invalid="ignore"):  # a NaN angle takes any interval; t keeps it NaN
+                j = fl.astype(np.intp) % G
+            row = np.take(self.table, j + self.offset, axis=0)
+            return row[..., :d] + row[..., d:] * t
+        xp, fp, k = self.xp, self.fp, self.k
+        x = np.maximum(np.mod(phi, 2 * np.pi), xp[0])
+        j = np.minimum(np.searchsorted(xp, x, side="right") - 1, G - 1)
         dx = (x - xp[j])[..., None]
-        out = fp[k + (j,)] + slope[k + (j,)] * dx
-    # on a grid point next to a missing value: that point's value, as np.interp
-    return np.where(dx == 0, fp[k + (j,)], out)
+        out = fp[k + (j,)] + self.slope[k + (j,)] * dx
+        # on a grid point next to a missing value: that point's value, as np.interp
+        return np.where(dx == 0, fp[k + (j,)], out)
 
 
 def interp_cells(phi: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -131,11 +148,23 @@ class Calibration:
 
     def leg_coms(self, phi: np.ndarray) -> np.ndarray:
         """Every leg's CoM ``r_k(phi_k)`` in its ft_k, (N, K, 3) m, from shaft angles ``phi`` (N, K) in leg order."""
+        return self.leg_com_interpolator()(phi)
+
+    def leg_com_interpolator(self, in_body: bool = False):
+        """``phi`` (N, K) -> every leg's CoM (N, K, 3) m, the grids' tables formed once; ``in_body``: in B about the
+        body-without-legs CoM, ``R_k r_k + p'_k`` (interpolated from the grid turned into B: linear interpolation
+        commutes with the affine map, equal to turning the interpolated CoM to rounding)."""
         L = list(self.legs.values())
-        phi = np.asarray(phi, float)
+        if in_body:
+            _, _, R, p = self.stacked()
+            xyz = [l.com_xyz @ R[i].T + p[i] for i, l in enumerate(L)]
+        else:
+            xyz = [l.com_xyz for l in L]
         if all(np.array_equal(l.com_phi, L[0].com_phi) for l in L):  # one grid: all legs in one pass
-            return periodic_interp(phi, L[0].com_phi, np.stack([l.com_xyz for l in L]))
-        return np.stack([l.com(phi[:, i]) for i, l in enumerate(L)], axis=1)
+            one = PeriodicInterpolator(L[0].com_phi, np.stack(xyz))
+            return lambda phi: one(np.asarray(phi, float))
+        each = [PeriodicInterpolator(l.com_phi, v) for l, v in zip(L, xyz)]
+        return lambda phi: np.stack([f(np.asarray(phi, float)[:, i]) for i, f in enumerate(each)], axis=1)
 
     def to_json_dict(self) -> dict:
         def lst(a):

@@ -55,12 +55,17 @@ def swing_baseline(t: np.ndarray, fz: np.ndarray, settings: CorrectSettings = Co
     nb = max(1, int(round((t[-1] - t[0]) / s.contact_window_s)))
     edges = np.linspace(t[0], t[-1], nb + 1)
     which = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, nb - 1)
+    # samples in time order: each window is one slice (a mask per window would scan every sample nb times)
+    order = None if np.all(which[1:] >= which[:-1]) else np.argsort(which, kind="stable")
+    w_sorted = which if order is None else which[order]
+    bounds = np.searchsorted(w_sorted, np.arange(nb + 1))
     centre = np.full(nb, np.nan)
     level = np.full((nb, K), np.nan)
     for b in range(nb):  # windows, not samples: a few per minute
-        sel = which == b
-        if sel.sum() < 10:
+        lo_i, hi_i = bounds[b], bounds[b + 1]
+        if hi_i - lo_i < 10:
             continue
+        sel = slice(lo_i, hi_i) if order is None else order[lo_i:hi_i]
         lo, hi = np.quantile(fz[sel], [s.contact_quantile, 1 - s.contact_quantile], axis=0)
         centre[b] = t[sel].mean()
         level[b] = np.where(hi - lo > s.contact_min_gap_N, lo, np.nan)
@@ -75,13 +80,16 @@ def swing_baseline(t: np.ndarray, fz: np.ndarray, settings: CorrectSettings = Co
 def _hysteresis(x: np.ndarray, enter: np.ndarray, leave: np.ndarray) -> np.ndarray:
     """Stance (N, K) of ``x`` (N, K) with thresholds (K,): below ``enter`` swing, above ``leave`` stance,
     otherwise the state of the last crossing (before any: the nearer threshold's side)."""
-    N = len(x)
-    event = np.where(x > leave, 1, np.where(x < enter, -1, 0))
-    idx = np.where(event != 0, np.arange(N)[:, None], -1)
-    last = np.maximum.accumulate(idx, axis=0)
-    first = x > 0.5 * (enter + leave)
-    state = np.take_along_axis(event, np.maximum(last, 0), axis=0) > 0
-    return np.where(last >= 0, state, first)
+    N, K = x.shape
+    out = np.empty((N, K), bool)
+    it = np.int32 if N < 2**31 - 1 else np.int64  # half the memory traffic of int64
+    order = np.arange(N, dtype=it)
+    for k in range(K):  # one contiguous foot at a time: the (N, K) columns are strided
+        xk = np.ascontiguousarray(x[:, k])
+        up = xk > leave[k]
+        last = np.maximum.accumulate(np.where(up | (xk < enter[k]), order, it(-1)))  # last crossing, carried forward
+        out[:, k] = np.where(last >= 0, up[np.maximum(last, 0)], xk > 0.5 * (enter[k] + leave[k]))
+    return out
 
 
 def detect_contact(t: np.ndarray, fz: np.ndarray, fz_se: np.ndarray | None, settings: CorrectSettings = CorrectSettings(),

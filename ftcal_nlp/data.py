@@ -394,15 +394,26 @@ def recording_to_frame(rec: Recording, legs: Iterable[str]) -> pd.DataFrame:
     return pd.DataFrame(cols)
 
 
-def ground_wrench_frame(t: np.ndarray, ground: np.ndarray, legs: Iterable[str]) -> pd.DataFrame:
+def ground_wrench_table(N: int, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """An empty block for :func:`ground_wrench_frame` (N, 1 + 6 (K + 1)) and its per-foot part as an (N, K, 6)
+    view, for a caller that computes the wrenches in place (``physics.ground_wrenches(..., out=view)``)."""
+    table = np.empty((N, 1 + 6 * (K + 1)))
+    return table, table[:, 1 : 1 + 6 * K].reshape(N, K, 6)
+
+
+def ground_wrench_frame(t: np.ndarray, ground: np.ndarray, legs: Iterable[str], table: np.ndarray | None = None) -> pd.DataFrame:
     """Table of a corrected recording (``OUTPUT_FORMAT.md``): ``t``, ``{leg}_fx..tz`` per foot and
-    ``total_fx..tz``, from per-foot wrenches ``ground`` (N, K, 6) in the heading frame."""
+    ``total_fx..tz``, from per-foot wrenches ``ground`` (N, K, 6) in the heading frame. ``table``: the block
+    of :func:`ground_wrench_table` whose view ``ground`` is (the frame is built on it, nothing copied)."""
     legs = tuple(legs)
     N, K = ground.shape[:2]
     # one float block filled in place: pandas keeps it as is (a dict of strided columns costs a copy each)
-    table = np.empty((N, 1 + 6 * (K + 1)))
+    if table is None:
+        table, view = ground_wrench_table(N, K)
+        view[:] = ground
+    elif not (table.shape == (N, 1 + 6 * (K + 1)) and np.shares_memory(table, ground)):
+        raise ValueError("ground_wrench_frame: table must be the block of ground_wrench_table whose view is ground")
     table[:, 0] = t
-    table[:, 1 : 1 + 6 * K] = ground.reshape(N, 6 * K)
     np.einsum("nkj->nj", ground, out=table[:, 1 + 6 * K :])  # the total; far faster than ground.sum(axis=1)
     cols = ["t"] + [f"{k}_{c}" for k in legs + ("total",) for c in WRENCH_COMPONENTS]
     return pd.DataFrame(table, columns=cols, copy=False)

@@ -164,13 +164,24 @@ def quat_to_rotation(q: np.ndarray) -> np.ndarray:
             ca.horzcat(2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
         )
     q = np.asarray(q, dtype=float)
+    R = np.empty(q.shape[:-1] + (3, 3))
+    if q.ndim == 2 and len(q) > _QUAT_BLOCK:  # a long series: blocks keep the ~20 temporaries in cache
+        for a in range(0, len(q), _QUAT_BLOCK):
+            _quat_to_rotation_into(q[a : a + _QUAT_BLOCK], R[a : a + _QUAT_BLOCK])
+    else:
+        _quat_to_rotation_into(q, R)
+    return R
+
+
+_QUAT_BLOCK = 4096
+
+
+def _quat_to_rotation_into(q: np.ndarray, R: np.ndarray) -> None:
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
     R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
     R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
     R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-    return R
 
 
 def rotation_to_quat(R: np.ndarray) -> np.ndarray:

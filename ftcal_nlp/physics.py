@@ -117,8 +117,8 @@ def _sub_cross(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     out[..., 2] -= a0 * b1 - a1 * b0
 
 
-def ground_wrenches(w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, cal: Calibration) -> np.ndarray:
-    """Ground contact wrench on each foot, (N, K, 6), in the heading frame.
+def ground_wrenches(w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, cal: Calibration, out: np.ndarray | None = None) -> np.ndarray:
+    """Ground contact wrench on each foot, (N, K, 6), in the heading frame (written into ``out`` when given).
 
     Heading frame (``OUTPUT_FORMAT.md``): origin at the robot's CoM at that
     instant, z up, x the body x axis projected on the horizontal plane. Torques
@@ -139,13 +139,16 @@ def ground_wrenches(w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, cal: Cal
     ad[:, :3, :3] = ad[:, 3:, 3:] = rotations
     ad[:, 3:, :3] = skew(p_prime) @ rotations
     ad_T = ad.transpose(0, 2, 1)
-    rot_T = rotations.transpose(0, 2, 1)
     share = np.kron(weights[:, None] / (cal.mass_kg * cal.g), np.eye(3))  # c = s (flat, n x 3K) @ share
-    out = np.empty((N, K, 6))
+    leg_com_B = cal.leg_com_interpolator(in_body=True)  # s_k(phi), the grids turned into B once
+    if out is None:
+        out = np.empty((N, K, 6))
+    elif out.shape != (N, K, 6):
+        raise ValueError(f"ground_wrenches: out must have shape {(N, K, 6)}, got {out.shape}")
     for a in range(0, N, _BLOCK):
         b = min(a + _BLOCK, N)
         n = b - a
-        s = np.matmul(cal.leg_coms(phi[a:b]).transpose(1, 0, 2), rot_T).transpose(1, 0, 2) + p_prime
+        s = leg_com_B(phi[a:b])
         c = s.reshape(n, 3 * K) @ share
         v = np.empty((n, K, 9))  # F, T about c, s - c: every vector the heading rotation turns
         v[..., :6] = np.matmul((w_m[a:b] - offsets).transpose(1, 0, 2), ad_T).transpose(1, 0, 2)

@@ -29,7 +29,7 @@ import pandas as pd
 
 from .calibration import Calibration
 from .contact import ContactState, detect_contact
-from .data import WRENCH_COMPONENTS, ground_wrench_frame
+from .data import WRENCH_COMPONENTS, ground_wrench_frame, ground_wrench_table
 from .physics import ground_wrenches
 from .sensor_noise import SensorNoise
 from .settings import CorrectSettings
@@ -47,7 +47,8 @@ TRACKING_PASSES = 2   # swing detection and offset fit, alternated
 @dataclass(frozen=True)
 class Correction:
     """``frame``: ``OUTPUT_FORMAT.md`` columns, then ``{leg}_{c}_se`` and ``total_{c}_se``, then
-    ``{leg}_contact`` (1 stance, 0 swing); ``ground`` (N, K, 6); ``uncertainty`` or None;
+    ``{leg}_contact`` (1 stance, 0 swing); ``ground`` (N, K, 6) (without tracking a view of the frame's
+    block: the frame is copied on write, ``ground`` is not); ``uncertainty`` or None;
     ``contact``; ``tracking`` (None unless tracked)."""
 
     frame: pd.DataFrame
@@ -103,11 +104,14 @@ def correct_arrays(cal: Calibration, t: np.ndarray, w_m: np.ndarray, phi: np.nda
     has_se = cov is not None or noise is not None
     if not has_se:
         log.warning("no calibration covariance and no sensor noise: the se columns are NaN")
-    gw = ground_wrenches(w_m, phi, R_WB, cal)
     if not (settings.track_offsets and len(t) >= 2):
+        # the wrenches are computed straight into the output table's block (no second copy of N x K x 6)
+        table, gw = ground_wrench_table(len(t), len(legs))
+        ground_wrenches(w_m, phi, R_WB, cal, out=gw)
         unc = ground_wrench_se(w_m, phi, R_WB, cal, cov, noise) if has_se else None
         contact = _contact(t, gw, None if unc is None else unc.se[:, :-1, 2], settings, legs, baseline=True)
-        return _correction(t, gw, unc, contact, None, legs)
+        return _correction(t, gw, unc, contact, None, legs, table)
+    gw = ground_wrenches(w_m, phi, R_WB, cal)
     contact = _contact(t, gw, _fz_se(w_m, phi, R_WB, cal, cov, noise), settings, legs, baseline=True)
     y = swing_offset_readings(w_m, phi, R_WB, cal)
     off_cal = np.stack([cal.legs[k].offset for k in legs])
@@ -122,9 +126,12 @@ def correct_arrays(cal: Calibration, t: np.ndarray, w_m: np.ndarray, phi: np.nda
     return _correction(t, gw, unc, contact, tracked, legs)
 
 
-def _correction(t, gw, unc, contact, tracked, legs) -> Correction:
-    frame = ground_wrench_frame(t, gw, legs)
-    se = unc.se if unc is not None else np.full((len(t), len(legs) + 1, 6), np.nan)
-    extra = pd.DataFrame(se.reshape(len(t), -1), columns=se_columns(legs), index=frame.index)
-    cont = pd.DataFrame(contact.stance.astype(np.int8), columns=contact_columns(legs), index=frame.index)
+def _correction(t, gw, unc, contact, tracked, legs, table=None) -> Correction:
+    frame = ground_wrench_frame(t, gw, legs, table)
+    N, n_se = len(t), 6 * (len(legs) + 1)
+    # Three blocks side by side, none copied (pandas' constructor copies an ndarray unless told not to);
+    # without se one read-only NaN view stands for the N x 42 NaN block (no 300 MB written per million rows).
+    se = unc.se.reshape(N, n_se) if unc is not None else np.broadcast_to(np.float64(np.nan), (N, n_se))
+    extra = pd.DataFrame(se, columns=se_columns(legs), index=frame.index, copy=False)
+    cont = pd.DataFrame(contact.stance.astype(np.int8), columns=contact_columns(legs), index=frame.index, copy=False)
     return Correction(pd.concat([frame, extra, cont], axis=1), gw, unc, contact, tracked)

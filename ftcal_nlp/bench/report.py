@@ -252,8 +252,22 @@ def plan_check_markdown(res: dict) -> list[str]:
             f"{100 * tol:.0f} %: {sn}/{sd} (the unsmoothed CoM bound is a reference, not checked).", ""]
 
 
+def detect_check_markdown(res: dict) -> list[str]:
+    """The detection check section: the diagnosis' gap rate at the plan's detection size (predicted 0.8)."""
+    t = res["table"].copy()
+    p = res["settings"].protocol
+    t["gap_rate"] = [f"{r.gap_rate:.2f} ± {r.gap_rate_se:.2f}" for r in t.itertuples()]
+    cols = ["effect", "kind", "size", "unit", "runs", "gap_rate", "predicted_rate", "mean_excess", "threshold",
+            "verdict_not_none_rate", "named_rate"]
+    return [f"### Detection size check: the diagnosis at the plan's predicted size ({p.hanging_turns:g} turns x 4 hanging, "
+            f"{p.n_poses} poses; prediction {res['predict_s']:.0f} s)", "", md_table(t[cols]), "",
+            "`gap_rate`: share of the datasets whose held-out excess on the predicted kind exceeds the diagnosis' threshold "
+            "(± binomial se); `none` rows: clean datasets (false alarms, any kind).", ""]
+
+
 def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
-                     corr: dict | None = None, plan: dict | None = None, export: dict | None = None) -> str:
+                     corr: dict | None = None, plan: dict | None = None, export: dict | None = None,
+                     detect: dict | None = None) -> str:
     now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = f" Machine load average at the speed bench: {sp['load_average']:.1f} on 2 cores." if sp else ""
     out = [f"## Benchmarks (`python -m ftcal_nlp.bench{' --quick' if mode == 'quick' else ''}`)", "",
@@ -310,6 +324,8 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
         out += export_speed_markdown(export)
     if plan is not None:
         out += plan_check_markdown(plan)
+    if detect is not None:
+        out += detect_check_markdown(detect)
     if sc is not None and len(sc["exponents"]):
         ex = sc["exponents"].copy()
         ex = ex[["task", "size", "n_min", "n_max", "time_exponent", "time_exponent_upper", "memory_exponent", "time_at_max_s", "peak_rss_at_max_mb"]]
@@ -414,7 +430,7 @@ def recommendations(prof: dict, sp: dict | None) -> list[str]:
 
 
 def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
-              corr: dict | None = None, export: dict | None = None, plan: dict | None = None) -> str:
+              corr: dict | None = None, export: dict | None = None, plan: dict | None = None, detect: dict | None = None) -> str:
     """Write every table, figure, ``summary.md`` and ``bench.json`` into ``folder``; returns the summary text."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -456,7 +472,11 @@ def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, 
     if plan is not None:
         write_table(plan["table"], folder, "plan_check")
         js["plan_check"] = {"table": plan["table"].to_dict(orient="records"), "within": plan["within"]}
-    text = summary_markdown(acc, sp, sc, prof, mode, corr=corr, plan=plan, export=export)
+    if detect is not None:
+        write_table(detect["table"], folder, "detect_check")
+        detect["runs"].to_csv(folder / "detect_check_runs.csv", index=False)
+        js["detect_check"] = detect["table"].to_dict(orient="records")
+    text = summary_markdown(acc, sp, sc, prof, mode, corr=corr, plan=plan, export=export, detect=detect)
     (folder / "summary.md").write_text(text)
     (folder / "bench.json").write_text(json.dumps(js, indent=1, default=_json_default))
     return text

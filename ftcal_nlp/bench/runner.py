@@ -4,7 +4,8 @@ Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
 (speed.py), ``scaling`` (scaling.py), ``profile`` (profile.py, on the speed
 bench's problem), ``correction`` (correction.py: se throughput, offset tracking), ``export`` (export_speed.py: the
 exported C and the batched numpy correction), ``plan`` (plan_check.py: the plan's predicted se against the
-calibration's reported se and the spread over seeds). Results are written by report.py into ``out``.
+calibration's reported se and the spread over seeds), ``detect`` (detect_check.py: the plan's detection
+sizes against the diagnosis' detection rate at them). Results are written by report.py into ``out``.
 """
 
 from __future__ import annotations
@@ -15,13 +16,14 @@ from pathlib import Path
 
 from .accuracy import AccuracySettings
 from .correction import CorrectionBenchSettings
+from .detect_check import DetectCheckSettings
 from .export_speed import ExportSpeedSettings
 from .plan_check import PlanCheckSettings
 from ..plan import Protocol
 from .scaling import HANGING_TASKS, ScalingSettings
 from .speed import SpeedSettings
 
-PARTS = ("accuracy", "speed", "scaling", "profile", "correction", "export", "plan")
+PARTS = ("accuracy", "speed", "scaling", "profile", "correction", "export", "plan", "detect")
 
 
 @dataclass(frozen=True)
@@ -32,6 +34,7 @@ class BenchSettings:
     correction: CorrectionBenchSettings = field(default_factory=CorrectionBenchSettings)
     export: ExportSpeedSettings = field(default_factory=ExportSpeedSettings)
     plan: PlanCheckSettings = field(default_factory=PlanCheckSettings)
+    detect: DetectCheckSettings = field(default_factory=DetectCheckSettings)
     profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
     profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
     parts: tuple[str, ...] = PARTS
@@ -52,6 +55,7 @@ def quick_settings() -> BenchSettings:
                                 standing_tasks=("selection_nlp",), hanging_tasks=HANGING_TASKS, tracemalloc=False),
         export=ExportSpeedSettings(n_samples=300_000, repeats=3),
         plan=PlanCheckSettings(seeds=(0, 1, 2, 3)),
+        detect=DetectCheckSettings(effects=("casing_load",), seeds=(0, 1, 2, 3), clean_seeds=(0,)),
         profile_all=False,
         profile_count=1,
         mode="quick",
@@ -71,6 +75,8 @@ def tiny_settings() -> BenchSettings:
         plan=PlanCheckSettings(reference=Protocol(hanging_turns=0.5, n_poses=20), seeds=(0,), halves=False),
         profile_all=False,
         profile_count=1,
+        # the detect part diagnoses whole datasets (~20 s even this small); tests/test_detection.py covers the prediction
+        parts=tuple(p for p in PARTS if p != "detect"),
         mode="tiny",
     )
 
@@ -98,13 +104,14 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
     from . import report
     from .accuracy import run_accuracy
     from .correction import run_correction
+    from .detect_check import run_detect_check
     from .export_speed import run_export_speed
     from .plan_check import run_plan_check
     from .profile import profile_stages
     from .scaling import run_scaling
     from .speed import profile_targets, run_speed
 
-    acc = sp = sc = prof = corr = exp = plan = None
+    acc = sp = sc = prof = corr = exp = plan = det = None
     with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
         if "accuracy" in settings.parts:
             acc = run_accuracy(settings.accuracy, progress=progress)
@@ -122,10 +129,12 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
             exp = run_export_speed(settings.export)
         if "plan" in settings.parts:
             plan = run_plan_check(settings.plan)
+        if "detect" in settings.parts:
+            det = run_detect_check(settings.detect)
     text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr,
-                            export=exp, plan=plan)
+                            export=exp, plan=plan, detect=det)
     return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "export": exp, "plan": plan,
-            "summary": text}
+            "detect": det, "summary": text}
 
 
 __all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]

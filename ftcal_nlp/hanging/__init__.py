@@ -49,7 +49,8 @@ __all__ = ["fit_hanging", "hanging_residuals", "HangingResult", "LegHangingResul
 
 log = logging.getLogger(__name__)
 
-def fit_hanging(recordings: Sequence[Recording], robot: Robot, settings: HangingSettings | None = None, **overrides) -> HangingResult:
+def fit_hanging(recordings: Sequence[Recording], robot: Robot, settings: HangingSettings | None = None, *,
+                nlp_cache: dict | None = None, **overrides) -> HangingResult:
     """Calibrate every leg of ``robot`` from its hanging recordings.
 
     ``recordings``: the ``hanging`` recordings of a dataset (opposite pairs by
@@ -58,14 +59,15 @@ def fit_hanging(recordings: Sequence[Recording], robot: Robot, settings: Hanging
     ``smoothing`` ``"auto"`` (GCV) or the weight ``lam`` (1/m^2) of the
     second-difference penalty in the noise-standardised objective); keyword
     ``overrides`` replace single fields (``fit_hanging(recs, robot, method="baseline")``).
-    Both estimators are deterministic.
+    Both estimators are deterministic. ``nlp_cache``: a dict kept by a caller fitting many datasets of one
+    protocol (their legs share the symbolic NLP; building it is a third of a small fit).
     """
     s = with_overrides(settings, HangingSettings, overrides, "fit_hanging")
     method, n_grid, smoothing = s.method, s.n_grid, s.smoothing
     recordings = list(recordings)
     pairs = check_recordings(recordings, robot)
     legs: dict[str, LegHangingResult] = {}
-    cache: dict[tuple, HangingNLP] = {}
+    cache: dict[tuple, HangingNLP] = {} if nlp_cache is None else nlp_cache
     for leg in tqdm(robot.legs, desc=f"hanging ({method})", unit="leg", disable=None, leave=False):
         if method == "nlp":
             problem = build_leg_problem(leg, recordings, robot, pairs, n_grid)
