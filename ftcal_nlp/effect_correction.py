@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 HOUR_S = 3600.0
 BODY_EFFECTS = ("tether_force", "robot_mass", "moving_com", "leg_inertia")
+COV_CHUNK = 4096    # samples per block of the effect's reading covariance
 
 
 def effect_block(cal: Calibration) -> dict | None:
@@ -150,13 +151,19 @@ def effect_reading_cov(cal: Calibration, w: np.ndarray, phi: np.ndarray, R_WB: n
     from .diagnose.standing_fit import pose_symbols
 
     eta = _eta(eff, ctx, block, source)
+    m = len(eta)
     C = np.asarray(block["eta_cov"], float)
-    if C.shape != (len(eta), len(eta)):
-        raise ValueError(f"{source}: meta.effect.eta_cov must be {len(eta)}x{len(eta)}, got {C.shape}")
+    if C.ndim != 2 or C.shape[0] != C.shape[1] or C.shape[0] < m:
+        raise ValueError(f"{source}: meta.effect.eta_cov must be square with at least {m} rows (the face's parameters first), got {C.shape}")
+    C = C[:m, :m]      # the offset shift that follows the face's parameters is the calibration's, not the effect's
     d, pose = pose_symbols(K)
-    e = ca.SX.sym("eta", len(eta))
+    e = ca.SX.sym("eta", m)
     c = ca.vertcat(*eff.standing(e, pose, ctx)[0])
     jac = ca.Function("effect_jac", [d, e], [ca.jacobian(c, e)])
-    J = np.asarray(jac(_features(cal, ctx, w, phi, R_WB, t_h).T, eta), float)       # (6K, N m), sample blocks side by side
-    J = J.reshape(6 * K, N, len(eta)).transpose(1, 0, 2).reshape(N, K, 6, len(eta))
-    return np.einsum("nkam,mq,nkbq->nkab", J, C, J)
+    for a in range(0, N, COV_CHUNK):       # (chunk, K, 6, m) Jacobians at a time
+        s = slice(a, min(N, a + COV_CHUNK))
+        n = s.stop - s.start
+        J = np.asarray(jac(_features(cal, ctx, w[s], phi[s], R_WB[s], t_h[s]).T, eta), float)   # (6K, n m), samples side by side
+        J = J.reshape(6 * K, n, m).transpose(1, 0, 2).reshape(n, K, 6, m)
+        out[s] = np.einsum("nkam,mq,nkbq->nkab", J, C, J)
+    return out

@@ -93,12 +93,14 @@ def _contact(t, gw, se_sub, settings, legs, baseline: bool) -> ContactState:
 
 
 def correct_arrays(cal: Calibration, t: np.ndarray, w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray,
-                   cov: CalibrationCovariance | None = None, settings: CorrectSettings = CorrectSettings()) -> Correction:
+                   cov: CalibrationCovariance | None = None, settings: CorrectSettings = CorrectSettings(),
+                   reading_cov: np.ndarray | None = None) -> Correction:
     """Ground wrenches, standard errors, contact state (and tracked offsets) of N samples (module docstring).
 
     ``t`` (N,) s; ``w_m`` (N, K, 6) readings in ft_k; ``phi`` (N, K) rad; ``R_WB`` (N, 3, 3) finite;
     ``cov`` the calibration's covariance (None: se from the sensor noise in ``cal.meta`` alone, or NaN
-    without one)."""
+    without one); ``reading_cov`` (N, K, 6, 6) a covariance of the readings beyond the sensor noise (the
+    correction of a named effect, ``effect_correction.effect_reading_cov``), added to it."""
     legs = cal.leg_names
     noise = cov.noise if cov is not None and cov.noise is not None else noise_of(cal)
     has_se = cov is not None or noise is not None
@@ -108,17 +110,19 @@ def correct_arrays(cal: Calibration, t: np.ndarray, w_m: np.ndarray, phi: np.nda
         # the wrenches are computed straight into the output table's block (no second copy of N x K x 6)
         table, gw = ground_wrench_table(len(t), len(legs))
         ground_wrenches(w_m, phi, R_WB, cal, out=gw)
-        unc = ground_wrench_se(w_m, phi, R_WB, cal, cov, noise) if has_se else None
+        unc = ground_wrench_se(w_m, phi, R_WB, cal, cov, noise, reading_cov) if has_se else None
         contact = _contact(t, gw, None if unc is None else unc.se[:, :-1, 2], settings, legs, baseline=True)
         return _correction(t, gw, unc, contact, None, legs, table)
     gw = ground_wrenches(w_m, phi, R_WB, cal)
-    contact = _contact(t, gw, _fz_se(w_m, phi, R_WB, cal, cov, noise), settings, legs, baseline=True)
+    contact = _contact(t, gw, _fz_se(w_m, phi, R_WB, cal, cov, noise, reading_cov), settings, legs, baseline=True)
     y = swing_offset_readings(w_m, phi, R_WB, cal)
     off_cal = np.stack([cal.legs[k].offset for k in legs])
     cov_used = cov.without_offsets() if cov is not None else None
     for _ in range(TRACKING_PASSES):
         tracked = track_offsets(t, y, ~contact.stance, cal, settings, phi=phi, R_WB=R_WB, cov=cov)
         off, off_cov = tracked.at(t)
+        if reading_cov is not None:
+            off_cov = off_cov + reading_cov
         w_used = w_m - (off - off_cal[None])
         gw = ground_wrenches(w_used, phi, R_WB, cal)
         contact = _contact(t, gw, _fz_se(w_used, phi, R_WB, cal, cov_used, noise, off_cov), settings, legs, baseline=False)

@@ -69,6 +69,14 @@ def test_calibration_with_effect_corrects_a_walk(casing, tmp_path):
     floor = run.diagnosis.joint.kinds["hanging"].floor
     assert np.all(plain[:2] > 5 * floor[:2])
     assert np.all(joint[:2] < SHRINK_MAX * floor[:2]), joint
+    # the effect's parameter uncertainty (meta.effect.eta_cov) widens the se columns, never narrows them
+    assert np.asarray(cal.meta["effect"]["eta_cov"]).shape[0] >= 4 * len(legs)
+    bare = Calibration(cal.legs, cal.mass_kg, cal.g, cal.model, cal.com_body_m,
+                       {**cal.meta, "effect": {k: v for k, v in cal.meta["effect"].items() if k != "eta_cov"}})
+    se = [correct_recording(c, rec)[[f"{k}_{q}_se" for k in legs for q in WRENCH_COMPONENTS]].to_numpy().reshape(-1, len(legs), 6)
+          for c in (cal, bare)]
+    assert np.all(np.isfinite(se[0])) and np.all(se[0] >= se[1] - 1e-12)
+    assert np.all((se[0] - se[1])[..., :2].mean(axis=(0, 1)) > 0)
 
 
 def _calibration_with(effect: str, eta, K=6):
