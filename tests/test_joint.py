@@ -87,14 +87,18 @@ def _calibration_with(effect: str, eta, K=6):
     return sim, Calibration(cal.legs, cal.mass_kg, cal.g, cal.model, cal.com_body_m, meta)
 
 
-def test_effect_correction_formulas():
-    """The CasADi faces evaluated over samples equal their formulas (casing load, mocap bias)."""
-    rng = np.random.default_rng(0)
-    K, N = 6, 7
+def _samples(seed: int, N: int, t_end: float, K: int = 6):
+    """Random readings, shaft angles, orientations and times of N samples (and the generator)."""
+    rng = np.random.default_rng(seed)
     w = rng.normal(size=(N, K, 6))
     phi = rng.uniform(0, 2 * np.pi, (N, K))
     R = rotvec_to_rotation(rng.normal(scale=0.2, size=(N, 3)))
-    t = np.linspace(0, 100, N)
+    return rng, K, N, w, phi, R, np.linspace(0, t_end, N)
+
+
+def test_effect_correction_formulas():
+    """The CasADi faces evaluated over samples equal their formulas (casing load, mocap bias)."""
+    rng, K, N, w, phi, R, t = _samples(0, 7, 100.0)
     eta = rng.normal(size=4 * K)
     sim, cal = _calibration_with("casing_load", eta)
     w2, R2 = apply_effect(cal, w, phi, R, t)
@@ -179,12 +183,7 @@ def test_effect_reading_covariance_is_the_faces_jacobian_through_eta_cov():
     an offset drift's is the rate's variance times the squared hours from the reference."""
     from ftcal_nlp.effect_correction import effect_reading_cov
 
-    rng = np.random.default_rng(1)
-    K, N = 6, 5
-    w = rng.normal(size=(N, K, 6))
-    phi = rng.uniform(0, 2 * np.pi, (N, K))
-    R = rotvec_to_rotation(rng.normal(scale=0.2, size=(N, 3)))
-    t = np.linspace(0, 7200, N)
+    rng, K, N, w, phi, R, t = _samples(1, 5, 7200.0)
     s = rng.uniform(0.1, 1.0, 4 * K)
     sim, cal = _calibration_with("casing_load", rng.normal(size=4 * K))
     cal.meta["effect"]["eta_cov"] = np.diag(s**2).tolist()
