@@ -100,13 +100,26 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
         (cfg.output_dir / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
         if res.diagnosis.joint is not None and res.diagnosis.joint.calibration is not None:
             # the calibration refit with the named effect: `correct` applies the effect's corrections
-            res.diagnosis.joint.calibration.save(cfg.output_dir / "calibration_with_effect.json")
+            effect_calibration(res).save(cfg.output_dir / "calibration_with_effect.json")
             for note in res.diagnosis.joint.notes:
                 log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
     with stage("report", res.timings):
         write_report(res, cfg.output_dir)
     print(summary_text(res, cfg))
     return res
+
+
+def effect_calibration(res: CalibrationRun) -> Calibration:
+    """The calibration refit with the diagnosis' named effect, as ``calibration_with_effect.json`` holds it.
+
+    The joint fit's own covariance of the calibration parameters is not formed: where the joint
+    calibration has the calibration's error model, the calibration's covariance file (same
+    parameters, same data) stands in for it (``meta.covariance_note`` says so), rather than none."""
+    cal = res.diagnosis.joint.calibration
+    if res.uncertainty is not None and cal.model == res.calibration.model:
+        cal = replace(cal, meta={**cal.meta, "covariance_file": COVARIANCE_FILE,
+                                 "covariance_note": "the calibration's, before the joint refit with the effect"})
+    return cal
 
 
 def write_corrected(res: CalibrationRun, folder: Path) -> None:

@@ -8,7 +8,6 @@ issue's 1.5x); the calibration written with the effect must correct a walk to th
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from ftcal_nlp import CalibrationSettings, calibrate
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.correct import correct_recording
 from ftcal_nlp.data import WRENCH_COMPONENTS
-from ftcal_nlp.diagnose.effects import LIBRARY
 from ftcal_nlp.effect_correction import apply_effect
 from ftcal_nlp.geometry import cayley, rotvec_to_rotation
 from ftcal_nlp.sim import SimConfig, simulate
@@ -56,10 +54,15 @@ def _foot_rms(df, truth, legs):
 
 
 def test_calibration_with_effect_corrects_a_walk(casing, tmp_path):
+    from ftcal_nlp.run import COVARIANCE_FILE, effect_calibration
+
     sim, run = casing
     path = tmp_path / "calibration_with_effect.json"
-    run.diagnosis.joint.calibration.save(path)
+    effect_calibration(run).save(path)
     cal = Calibration.load(path)
+    # where the joint calibration keeps the calibration's error model, its covariance file stands in
+    same = run.diagnosis.joint.calibration.model == run.calibration.model
+    assert (cal.meta.get("covariance_file") == COVARIANCE_FILE) == (same and run.uncertainty is not None)
     assert cal.meta["effect"]["name"] == "casing_load"
     rec, legs = sim.dataset.walking[0], cal.leg_names
     plain = _foot_rms(correct_recording(run.calibration, rec), sim.walk_truth, legs)
