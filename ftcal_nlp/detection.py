@@ -121,7 +121,10 @@ class DetectionSize:
     @property
     def position(self) -> str:
         """``below`` the realistic range (every realistic size is detected), ``inside`` (its upper part is),
-        ``above`` (none is; also when not detected at all)."""
+        ``above`` (none is), or ``not predicted`` (no kind the prediction models sees it: the design
+        check finds a motion-capture bias, the report's balance a moving CoM; see ``note``)."""
+        if self.kind is None:
+            return "not predicted"
         lo, hi = self.realistic
         return "below" if self.size < lo else ("inside" if self.size <= hi else "above")
 
