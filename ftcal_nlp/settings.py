@@ -51,6 +51,8 @@ class PoseExtraction:
     phi_rate_threshold_rad_s: float = 0.05  # a shaft moving faster than this separates two candidate poses
     max_mocap_missing: float = 0.0          # largest fraction of NaN orientations tolerated in a steady run
     max_gap_factor: float = 3.0             # time gaps over this many sample periods split the recording
+    deriv_noise_factor: float = 2.0         # noisier readings: the threshold rises to this many times the median
+                                            # derivative norm of the still samples (0: the fixed threshold only)
 
     def __post_init__(self) -> None:
         if self.deriv_norm not in ("legs", "total"):
@@ -58,6 +60,8 @@ class PoseExtraction:
         for name in ("window_s", "deriv_threshold_N_s", "min_steady_s", "phi_rate_threshold_rad_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PoseExtraction.{name}: expected a positive number, got {getattr(self, name)!r}")
+        if not self.deriv_noise_factor >= 0:
+            raise ValueError(f"PoseExtraction.deriv_noise_factor: expected a number >= 0, got {self.deriv_noise_factor!r}")
         if not 0.0 <= self.max_mocap_missing <= 1.0:
             raise ValueError(f"PoseExtraction.max_mocap_missing: expected a fraction in [0, 1], got {self.max_mocap_missing!r}")
 

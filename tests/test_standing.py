@@ -212,6 +212,25 @@ def test_extract_poses_thresholds_are_settings():
         extract_poses(replace(rec, quat=None), SAMPLE_ROBOT)
 
 
+@pytest.mark.parametrize("noise_N", [0.05, 0.2])
+def test_extract_poses_follows_the_readings_noise(noise_N):
+    """At 4x an ATI Gamma's noise (0.2 N) the fixed 1 N/s threshold finds no steady run at all; the
+    noise-following threshold finds every pose it finds at the Gamma's noise, where it does not move
+    (same poses as with the fixed threshold alone)."""
+    from ftcal_nlp.sim import SimConfig, simulate
+
+    sim = simulate(SimConfig.from_dict({"n_poses": 40, "hanging_cycles": 0.5, "walk_cycles": 0.0, "seed": 0,
+                                        "noise_force_N": noise_N, "noise_torque_Nm": 0.06 * noise_N}))
+    rec, robot = sim.dataset.standing[0], sim.dataset.robot
+    fixed = extract_poses(rec, robot, PoseExtraction(deriv_noise_factor=0.0))
+    poses = extract_poses(rec, robot)
+    assert poses.counts["steady"] == 40
+    if noise_N == 0.05:
+        assert np.array_equal(poses.t, fixed.t)
+    else:
+        assert fixed.counts["steady"] == 0
+
+
 def test_poses_concat_adds_counts():
     _, _, poses = scenario()
     both = Poses.concat([poses.subset(np.arange(10)), poses.subset(np.arange(10, 30))])
