@@ -28,7 +28,7 @@ import pandas as pd
 
 from .calibration import Calibration
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
-from .effect_correction import apply_effect, effect_reading_cov
+from .effect_correction import correct_for_effect
 from .geometry import quat_to_rotation
 from .robot import Robot, Transducer
 from .settings import CorrectSettings
@@ -69,9 +69,9 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     # a calibration written with the diagnosis' named effect corrects the readings for it first
     src = str(rec.path or rec.name)
     w_raw, phi, R_raw = rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat)
-    w, R = apply_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
+    w, R, w_cov = correct_for_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
     # ... and its parameters' uncertainty enters the se like reading noise
-    return correct_arrays(cal, rec.t, w, phi, R, cov, settings, effect_reading_cov(cal, w_raw, phi, R_raw, rec.t, source=src))
+    return correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
 
 
 def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: bool = True) -> CalibrationCovariance | None:

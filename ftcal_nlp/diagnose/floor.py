@@ -105,6 +105,7 @@ from ..geometry import skew, transform_wrench
 from ..models import ModelContext, resolve
 from ..selection import fold_indices
 from ..standing.result import physical
+from .effects.base import legendre_time
 
 CHECK_ALPHA = 1e-3             # p-value below which the residual has more than the noise model
 IDENTIFIED_Z = 2.0             # s_theta^2 identified when it exceeds this many of its standard errors
@@ -281,9 +282,7 @@ def structure_basis(t_h: np.ndarray, phi: np.ndarray, force: np.ndarray, history
     Families are dropped from the end when there would be more than ``max_cols`` columns (few
     poses); constant columns are left out."""
     P, K = phi.shape
-    span = np.ptp(t_h) if P else 0.0
-    tau = 2.0 * (t_h - t_h.min()) / span - 1.0 if span > 0 else np.zeros(P)
-    time = np.stack([np.polynomial.legendre.legval(tau, np.eye(TIME_DEGREE + 1)[i]) for i in range(1, TIME_DEGREE + 1)], axis=1)
+    time = legendre_time(t_h, *((float(t_h.min()), float(t_h.max())) if P else (0.0, 0.0)), range(1, TIME_DEGREE + 1))
     fam = [(time, [f"time P{i}" for i in range(1, TIME_DEGREE + 1)]),
            (force.reshape(P, 3 * K), [f"force {k}.{c}" for k in range(K) for c in "xyz"])]
     if history is not None:

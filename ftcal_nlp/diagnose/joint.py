@@ -170,7 +170,7 @@ def _nuisance_update(l: HangingLeg, b: np.ndarray, n_rec: int, harmonics: int = 
     return replace(l, e=e, f=f, r=r, mg=float(mg_new))
 
 
-def relinearise(series: LegSeries, face_fn, iterations: int | None = None) -> tuple[LegSeries, np.ndarray, np.ndarray]:
+def relinearise(series: LegSeries, face_fn) -> tuple[LegSeries, np.ndarray, np.ndarray]:
     """Gauss-Newton on the hanging model with the effect's face: the series at the joint optimum.
 
     The calibrated hanging fit absorbed the effect (a warm-up of a few N reads as tilts of
@@ -187,7 +187,7 @@ def relinearise(series: LegSeries, face_fn, iterations: int | None = None) -> tu
     # the noise); the full series follows each step, and the held-out fit uses all of it
     stride = max(1, series.n // GN_SAMPLES)
     sub = [_every(l, stride) for l in legs]
-    for _ in range(GN_ITERATIONS if iterations is None else iterations):
+    for _ in range(GN_ITERATIONS):
         face = face_fn(sub) if face_fn is not None else None
         A, b, _, qn, _ = _normal_equations(sub, face, [np.zeros(len(l.t), int) for l in sub], 1, fl, True)
         reg = RIDGE * max(np.trace(A[0]) / len(A[0]), 1e-300) * np.eye(len(A[0]))

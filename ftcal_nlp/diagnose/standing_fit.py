@@ -54,7 +54,7 @@ from ..robot import Robot
 from ..balance import K_DIAG, check_balance, to_world
 from ..results import ResultsMixin, Summary, fmt_pm
 from ..solver import REL_EIG_TOL, SolverError, identifiability, ipopt, solve_checked
-from .effects.base import HARMONICS, TIME_BASIS, AugContext, Effect, ParamBlock, PoseSym
+from .effects.base import HARMONICS, TIME_BASIS, AugContext, Effect, ParamBlock, PoseSym, legendre_time
 
 
 
@@ -90,9 +90,7 @@ class StandingData:
 
     def time_basis(self) -> np.ndarray:
         """Legendre polynomials P_1..P_TIME_BASIS of the time scaled to [-1, 1] over ``t_span`` (P, TIME_BASIS)."""
-        a, b = self.t_span
-        tau = 2.0 * (self.t_h - a) / (b - a) - 1.0 if b > a else np.zeros(self.P)
-        return np.stack([np.polynomial.legendre.legval(tau, np.eye(TIME_BASIS + 1)[j]) for j in range(1, TIME_BASIS + 1)], axis=1)
+        return legendre_time(self.t_h, *self.t_span, range(1, TIME_BASIS + 1))
 
     @property
     def P(self) -> int:

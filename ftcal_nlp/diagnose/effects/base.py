@@ -56,6 +56,16 @@ TIME_BASIS = 4      # smooth time basis of the standing features (flexible drift
 HARMONICS = 6       # harmonics of the shaft angle in the standing features (flexible shaft-angle faces)
 
 
+def legendre_time(t: np.ndarray, lo: float, hi: float, degrees) -> np.ndarray:
+    """Legendre polynomials ``P_j`` (j in ``degrees``) of the time ``t`` scaled to [-1, 1] over [lo, hi],
+    (N, len(degrees)); zeros when the span is empty. The smooth time basis of the drift faces, the
+    standing features (``PoseSym.tb``) and the floor's structure columns."""
+    t = np.asarray(t, float)
+    tau = 2.0 * (t - lo) / (hi - lo) - 1.0 if hi > lo else np.zeros(len(t))
+    degrees = list(degrees)
+    return np.stack([np.polynomial.legendre.legval(tau, np.eye(j + 1)[j]) for j in degrees], axis=1) if degrees else np.zeros((len(t), 0))
+
+
 @dataclass(frozen=True)
 class PoseSym:
     """One standing pose as CasADi symbols of its *features*, legs in order.

@@ -52,6 +52,7 @@ from .base import (
     LinearFace,
     ParamBlock,
     PoseSym,
+    legendre_time,
     per_leg_face,
 )
 
@@ -126,8 +127,7 @@ class OffsetDrift(Effect):
             curves = []
             lo, hi = float(l.t.min()), float(l.t.max())
             if self.hanging == self.HANGING_CUBIC:
-                tau = (2.0 * l.t - lo - hi) / max(hi - lo, 1e-9)
-                curves = [np.polynomial.legendre.legval(tau, np.eye(j + 1)[j]) for j in (2, 3)]
+                curves = list(legendre_time(l.t, lo, hi, (2, 3)).T)
             elif self.hanging != "line":
                 curves = [np.exp(-(l.t - lo) / self.hanging)]
             X = np.zeros((len(l.t), 6, 6 * (1 + len(curves))))
