@@ -8,7 +8,9 @@ level ground or a tilted board),
 ``recordings`` (hanging / standing / walking time series), ``effects`` (hook
 for effect injectors), ``injectors`` (the effect library's injectors, registered
 in ``effects.EFFECTS`` when this package is imported), ``simulate`` (sensors and
-assembly), ``writer`` (files).
+assembly), ``writer`` (files); ``free`` the free-load simulator
+(a wrist payload or URDF links below a sensor, DATA_FORMAT.md section 5; ``simulate_to_folder``
+takes a ``[simulate]`` table with ``kind``).
 """
 
 from .config import SimConfig
@@ -19,10 +21,11 @@ from .robot_model import LEGS, TrueRobot, draw_true_robot, nominal_robot
 from .simulate import SimResult, simulate
 from .statics import Stance, board_rotation, contact_forces, internal_forces, solve_stance
 from .writer import write_simulation
+from .free import simulate_to_folder  # [simulate] kind = "payload" | "urdf_leg" (issue 22) or the hexapod
 
 __all__ = [
     "EFFECTS", "EffectInjector", "InjectionContext", "Injector", "LEGS", "Magnitude", "NoEffect", "SimConfig", "SimResult",
     "Stance", "TrueRobot",
     "board_rotation", "contact_forces", "draw_true_robot", "internal_forces", "make_effects", "nominal_robot", "simulate",
-    "solve_stance", "write_simulation",
+    "simulate_to_folder", "solve_stance", "write_simulation",
 ]

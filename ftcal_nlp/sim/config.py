@@ -14,7 +14,8 @@ in most poses (a leg at 0 deg nearly always, at +-36 deg in ~70 %), 4-6 feet
 loaded, level-ground tilt 0.3-2 deg.
 
 ``SimConfig.from_dict`` reads a TOML ``[simulate]`` table: keys are the field
-names, lists become tuples, an unknown key is an error naming the known ones.
+names, lists become tuples, an unknown key is an error naming the known ones;
+``kind = "hexapod"`` is accepted (other kinds: ``ftcal_nlp.sim.free``).
 """
 
 from __future__ import annotations
@@ -137,6 +138,9 @@ class SimConfig:
         ``effects`` is a list of effect names resolved in
         :data:`ftcal_nlp.sim.effects.EFFECTS` (or tables ``{name = ..., ...kwargs}``).
         """
+        if d.get("kind", "hexapod") != "hexapod":  # payload / urdf_leg: ftcal_nlp.sim.free (sim.simulate_to_folder)
+            raise ValueError(f"{where}: kind = {d['kind']!r} is not the hexapod; simulate it with ftcal_nlp.sim.simulate_to_folder")
+        d = {k: v for k, v in d.items() if k != "kind"}
         known = {f.name: f for f in fields(cls)}
         unknown = sorted(set(d) - set(known))
         if unknown:
