@@ -273,3 +273,27 @@ def test_hexapod_config_accepts_its_kind_and_refers_free_kinds() -> None:
     assert SimConfig.from_dict({"kind": "hexapod", "seed": 3}).seed == 3
     with pytest.raises(ValueError, match="simulate_to_folder"):
         SimConfig.from_dict({"kind": "payload"})
+
+
+def test_inertial_wrench_of_a_spinning_body_is_analytic() -> None:
+    from ftcal_nlp.sim.free.physics import inertial_wrench
+
+    t = np.arange(0.0, 2.0, 1e-3)
+    alpha, omega0, m, rho, Izz = 0.7, 1.3, 2.0, 0.1, 0.05
+    angle = omega0 * t + 0.5 * alpha * t**2
+    R_WB = rotvec_to_rotation(angle[:, None] * np.array([0.0, 0.0, 1.0]))     # B spins about W's z, origin fixed
+    body = (m, np.broadcast_to([rho, 0.0, 0.0], (len(t), 3)), np.broadcast_to(np.eye(3), (len(t), 3, 3)), np.diag([0.0, 0.0, Izz]))
+    w = inertial_wrench(t, R_WB, np.zeros(3), np.eye(3), [body])[5:-5]        # ft = B; interior samples
+    om = (omega0 + alpha * t)[5:-5]
+    # the load pulls the sensor outward (centripetal reaction) and backward (tangential reaction)
+    assert np.allclose(w[:, 0], m * om**2 * rho, rtol=1e-4) and np.allclose(w[:, 1], -m * alpha * rho, rtol=1e-4)
+    assert np.allclose(w[:, 5], -(m * rho**2 + Izz) * alpha, rtol=1e-4) and np.allclose(w[:, [2, 3, 4]], 0.0, atol=1e-9)
+
+
+def test_inertial_load_only_in_moves() -> None:
+    a = simulate_payload(PayloadConfig(seed=2, n_orientations=5))
+    b = simulate_payload(PayloadConfig(seed=2, n_orientations=5, inertial_load=1.0))
+    d = b.clean - a.clean
+    assert np.array_equal(d[a.held], np.zeros_like(d[a.held]))               # held: at rest, the static wrench
+    assert np.abs(d[~a.held, :3]).max() > 5 * a.config.noise_force_N         # moves: not quasi-static
+    assert b.truth["effects"] == [{"name": "inertial_load", "scale": 1.0}]

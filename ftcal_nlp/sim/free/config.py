@@ -46,13 +46,14 @@ class _Common:
     orientation: str = "quat"            # "quat": qw..qz columns; "gravity": gx..gz (gravity direction in B)
     mocap_jitter_deg: float = 0.0        # white, per axis, on the recorded orientation (the samples have none)
     effects: tuple = ()                  # names or {name = ..., ...} tables of FREE_LOAD_EFFECTS
+    inertial_load: float = 0.0           # x the load's inertial wrench during moves (1 = physical; 0 = quasi-static, as the samples)
     recording: str = "hang"              # recording (file) name
 
     def _check(self) -> None:
         for name in ("rate_hz", "hold_s", "g"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{type(self).__name__}.{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("move_s", "noise_force_N", "noise_torque_Nm", "offset_force_N", "offset_torque_Nm",
+        for name in ("move_s", "inertial_load", "noise_force_N", "noise_torque_Nm", "offset_force_N", "offset_torque_Nm",
                      "mount_rot_deg", "mocap_jitter_deg"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{type(self).__name__}.{name} must be >= 0, got {getattr(self, name)!r}")
@@ -86,6 +87,7 @@ class PayloadConfig(_Common):
     com_m: tuple = (0.006, -0.004, 0.08)       # its true CoM in ft
     position_m: tuple = (0.0, 0.0, 0.03)       # nominal ft origin in B (written to robot.toml; no effect on readings)
     rotation_rpy: tuple = (0.0, 0.0, 1.5707963267948966)  # nominal R_B,ft as URDF rpy (Rz(y) Ry(p) Rx(r))
+    gyration_radius_m: float = 0.04            # the tool's inertia about its CoM: m k^2 I (only with inertial_load)
 
     def __post_init__(self) -> None:
         self._check()

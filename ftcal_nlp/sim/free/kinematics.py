@@ -17,7 +17,7 @@ An inertial's ``origin xyz`` is the body's CoM in its own link frame (its
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
@@ -44,10 +44,12 @@ class Joint:
 
 @dataclass(frozen=True)
 class Body:
-    """A link's nominal inertial: ``mass_kg`` and ``com_m`` (3,) in the link's own frame."""
+    """A link's nominal inertial: ``mass_kg``, ``com_m`` (3,) in the link's own frame and ``inertia`` (3, 3),
+    kg m^2, about the CoM in the link's axes (the URDF's ``<inertia>`` turned by the inertial ``rpy``)."""
 
     mass_kg: float
     com_m: np.ndarray
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
 
 
 @dataclass(frozen=True)
@@ -160,5 +162,6 @@ def load_tree(path: str | Path) -> KinematicTree:
     for l in u.robot.links:
         if l.inertial is not None and l.inertial.mass is not None and l.inertial.mass > 0:
             org = np.eye(4) if l.inertial.origin is None else np.asarray(l.inertial.origin, dtype=float)
-            bodies[l.name] = Body(float(l.inertial.mass), org[:3, 3].copy())
+            I = np.zeros((3, 3)) if l.inertial.inertia is None else np.asarray(l.inertial.inertia, dtype=float)
+            bodies[l.name] = Body(float(l.inertial.mass), org[:3, 3].copy(), org[:3, :3] @ I @ org[:3, :3].T)
     return KinematicTree(u.robot.name or Path(path).stem, roots[0], joints, bodies, links)

@@ -24,8 +24,17 @@ origin, plus the transducer's offset ``w_o`` (and noise, added by the caller):
 
       f = sum_i m_i g_ft,   t = sum_i (p_i + R_i c_i) x (m_i g_ft)
 
-Quasi-static: the load's accelerations are left out (as in the shared samples;
-during a 5 s move of a 1.5 kg tool 8 cm out they would add ~0.1 N).
+Quasi-static by default: the load's accelerations are left out (as in the shared
+samples, whose moves read the static wrench of each instant). With
+``inertial_load = s`` the simulator adds ``s`` times the load's inertial wrench
+(:func:`inertial_wrench`; B's origin fixed in W, as on a tilting rig or an arm
+turning its flange in place): with bodies i of mass m_i, CoM r_i (in W),
+angular velocity w_i, inertia I_i about the CoM (W axes), and ft's origin O,
+
+    f_in = -sum_i m_i r_i'',   t_in = -sum_i [ (r_i - O) x m_i r_i'' + I_i w_i' + w_i x I_i w_i ]
+
+(the reaction of the load's momentum change on the transducer, moment about O,
+then in ft axes); derivatives by central differences on the sample clock.
 """
 
 from __future__ import annotations
@@ -34,7 +43,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ...geometry import rotvec_to_rotation
+from ...geometry import rotvec_to_rotation, unskew
 from .kinematics import KinematicTree
 
 G_DOWN = np.array([0.0, 0.0, -1.0])
@@ -100,3 +109,31 @@ def urdf_load_readings(
         f += fi
         t += np.cross(r, fi)
     return np.concatenate([f, t], axis=-1) + np.asarray(offset, dtype=float)
+
+
+def inertial_wrench(t: np.ndarray, R_WB: np.ndarray, p_ft_B: np.ndarray, R_B_ft: np.ndarray,
+                    bodies: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The load's inertial wrench on the transducer (N, 6), in ft about its origin (equation above).
+
+    ``t`` (N,) s; ``R_WB`` (N, 3, 3); ``p_ft_B`` (N, 3) or (3,) ft origin in B, m;
+    ``R_B_ft`` (N, 3, 3) or (3, 3) true ft orientation in B; ``bodies``: per body
+    ``(mass_kg, com_B (N, 3) m, R_B_link (N, 3, 3), inertia (3, 3) kg m^2 in link axes)``.
+    B's origin is fixed in W.
+    """
+    n = len(t)
+    R_WB = np.asarray(R_WB, dtype=float)
+    O = np.einsum("nij,nj->ni", R_WB, np.broadcast_to(p_ft_B, (n, 3)))
+    f = np.zeros((n, 3))
+    tau = np.zeros((n, 3))
+    for m, com_B, R_B_link, I_link in bodies:
+        r = np.einsum("nij,nj->ni", R_WB, com_B)
+        acc = np.gradient(np.gradient(r, t, axis=0), t, axis=0)
+        R_Wi = R_WB @ R_B_link
+        w = unskew(np.gradient(R_Wi, t, axis=0) @ np.swapaxes(R_Wi, 1, 2))   # [w]x = R' R^T
+        dw = np.gradient(w, t, axis=0)
+        I_W = R_Wi @ I_link @ np.swapaxes(R_Wi, 1, 2)
+        Iw = np.einsum("nij,nj->ni", I_W, w)
+        f -= m * acc
+        tau -= np.cross(r - O, m * acc) + np.einsum("nij,nj->ni", I_W, dw) + np.cross(w, Iw)
+    R_W_ft = R_WB @ np.broadcast_to(R_B_ft, (n, 3, 3))
+    return np.concatenate([np.einsum("nji,nj->ni", R_W_ft, f), np.einsum("nji,nj->ni", R_W_ft, tau)], axis=1)

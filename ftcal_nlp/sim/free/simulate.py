@@ -4,8 +4,11 @@ Motion: ``n`` held states (orientation of B, and for a URDF leg the joint
 angles) joined by minimum-jerk moves ``s(u) = 10u^3 - 15u^4 + 6u^5`` of
 ``move_s`` (orientation along the geodesic ``R_a exp(s log(R_a^T R_b))``,
 joints linearly in ``s``): the samples of a move are not quasi-static in a
-real rig, here they carry the static wrench of their instantaneous pose
-(``physics.py``; as the shared samples do).
+real rig; by default they carry the static wrench of their instantaneous
+pose (``physics.py``; as the shared samples do), with ``inertial_load = s``
+also ``s`` times the load's inertial wrench (``physics.inertial_wrench``; zero
+on held samples, which are at rest; ``truth.json`` lists it as the effect
+``inertial_load``).
 
 Readings (frames and equations in ``physics.py``):
 
@@ -31,7 +34,7 @@ from ...geometry import quat_to_rotation, rotation_to_quat, rotation_to_rotvec, 
 from ..effects import apply_orientation, apply_readings
 from .config import PayloadConfig, UrdfLegConfig
 from .kinematics import KinematicTree, load_tree
-from .physics import gravity_in_body, gravity_in_ft, payload_readings, true_rotation, urdf_load_readings
+from .physics import gravity_in_body, gravity_in_ft, inertial_wrench, payload_readings, true_rotation, urdf_load_readings
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 MOUNT_CONVENTION = "R_B,ft(true) = R_B,ft(nominal) @ expm(skew(mount_rotvec)); mount_rotvec in the nominal ft axes, rad"
@@ -176,7 +179,8 @@ def _common_truth(cfg, offset: np.ndarray, rotvec: np.ndarray, n: int, held: np.
         "mount_rotvec": [float(x) for x in rotvec],
         "mount_convention": MOUNT_CONVENTION,
         "noise": [cfg.noise_force_N] * 3 + [cfg.noise_torque_Nm] * 3,
-        "effects": [{"name": e.name, "scale": float(getattr(e, "scale", 1.0)), "seed": int(getattr(e, "seed", 0))} for e in cfg.effects],
+        "effects": [{"name": e.name, "scale": float(getattr(e, "scale", 1.0)), "seed": int(getattr(e, "seed", 0))} for e in cfg.effects]
+                   + ([{"name": "inertial_load", "scale": float(cfg.inertial_load)}] if cfg.inertial_load > 0 else []),
         "n": int(n),
         "n_held": int(held.sum()),
         "seed": int(cfg.seed),
@@ -207,8 +211,13 @@ def simulate_payload(cfg: PayloadConfig = PayloadConfig()) -> FreeLoadResult:
     t, a, b, s, hold_index = schedule(cfg.n_orientations, cfg.hold_s, cfg.move_s, cfg.rate_hz, cfg.t0_s)
     R_WB = interpolate_rotations(R_holds, a, b, s)
     R_nom = rpy_to_rotation(cfg.rotation_rpy)
-    g_ft = gravity_in_ft(R_WB, true_rotation(R_nom, rotvec), cfg.g)
-    clean = payload_readings(g_ft, cfg.mass_kg, np.asarray(cfg.com_m), offset)
+    R_ft = true_rotation(R_nom, rotvec)
+    clean = payload_readings(gravity_in_ft(R_WB, R_ft, cfg.g), cfg.mass_kg, np.asarray(cfg.com_m), offset)
+    if cfg.inertial_load > 0:
+        p_ft = np.asarray(cfg.position_m, dtype=float)
+        tool = (cfg.mass_kg, np.broadcast_to(p_ft + R_ft @ np.asarray(cfg.com_m), (len(t), 3)),
+                np.broadcast_to(R_ft, (len(t), 3, 3)), cfg.mass_kg * cfg.gyration_radius_m**2 * np.eye(3))
+        clean = clean + cfg.inertial_load * (hold_index < 0)[:, None] * inertial_wrench(t, R_WB, p_ft, R_ft, [tool])  # held: at rest
     w, R_meas = _sense(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, streams)
     held = hold_index >= 0
     truth = {"mass_kg": float(cfg.mass_kg), "com_m": [float(x) for x in cfg.com_m],
@@ -245,6 +254,19 @@ def draw_bodies(tree: KinematicTree, links: tuple[str, ...], cfg: UrdfLegConfig,
     return out
 
 
+def _leg_inertial(tree: KinematicTree, ft_link: str, q: dict, t: np.ndarray, R_WB: np.ndarray,
+                  bodies: dict, rotvec: np.ndarray) -> np.ndarray:
+    """The leg's inertial wrench in the true ft frame (``physics.inertial_wrench``), bodies through the true mount."""
+    n = len(t)
+    extra = {ft_link: rotvec_to_rotation(rotvec)}
+    R_ft, p_ft = tree.pose(tree.root, ft_link, q, n, extra)
+    parts = []
+    for link, (m, c) in bodies.items():
+        R, p = tree.pose(tree.root, link, q, n, extra)
+        parts.append((m, p + np.einsum("nij,j->ni", R, c), R, tree.bodies[link].inertia))
+    return inertial_wrench(t, R_WB, p_ft, R_ft, parts)
+
+
 def simulate_urdf_leg(cfg: UrdfLegConfig = UrdfLegConfig()) -> FreeLoadResult:
     """A leg of URDF links below ``cfg.ft_link``; the body tilts through held orientations while the joints move."""
     tree = load_tree(cfg.urdf_path)
@@ -269,6 +291,8 @@ def simulate_urdf_leg(cfg: UrdfLegConfig = UrdfLegConfig()) -> FreeLoadResult:
     R_WB = interpolate_rotations(R_holds, a, b, s)
     q = {j: v[a] + s * (v[b] - v[a]) for j, v in q_holds.items()}
     clean = urdf_load_readings(tree, cfg.ft_link, q, gravity_in_body(R_WB, cfg.g), bodies, offset, rotvec)
+    if cfg.inertial_load > 0:
+        clean = clean + cfg.inertial_load * (hold_index < 0)[:, None] * _leg_inertial(tree, cfg.ft_link, q, t, R_WB, bodies, rotvec)
     w, R_meas = _sense(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, streams)
     held = hold_index >= 0
     truth = {**_common_truth(cfg, offset, rotvec, len(t), held),
