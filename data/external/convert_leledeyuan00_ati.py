@@ -150,7 +150,7 @@ README = """\
 # {name}: converted from leledeyuan00/Gravity-Compensation-F-T-sensor
 
 Real ATI Axia80 wrist F/T readings with a gripper, {what}.
-Converted by /work/research/convert_leledeyuan00_ati.py (see its docstring
+Converted by data/external/convert_leledeyuan00_ati.py (see its docstring
 for frames, signs and the evidence).  Source file(s): {files}.
 
 LICENCE: the source repository has no licence (all rights reserved).
