@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from .errors import ConfigError
 from .settings import (
     BALANCES,
     COVARIANCES,
@@ -40,8 +41,6 @@ from .settings import (
 )
 
 
-class ConfigError(ValueError):
-    """A config file is invalid; the message names the file, the key and what was expected."""
 
 
 @dataclass(frozen=True)

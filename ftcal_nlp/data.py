@@ -20,6 +20,7 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
+from .errors import DataFormatError
 from .geometry import is_rotation
 from .robot import Robot, Transducer
 
@@ -37,8 +38,6 @@ _MAX_LEVER_ARM_M = 3.0
 _MAX_POSITION_M = 5.0
 
 
-class DataFormatError(ValueError):
-    """A dataset does not follow ``DATA_FORMAT.md``; the message names file, column or key."""
 
 
 @dataclass(frozen=True)

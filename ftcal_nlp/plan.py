@@ -64,6 +64,7 @@ import numpy as np
 import pandas as pd
 
 from . import crb
+from .errors import ConfigError
 from .detection import POWER, Detection, detection_sizes
 from .hanging import fit_hanging
 from .hanging.com_qp import second_difference
@@ -89,7 +90,7 @@ HANGING_GROUPS = ("offsets_force", "offsets_torque", "leg_weights", "com_curves"
 STANDING_GROUPS = ("rotations", "translations")
 
 
-class PlanError(ValueError):
+class PlanError(ConfigError):
     """A protocol or target that cannot be planned; the message names the key."""
 
 

@@ -29,14 +29,14 @@ from threadpoolctl import threadpool_limits
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
-from .config import ConfigError, RunConfig, load_config
+from .config import RunConfig, load_config
+from .errors import ConfigError, FtcalError, OutputError
 from .correct import offsets_frame
 from .data import DataFormatError, Dataset, read_dataset
 from .diagnose.validate import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
-from .solver import SolverError
 from .tracking import log_changes
 
 COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
@@ -44,8 +44,8 @@ COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in it
 log = logging.getLogger("ftcal_nlp.run")
 
 
-class OutputExistsError(RuntimeError):
-    pass
+class OutputExistsError(OutputError):
+    """The output folder holds an earlier result and ``--force`` was not given."""
 
 
 def prepare_output(folder: Path, force: bool, *, create: bool = True) -> None:
@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         # many small LAPACK calls: threaded BLAS only adds contention on a few cores
         with threadpool_limits(limits=1):
             run(cfg, force=args.force)
-    except (ConfigError, DataFormatError, OutputExistsError, FileExistsError, SolverError) as exc:
+    except (FtcalError, FileExistsError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

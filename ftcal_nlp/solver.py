@@ -24,6 +24,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from .errors import SolverError
+
 __all__ = ["REL_EIG_TOL", "IPOPT_OPTIONS", "SolverError", "ipopt", "solve_checked", "Identifiability", "identifiability"]
 
 # Identifiability threshold: a direction whose scaled information is below this fraction of the
@@ -39,12 +41,6 @@ IPOPT_OPTIONS: dict[str, Any] = {
 }
 
 
-class SolverError(RuntimeError):
-    """A solver did not converge; ``status`` holds the solver's own status text."""
-
-    def __init__(self, message: str, status: str):
-        super().__init__(message)
-        self.status = status
 
 
 def ipopt(name: str, nlp: dict, *, verbose: bool = False, **overrides: Any) -> ca.Function:

@@ -39,13 +39,14 @@ from typing import BinaryIO, Iterable, Iterator
 
 import numpy as np
 
+from ..errors import DataFormatError
 from .wire import Packed
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 
 
-class RawScanError(Exception):
+class RawScanError(DataFormatError):
     """The bag cannot be scanned directly (the ``rosbags`` reader may still read it)."""
 
 
