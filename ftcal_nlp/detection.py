@@ -66,7 +66,8 @@ import numpy as np
 from scipy.stats import norm
 
 from .diagnose.attribute import GAP_THRESHOLD
-from .diagnose.standing_fit import AugmentedProblem, StandingData
+from .diagnose.standing_fit import AugmentedProblem
+from .effects import StandingData
 from .selection import fold_indices
 
 log = logging.getLogger(__name__)
@@ -324,7 +325,7 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
     """Detection size (D4) of every library effect (or of ``effects``, names) on ``protocol``; ``sim``, ``hang``,
     ``poses`` the plan's noisy simulation of it (simulator seed ``seed``), its hanging fit and poses;
     ``smoothing`` the CoM weight its GCV picked."""
-    from .diagnose.effects import resolve_effects
+    from .effects import resolve_effects
     from .sim import simulate
     from .solver import SolverError
 
@@ -387,6 +388,6 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
             np.isfinite(v) for v in a1.values()) else (
             f"no standing or hanging gap below {EXTRAPOLATION_MAX:g}x its test size"
             + ("; the design check (a common tilt of the fitted frames) is what finds it, not predicted here"
-               if name in ("mocap_bias", "tether_force") else ""))
+               if eff.design_face else ""))
         out.append(DetectionSize(name, per[kind], mag.unit, kind if np.isfinite(per[kind]) else None, realistic, per, note))
     return Detection(tuple(out), fl, {k: float(v[0]) for k, v in spec.items()})

@@ -243,7 +243,7 @@ def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = N
     rotations and positions come from the pilot's own pose geometry; ``detection``: also the detection size
     of every library effect (True) or of the effects named (:mod:`ftcal_nlp.detection`, ~30 s more on the
     default protocol)."""
-    from .diagnose.effects import resolve_effects
+    from .effects import resolve_effects
     from .sim import simulate
     from .standing import extract_poses
 

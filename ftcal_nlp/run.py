@@ -33,7 +33,7 @@ from .config import RunConfig, load_config
 from .errors import ConfigError, FtcalError, OutputError
 from .correct import offsets_frame
 from .data import DataFormatError, Dataset, read_dataset
-from .diagnose.validate import run_validation
+from .bench.validate import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation

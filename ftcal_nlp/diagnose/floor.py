@@ -105,7 +105,7 @@ from ..geometry import skew, transform_wrench
 from ..models import ModelContext, resolve
 from ..selection import fold_indices
 from ..standing.result import physical
-from .effects.base import legendre_time
+from ..effects.faces import legendre_time
 
 CHECK_ALPHA = 1e-3             # p-value below which the residual has more than the noise model
 IDENTIFIED_Z = 2.0             # s_theta^2 identified when it exceeds this many of its standard errors

@@ -53,7 +53,8 @@ from ..calibration import Calibration
 from ..geometry import rotvec_to_rotation, skew
 from ..selection import fold_indices
 from ..solver import SolverError
-from .effects.base import AugContext, Effect, HangingLeg
+from ..effects.faces import AugContext, HangingLeg
+from ..effects.unit import Effect
 from .linear_fit import RIDGE, recalibrate, score_linear, time_folds
 from .standing_fit import AugmentedProblem
 from .views import LegSeries, Views

@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .effects.base import LinearFace
+from ..effects.faces import LinearFace
 from .scores import KindScore, base_score
 from .views import LegSeries
 

@@ -38,7 +38,7 @@ from ..data import Dataset, Recording
 from ..geometry import quat_to_rotation, remove_yaw
 from ..models import ModelContext
 from ..robot import Robot
-from .effects.base import HangingLeg
+from ..effects.faces import HangingLeg
 from .floor import (
     MIN_RESIDUAL_DOF_PER_COL,
     calibrated_residual_B,
