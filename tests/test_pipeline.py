@@ -1,13 +1,14 @@
 """``calibrate``: one call, no files, no printing; the joint covariance and the results protocol."""
 
 import os
-from dataclasses import replace
+from dataclasses import FrozenInstanceError, replace
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from ftcal_nlp import CalibrationRun, CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings, calibrate
+from ftcal_nlp.calibration_run import JointCovariance
 from ftcal_nlp.geometry import rotation_to_rotvec
 from ftcal_nlp.results import Summary, bic, fmt_pm
 from ftcal_nlp.sim import SimConfig, simulate
@@ -80,13 +81,22 @@ def test_propagate_gives_derived_standard_errors(sim_run):
     C = run.cov_params().loc[names, names].to_numpy()
     assert var == pytest.approx(C[0, 0] + C[1, 1] - 2 * C[0, 1], rel=1e-12)
     # a quantity that depends on an undetermined parameter is undetermined
-    fake = replace(run, _joint=None)
-    p, cov, bse, how = fake.joint_covariance()
-    bse = bse.copy()
-    bse[list(p.index).index(names[0])] = np.inf
-    fake._joint = (p, cov, bse, how)
-    out = fake.propagate(J)
+    j = run.joint
+    bse = j.se.copy()
+    bse[list(j.values.index).index(names[0])] = np.inf
+    out = JointCovariance(j.values, j.cov, bse, j.how).propagate(J)
     assert np.isinf(out[0, 0])
+
+
+def test_the_run_is_frozen_and_its_derived_quantities_cannot_go_stale(sim_run):
+    _, run, _ = sim_run
+    with pytest.raises(FrozenInstanceError):
+        run.standing = None
+    assert run.joint is run.joint  # cached on the object
+    # a run without the standing stage is a new object, with its own joint covariance
+    hanging_only = replace(run, standing=None)
+    assert hanging_only.joint.how == "hanging only" and list(hanging_only.params.index) == list(run.hanging.params.index)
+    assert run.joint.how.startswith("standing conditional on hanging")
 
 
 def test_conf_int_and_summary_render(sim_run):
