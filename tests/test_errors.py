@@ -91,3 +91,16 @@ def test_data_errors_name_the_column():
     with pytest.raises(DataFormatError) as exc:
         recording_from_frame(df.drop(columns="A_tz"), robot, name="h", kind="hanging", gravity_body=np.array([0, 0, -1.0]))
     assert exc.value.column == "A_tz"
+
+
+def test_a_bad_simulate_key_is_one_error_line_naming_the_file_and_key(tmp_path, capsys):
+    from ftcal_nlp.run import main
+
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[simulate]\ndir = "data"\nn_poses = 12\nrate = 100\n[output]\ndir = "out"\n')
+    assert main([str(cfg)]) == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert f"{cfg} [simulate]: unknown key(s) ['rate']" in lines[0] and "'rate_hz'" in lines[0]
+    assert not (tmp_path / "out").exists() and not (tmp_path / "data").exists()
