@@ -142,3 +142,24 @@ def test_fast_shaft_hanging_finishes_without_the_baseline():
     z = np.array([(run.hanging.legs[k].leg_weight_N - sim.truth.legs[k].leg_weight_N) / run.hanging.legs[k].leg_weight_se_N
                   for k in sim.dataset.robot.legs])
     assert np.all(np.abs(z) < 3.5), z  # six weights: family-wise ~0.3 % false failure at 3.5 sd
+
+
+def test_a_defect_in_the_diagnosis_does_not_stop_the_run_and_is_named(sim_run, monkeypatch, caplog):
+    """Anything but the error family escaping an optional stage is a defect: the run goes on without it,
+    the note says so and asks for a report, and the traceback is logged at debug."""
+    import logging
+
+    from ftcal_nlp import pipeline
+
+    sim, run, _ = sim_run
+
+    def broken(_run):
+        raise KeyError("FL")
+
+    monkeypatch.setattr(pipeline, "diagnose_run", broken)
+    with caplog.at_level(logging.DEBUG, logger="ftcal_nlp.pipeline"):
+        again = calibrate(sim.dataset, replace(FAST, diagnose=DiagnoseSettings(enabled=True)))
+    assert again.diagnosis is None and "diagnosis" in again.timings
+    assert again.notes[-1] == "the sim-to-real gap diagnosis was skipped by a defect (KeyError: 'FL'); please report it"
+    pd.testing.assert_series_equal(again.params, run.params)  # the calibration stands without it
+    assert any(r.levelno == logging.DEBUG and r.exc_info and r.exc_info[0] is KeyError for r in caplog.records)
