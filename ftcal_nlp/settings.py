@@ -1,10 +1,16 @@
 """Settings of every stage: the one place their defaults live.
 
-A run config (``config.py``, TOML) fills these frozen dataclasses; Python users
+A run config (``config.py``, TOML) fills these frozen dataclasses: each of its
+tables is a field of :class:`CalibrationSettings` and its keys are the fields of
+that dataclass, so the valid keys, their types and defaults are stated here
+alone (``CHOICES`` names the fields with a fixed set of values). Python users
 build them directly and pass them to :func:`ftcal_nlp.calibrate` or to a stage
 (``fit_hanging(..., settings=HangingSettings(...))``). Stage functions take a
 settings object and keyword overrides of its fields; they never restate the
-defaults in their own signatures.
+defaults in their own signatures (a function below a stage takes the values
+from its caller, without defaults). A value out of range is a
+:class:`~ftcal_nlp.errors.ConfigError` whose ``key`` is the config key
+(``standing.poses.min_steady_s``).
 """
 
 from __future__ import annotations
@@ -40,6 +46,15 @@ def with_overrides(settings: T | None, cls: type[T], overrides: dict[str, Any], 
     return replace(s, **overrides) if overrides else s
 
 
+def _check_choices(obj: Any, section: str) -> None:
+    """Every field of ``obj`` named in its class's ``CHOICES`` (field -> (what it is, allowed values))
+    holds one of the allowed values."""
+    for name, (what, choices) in obj.CHOICES.items():
+        value = getattr(obj, name)
+        if value not in choices:
+            raise ConfigError(f"{type(obj).__name__}.{name}: unknown {what} {value!r}; known: {list(choices)}", key=f"{section}.{name}")
+
+
 @dataclass(frozen=True)
 class PoseExtraction:
     """Settings of the steady-pose detector (report Sec. I-B); thresholds in SI units."""
@@ -55,9 +70,10 @@ class PoseExtraction:
     deriv_noise_factor: float = 2.0         # noisier readings: the threshold rises to this many times the median
                                             # derivative norm of the still samples (0: the fixed threshold only)
 
+    CHOICES: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {"deriv_norm": ("derivative norm", ("legs", "total"))}
+
     def __post_init__(self) -> None:
-        if self.deriv_norm not in ("legs", "total"):
-            raise ConfigError(f"PoseExtraction.deriv_norm: expected 'legs' or 'total', got {self.deriv_norm!r}", key="standing.poses.deriv_norm")
+        _check_choices(self, "standing.poses")
         for name in ("window_s", "deriv_threshold_N_s", "min_steady_s", "phi_rate_threshold_rad_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"PoseExtraction.{name}: expected a positive number, got {getattr(self, name)!r}", key=f"standing.poses.{name}")
@@ -72,15 +88,6 @@ STANDING_SOLVERS = ("ipopt", "baseline")
 BALANCES = ("exact", "report")
 WEIGHTINGS = ("fgls", "knorm")
 COVARIANCES = ("gauss_newton", "sandwich")
-
-
-def _check_choices(obj: Any, section: str) -> None:
-    """Every field of ``obj`` named in its class's ``CHOICES`` (field -> (what it is, allowed values))
-    holds one of the allowed values."""
-    for name, (what, choices) in obj.CHOICES.items():
-        value = getattr(obj, name)
-        if value not in choices:
-            raise ConfigError(f"{type(obj).__name__}.{name}: unknown {what} {value!r}; known: {list(choices)}", key=f"{section}.{name}")
 
 
 @dataclass(frozen=True)
