@@ -20,7 +20,7 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from .errors import DataFormatError
+from .errors import ConfigError, DataFormatError, OutputExistsError
 from .geometry import is_rotation
 from .robot import Robot, Transducer
 
@@ -123,12 +123,12 @@ class Dataset:
 
 def _load_toml(path: Path) -> dict:
     if not path.is_file():
-        raise DataFormatError(f"{path}: file not found")
+        raise DataFormatError(f"{path}: file not found", path=path)
     try:
         with path.open("rb") as fh:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
-        raise DataFormatError(f"{path}: not valid TOML ({exc})") from exc
+        raise DataFormatError(f"{path}: not valid TOML ({exc})", path=path) from exc
 
 
 def _require(d: dict, key: str, where: str, typ: type | tuple[type, ...]) -> object:
@@ -190,10 +190,10 @@ def read_robot(path: str | Path) -> Robot:
 def read_table(path: Path) -> pd.DataFrame:
     """The raw table of a CSV or Parquet recording (no validation: see :func:`recording_from_frame`)."""
     if not path.is_file():
-        raise DataFormatError(f"{path}: recording file not found")
+        raise DataFormatError(f"{path}: recording file not found", path=path)
     suffix = path.suffix.lower()
     if suffix not in (".parquet", ".csv", ".txt"):
-        raise DataFormatError(f"{path}: unknown recording type '{suffix}' (expected .csv or .parquet)")
+        raise DataFormatError(f"{path}: unknown recording type '{suffix}' (expected .csv or .parquet)", path=path)
     try:
         if suffix == ".parquet":
             return pd.read_parquet(path)
@@ -203,7 +203,7 @@ def read_table(path: Path) -> pd.DataFrame:
             return pd.read_csv(path, engine="c")
     except Exception as exc:  # pyarrow, pandas and OS errors alike: the file cannot be read as a table
         kind = "Parquet" if suffix == ".parquet" else "CSV"
-        raise DataFormatError(f"{path}: cannot be read as {kind} ({type(exc).__name__}: {exc}); truncated or not a {kind} file?") from exc
+        raise DataFormatError(f"{path}: cannot be read as {kind} ({type(exc).__name__}: {exc}); truncated or not a {kind} file?", path=path) from exc
 
 
 def _numeric(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
@@ -217,14 +217,14 @@ def _numeric(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
             bad = num.isna() & col.notna()
             if bad.any():
                 i = int(np.flatnonzero(bad.to_numpy())[0])
-                raise DataFormatError(f"{where}: column '{c}' row {i + 1} holds {col.iloc[i]!r}; expected a number")
+                raise DataFormatError(f"{where}: column '{c}' row {i + 1} holds {col.iloc[i]!r}; expected a number", column=c)
             col = num
         out[:, j] = col.to_numpy(dtype=float)
     empty = [c for j, c in enumerate(cols) if len(df) and not np.isfinite(out[:, j]).any()]
     if empty:
         what = ("the motion-capture orientation of B, empty only where tracking was lost" if set(empty) <= set(QUAT_COLUMNS)
                 else "numbers")
-        raise DataFormatError(f"{where}: column(s) {empty} hold no finite value; expected {what}")
+        raise DataFormatError(f"{where}: column(s) {empty} hold no finite value; expected {what}", column=empty[0])
     return out
 
 
@@ -248,7 +248,7 @@ def recording_from_frame(
         expected += list(QUAT_COLUMNS)
     missing = [c for c in expected if c not in df.columns]
     if missing:
-        raise DataFormatError(f"{where}: missing column(s) {missing}")
+        raise DataFormatError(f"{where}: missing column(s) {missing}", path=path, column=missing[0])
     extra = [c for c in df.columns if c not in expected and not (c in QUAT_COLUMNS)]
     if extra:
         log.warning("%s: extra column(s) ignored: %s", where, extra)
@@ -266,7 +266,7 @@ def recording_from_frame(
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})")
+        raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})", path=path, column="t")
     phi, wrench = {}, {}
     for i, k in enumerate(robot.legs):
         phi[k] = values[:, 1 + 7 * i].copy()
@@ -279,7 +279,7 @@ def recording_from_frame(
         norms = np.linalg.norm(quat[ok], axis=1)
         if ok.any() and np.any(np.abs(norms - 1.0) > 1e-2):
             raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}..{norms.max():.3g}); "
-                                  "expected norm 1 within 0.01")
+                                  "expected norm 1 within 0.01", path=path, column="qw")
         quat[~ok] = np.nan
     if kind == "hanging":
         if gravity_body is None:
@@ -299,12 +299,12 @@ def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
     if fmax > _MAX_FORCE_IN_WEIGHTS * robot.weight_N:
         raise DataFormatError(
             f"{where}: columns {leg}_fx..{leg}_fz reach {fmax:.4g}, over {_MAX_FORCE_IN_WEIGHTS:.0f}x the robot's weight "
-            f"({robot.weight_N:.4g} N); expected N (off by a unit factor such as 1000?)"
+            f"({robot.weight_N:.4g} N); expected N (off by a unit factor such as 1000?)", column=f"{leg}_fx"
         )
     if tmax > _MAX_LEVER_ARM_M * max(fmax, robot.weight_N):
         raise DataFormatError(
             f"{where}: columns {leg}_tx..{leg}_tz reach {tmax:.4g}, more than {_MAX_LEVER_ARM_M} m times the forces; "
-            "expected N*m (are they in N*mm?)"
+            "expected N*m (are they in N*mm?)", column=f"{leg}_tx"
         )
 
 
@@ -328,7 +328,7 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
     robot = read_robot(robot_path)
     entries = d.get("recording", [])
     if not isinstance(entries, list) or not entries:
-        raise DataFormatError(f"{where}: no [[recording]] entries")
+        raise DataFormatError(f"{where}: no [[recording]] entries", path=manifest)
     recs = []
     for i, e in enumerate(entries):
         w = f"{where} [[recording]] #{i + 1}"
@@ -436,7 +436,7 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
     folder.mkdir(parents=True, exist_ok=True)
     manifest = folder / "dataset.toml"
     if manifest.exists() and not overwrite:
-        raise FileExistsError(f"{manifest} exists; pass overwrite=True to replace it")
+        raise OutputExistsError(f"{manifest} exists; pass overwrite=True to replace it", path=manifest)
     write_robot(ds.robot, folder / "robot.toml")
     entries = []
     for rec in ds.recordings:
@@ -447,7 +447,7 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
         elif fmt == "csv":
             df.to_csv(folder / fname, index=False, float_format="%.9g")
         else:
-            raise ValueError(f"fmt must be 'csv' or 'parquet', got {fmt!r}")
+            raise ConfigError(f"fmt must be 'csv' or 'parquet', got {fmt!r}", key="fmt")
         e: dict = {"file": fname, "kind": rec.kind}
         if rec.gravity_body is not None:
             e["gravity_body"] = [float(x) for x in rec.gravity_body]

@@ -69,14 +69,15 @@ from .diagnose.attribute import GAP_THRESHOLD
 from .diagnose.standing_fit import AugmentedProblem
 from .effects import StandingData
 from .selection import fold_indices
+from .settings import DiagnoseSettings
 
 log = logging.getLogger(__name__)
 
 POWER = 0.8
 SIGNAL_RATE_HZ = 20.0     # signal runs: the rate does not change the mean square of a slow residual, only the run time
 KINDS = ("standing", "hanging")
-DIAGNOSIS_FOLDS = 5       # DiagnoseSettings' defaults
-DIAGNOSIS_SEED = 0
+DIAGNOSIS_FOLDS = DiagnoseSettings().folds   # the diagnosis' defaults (settings.py)
+DIAGNOSIS_SEED = DiagnoseSettings().seed
 MODEL = "full"            # what the default model selection picks on the simulator's protocols
 EXTRAPOLATION_MAX = 10.0  # (D1) is trusted up to this many test sizes; beyond, "not detected" (inf)
 REALISATIONS = 3          # draws of the effect's own random parameters (directions, per-leg sizes) behind (D4)

@@ -370,11 +370,11 @@ def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None) -> 
 
 def _read_toml(path: Path) -> dict:
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
+        raise PlanError(f"{path}: file not found", path=path)
     try:
         return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{path}: not valid TOML ({exc})") from None
+        raise PlanError(f"{path}: not valid TOML ({exc})", path=path) from None
 
 
 def load_input(path: str | Path | None, protocol_file: str | Path | None = None) -> tuple[Protocol, Pilot | None]:

@@ -30,9 +30,9 @@ from threadpoolctl import threadpool_limits
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
 from .config import RunConfig, load_config
-from .errors import ConfigError, FtcalError, OutputError
+from .errors import ConfigError, DataFormatError, FtcalError, OutputExistsError
 from .correct import offsets_frame
-from .data import DataFormatError, Dataset, read_dataset
+from .data import Dataset, read_dataset
 from .bench.validate import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
@@ -44,15 +44,11 @@ COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in it
 log = logging.getLogger("ftcal_nlp.run")
 
 
-class OutputExistsError(OutputError):
-    """The output folder holds an earlier result and ``--force`` was not given."""
-
-
 def prepare_output(folder: Path, force: bool, *, create: bool = True) -> None:
     """Refuse to write into a non-empty output folder unless ``force``; create it (unless ``create`` is false:
     a run creates it only once it has a result, so that a failed run leaves no trace)."""
     if folder.exists() and any(folder.iterdir()) and not force:
-        raise OutputExistsError(f"{folder} exists and is not empty; pass --force to overwrite it")
+        raise OutputExistsError(f"{folder} exists and is not empty; pass --force to overwrite it", path=folder)
     if create:
         folder.mkdir(parents=True, exist_ok=True)
 
@@ -65,8 +61,8 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
         truth = Calibration.load(truth_path, mass_kg=ds.robot.mass_kg, g=ds.robot.g) if truth_path.is_file() else None
         return ds, truth
     if cfg.simulate is None:
-        raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)")
-    sim_cfg = SimConfig.from_dict(cfg.simulate)
+        raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)", path=cfg.manifest)
+    sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
     folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
     manifest = write_simulation(res, folder, overwrite=force)
@@ -85,10 +81,10 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
     if cfg.offsets_only.calibration is not None:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
     res = calibrate(ds, cfg.settings, offsets_only=prior)
-    res.truth = truth
-    res.timings = {"load": t_load, **res.timings}
     cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
-    res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta})
+    # a new frozen run with what only the command line knows: the truth, the load time, the config
+    res = replace(res, truth=truth, timings={"load": t_load, **res.timings},
+                  calibration=replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta}))
     prepare_output(cfg.output_dir, force)
     with stage("write calibration", res.timings):
         res.calibration.save(cfg.output_dir / "calibration.json")
@@ -198,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         # many small LAPACK calls: threaded BLAS only adds contention on a few cores
         with threadpool_limits(limits=1):
             run(cfg, force=args.force)
-    except (FtcalError, FileExistsError) as exc:
+    except FtcalError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

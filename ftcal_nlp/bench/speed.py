@@ -155,7 +155,7 @@ def run_speed(settings: SpeedSettings = SpeedSettings(), progress: bool = True) 
                 totals["nlp"]["run_with_diagnosis_wall_s"] = float(np.median(walls))
                 report_run = run
                 bar.update()
-        report_run.truth = sim.truth
+        report_run = replace(report_run, truth=sim.truth)  # a frozen run: a new one with the truth
         out_dir = Path(tmp) / "report"
         out_dir.mkdir()
         _, w, c = timed(lambda: write_report(report_run, out_dir), 1)

@@ -112,7 +112,7 @@ def rotations_free(problem: AugmentedProblem) -> bool:
     return any(ca.depends_on(R, problem.spec.x) for R in problem.spec.R)
 
 
-def attribute(views: Views, effects: list[Effect], model, prior, robot, balance: str, *, folds: int = 5, seed: int = 0,
+def attribute(views: Views, effects: list[Effect], model, prior, robot, balance: str, *, folds: int, seed: int,
               x_start: np.ndarray | None = None) -> Attribution:
     """Score every effect in ``effects`` (module docstring); ``x_start`` the model's fitted x (warm start)."""
     base: dict = {}

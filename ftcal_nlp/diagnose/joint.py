@@ -347,7 +347,7 @@ def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray) -> Ca
 
 
 def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, calibration: Calibration, robot,
-                balance: str, *, folds: int = 5, seed: int = 0, x_start: np.ndarray | None = None) -> JointRefit:
+                balance: str, *, folds: int, seed: int, x_start: np.ndarray | None = None) -> JointRefit:
     """The calibration refit with ``effect`` on every recording kind of ``views`` (module docstring).
 
     ``prior``: the hanging calibration the standing fit starts from; ``calibration``: the

@@ -2,8 +2,8 @@
 
 ``MODELS`` is a plain dict name -> class. :func:`resolve` accepts a registered
 name, ``"package.module:Class"``, ``"path/to/file.py:Class"``, an
-:class:`ErrorModel` class or instance; an unknown name raises ``ValueError``
-listing the known ones.
+:class:`ErrorModel` class or instance; an unknown name raises
+:class:`~ftcal_nlp.errors.ConfigError` listing the known ones.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import importlib
 import importlib.util
 from pathlib import Path
 
+from ..errors import ConfigError
 from .base import Block, ErrorModel, ModelContext, ModelSpec, make_spec, so3_variable, vector_variable
 from .builtin import Full, OffsetsOnly, Rot6Trans1, Trans1, Trans6
 
@@ -30,11 +31,11 @@ REPORT_CANDIDATES: tuple[str, ...] = ("full", "rot6_trans1", "trans6", "trans1")
 def _load_class(spec: str) -> type:
     target, _, cls_name = spec.rpartition(":")
     if not target or not cls_name:
-        raise ValueError(f"error model {spec!r}: expected 'module:Class' or 'path/file.py:Class'")
+        raise ConfigError(f"error model {spec!r}: expected 'module:Class' or 'path/file.py:Class'")
     if target.endswith(".py") or "/" in target or "\\" in target:
         path = Path(target)
         if not path.is_file():
-            raise ValueError(f"error model {spec!r}: file {path} not found")
+            raise ConfigError(f"error model {spec!r}: file {path} not found", path=path)
         mod_spec = importlib.util.spec_from_file_location(f"ftcal_user_model_{path.stem}", path)
         module = importlib.util.module_from_spec(mod_spec)
         mod_spec.loader.exec_module(module)
@@ -42,9 +43,9 @@ def _load_class(spec: str) -> type:
         try:
             module = importlib.import_module(target)
         except ImportError as exc:
-            raise ValueError(f"error model {spec!r}: cannot import module {target!r} ({exc})") from exc
+            raise ConfigError(f"error model {spec!r}: cannot import module {target!r} ({exc})") from exc
     if not hasattr(module, cls_name):
-        raise ValueError(f"error model {spec!r}: module {target!r} has no attribute {cls_name!r}")
+        raise ConfigError(f"error model {spec!r}: module {target!r} has no attribute {cls_name!r}")
     return getattr(module, cls_name)
 
 
@@ -57,16 +58,16 @@ def resolve(name_or_path: str | ErrorModel | type) -> ErrorModel:
         if obj in MODELS:
             return MODELS[obj]()
         if ":" not in obj:
-            raise ValueError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
+            raise ConfigError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
         obj = _load_class(obj)
     if isinstance(obj, type):
         inst = obj()
     else:
-        raise ValueError(f"error model: expected a name, 'module:Class' or an ErrorModel, got {type(obj).__name__}")
+        raise ConfigError(f"error model: expected a name, 'module:Class' or an ErrorModel, got {type(obj).__name__}")
     if not callable(getattr(inst, "build", None)):
-        raise ValueError(f"error model {name_or_path!r}: class has no build(ctx) method")
+        raise ConfigError(f"error model {name_or_path!r}: class has no build(ctx) method")
     if not getattr(inst, "name", ""):
-        raise ValueError(f"error model {name_or_path!r}: class has no 'name'")
+        raise ConfigError(f"error model {name_or_path!r}: class has no 'name'")
     return inst
 
 

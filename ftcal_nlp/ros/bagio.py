@@ -39,6 +39,7 @@ from typing import Callable, Iterable, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..data import DataFormatError
+from ..errors import ConfigError, OutputExistsError
 from . import rawscan
 from .wire import JOINT_TYPE, POSE_TYPE, WRENCH_TYPE, Group, Packed, decode_batch, encode_batch
 
@@ -341,7 +342,7 @@ def typestore_for(storage: str):
     from rosbags.typesys import Stores, get_typestore
 
     if storage not in STORAGES:
-        raise ValueError(f"storage must be one of {STORAGES}, got {storage!r}")
+        raise ConfigError(f"storage must be one of {STORAGES}, got {storage!r}", key="storage")
     return get_typestore(Stores.ROS1_NOETIC if storage == "ros1" else Stores.LATEST)
 
 
@@ -452,15 +453,15 @@ def write_bag(path: str | Path, series: Sequence[TopicSeries], *, storage: str =
     ``zstd``; ROS 2 ``message`` (each message zstd-compressed).
     """
     if storage in COMPRESSIONS and compression not in COMPRESSIONS[storage]:
-        raise ValueError(f"compression for {storage} must be one of {COMPRESSIONS[storage]}, got {compression!r}")
+        raise ConfigError(f"compression for {storage} must be one of {COMPRESSIONS[storage]}, got {compression!r}", key="compression")
     path = Path(path)
     ts = typestore_for(storage)
     if path.exists():
         if not overwrite:
-            raise FileExistsError(f"{path} exists; a bag is never written over unless asked (overwrite)")
+            raise OutputExistsError(f"{path} exists; a bag is never written over unless asked (overwrite)", path=path)
         if path.is_dir():
             if not (path / "metadata.yaml").is_file():
-                raise FileExistsError(f"{path} is a folder but not a ROS 2 bag; not written over")
+                raise OutputExistsError(f"{path} is a folder but not a ROS 2 bag; not written over", path=path)
             shutil.rmtree(path)
         else:
             path.unlink()

@@ -49,6 +49,7 @@ from ..data import (
     recording_to_frame,
     write_robot,
 )
+from ..errors import ConfigError, OutputExistsError
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
 from .mapfile import IngestMap, RecordingSpec, read_map
@@ -348,7 +349,7 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
 
     fmt = fmt or result.map.fmt
     if fmt not in ("csv", "parquet"):
-        raise ValueError(f"fmt must be 'csv' or 'parquet', got {fmt!r}")
+        raise ConfigError(f"fmt must be 'csv' or 'parquet', got {fmt!r}", key="fmt")
     folder = Path(folder)
     manifest = folder / "dataset.toml"
     ds = result.dataset
@@ -357,9 +358,9 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
     targets = [manifest, folder / "robot.toml"] + [folder / f"{rec.name}.{fmt}" for rec in ds.recordings]
     present = [str(x) for x in targets if x.exists()]
     if present and not overwrite:
-        raise FileExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them")
+        raise OutputExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them", path=folder)
     if folder.exists() and not folder.is_dir():
-        raise FileExistsError(f"{folder} exists and is not a folder")
+        raise OutputExistsError(f"{folder} exists and is not a folder", path=folder)
     folder.mkdir(parents=True, exist_ok=True)
     write_robot(ds.robot, folder / "robot.toml")
     entries = []

@@ -23,6 +23,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..data import Dataset, Recording
+from ..errors import OutputExistsError
 from . import bagio
 from .urdf import urdf_text
 
@@ -132,7 +133,7 @@ def write_session(
     st_of = {r.name: storage if isinstance(storage, str) else storage[r.name] for r in recs}
     for p in [urdf, mp] + [folder / bag_name(r, st_of[r.name]) for r in recs]:
         if p.exists():
-            raise FileExistsError(f"{p} exists; not written over")
+            raise OutputExistsError(f"{p} exists; not written over", path=p)
     written = []
     for rec in recs:
         path = folder / bag_name(rec, st_of[rec.name])
