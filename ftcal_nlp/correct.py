@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,7 @@ import pandas as pd
 from .calibration import Calibration
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
+from .errors import OutputError
 from .geometry import quat_to_rotation
 from .robot import Robot, Transducer
 from .settings import CorrectSettings
@@ -116,34 +116,37 @@ def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
     return pd.DataFrame(cols)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.correct", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from .cli import add_common, guarded, parse, setup
+
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.correct", description=__doc__.splitlines()[0],
+                                 epilog="The calibration's covariance file (meta.covariance_file, calibration_cov.npz written "
+                                        "beside calibration.json by a run) gives the se columns; without it the se rest on the "
+                                        "sensor noise alone (logged).")
     ap.add_argument("calibration", help="calibration.json written by a run")
     ap.add_argument("recording", help="recording in the interchange format (CSV or Parquet)")
-    ap.add_argument("-o", "--output", required=True, help="output CSV of ground contact wrenches")
+    add_common(ap, output_help="output CSV of ground contact wrenches", output_required=True, old_force=("--overwrite",))
     ap.add_argument("--bag", help="also write a ROS 2 MCAP bag with one WrenchStamped topic per foot")
-    ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument("--track-offsets", action="store_true",
                     help="re-estimate each leg's offsets over the recording from its swing phases and correct with them")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = parse(ap, argv)
+    setup(args)
+    return guarded(lambda: _main(args), extra=(ValueError,))
+
+
+def _main(args) -> int:
     out = Path(args.output)
     off_out = out.with_name(out.stem + "_offsets.csv")
     for target in [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else []):
         if target.exists() and not args.force:
-            print(f"error: {target} exists; pass --force to overwrite", file=sys.stderr)
-            return 2
-    try:
-        cal = Calibration.load(args.calibration)
-        # the missing-covariance warning comes after the correction succeeded: a failure is one line
-        res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
-                                CorrectSettings(track_offsets=args.track_offsets))
-        df = res.frame
-        if cal.meta.get("covariance_file") is None:
-            load_covariance(cal, args.calibration)   # logs what the se then rest on
-    except (DataFormatError, FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
+    cal = Calibration.load(args.calibration)
+    # the missing-covariance warning comes after the correction succeeded: a failure is one line
+    res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
+                            CorrectSettings(track_offsets=args.track_offsets))
+    df = res.frame
+    if cal.meta.get("covariance_file") is None:
+        load_covariance(cal, args.calibration)   # logs what the se then rest on
     out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(out, index=False, float_format="%.7g")
     log.info("wrote %s (%d rows)", out, len(df))

@@ -17,13 +17,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import time
 import tomllib
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 from threadpoolctl import threadpool_limits
 
@@ -166,14 +164,14 @@ def _is_validation_config(path: str) -> bool:
         return False  # load_config reports it
 
 
-def _run_validation(path: str, force: bool, run_validation) -> int:
+def _run_validation(path: str, force: bool, run_validation, output: Path | None = None) -> int:
     """A ``[validation]`` config: the withheld-effect validation of the diagnosis (issue 7)."""
     p = Path(path)
     d = tomllib.loads(p.read_text())
     out = d.get("output", {}).get("dir")
-    if not isinstance(out, str):
+    if output is None and not isinstance(out, str):
         raise ConfigError(f"{p} [output].dir: expected a path string for the output folder")
-    folder = p.parent / out
+    folder = output if output is not None else p.parent / out
     prepare_output(folder, force)
     try:
         run_validation(d["validation"], folder)
@@ -182,26 +180,55 @@ def _run_validation(path: str, force: bool, run_validation) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.run", description="Calibrate the transducers of a legged robot from a dataset.")
+CONFIG_HELP = """\
+config keys: README.md ("Use": the minimal config and the main keys), problems/bigant_sim.toml (an annotated
+config), ftcal_nlp/config.py (sections and their validation) and ftcal_nlp/settings.py (every key with its
+default and meaning: [hanging], [standing], [standing.poses], [selection], [diagnose], [correct]).
+"""
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from .cli import add_common, guarded, parse, setup
+
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.run", description="Calibrate the transducers of a legged robot from a dataset.",
+                                 epilog=CONFIG_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("config", help="run config (TOML), e.g. problems/bigant_sim.toml")
-    ap.add_argument("--force", action="store_true", help="overwrite a non-empty output folder")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    args = ap.parse_args(argv)
-    matplotlib.use("Agg")  # files only; the entry point, not the library, picks the backend
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
-    try:
-        if _is_validation_config(args.config):
-            with threadpool_limits(limits=1):
-                return _run_validation(args.config, args.force, run_validation)
-        cfg = load_config(args.config)
-        # many small LAPACK calls: threaded BLAS only adds contention on a few cores
+    add_common(ap, output_help="output folder (default: the config's [output] dir)",
+               old_force=("--overwrite",), force_help="replace an earlier result in the output folder")
+    args = parse(ap, argv)
+    setup(args)
+    return guarded(lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
+    output = Path(args.output) if args.output else None
+    if _is_validation_config(args.config):
         with threadpool_limits(limits=1):
-            run(cfg, force=args.force)
-    except (FtcalError, FileExistsError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            return _run_validation(args.config, args.force, run_validation, output)
+    cfg = load_config(args.config)
+    if output is not None:
+        cfg = replace(cfg, output_dir=output)
+    check_models(cfg)
+    # many small LAPACK calls: threaded BLAS only adds contention on a few cores
+    with threadpool_limits(limits=1):
+        run(cfg, force=args.force)
     return 0
+
+
+def check_models(cfg: RunConfig) -> None:
+    """The config's error model(s) exist (a registered name, an importable ``module:Class``, a plug-in file
+    that defines the class): a :class:`ConfigError` before any data are read or fitted."""
+    from .models import resolve
+
+    st = cfg.standing
+    names = [("model", st.model)] if st.model != "auto" else [("candidates", c) for c in st.candidates]
+    for key, name in names:
+        try:
+            resolve(name)
+        except FtcalError:
+            raise
+        except (ValueError, ImportError, SyntaxError, AttributeError, TypeError, OSError) as exc:
+            raise ConfigError(f"{cfg.path} [standing].{key}: {exc}", path=cfg.path, key=f"standing.{key}") from exc
 
 
 if __name__ == "__main__":
