@@ -114,8 +114,11 @@ def setup(args: argparse.Namespace) -> None:
     route_warnings()
     if getattr(args, "no_progress", False) or getattr(args, "quiet", False):
         os.environ["TQDM_DISABLE"] = "1"
+    # files only; the entry point, not the library, picks the backend (before pyplot is imported, if at all)
     if "matplotlib" in sys.modules:
-        sys.modules["matplotlib"].use("Agg")  # files only; the entry point, not the library, picks the backend
+        import matplotlib
+
+        matplotlib.use("Agg")
     else:
         os.environ.setdefault("MPLBACKEND", "Agg")
 

@@ -430,6 +430,10 @@ def test_linear_wrench_match_and_receive_clock(session, tmp_path):
         (lambda d: d["recording"][2].update(bag="standing_missing.bag"), r"standing_missing.bag: bag not found"),
         (lambda d: d["recording"].pop(1), r"has no opposite recording"),
         (lambda d: d["joints"]["sign"].update(FL=2) if "sign" in d["joints"] else d["joints"].update(sign={"FL": 2}), r"sign: values \{'FL': 2.0\} should be one of"),
+        # issue 24: a recording name is a file stem inside -o, never a path out of it
+        (lambda d: d["recording"][0].update(name="../../x"), r"#1: key 'name' = '\.\./\.\./x' should be a plain file stem"),
+        (lambda d: d["recording"][1].update(name="/tmp/abs"), r"#2: key 'name' = '/tmp/abs' should be a plain file stem"),
+        (lambda d: d["recording"][2].update(name=".."), r"#3: key 'name' = '\.\.' should be a plain file stem"),
     ],
 )
 def test_bad_map_gets_an_error_naming_the_key(session, tmp_path, edit, pattern):

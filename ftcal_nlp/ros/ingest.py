@@ -355,6 +355,10 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
     # Every file this would write is checked first: nothing is written over unless asked,
     # not even the recordings of a dataset whose manifest is gone.
     targets = [manifest, folder / "robot.toml"] + [folder / f"{rec.name}.{fmt}" for rec in ds.recordings]
+    inside = folder.resolve()
+    for t in targets:  # the map's names are checked when read; a result built by hand is checked here
+        if t.resolve().parent != inside:
+            raise DataFormatError(f"{t}: would be written outside {folder}; a recording name must be a plain file stem")
     present = [str(x) for x in targets if x.exists()]
     if present and not overwrite:
         raise FileExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them")
