@@ -28,7 +28,8 @@ from threadpoolctl import threadpool_limits
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
 from .config import RunConfig, load_config
-from .errors import ConfigError, FtcalError, OutputError
+from .errors import ConfigError, FtcalError
+from .outdir import OutputExistsError, OutputFolder  # noqa: F401  (OutputExistsError: re-exported, run.OutputExistsError)
 from .correct import offsets_frame
 from .data import DataFormatError, Dataset, read_dataset
 from .diagnose.validate import run_validation
@@ -40,19 +41,6 @@ from .tracking import log_changes
 COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
 
 log = logging.getLogger("ftcal_nlp.run")
-
-
-class OutputExistsError(OutputError):
-    """The output folder holds an earlier result and ``--force`` was not given."""
-
-
-def prepare_output(folder: Path, force: bool, *, create: bool = True) -> None:
-    """Refuse to write into a non-empty output folder unless ``force``; create it (unless ``create`` is false:
-    a run creates it only once it has a result, so that a failed run leaves no trace)."""
-    if folder.exists() and any(folder.iterdir()) and not force:
-        raise OutputExistsError(f"{folder} exists and is not empty; pass --force to overwrite it")
-    if create:
-        folder.mkdir(parents=True, exist_ok=True)
 
 
 def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration | None]:
@@ -73,8 +61,22 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
 
 
 def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
-    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails)."""
-    prepare_output(cfg.output_dir, force, create=False)
+    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails).
+
+    The output folder is checked (exists without ``force``, writable) and locked before anything is read
+    or fitted; the outputs are written into a staging folder beside it and swapped in whole at the end
+    (``outdir.py``): a failed or interrupted run leaves an earlier result exactly as it was."""
+    with OutputFolder(cfg.output_dir, force=force) as out:
+        if cfg.manifest is None and cfg.simulate_dir is None:  # the simulated dataset goes with the results
+            cfg = replace(cfg, simulate_dir=out.path / "dataset")
+        res = _run_into(cfg, force, out.path)
+        out.commit()
+    print(summary_text(res, cfg))
+    return res
+
+
+def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
+    """The run of ``cfg`` with its outputs written into ``folder`` (the staging folder of :func:`run`)."""
     t0 = time.perf_counter()
     ds, truth = load_or_simulate(cfg, force)
     t_load = time.perf_counter() - t0
@@ -87,23 +89,21 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
     res.timings = {"load": t_load, **res.timings}
     cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
     res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta})
-    prepare_output(cfg.output_dir, force)
     with stage("write calibration", res.timings):
-        res.calibration.save(cfg.output_dir / "calibration.json")
+        res.calibration.save(folder / "calibration.json")
         if res.uncertainty is not None:
-            res.uncertainty.save(cfg.output_dir / COVARIANCE_FILE)
+            res.uncertainty.save(folder / COVARIANCE_FILE)
     with stage("write corrected", res.timings):
-        write_corrected(res, cfg.output_dir)
+        write_corrected(res, folder)
     if res.diagnosis is not None:
-        (cfg.output_dir / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
+        (folder / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
         if res.diagnosis.joint is not None and res.diagnosis.joint.calibration is not None:
             # the calibration refit with the named effect: `correct` applies the effect's corrections
-            effect_calibration(res).save(cfg.output_dir / "calibration_with_effect.json")
+            effect_calibration(res).save(folder / "calibration_with_effect.json")
             for note in res.diagnosis.joint.notes:
                 log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
     with stage("report", res.timings):
-        write_report(res, cfg.output_dir)
-    print(summary_text(res, cfg))
+        write_report(res, folder)
     return res
 
 
@@ -172,11 +172,12 @@ def _run_validation(path: str, force: bool, run_validation, output: Path | None 
     if output is None and not isinstance(out, str):
         raise ConfigError(f"{p} [output].dir: expected a path string for the output folder")
     folder = output if output is not None else p.parent / out
-    prepare_output(folder, force)
-    try:
-        run_validation(d["validation"], folder)
-    except ValueError as exc:
-        raise ConfigError(f"{p}: {exc}") from exc
+    with OutputFolder(folder, force=force) as staged:
+        try:
+            run_validation(d["validation"], staged.path)
+        except ValueError as exc:
+            raise ConfigError(f"{p}: {exc}") from exc
+        staged.commit()
     return 0
 
 
