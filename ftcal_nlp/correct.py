@@ -28,6 +28,7 @@ import pandas as pd
 from .calibration import Calibration
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
+from .csvout import write_csv
 from .errors import OutputError
 from .geometry import quat_to_rotation
 from .robot import Robot, Transducer
@@ -148,10 +149,10 @@ def _main(args) -> int:
     if cal.meta.get("covariance_file") is None:
         load_covariance(cal, args.calibration)   # logs what the se then rest on
     out.parent.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out, index=False, float_format="%.7g")
+    write_csv(df, out)  # t and every value to the last bit, whatever the epoch (csvout.py)
     log.info("wrote %s (%d rows)", out, len(df))
     if res.tracking is not None:
-        offsets_frame(df["t"].to_numpy(), res.tracking).to_csv(off_out, index=False, float_format="%.7g")
+        write_csv(offsets_frame(df["t"].to_numpy(), res.tracking), off_out)
         log.info("wrote %s (tracked offsets)", off_out)
         for line in log_changes(res.tracking):
             print(line)

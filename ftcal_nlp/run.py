@@ -31,6 +31,7 @@ from .config import RunConfig, load_config
 from .errors import ConfigError, FtcalError
 from .outdir import OutputExistsError, OutputFolder  # noqa: F401  (OutputExistsError: re-exported, run.OutputExistsError)
 from .correct import offsets_frame
+from .csvout import write_csv
 from .data import DataFormatError, Dataset, read_dataset
 from .diagnose.validate import run_validation
 from .pipeline import calibrate, stage
@@ -125,11 +126,11 @@ def write_corrected(res: CalibrationRun, folder: Path) -> None:
     ``tracked_offsets/<name>.csv`` (``correct.offsets_frame``)."""
     (folder / "corrected").mkdir(exist_ok=True)
     for name, df in res.corrected.items():
-        df.to_csv(folder / "corrected" / f"{name}.csv", index=False, float_format="%.7g")
+        write_csv(df, folder / "corrected" / f"{name}.csv")  # t and every value to the last bit (csvout.py)
     if res.tracked_offsets:
         (folder / "tracked_offsets").mkdir(exist_ok=True)
     for name, tr in res.tracked_offsets.items():
-        offsets_frame(res.corrected[name]["t"].to_numpy(), tr).to_csv(folder / "tracked_offsets" / f"{name}.csv", index=False, float_format="%.7g")
+        write_csv(offsets_frame(res.corrected[name]["t"].to_numpy(), tr), folder / "tracked_offsets" / f"{name}.csv")
         log_changes(tr)
 
 

@@ -255,6 +255,14 @@ def _slerp_bound(src, delta, h):
     return b
 
 
+def test_csv_recordings_keep_every_bit_of_time(session, tmp_path):
+    """Issue 24: the CSV form of an ingested dataset has the same t (and readings) as the in-memory result."""
+    manifest = write_ingested(session["result"], tmp_path / "csv", fmt="csv")
+    back = read_dataset(manifest)
+    for a, b in zip(session["result"].dataset.recordings, back.recordings):
+        assert np.array_equal(a.t, b.t) and all(np.array_equal(a.wrench[k], b.wrench[k]) for k in a.wrench)
+
+
 def test_session_reads_back_through_read_dataset(session):
     ds, result = session["ds"], session["result"]
     assert [r.name for r in ds.recordings] == ["hang_xpos", "hang_xneg", "standing"]

@@ -49,6 +49,7 @@ from ..data import (
     recording_to_frame,
     write_robot,
 )
+from ..csvout import write_csv
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
 from .mapfile import IngestMap, RecordingSpec, read_map
@@ -373,8 +374,7 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
         if fmt == "parquet":
             df.to_parquet(folder / fname, index=False)
         else:
-            # 12 significant digits keep 1 us of t over a day-long session.
-            df.to_csv(folder / fname, index=False, float_format="%.12g")
+            write_csv(df, folder / fname)  # every float to the last bit (csvout.py), whatever the epoch
         e: dict = {"file": fname, "kind": rec.kind}
         if rec.gravity_body is not None:
             e["gravity_body"] = [float(x) for x in rec.gravity_body]
