@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
+from .checks import SensorFault, check_calibration, check_recording_to_correct
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
 from .csvout import write_csv
@@ -62,6 +64,8 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     contact state, tracked offsets)."""
     if rec.quat is None:
         raise DataFormatError(f"{rec.path or rec.name}: correction needs the orientation columns qw, qx, qy, qz")
+    check_calibration(cal, "the calibration", tuple(rec.wrench))
+    faults = check_recording_to_correct(rec, cal, robot_from_calibration(cal))   # conventions: errors; faults: below
     ok = np.all(np.isfinite(rec.quat), axis=1)
     if not ok.all():
         log.warning("%s: dropped %d of %d rows without motion-capture orientation", rec.path or rec.name, int((~ok).sum()), rec.n)
@@ -72,7 +76,20 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     w_raw, phi, R_raw = rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat)
     w, R, w_cov = correct_for_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
     # ... and its parameters' uncertainty enters the se like reading noise
-    return correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    res = correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    return flag_faults(res, faults, ok)
+
+
+def flag_faults(res: Correction, faults: list[SensorFault], kept: np.ndarray) -> Correction:
+    """A warning per sensor fault (leg, columns, rows of the recording) and a column ``{leg}_fault`` (1 on its rows)
+    after the others; ``kept`` (N,) the recording's rows the correction kept. No fault: the table as it was."""
+    if not faults:
+        return res
+    cols = {}
+    for f in faults:
+        log.warning("%s; those rows are corrected as read and flagged in column %s_fault", f.describe(), f.leg)
+        cols[f"{f.leg}_fault"] = f.rows[kept].astype(np.int8)
+    return replace(res, frame=pd.concat([res.frame, pd.DataFrame(cols, index=res.frame.index)], axis=1))
 
 
 def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: bool = True) -> CalibrationCovariance | None:
@@ -142,6 +159,7 @@ def _main(args) -> int:
         if target.exists() and not args.force:
             raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
     cal = Calibration.load(args.calibration)
+    check_calibration(cal, args.calibration)
     # the missing-covariance warning comes after the correction succeeded: a failure is one line
     res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
                             CorrectSettings(track_offsets=args.track_offsets))
