@@ -115,6 +115,19 @@ def _nulls(x):
     return x
 
 
+class ModelName(str):
+    """A calibration's ``model`` as read from a file: a name for the error-model registry only.
+
+    :func:`ftcal_nlp.models.resolve` never imports code for one (a ``"file.py:Class"`` received in a
+    ``calibration.json`` is refused, not run). ``str()`` keeps the mark, so the name stays marked when a
+    run copies it into its own result (offsets-only re-estimation)."""
+
+    __slots__ = ()
+
+    def __str__(self) -> "ModelName":
+        return self
+
+
 @dataclass(frozen=True)
 class Calibration:
     """A finished (or true) calibration of a robot; serialised as ``calibration.json``."""
@@ -239,7 +252,10 @@ class Calibration:
         if m is None or gg is None:
             raise DataFormatError(f"{source}: mass_kg and g are needed (in the file or as arguments)")
         com = d.get("com_body_m")
-        return cls(legs, float(m), float(gg), d.get("model", "truth"), None if com is None else arr(com, (3,)), d.get("meta", {}))
+        model = d.get("model", "truth")
+        if not isinstance(model, str):
+            raise DataFormatError(f"{source}: key 'model' should be a model name (a string), got {model!r}")
+        return cls(legs, float(m), float(gg), ModelName(model), None if com is None else arr(com, (3,)), d.get("meta", {}))
 
     @classmethod
     def load(cls, path: str | Path, **kw) -> "Calibration":

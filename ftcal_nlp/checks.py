@@ -254,16 +254,8 @@ def check_shaft_angles(ds: Dataset) -> None:
     """Shaft angles in radians: torque periodicity in hanging, and a plausible rate everywhere (catches degrees)."""
     legs = ds.robot.legs
     for rec in ds.recordings:
-        phi = rec.phi_array(legs)
-        if rec.n >= 2:
-            rate = np.abs(np.diff(phi, axis=0)) / np.diff(rec.t)[:, None]
-            r99 = np.percentile(rate, 99, axis=0)
-            if r99.max() > MAX_PHI_RATE_RAD_S:
-                k = legs[int(np.argmax(r99))]
-                raise DataFormatError(
-                    f"{_src(rec)}: column {k}_phi turns at {r99.max():.4g} rad/s (99th percentile); expected radians, below "
-                    f"{MAX_PHI_RATE_RAD_S:g} rad/s for a leg: is it in degrees?"
-                )
+        check_clock(rec)
+        _check_shaft_rate(rec, legs)
         if rec.kind == "hanging" and rec.n >= MIN_PERIODICITY_SAMPLES:
             ratio = degrees_ratio(rec, legs)
             if ratio > DEGREES_RATIO:
@@ -272,6 +264,21 @@ def check_shaft_angles(ds: Dataset) -> None:
                     f"(within-bin scatter {ratio:.3g}x larger binned by phi as radians than as degrees; expected below "
                     f"{DEGREES_RATIO:g}); expected radians: are the shaft angles in degrees?"
                 )
+
+
+def _check_shaft_rate(rec: Recording, legs: tuple[str, ...]) -> None:
+    """The 99th percentile of every shaft's rate below ``MAX_PHI_RATE_RAD_S`` (degrees turn 57x faster)."""
+    if rec.n < 2:
+        return
+    phi = rec.phi_array(legs)
+    rate = np.abs(np.diff(phi, axis=0)) / np.diff(rec.t)[:, None]
+    r99 = np.percentile(rate, 99, axis=0)
+    if r99.max() > MAX_PHI_RATE_RAD_S:
+        k = legs[int(np.argmax(r99))]
+        raise DataFormatError(
+            f"{_src(rec)}: column {k}_phi turns at {r99.max():.4g} rad/s (99th percentile); expected radians, below "
+            f"{MAX_PHI_RATE_RAD_S:g} rad/s for a leg: is it in degrees?"
+        )
 
 
 def _up_angles(S_B: np.ndarray, quat: np.ndarray) -> np.ndarray:
@@ -286,29 +293,70 @@ def check_standing(ds: Dataset, offsets: np.ndarray, leg_weights: np.ndarray) ->
     ``offsets`` (K, 6) offsets in ft_k and ``leg_weights`` (K,) N: from the hanging pairs or an
     earlier calibration.
     """
-    robot, legs = ds.robot, ds.robot.legs
-    R_nom = robot.nominal_rotations()
+    for rec in ds.standing:
+        check_on_ground(rec, ds.robot, offsets, leg_weights)
+
+
+def check_on_ground(rec: Recording, robot: Robot, offsets: np.ndarray, leg_weights: np.ndarray, *,
+                    whose: str = "the hanging") -> None:
+    """The standing checks of one recording of the robot on the ground (standing or walking): the readings less
+    ``offsets`` summed in B with ``robot``'s rotations (the design's, or a calibration's: ``correct``) against the
+    body weight (sign and unit) and the quaternion's up axis (order), and the torque columns' order and sign.
+    ``whose``: where the offsets and leg weights come from, for the message."""
+    legs = robot.legs
+    src = _src(rec)
+    R = robot.nominal_rotations()
     offsets = np.asarray(offsets, float)
     body = robot.weight_N - float(np.sum(leg_weights))
-    for rec in ds.standing:
-        src = _src(rec)
-        q = rec.quat
-        ok = np.all(np.isfinite(q), axis=1)
-        if not ok.any():
-            raise DataFormatError(f"{src}: columns qw, qx, qy, qz hold no finite row; a standing recording needs the "
-                                  "motion-capture orientation of B (empty only where tracking was lost)")
-        F = np.stack([rec.wrench[k][ok, :3] for k in legs], axis=1) - offsets[:, :3]  # (N, K, 3)
-        S_B = np.einsum("kij,nkj->ni", R_nom, F)
-        ratio = float(np.median(np.linalg.norm(S_B, axis=1)) / body) if body > 0 else np.inf
-        if not 1 / BODY_WEIGHT_FACTOR <= ratio <= BODY_WEIGHT_FACTOR:
+    q = rec.quat
+    if q is None:
+        raise DataFormatError(f"{src}: no columns qw, qx, qy, qz; a recording on the ground needs the motion-capture orientation of B")
+    ok = np.all(np.isfinite(q), axis=1)
+    if not ok.any():
+        raise DataFormatError(f"{src}: columns qw, qx, qy, qz hold no finite row; a {rec.kind} recording needs the "
+                              "motion-capture orientation of B (empty only where tracking was lost)")
+    F = np.stack([rec.wrench[k][ok, :3] for k in legs], axis=1) - offsets[:, :3]  # (N, K, 3)
+    S_B = np.einsum("kij,nkj->ni", R, F)
+    up = quat_to_rotation(q[ok])[:, 2, :]
+    # the signed share along the quaternion's up axis: -1 for negated readings, ~1e-3 for kN, +1 as expected
+    along = float(np.median(np.einsum("ni,ni->n", S_B, up)) / body) if body > 0 else np.inf
+    ratio = float(np.median(np.linalg.norm(S_B, axis=1)) / body) if body > 0 else np.inf
+    if not 1 / BODY_WEIGHT_FACTOR <= ratio <= BODY_WEIGHT_FACTOR:
+        raise DataFormatError(
+            f"{src}: {rec.kind}, the readings less {whose} offsets (columns {{leg}}_fx..{{leg}}_fz) sum to a median "
+            f"{ratio * body:.4g} N; expected about the weight of the body without legs, {body:.4g} N (mass_kg = "
+            f"{robot.mass_kg:g} less {whose} leg weights), within a factor {BODY_WEIGHT_FACTOR:g}: are the forces, or "
+            "mass_kg, in another unit?"
+        )
+    if not 1 / BODY_WEIGHT_FACTOR <= along <= BODY_WEIGHT_FACTOR:
+        if _quaternion_fixes_it(S_B, q[ok], body):
+            check_quaternion(rec, S_B, ok)  # the quaternion, not the readings: names the reading of the columns
+        if along < -1 / BODY_WEIGHT_FACTOR:
             raise DataFormatError(
-                f"{src}: standing, the readings less the hanging offsets (columns {{leg}}_fx..{{leg}}_fz) sum to a median "
-                f"{ratio * body:.4g} N; expected about the weight of the body without legs, {body:.4g} N (mass_kg = "
-                f"{robot.mass_kg:g} less the hanging leg weights), within a factor {BODY_WEIGHT_FACTOR:g}: are the forces, or "
-                "mass_kg, in another unit?"
+                f"{src}: {rec.kind}, the readings less {whose} offsets (columns {{leg}}_fx..{{leg}}_fz) push the body down "
+                f"(median {along:.2f} of the body weight along the quaternion's up axis); expected about +1 for a robot on "
+                "the ground: are the readings negated (their sign convention reversed)?"
             )
-        check_torque_axes(rec, robot, offsets)
-        check_quaternion(rec, S_B, ok)
+        raise DataFormatError(
+            f"{src}: {rec.kind}, the readings less {whose} offsets (columns {{leg}}_fx..{{leg}}_fz) carry a median "
+            f"{along * body:.4g} N along the quaternion's up axis; expected the weight of the body without legs, "
+            f"{body:.4g} N (mass_kg = {robot.mass_kg:g} less {whose} leg weights), within a factor {BODY_WEIGHT_FACTOR:g} "
+            "for a robot on the ground: are the forces, or mass_kg, in another unit?"
+        )
+    check_torque_axes(rec, robot, offsets)
+    check_quaternion(rec, S_B, ok)
+
+
+def _quaternion_fixes_it(S_B: np.ndarray, q: np.ndarray, body: float) -> bool:
+    """One of the usual misreadings of the quaternion columns (x, y, z, w order; the conjugate) puts the readings up
+    with the body's weight: then the quaternion is off, not the readings. The other orders are not asked: some turn
+    any up axis over, and a reversed sign or unit is the likelier fault."""
+    for v in list(_quaternion_readings().values())[:2]:
+        qq = q[:, v] if isinstance(v, list) else q * v
+        share = float(np.median(np.einsum("ni,ni->n", S_B, quat_to_rotation(qq)[:, 2, :])) / body)
+        if 1 / BODY_WEIGHT_FACTOR <= share <= BODY_WEIGHT_FACTOR:
+            return True
+    return False
 
 
 def _quaternion_readings() -> dict[str, list[int] | np.ndarray]:
@@ -522,3 +570,137 @@ def check_transducer_poses(cal, robot: Robot, where: str) -> list[str]:
         log.warning("%s", msg)
         notes.append(msg)
     return notes
+
+
+# ----------------------------------------------------------------------------- a recording to correct, its calibration
+
+#: a sampling interval above this (median, in the units of column ``t``) is no force/torque recording in seconds:
+#: a clock in ms at 500 Hz or slower (100 Hz: 10 units) is caught; the sparsest dataset a test calibrates is 1.3 s
+MAX_SAMPLE_INTERVAL_S = 2.0
+#: consecutive identical samples of one channel that no working transducer gives (noise moves the last digits)
+STUCK_RUN = 25
+#: rows of a long recording the checks of a correction look at (a regular subsample)
+CHECK_ROWS = 50_000
+#: orthogonality of a calibration's rotations, max |R^T R - I|
+ROTATION_TOL = 1e-6
+
+
+def check_clock(rec: Recording) -> None:
+    """Column ``t`` in seconds: a median sampling interval above ``MAX_SAMPLE_INTERVAL_S`` is milliseconds (or
+    another unit): a 100 Hz recording in ms has 10 units between samples."""
+    if rec.n < 3:
+        return
+    dt = float(np.median(np.diff(rec.t)))
+    if dt > MAX_SAMPLE_INTERVAL_S:
+        raise DataFormatError(
+            f"{_src(rec)}: column t: median sampling interval {dt:.4g} ({1 / dt:.3g} samples per unit of t); expected "
+            f"seconds, at most {MAX_SAMPLE_INTERVAL_S:g} s between the samples of a force/torque recording: is t in "
+            "milliseconds (or microseconds)?"
+        )
+
+
+@dataclass(frozen=True)
+class SensorFault:
+    """Rows of one leg where channels did not move for ``STUCK_RUN`` samples or more: ``kind`` ``"dead"`` (every
+    channel of the leg reads 0), ``"saturated"`` (held at the channel's extreme over the recording) or ``"stuck"``;
+    ``channels`` the columns; ``rows`` (N,) bool; ``value`` the held value of the first channel."""
+
+    source: str
+    leg: str
+    kind: str
+    channels: tuple[str, ...]
+    rows: np.ndarray
+    value: float
+
+    @property
+    def fraction(self) -> float:
+        return float(self.rows.mean()) if self.rows.size else 0.0
+
+    def describe(self) -> str:
+        idx = np.flatnonzero(self.rows)
+        starts = idx[np.r_[True, np.diff(idx) > 1]]
+        ends = idx[np.r_[np.diff(idx) > 1, True]]
+        spans = ", ".join(f"{a + 1}-{b + 1}" for a, b in list(zip(starts, ends))[:4]) + (" ..." if len(starts) > 4 else "")
+        what = {"dead": "reads 0 on every channel (dead or unplugged)", "saturated": f"clipped at {self.value:.6g}",
+                "stuck": f"stuck at {self.value:.6g}"}[self.kind]
+        return (f"{self.source}: leg {self.leg} columns {', '.join(self.channels)} {what} on {int(self.rows.sum())} of "
+                f"{self.rows.size} samples ({100 * self.fraction:.1f} %; rows {spans})")
+
+
+def _held_runs(x: np.ndarray, min_run: int) -> np.ndarray:
+    """Rows (N,) in runs of at least ``min_run`` identical consecutive values (NaN never repeats)."""
+    if len(x) < min_run:
+        return np.zeros(len(x), bool)
+    new = np.r_[True, x[1:] != x[:-1]]
+    run_id = np.cumsum(new) - 1
+    return np.bincount(run_id)[run_id] >= min_run
+
+
+def sensor_faults(rec: Recording, legs: tuple[str, ...] | None = None, min_run: int = STUCK_RUN) -> list[SensorFault]:
+    """Every leg of ``rec`` with channels held for ``min_run`` samples or more (:class:`SensorFault`), one per leg."""
+    from .data import WRENCH_COMPONENTS
+
+    out = []
+    for k in legs or tuple(rec.wrench):
+        W = rec.wrench[k]
+        if len(W) < min_run or not np.any(W[1:] == W[:-1]):  # one pass: no channel ever repeats (the usual case)
+            continue
+        held = np.stack([_held_runs(W[:, j], min_run) for j in range(W.shape[1])], axis=1)
+        if not held.any():
+            continue
+        rows = held.any(axis=1)
+        chans = tuple(f"{k}_{c}" for j, c in enumerate(WRENCH_COMPONENTS) if held[:, j].any())
+        j0 = int(np.flatnonzero(held.any(axis=0))[0])
+        value = float(W[held[:, j0], j0][0])
+        finite = W[np.isfinite(W[:, j0]), j0]
+        if held.all(axis=1)[rows].all() and np.all(W[rows] == 0):
+            kind = "dead"
+        elif finite.size and value in (finite.max(), finite.min()) and np.any(W[~held[:, j0], j0] != value):
+            kind = "saturated"
+        else:
+            kind = "stuck"
+        out.append(SensorFault(_src(rec), k, kind, chans, rows, value))
+    return out
+
+
+def check_calibration(cal, source: str, legs: tuple[str, ...] | None = None) -> None:
+    """A calibration fit to apply: mass and g positive, every offset, leg weight, rotation and position finite,
+    rotations proper (orthogonal, determinant +1), and every leg of ``legs`` (a recording's) calibrated."""
+    def bad(msg: str) -> DataFormatError:
+        return DataFormatError(f"{source}: {msg}; expected a calibration.json written by a run (OUTPUT_FORMAT.md)")
+
+    if not (np.isfinite(cal.mass_kg) and cal.mass_kg > 0 and np.isfinite(cal.g) and cal.g > 0):
+        raise bad(f"mass_kg = {cal.mass_kg!r}, g = {cal.g!r}: not positive numbers")
+    missing = [k for k in (legs or ()) if k not in cal.legs]
+    if missing:
+        raise bad(f"no calibration of leg(s) {missing} of the recording (calibrated legs {list(cal.leg_names)})")
+    for k, l in cal.legs.items():
+        for key, v in (("offset", l.offset), ("leg_weight_N", l.leg_weight_N), ("rotation_to_body", l.rotation_to_body),
+                       ("position_from_com_m", l.position_from_com_m)):
+            a = np.asarray(v, float)
+            if not np.all(np.isfinite(a)):
+                raise bad(f"legs.{k}.{key} holds a null, NaN or infinite value ({np.round(a, 6).tolist()})")
+        R = np.asarray(l.rotation_to_body, float)
+        err = float(np.abs(R.T @ R - np.eye(3)).max())
+        det = float(np.linalg.det(R))
+        if err > ROTATION_TOL or abs(det - 1) > ROTATION_TOL:
+            raise bad(f"legs.{k}.rotation_to_body is not a rotation (determinant {det:.6g}, max |R^T R - I| {err:.3g}); "
+                      "a proper rotation has determinant +1")
+        xyz = np.asarray(l.com_xyz, float)
+        if xyz.size == 0 or not np.isfinite(xyz).any():
+            raise bad(f"legs.{k}.leg_com_grid.xyz holds no finite point")
+
+
+def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[SensorFault]:
+    """The checks of a run that apply to a later recording corrected with the calibration ``cal``: column ``t`` in
+    seconds, shaft angles in radians, and (on the ground) the readings' sign and unit, the quaternion order and the
+    torque columns against the calibration (``robot`` carries its rotations and positions); errors raise. Returns
+    the sensor faults (warnings: the caller logs them and flags the rows)."""
+    check_clock(rec)
+    _check_shaft_rate(rec, robot.legs)
+    if rec.kind in ("walking", "standing") and rec.quat is not None:
+        offsets, weights, _, _ = cal.stacked(robot.legs)
+        # medians and percentiles: a regular subsample of a long recording says the same at a fraction of the cost
+        sub = rec if rec.n <= CHECK_ROWS else rec.select(np.arange(0, rec.n, -(-rec.n // CHECK_ROWS)))
+        check_on_ground(sub, robot, offsets, weights, whose="the calibration's")
+    return sensor_faults(rec, robot.legs)

@@ -20,15 +20,18 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .calibration import Calibration
+from .checks import SensorFault, check_calibration, check_recording_to_correct
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
+from .csvout import write_csv
+from .errors import OutputError
 from .geometry import quat_to_rotation
 from .robot import Robot, Transducer
 from .settings import CorrectSettings
@@ -61,6 +64,8 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     contact state, tracked offsets)."""
     if rec.quat is None:
         raise DataFormatError(f"{rec.path or rec.name}: correction needs the orientation columns qw, qx, qy, qz")
+    check_calibration(cal, "the calibration", tuple(rec.wrench))
+    faults = check_recording_to_correct(rec, cal, robot_from_calibration(cal))   # conventions: errors; faults: below
     ok = np.all(np.isfinite(rec.quat), axis=1)
     if not ok.all():
         log.warning("%s: dropped %d of %d rows without motion-capture orientation", rec.path or rec.name, int((~ok).sum()), rec.n)
@@ -71,7 +76,20 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     w_raw, phi, R_raw = rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat)
     w, R, w_cov = correct_for_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
     # ... and its parameters' uncertainty enters the se like reading noise
-    return correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    res = correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    return flag_faults(res, faults, ok)
+
+
+def flag_faults(res: Correction, faults: list[SensorFault], kept: np.ndarray) -> Correction:
+    """A warning per sensor fault (leg, columns, rows of the recording) and a column ``{leg}_fault`` (1 on its rows)
+    after the others; ``kept`` (N,) the recording's rows the correction kept. No fault: the table as it was."""
+    if not faults:
+        return res
+    cols = {}
+    for f in faults:
+        log.warning("%s; those rows are corrected as read and flagged in column %s_fault", f.describe(), f.leg)
+        cols[f"{f.leg}_fault"] = f.rows[kept].astype(np.int8)
+    return replace(res, frame=pd.concat([res.frame, pd.DataFrame(cols, index=res.frame.index)], axis=1))
 
 
 def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: bool = True) -> CalibrationCovariance | None:
@@ -116,39 +134,43 @@ def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
     return pd.DataFrame(cols)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.correct", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from .cli import add_common, guarded, parse, setup
+
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.correct", description=__doc__.splitlines()[0],
+                                 epilog="The calibration's covariance file (meta.covariance_file, calibration_cov.npz written "
+                                        "beside calibration.json by a run) gives the se columns; without it the se rest on the "
+                                        "sensor noise alone (logged).")
     ap.add_argument("calibration", help="calibration.json written by a run")
     ap.add_argument("recording", help="recording in the interchange format (CSV or Parquet)")
-    ap.add_argument("-o", "--output", required=True, help="output CSV of ground contact wrenches")
+    add_common(ap, output_help="output CSV of ground contact wrenches", output_required=True, old_force=("--overwrite",))
     ap.add_argument("--bag", help="also write a ROS 2 MCAP bag with one WrenchStamped topic per foot")
-    ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument("--track-offsets", action="store_true",
                     help="re-estimate each leg's offsets over the recording from its swing phases and correct with them")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = parse(ap, argv)
+    setup(args)
+    return guarded(lambda: _main(args), extra=(ValueError,))
+
+
+def _main(args) -> int:
     out = Path(args.output)
     off_out = out.with_name(out.stem + "_offsets.csv")
     for target in [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else []):
         if target.exists() and not args.force:
-            print(f"error: {target} exists; pass --force to overwrite", file=sys.stderr)
-            return 2
-    try:
-        cal = Calibration.load(args.calibration)
-        # the missing-covariance warning comes after the correction succeeded: a failure is one line
-        res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
-                                CorrectSettings(track_offsets=args.track_offsets))
-        df = res.frame
-        if cal.meta.get("covariance_file") is None:
-            load_covariance(cal, args.calibration)   # logs what the se then rest on
-    except (DataFormatError, FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
+    cal = Calibration.load(args.calibration)
+    check_calibration(cal, args.calibration)
+    # the missing-covariance warning comes after the correction succeeded: a failure is one line
+    res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
+                            CorrectSettings(track_offsets=args.track_offsets))
+    df = res.frame
+    if cal.meta.get("covariance_file") is None:
+        load_covariance(cal, args.calibration)   # logs what the se then rest on
     out.parent.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out, index=False, float_format="%.7g")
+    write_csv(df, out)  # t and every value to the last bit, whatever the epoch (csvout.py)
     log.info("wrote %s (%d rows)", out, len(df))
     if res.tracking is not None:
-        offsets_frame(df["t"].to_numpy(), res.tracking).to_csv(off_out, index=False, float_format="%.7g")
+        write_csv(offsets_frame(df["t"].to_numpy(), res.tracking), off_out)
         log.info("wrote %s (tracked offsets)", off_out)
         for line in log_changes(res.tracking):
             print(line)

@@ -445,7 +445,9 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
         if fmt == "parquet":
             df.to_parquet(folder / fname, index=False)
         elif fmt == "csv":
-            df.to_csv(folder / fname, index=False, float_format="%.9g")
+            from .csvout import write_csv
+
+            write_csv(df, folder / fname)  # every float at full precision (csvout.py)
         else:
             raise ConfigError(f"fmt must be 'csv' or 'parquet', got {fmt!r}", key="fmt")
         e: dict = {"file": fname, "kind": rec.kind}

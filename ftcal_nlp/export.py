@@ -25,7 +25,6 @@ import ctypes
 import logging
 import shutil
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -34,7 +33,7 @@ import casadi as ca
 import numpy as np
 
 from .calibration import Calibration, LegCalibration
-from .errors import DataFormatError, OutputError
+from .errors import ConfigError, DataFormatError, OutputError
 from .geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
 
 log = logging.getLogger(__name__)
@@ -247,28 +246,28 @@ def load_compiled(lib: str | Path, n_legs: int, name: str = DEFAULT_NAME) -> Cal
     return call
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.export", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from .cli import add_common, guarded, parse, setup
+
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.export", description=__doc__.splitlines()[0])
     ap.add_argument("calibration", help="calibration.json written by a run")
-    ap.add_argument("-o", "--output", required=True, help="folder for the C source, header and USAGE.md")
+    add_common(ap, output_help="folder for the C source, header and USAGE.md", output_required=True, old_force=("--overwrite",),
+               force_help="overwrite existing files")
     ap.add_argument("--name", default=DEFAULT_NAME, help=f"C function name (default {DEFAULT_NAME})")
-    ap.add_argument("--force", action="store_true", help="overwrite existing files")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = parse(ap, argv)
+    setup(args)
+    return guarded(lambda: _main(args), extra=(ValueError,))
+
+
+def _main(args) -> int:
     out = Path(args.output)
     if not args.name.isidentifier():
-        print(f"error: --name {args.name!r} is not a C identifier", file=sys.stderr)
-        return 2
+        raise ConfigError(f"--name {args.name!r} is not a C identifier", key="--name")
     existing = [p for p in (out / f"{args.name}.c", out / f"{args.name}.h", out / "USAGE.md") if p.exists()]
     if existing and not args.force:
-        print(f"error: {existing[0]} exists; pass --force to overwrite", file=sys.stderr)
-        return 2
-    try:
-        cal = Calibration.load(args.calibration)
-        files = write_c(cal, out, args.name, source=Path(args.calibration).name)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        raise OutputError(f"{existing[0]} exists; pass --force to overwrite", path=existing[0])
+    cal = Calibration.load(args.calibration)
+    files = write_c(cal, out, args.name, source=Path(args.calibration).name)
     print(f"wrote {files.source}, {files.header}, {files.usage}")
     return 0
 

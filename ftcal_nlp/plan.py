@@ -54,7 +54,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import tomllib
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -64,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from . import crb
-from .errors import ConfigError
+from .errors import ConfigError, OutputError
 from .detection import POWER, Detection, detection_sizes
 from .hanging import fit_hanging
 from .hanging.com_qp import second_difference
@@ -393,31 +392,32 @@ def load_input(path: str | Path | None, protocol_file: str | Path | None = None)
     return Protocol.from_dict({**d.get("protocol", d), **over}, where=str(path)), None
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.plan", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from .cli import add_common, guarded, parse, setup
+
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.plan", description=__doc__.splitlines()[0])
     ap.add_argument("input", nargs="?", help="protocol TOML, robot.toml, or a pilot dataset.toml (default: the default protocol)")
     ap.add_argument("--protocol", help="protocol TOML whose keys change those of the input (with a robot.toml or a pilot)")
-    ap.add_argument("-o", "--output", default="plan.json", help="plan file (default plan.json)")
+    add_common(ap, output_help="plan file (default plan.json)", output_default="plan.json", old_force=("--overwrite",),
+               force_help="overwrite the output")
     ap.add_argument("--search", action="store_true", help="search the shortest protocol meeting [targets]")
-    ap.add_argument("--force", action="store_true", help="overwrite the output")
     ap.add_argument("--no-detection", action="store_true", help="skip the detection size of the library effects (~30 s)")
     ap.add_argument("--detect", nargs="+", metavar="EFFECT", help="detection size of these library effects only")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = parse(ap, argv)
+    setup(args)
+    return guarded(lambda: _main(args), extra=(ValueError,))
+
+
+def _main(args) -> int:
     out = Path(args.output)
     if out.exists() and not args.force:
-        print(f"error: {out} exists; pass --force to overwrite", file=sys.stderr)
-        return 2
-    try:
-        protocol, pilot = load_input(args.input, args.protocol)
-        detection = False if args.no_detection else (tuple(args.detect) if args.detect else True)
-        if args.search:
-            pred, trail = search(protocol, pilot=pilot, detection=detection)
-        else:
-            pred, trail = predict(protocol, pilot=pilot, detection=detection), []
-    except (PlanError, FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        raise OutputError(f"{out} exists; pass --force to overwrite", path=out)
+    protocol, pilot = load_input(args.input, args.protocol)
+    detection = False if args.no_detection else (tuple(args.detect) if args.detect else True)
+    if args.search:
+        pred, trail = search(protocol, pilot=pilot, detection=detection)
+    else:
+        pred, trail = predict(protocol, pilot=pilot, detection=detection), []
     js = pred.to_json_dict()
     if trail:
         js["search"] = trail

@@ -17,21 +17,21 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import time
 import tomllib
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
 from .config import RunConfig, load_config
-from .errors import ConfigError, DataFormatError, FtcalError, OutputExistsError
+from .errors import ConfigError, DataFormatError, FtcalError
+from .outdir import OutputExistsError, OutputFolder  # noqa: F401  (OutputExistsError: re-exported, run.OutputExistsError)
 from .correct import offsets_frame
+from .csvout import write_csv
 from .data import Dataset, read_dataset
 from .bench.validate import run_validation
 from .pipeline import calibrate, stage
@@ -42,15 +42,6 @@ from .tracking import log_changes
 COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
 
 log = logging.getLogger("ftcal_nlp.run")
-
-
-def prepare_output(folder: Path, force: bool, *, create: bool = True) -> None:
-    """Refuse to write into a non-empty output folder unless ``force``; create it (unless ``create`` is false:
-    a run creates it only once it has a result, so that a failed run leaves no trace)."""
-    if folder.exists() and any(folder.iterdir()) and not force:
-        raise OutputExistsError(f"{folder} exists and is not empty; pass --force to overwrite it", path=folder)
-    if create:
-        folder.mkdir(parents=True, exist_ok=True)
 
 
 def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration | None]:
@@ -71,8 +62,22 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
 
 
 def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
-    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails)."""
-    prepare_output(cfg.output_dir, force, create=False)
+    """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails).
+
+    The output folder is checked (exists without ``force``, writable) and locked before anything is read
+    or fitted; the outputs are written into a staging folder beside it and swapped in whole at the end
+    (``outdir.py``): a failed or interrupted run leaves an earlier result exactly as it was."""
+    with OutputFolder(cfg.output_dir, force=force) as out:
+        if cfg.manifest is None and cfg.simulate_dir is None:  # the simulated dataset goes with the results
+            cfg = replace(cfg, simulate_dir=out.path / "dataset")
+        res = _run_into(cfg, force, out.path)
+        out.commit()
+    print(summary_text(res, cfg))
+    return res
+
+
+def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
+    """The run of ``cfg`` with its outputs written into ``folder`` (the staging folder of :func:`run`)."""
     t0 = time.perf_counter()
     ds, truth = load_or_simulate(cfg, force)
     t_load = time.perf_counter() - t0
@@ -85,23 +90,21 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
     # a new frozen run with what only the command line knows: the truth, the load time, the config
     res = replace(res, truth=truth, timings={"load": t_load, **res.timings},
                   calibration=replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta}))
-    prepare_output(cfg.output_dir, force)
     with stage("write calibration", res.timings):
-        res.calibration.save(cfg.output_dir / "calibration.json")
+        res.calibration.save(folder / "calibration.json")
         if res.uncertainty is not None:
-            res.uncertainty.save(cfg.output_dir / COVARIANCE_FILE)
+            res.uncertainty.save(folder / COVARIANCE_FILE)
     with stage("write corrected", res.timings):
-        write_corrected(res, cfg.output_dir)
+        write_corrected(res, folder)
     if res.diagnosis is not None:
-        (cfg.output_dir / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
+        (folder / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
         if res.diagnosis.joint is not None and res.diagnosis.joint.calibration is not None:
             # the calibration refit with the named effect: `correct` applies the effect's corrections
-            effect_calibration(res).save(cfg.output_dir / "calibration_with_effect.json")
+            effect_calibration(res).save(folder / "calibration_with_effect.json")
             for note in res.diagnosis.joint.notes:
                 log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
     with stage("report", res.timings):
-        write_report(res, cfg.output_dir)
-    print(summary_text(res, cfg))
+        write_report(res, folder)
     return res
 
 
@@ -123,11 +126,11 @@ def write_corrected(res: CalibrationRun, folder: Path) -> None:
     ``tracked_offsets/<name>.csv`` (``correct.offsets_frame``)."""
     (folder / "corrected").mkdir(exist_ok=True)
     for name, df in res.corrected.items():
-        df.to_csv(folder / "corrected" / f"{name}.csv", index=False, float_format="%.7g")
+        write_csv(df, folder / "corrected" / f"{name}.csv")  # t and every value to the last bit (csvout.py)
     if res.tracked_offsets:
         (folder / "tracked_offsets").mkdir(exist_ok=True)
     for name, tr in res.tracked_offsets.items():
-        offsets_frame(res.corrected[name]["t"].to_numpy(), tr).to_csv(folder / "tracked_offsets" / f"{name}.csv", index=False, float_format="%.7g")
+        write_csv(offsets_frame(res.corrected[name]["t"].to_numpy(), tr), folder / "tracked_offsets" / f"{name}.csv")
         log_changes(tr)
 
 
@@ -162,42 +165,72 @@ def _is_validation_config(path: str) -> bool:
         return False  # load_config reports it
 
 
-def _run_validation(path: str, force: bool, run_validation) -> int:
+def _run_validation(path: str, force: bool, run_validation, output: Path | None = None) -> int:
     """A ``[validation]`` config: the withheld-effect validation of the diagnosis (issue 7)."""
     p = Path(path)
     d = tomllib.loads(p.read_text())
     out = d.get("output", {}).get("dir")
-    if not isinstance(out, str):
+    if output is None and not isinstance(out, str):
         raise ConfigError(f"{p} [output].dir: expected a path string for the output folder")
-    folder = p.parent / out
-    prepare_output(folder, force)
-    try:
-        run_validation(d["validation"], folder)
-    except ValueError as exc:
-        raise ConfigError(f"{p}: {exc}") from exc
+    folder = output if output is not None else p.parent / out
+    with OutputFolder(folder, force=force) as staged:
+        try:
+            run_validation(d["validation"], staged.path)
+        except ValueError as exc:
+            raise ConfigError(f"{p}: {exc}") from exc
+        staged.commit()
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.run", description="Calibrate the transducers of a legged robot from a dataset.")
+CONFIG_HELP = """\
+config keys: README.md ("Use": the minimal config and the main keys), problems/bigant_sim.toml (an annotated
+config), ftcal_nlp/config.py (sections and their validation) and ftcal_nlp/settings.py (every key with its
+default and meaning: [hanging], [standing], [standing.poses], [selection], [diagnose], [correct]).
+"""
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from .cli import add_common, guarded, parse, setup
+
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.run", description="Calibrate the transducers of a legged robot from a dataset.",
+                                 epilog=CONFIG_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("config", help="run config (TOML), e.g. problems/bigant_sim.toml")
-    ap.add_argument("--force", action="store_true", help="overwrite a non-empty output folder")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    args = ap.parse_args(argv)
-    matplotlib.use("Agg")  # files only; the entry point, not the library, picks the backend
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
-    try:
-        if _is_validation_config(args.config):
-            with threadpool_limits(limits=1):
-                return _run_validation(args.config, args.force, run_validation)
-        cfg = load_config(args.config)
-        # many small LAPACK calls: threaded BLAS only adds contention on a few cores
+    add_common(ap, output_help="output folder (default: the config's [output] dir)",
+               old_force=("--overwrite",), force_help="replace an earlier result in the output folder")
+    args = parse(ap, argv)
+    setup(args)
+    return guarded(lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
+    output = Path(args.output) if args.output else None
+    if _is_validation_config(args.config):
         with threadpool_limits(limits=1):
-            run(cfg, force=args.force)
-    except FtcalError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            return _run_validation(args.config, args.force, run_validation, output)
+    cfg = load_config(args.config)
+    if output is not None:
+        cfg = replace(cfg, output_dir=output)
+    check_models(cfg)
+    # many small LAPACK calls: threaded BLAS only adds contention on a few cores
+    with threadpool_limits(limits=1):
+        run(cfg, force=args.force)
     return 0
+
+
+def check_models(cfg: RunConfig) -> None:
+    """The config's error model(s) exist (a registered name, an importable ``module:Class``, a plug-in file
+    that defines the class): a :class:`ConfigError` before any data are read or fitted."""
+    from .models import resolve
+
+    st = cfg.standing
+    names = [("model", st.model)] if st.model != "auto" else [("candidates", c) for c in st.candidates]
+    for key, name in names:
+        try:
+            resolve(name)
+        except FtcalError:
+            raise
+        except (ValueError, ImportError, SyntaxError, AttributeError, TypeError, OSError) as exc:
+            raise ConfigError(f"{cfg.path} [standing].{key}: {exc}", path=cfg.path, key=f"standing.{key}") from exc
 
 
 if __name__ == "__main__":

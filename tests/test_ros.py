@@ -255,6 +255,14 @@ def _slerp_bound(src, delta, h):
     return b
 
 
+def test_csv_recordings_keep_every_bit_of_time(session, tmp_path):
+    """Issue 24: the CSV form of an ingested dataset has the same t (and readings) as the in-memory result."""
+    manifest = write_ingested(session["result"], tmp_path / "csv", fmt="csv")
+    back = read_dataset(manifest)
+    for a, b in zip(session["result"].dataset.recordings, back.recordings):
+        assert np.array_equal(a.t, b.t) and all(np.array_equal(a.wrench[k], b.wrench[k]) for k in a.wrench)
+
+
 def test_session_reads_back_through_read_dataset(session):
     ds, result = session["ds"], session["result"]
     assert [r.name for r in ds.recordings] == ["hang_xpos", "hang_xneg", "standing"]
@@ -430,6 +438,10 @@ def test_linear_wrench_match_and_receive_clock(session, tmp_path):
         (lambda d: d["recording"][2].update(bag="standing_missing.bag"), r"standing_missing.bag: bag not found"),
         (lambda d: d["recording"].pop(1), r"has no opposite recording"),
         (lambda d: d["joints"]["sign"].update(FL=2) if "sign" in d["joints"] else d["joints"].update(sign={"FL": 2}), r"sign: values \{'FL': 2.0\} should be one of"),
+        # issue 24: a recording name is a file stem inside -o, never a path out of it
+        (lambda d: d["recording"][0].update(name="../../x"), r"#1: key 'name' = '\.\./\.\./x' should be a plain file stem"),
+        (lambda d: d["recording"][1].update(name="/tmp/abs"), r"#2: key 'name' = '/tmp/abs' should be a plain file stem"),
+        (lambda d: d["recording"][2].update(name=".."), r"#3: key 'name' = '\.\.' should be a plain file stem"),
     ],
 )
 def test_bad_map_gets_an_error_naming_the_key(session, tmp_path, edit, pattern):

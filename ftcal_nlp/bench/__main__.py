@@ -19,30 +19,39 @@ import logging
 import sys
 from dataclasses import replace
 
-import matplotlib
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    from threadpoolctl import threadpool_limits
+
+    from ..cli import add_common, guarded, parse, setup
     from .runner import PARTS, full_settings, quick_settings, run_bench
 
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.bench", description=__doc__.split("\n\n")[1])
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.bench", description=__doc__.split("\n\n")[1])
     ap.add_argument("--quick", action="store_true", help="the ~1-2 minute version (fewer datasets, repeats and points)")
-    ap.add_argument("--out", default="reports/bench", help="output folder (default reports/bench)")
+    add_common(ap, output_help="output folder (default reports/bench)", output_default="reports/bench", old_output=("--out",),
+               force_help="accepted for symmetry: the bench always rewrites its own files")
     ap.add_argument("--only", nargs="+", choices=PARTS, help="run only these parts")
     ap.add_argument("--seeds", type=int, help="number of simulated datasets for the accuracy part")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bars")
-    a = ap.parse_args(argv)
-    matplotlib.use("Agg")  # files only; the entry point, not the library, picks the backend
-    logging.basicConfig(level=logging.WARNING)
+    a = parse(ap, argv)
+    setup(a)
+    if not (a.verbose or a.quiet):
+        logging.getLogger().setLevel(logging.WARNING)  # the bench's own tables are its output
     s = quick_settings() if a.quick else full_settings()
     if a.only:
         s = replace(s, parts=tuple(a.only))
     if a.seeds:
         s = replace(s, accuracy=replace(s.accuracy, seeds=tuple(range(a.seeds))))
-    res = run_bench(s, a.out, progress=not a.no_progress)
-    print(res["summary"])
-    print(f"\nwritten: {os.path.abspath(a.out)}")
-    return 0
+
+    def go() -> int:
+        # set before numpy's first import when run as its own module; under `python -m ftcal_nlp bench` numpy is loaded
+        with threadpool_limits(limits=1):
+            res = run_bench(s, a.output, progress=not (a.no_progress or a.quiet))
+        print(res["summary"])
+        print(f"\nwritten: {os.path.abspath(a.output)}")
+        return 0
+
+    return guarded(go)
 
 
 if __name__ == "__main__":

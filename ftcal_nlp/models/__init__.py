@@ -3,7 +3,9 @@
 ``MODELS`` is a plain dict name -> class. :func:`resolve` accepts a registered
 name, ``"package.module:Class"``, ``"path/to/file.py:Class"``, an
 :class:`ErrorModel` class or instance; an unknown name raises
-:class:`~ftcal_nlp.errors.ConfigError` listing the known ones.
+:class:`~ftcal_nlp.errors.ConfigError` listing the known ones. A model name read from a ``calibration.json``
+(:class:`~ftcal_nlp.calibration.ModelName`) is looked up in the registry only:
+code named in a data file is never imported.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import importlib
 import importlib.util
 from pathlib import Path
 
+from ..calibration import ModelName
 from ..errors import ConfigError
 from .base import Block, ErrorModel, ModelContext, ModelSpec, make_spec, so3_variable, vector_variable
 from .builtin import Full, OffsetsOnly, Rot6Trans1, Trans1, Trans6
@@ -57,6 +60,9 @@ def resolve(name_or_path: str | ErrorModel | type) -> ErrorModel:
     if isinstance(obj, str):
         if obj in MODELS:
             return MODELS[obj]()
+        if isinstance(obj, ModelName):  # read from a calibration file: never imported (issue 24)
+            raise ConfigError(f"error model {str.__str__(obj)!r} of a calibration file is not a registered name; known models: "
+                              f"{sorted(MODELS)} (a calibration names its model; code is never imported from a data file)")
         if ":" not in obj:
             raise ConfigError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
         obj = _load_class(obj)

@@ -57,10 +57,23 @@ _LONE_STAR = re.compile(r"(?<![*\\])\*(?!\*)")
 def inline_md(text: str, *, escape_all: bool = False) -> str:
     """Markdown text: code spans and ``**`` kept; lone ``*`` (``N*m``) escaped where two of them could pair
     into emphasis (or always, ``escape_all``, for text inside emphasis marks)."""
-    parts = re.split(r"(`[^`]+`)", plain(text))
+    parts = [p if _CODE.fullmatch(p) else md_escape_html(p) for p in re.split(r"(`[^`]+`)", plain(text))]
     if not escape_all and sum(len(_LONE_STAR.findall(p)) for p in parts if not _CODE.fullmatch(p)) < 2:
         return "".join(parts)
     return "".join(p if _CODE.fullmatch(p) else _LONE_STAR.sub(r"\\*", p) for p in parts)
+
+
+def md_escape_html(text: str) -> str:
+    """Text outside code spans with ``&``, ``<`` and ``>`` as entities: Markdown passes raw HTML through, and
+    names in a report (legs, recordings, effects) come from data files, so none of them may become markup.
+    A Markdown viewer shows the entities as the characters themselves."""
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def _fence(text: str) -> str:
+    """A code fence longer than any run of backticks in ``text`` (so that the text cannot close it)."""
+    runs = re.findall(r"`+", text)
+    return "`" * max(3, 1 + max(map(len, runs), default=0))
 
 
 def bold_md(text: str) -> str:
@@ -188,7 +201,7 @@ def _summary_html(s: Summary) -> str:
 
 
 def render_markdown(title: str, sections: list[Section]) -> str:
-    md = [f"# {title}", ""]
+    md = [f"# {inline_md(title)}", ""]
     for s in sections:
         md += [f"## {inline_md(s.title)}", ""]
         for b in s.blocks:
@@ -199,16 +212,17 @@ def render_markdown(title: str, sections: list[Section]) -> str:
             elif isinstance(b, Summary):
                 md += _summary_md(b)
             elif isinstance(b, Code):
-                md += ["```", b.text, "```", ""]
+                md += [_fence(b.text), b.text, _fence(b.text), ""]
             elif isinstance(b, Bullets):
                 md += [f"- {inline_md(i)}" for i in b.items] + [""]
             elif isinstance(b, Definitions):
                 md += [f"- {bold_md(t)}: {inline_md(d)}" for t, d in b.items] + [""]
             elif isinstance(b, Figure):
                 if b.path is None:
-                    md += [f"*(figure {b.name} not drawn: see the log)*", ""]
+                    md += [f"*(figure {md_escape_html(b.name)} not drawn: see the log)*", ""]
                 else:
-                    md += [f"![{b.name}]({b.path.name})", ""]
+                    link = b.path.name if re.fullmatch(r"[\w.+-]+", b.path.name) else f"<{md_escape_html(b.path.name)}>"
+                    md += [f"![{md_escape_html(b.name)}]({link})", ""]
                     if b.caption:
                         md += [f"Figure: {inline_md(b.caption)}", ""]
     return "\n".join(md)

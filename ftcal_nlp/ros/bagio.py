@@ -540,7 +540,9 @@ def write_ground_wrench_bag(
             log.warning("%s: the installed rosbags cannot write MCAP; writing a sqlite3 ROS 2 bag instead", path)
     if storage == "ros1":
         raise ValueError("write_ground_wrench_bag writes ROS 2 bags (storage 'mcap' or 'sqlite3')")
-    stamps = int(epoch_ns) + np.round(t * 1e9).astype(np.int64)
+    # whole seconds and the fraction apart: t * 1e9 at t ~ 1.6e9 s (Unix time) would round to 256 ns steps
+    sec = np.floor(t)
+    stamps = int(epoch_ns) + sec.astype(np.int64) * 1_000_000_000 + np.round((t - sec) * 1e9).astype(np.int64)
     if len(stamps) and stamps.min() < 0:
         raise ValueError("stamps epoch_ns + t must not be negative")
     prefix = topic_prefix.rstrip("/")

@@ -49,6 +49,7 @@ from ..data import (
     recording_to_frame,
     write_robot,
 )
+from ..csvout import write_csv
 from ..errors import ConfigError, OutputExistsError
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
@@ -356,6 +357,10 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
     # Every file this would write is checked first: nothing is written over unless asked,
     # not even the recordings of a dataset whose manifest is gone.
     targets = [manifest, folder / "robot.toml"] + [folder / f"{rec.name}.{fmt}" for rec in ds.recordings]
+    inside = folder.resolve()
+    for t in targets:  # the map's names are checked when read; a result built by hand is checked here
+        if t.resolve().parent != inside:
+            raise DataFormatError(f"{t}: would be written outside {folder}; a recording name must be a plain file stem")
     present = [str(x) for x in targets if x.exists()]
     if present and not overwrite:
         raise OutputExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them", path=folder)
@@ -370,8 +375,7 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
         if fmt == "parquet":
             df.to_parquet(folder / fname, index=False)
         else:
-            # 12 significant digits keep 1 us of t over a day-long session.
-            df.to_csv(folder / fname, index=False, float_format="%.12g")
+            write_csv(df, folder / fname)  # every float to the last bit (csvout.py), whatever the epoch
         e: dict = {"file": fname, "kind": rec.kind}
         if rec.gravity_body is not None:
             e["gravity_body"] = [float(x) for x in rec.gravity_body]

@@ -199,11 +199,20 @@ def _recordings(d: dict, where: str, root: Path) -> tuple[RecordingSpec, ...]:
                 raise DataFormatError(f"{w}: gravity_body should be 3 finite numbers, not all zero, got {e['gravity_body']!r}")
             gb = gb / np.linalg.norm(gb)
         name = _get(e, "name", w, str, Path(bag).stem)
+        if not _plain_name(name):  # the recording's file is written as <-o>/<name>.<fmt>: never outside -o
+            raise DataFormatError(f"{w}: key 'name' = {name!r} should be a plain file stem (letters, digits, '_', '-', '.'; no "
+                                  "path separator, no '..', not absolute): the recording is written as <output>/<name>.parquet")
         if name in names:
             raise DataFormatError(f"{w}: output name '{name}' is also that of recording #{names[name]}; set 'name' on one of them")
         names[name] = i + 1
         specs.append(RecordingSpec(bag, kind, name, gb))
     return tuple(specs)
+
+
+def _plain_name(name: str) -> bool:
+    """A recording name that stays inside the output folder as a file stem."""
+    return (bool(name) and name not in (".", "..") and not name.startswith(".") and "/" not in name and "\\" not in name
+            and "\0" not in name and ":" not in name and not Path(name).is_absolute() and name == name.strip())
 
 
 def read_map(path: str | Path) -> IngestMap:

@@ -1,0 +1,172 @@
+"""The fault table (issue 24, items 1, 2 and 8): every fault a user's data can carry, through ``run`` and
+``correct`` alike. A convention that is off (units, signs, quaternion order, shaft angles in degrees, a clock
+in ms) is one ``error:`` line with status 2 and nothing written; a sensor fault (a leg dead, a channel clipped)
+in a recording to correct is a warning naming the leg and the rows, and those rows carry ``{leg}_fault``.
+The calibration given to ``correct`` is validated (finite, proper rotations, every leg)."""
+
+import json
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ftcal_nlp.correct import main as correct_main
+from ftcal_nlp.csvout import write_csv
+from ftcal_nlp.run import main as run_main
+
+from bad_inputs import CASES, LEGS, broken_sample
+from conftest import require_sample
+
+FORCES = [f"{k}_{c}" for k in LEGS for c in ("fx", "fy", "fz")]
+READINGS = [f"{k}_{c}" for k in LEGS for c in ("fx", "fy", "fz", "tx", "ty", "tz")]
+PHIS = [f"{k}_phi" for k in LEGS]
+
+
+def _one_error(rc: int, err: str) -> str:
+    lines = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert rc == 2 and len(lines) == 1 and "Traceback" not in err, (rc, err[-2000:])
+    return lines[0]
+
+
+def _scaled(cols, f):
+    def mutate(df):
+        present = [c for c in cols if c in df.columns]
+        df[present] = df[present] * f
+    return mutate
+
+
+def _xyzw(df):
+    if "qw" in df.columns:  # (hanging recordings have no orientation)
+        df[["qw", "qx", "qy", "qz"]] = df[["qx", "qy", "qz", "qw"]].to_numpy()
+
+
+def _ms(df):
+    df["t"] = df["t"] * 1000.0
+
+
+def _dead(df):
+    df[[f"ML_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]] = 0.0
+
+
+def _clipped(df):
+    df["FR_fz"] = np.minimum(df["FR_fz"], 20.0)
+
+
+#: fault -> (mutation of a table, what correct says); conventions are errors, sensor faults warnings
+FAULTS = {
+    "forces_kN": (_scaled(FORCES, 1e-3), r"walk\.csv: walking, the readings less the calibration's offsets .*median \d.* N along "
+                                         r"the quaternion's up axis; expected the weight of the body without legs.*another unit"),
+    "negated": (_scaled(READINGS, -1.0), r"walk\.csv: walking, .*push the body down.*expected about \+1.*negated"),
+    "quat_xyzw": (_xyzw, r"walk\.csv: columns qw, qx, qy, qz: .*agree within [0-5] deg if the quaternion columns hold x, y, z, w"),
+    "phi_degrees": (_scaled(PHIS, 180 / np.pi), r"walk\.csv: column \w\w_phi turns at \d+.* rad/s.*expected radians.*degrees"),
+    "clock_ms": (_ms, r"walk\.csv: column t: median sampling interval 10 .*expected seconds.*milliseconds"),
+    "dead_leg": (_dead, r"walk\.csv: leg ML columns ML_fx, ML_fy, ML_fz, ML_tx, ML_ty, ML_tz reads 0 on every channel \(dead or "
+                        r"unplugged\) on 1875 of 1875 samples \(100\.0 %; rows 1-1875\).*flagged in column ML_fault"),
+    "clipped_leg": (_clipped, r"walk\.csv: leg FR columns FR_fz clipped at 20 on \d+ of 1875 samples .*rows \d+-\d+.*FR_fault"),
+}
+SENSOR_FAULTS = {"dead_leg": "ML", "clipped_leg": "FR"}
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory) -> Path:
+    d = json.loads((require_sample() / "truth.json").read_text())
+    d["g"] = 9.81
+    p = tmp_path_factory.mktemp("cal") / "calibration.json"
+    p.write_text(json.dumps(d))
+    return p
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_correct(fault, calibration, tmp_path, capsys, caplog):
+    mutate, expected = FAULTS[fault]
+    walk = pd.read_csv(require_sample() / "walk.csv", engine="pyarrow")
+    mutate(walk)
+    src = write_csv(walk, tmp_path / "walk.csv")
+    out = tmp_path / "c.csv"
+    with caplog.at_level(logging.WARNING):
+        rc = correct_main([str(calibration), str(src), "-o", str(out)])
+    if fault not in SENSOR_FAULTS:
+        line = _one_error(rc, capsys.readouterr().err)
+        assert re.search(expected, line), line
+        assert not out.exists()
+        return
+    assert rc == 0
+    warned = [r.getMessage() for r in caplog.records if re.search(expected, r.getMessage())]
+    assert len(warned) == 1, [r.getMessage() for r in caplog.records]
+    leg = SENSOR_FAULTS[fault]
+    table = pd.read_csv(out)
+    flag = table[f"{leg}_fault"].to_numpy()
+    rows = [int(x) for x in re.search(r"rows (\d+)-(\d+)", warned[0]).groups()]
+    assert flag.sum() == rows[1] - rows[0] + 1 and np.all(flag[rows[0] - 1: rows[1]] == 1)
+    assert [c for c in table.columns if c.endswith("_fault")] == [f"{leg}_fault"]  # only the faulty leg's column
+
+
+def test_a_clean_recording_has_no_flag_column(calibration, tmp_path, caplog):
+    out = tmp_path / "c.csv"
+    with caplog.at_level(logging.WARNING):
+        assert correct_main([str(calibration), str(require_sample() / "walk.csv"), "-o", str(out)]) == 0
+    assert not [c for c in pd.read_csv(out).columns if c.endswith("_fault")]
+    assert not [r for r in caplog.records if "fault" in r.getMessage() or "stuck" in r.getMessage()]
+
+
+def _edited(calibration: Path, tmp_path: Path, edit) -> Path:
+    d = json.loads(calibration.read_text())
+    edit(d)
+    p = tmp_path / "edited.json"
+    p.write_text(json.dumps(d))
+    return p
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda d: d["legs"]["FL"]["offset"].__setitem__(2, None), r"edited\.json: legs\.FL\.offset holds a null, NaN or infinite value"),
+    (lambda d: d["legs"]["MR"].__setitem__("rotation_to_body", (2 * np.eye(3)).tolist()),
+     r"edited\.json: legs\.MR\.rotation_to_body is not a rotation \(determinant 8,.*proper rotation has determinant \+1"),
+    (lambda d: d["legs"]["HL"].__setitem__("rotation_to_body", np.diag([1.0, 1.0, -1.0]).tolist()),
+     r"legs\.HL\.rotation_to_body is not a rotation \(determinant -1"),
+    (lambda d: d["legs"]["HR"].__setitem__("leg_weight_N", float("nan")), r"legs\.HR\.leg_weight_N holds a null, NaN"),
+    (lambda d: d.__setitem__("mass_kg", -8.18), r"mass_kg = -8\.18.*not positive"),
+])
+def test_correct_validates_the_calibration(edit, expected, calibration, tmp_path, capsys):
+    bad = _edited(calibration, tmp_path, edit)
+    line = _one_error(correct_main([str(bad), str(require_sample() / "walk.csv"), "-o", str(tmp_path / "c.csv")]), capsys.readouterr().err)
+    assert re.search(expected, line), line
+    assert not (tmp_path / "c.csv").exists()
+
+
+# ----------------------------------------------------------------------------- the same faults through run
+
+
+def _config(folder: Path) -> Path:
+    cfg = folder / "run.toml"
+    cfg.write_text('[data]\nmanifest = "data/dataset.toml"\n[output]\ndir = "out"\n[diagnose]\nenabled = false\n'
+                   '[hanging]\ncompare_baseline = false\n[standing]\nmodel = "full"\ncompare_baseline = false\n')
+    return cfg
+
+
+def _every_file(mutate):
+    def apply(folder, frames):
+        for df in frames.values():
+            mutate(df)
+    return apply
+
+
+#: fault -> what run says (conventions: the checks of the dataset; the same mutations in every file)
+RUN_FAULTS = {
+    "forces_kN": r"hang_xpos\.csv.*sum to 0\.037.*expected between 0\.01 and 1.*kN",
+    "negated": r"hang_xpos\.csv.*177 deg.*negated",
+    "quat_xyzw": r"standing\.parquet: columns qw, qx, qy, qz.*x, y, z, w",
+    "phi_degrees": r"hang_xpos\.csv: columns \{leg\}_phi.*degrees",
+    "clock_ms": r"hang_\w+\.(csv|parquet): column t: median sampling interval \d+.*milliseconds",
+}
+
+
+@pytest.mark.parametrize("fault", sorted(RUN_FAULTS))
+def test_run(fault, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(CASES, f"_table_{fault}", _every_file(FAULTS[fault][0]))
+    broken_sample(require_sample(), tmp_path / "data", f"_table_{fault}")
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(RUN_FAULTS[fault], line), line
+    assert not (tmp_path / "out").exists()
