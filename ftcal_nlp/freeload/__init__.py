@@ -213,7 +213,10 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
             a /= np.abs(a).max()
             a[np.abs(a) < 1e-6] = 0.0
             determined.append({"combination": _combo_text(a[touched], tn), "value": float(a @ xk),
-                               "se": float(np.sqrt(max(a @ Ck @ a, 0.0)))})
+                               "se": float(np.sqrt(max(a @ Ck @ a, 0.0))),
+                               "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
+    null = np.zeros((n_all, int((~ident.determined).sum())))
+    null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
     res = data.y - predict(data.b, data.K, theta, mu, E, w_o)
     rms = np.sqrt((res**2).mean(axis=0))
     notes = []
@@ -226,7 +229,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
              float(mu @ theta), np.degrees(np.linalg.norm(np.r_[E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2),
              np.array2string(rms, precision=3))
     return FreeLoadResult(leg, load, w_o.copy(), theta.copy(), E, tuple(names), cov, se, sig, rms, mom.n, data.selection,
-                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio)
+                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null)
 
 
 def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:

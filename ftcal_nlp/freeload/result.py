@@ -52,6 +52,7 @@ class FreeLoadResult(ResultsMixin):
     iterations: int = 0
     solve_time_s: float = 0.0
     eig_ratio: np.ndarray | None = None
+    null: np.ndarray | None = None       # (n_params, r) undetermined directions in the parameters' own units
 
     # ------------------------------------------------------------------ results protocol
 
@@ -70,20 +71,22 @@ class FreeLoadResult(ResultsMixin):
     def mount_rotvec(self) -> np.ndarray:
         return rotation_to_rotvec(self.rotation)
 
-    @property
-    def theta_cov(self) -> np.ndarray:
-        """Covariance of ``theta`` with inf on the diagonal of undetermined parameters (for ``load.report``)."""
+    def _theta_blocks(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Covariance of ``theta`` on the determined subspace and the undetermined directions restricted to it."""
         p = len(self.theta)
-        C = self.cov[6: 6 + p, 6: 6 + p].copy()
-        bad = ~np.isfinite(self.se[6: 6 + p])
-        C[bad, :] = 0.0
-        C[:, bad] = 0.0
-        C[bad, bad] = np.inf
-        return C
+        null = None if self.null is None or not self.null.size else self.null[6: 6 + p]
+        return self.cov[6: 6 + p, 6: 6 + p], null
+
+    def se_of(self, J: np.ndarray) -> np.ndarray:
+        """se of linear combinations ``J params`` (rows over ``params``): inf where a row changes along an
+        undetermined direction, finite otherwise (a determined combination of undetermined parameters)."""
+        from ..loads.base import se_of
+
+        return se_of(self.cov, J, self.null)
 
     def load_report(self) -> dict:
         """The load's ``calibration.json`` keys (``OUTPUT_FORMAT.md``) and the identifiability notes."""
-        out = self.load.report(self.theta, self.theta_cov)
+        out = self.load.report(self.theta, *self._theta_blocks())
         out.update({"mount_rotvec": self.mount_rotvec.tolist(), "mount_rotvec_se": self.se[-3:].tolist(),
                     "undetermined": list(self.undetermined), "determined_combinations": list(self.determined),
                     "samples_used": int(self.n_used), "selection": self.selection,
@@ -120,7 +123,7 @@ class FreeLoadResult(ResultsMixin):
                  ("IPOPT", f"{self.iterations} iterations, {self.solve_time_s:.2f} s")]
         rows = [(n, fmt_pm(float(p[n]), float(s))) for n, s in zip(self.names, self.se)]
         table = pd.DataFrame({"estimate": [r[1] for r in rows]}, index=pd.Index([r[0] for r in rows], name="parameter"))
-        rep = self.load.report(self.theta, self.theta_cov)
+        rep = self.load.report(self.theta, *self._theta_blocks())
         s = Summary(f"Free load of {self.leg}", facts, [("parameters (SI; mount: rotation vector, rad)", table)])
         s.facts.insert(1, ("load mass", fmt_pm(rep["load_mass_kg"], rep["load_mass_se_kg"]) + " kg"))
         if "load_com_m" in rep:

@@ -59,20 +59,22 @@ class LinearLoad:
         """Whether ``lever`` depends on the joint angles (else one row serves every sample)."""
         return True
 
-    def report(self, theta: np.ndarray, cov: np.ndarray) -> dict:
-        """The ``calibration.json`` keys of this load (``OUTPUT_FORMAT.md``), from ``theta`` and its covariance
-        (inf on the diagonal where undetermined)."""
+    def report(self, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | None = None) -> dict:
+        """The ``calibration.json`` keys of this load (``OUTPUT_FORMAT.md``), from ``theta``, its covariance on the
+        determined subspace and the undetermined directions ``null`` (p, r) (:func:`se_of`)."""
         raise NotImplementedError  # pragma: no cover
 
 
-def se_of(cov: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """Standard errors of ``J theta`` (delta method); inf where ``J`` touches an undetermined parameter
-    (inf diagonal), NaN-free otherwise."""
-    J = np.atleast_2d(J)
-    bad = ~np.isfinite(np.diag(cov))
-    hit = np.any(J[:, bad] != 0, axis=1)
+def se_of(cov: np.ndarray, J: np.ndarray, null: np.ndarray | None = None, tol: float = 1e-3) -> np.ndarray:
+    """Standard errors of ``J theta`` (delta method) from ``cov`` (finite: the covariance on the determined
+    subspace). ``null`` (p, r): the directions the data leave undetermined; a row of ``J`` that changes along one
+    of them (relative size over ``tol``) is undetermined (se inf), any other (a total mass, a determined
+    combination) gets its finite se even when the single parameters it sums are undetermined."""
+    J = np.atleast_2d(np.asarray(J, float))
     C = np.where(np.isfinite(cov), cov, 0.0)
-    var = np.einsum("ij,jk,ik->i", J[:, ~bad], C[np.ix_(~bad, ~bad)], J[:, ~bad])
-    out = np.sqrt(np.clip(var, 0.0, None))
-    out[hit] = np.inf
+    out = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, C, J), 0.0, None))
+    if null is not None and null.size:
+        nn = null / np.linalg.norm(null, axis=0, keepdims=True)
+        along = np.abs(J @ nn).max(axis=1)
+        out[along > tol * np.linalg.norm(J, axis=1)] = np.inf
     return out

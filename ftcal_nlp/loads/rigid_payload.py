@@ -49,15 +49,15 @@ class RigidPayload(LinearLoad):
     def prior(self) -> np.ndarray | None:
         return self._prior
 
-    def com(self, theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def com(self, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """CoM ``c = h / m`` (m, in the true ft frame) and its se (delta method)."""
         m, h = theta[0], theta[1:]
         J = np.zeros((3, 4))
         J[:, 0] = -h / m**2
         J[:, 1:] = np.eye(3) / m
-        return h / m, se_of(cov, J)
+        return h / m, se_of(cov, J, null)
 
-    def report(self, theta: np.ndarray, cov: np.ndarray) -> dict:
-        c, c_se = self.com(theta, cov)
-        return {"load_kind": self.kind, "load_mass_kg": float(theta[0]), "load_mass_se_kg": float(se_of(cov, np.eye(4)[:1])[0]),
+    def report(self, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | None = None) -> dict:
+        c, c_se = self.com(theta, cov, null)
+        return {"load_kind": self.kind, "load_mass_kg": float(theta[0]), "load_mass_se_kg": float(se_of(cov, np.eye(4)[:1], null)[0]),
                 "load_com_m": c.tolist(), "load_com_se_m": c_se.tolist()}

@@ -109,7 +109,7 @@ class UrdfSubtree(LinearLoad):
             out += [M, *H]
         return np.array(out)
 
-    def report(self, theta: np.ndarray, cov: np.ndarray) -> dict:
+    def report(self, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | None = None) -> dict:
         """Total mass, and per group its mass, first moment and CoM (group frame) with se; a group of one link
         also as that link's mass and CoM in its own frame (``links``), with the URDF's nominal beside them."""
         p = len(theta)
@@ -121,8 +121,8 @@ class UrdfSubtree(LinearLoad):
             Jc = np.zeros((3, p))
             Jc[:, 4 * i] = -H / M**2
             Jc[:, 4 * i + 1: 4 * i + 4] = np.eye(3) / M
-            c, c_se = H / M, se_of(cov, Jc)
-            se = se_of(cov, np.eye(p)[sl])
+            c, c_se = H / M, se_of(cov, Jc, null)
+            se = se_of(cov, np.eye(p)[sl], null)
             groups[g.name] = {"frame": g.frame, "links": list(g.links), "mass_kg": float(M), "mass_se_kg": float(se[0]),
                               "first_moment_kgm": H.tolist(), "first_moment_se_kgm": se[1:].tolist(),
                               "com_m": c.tolist(), "com_se_m": c_se.tolist()}
@@ -131,7 +131,7 @@ class UrdfSubtree(LinearLoad):
                 R, pp = self._link_in_group(g, link)   # CoM in the link's own frame: R^T (c - p)
                 b = self.tree.bodies[link]
                 links[link] = {"mass_kg": float(M), "mass_se_kg": float(se[0]), "com_m": (R.T @ (c - pp)).tolist(),
-                               "com_se_m": se_of(cov, R.T @ Jc).tolist(), "group": g.name,
+                               "com_se_m": se_of(cov, R.T @ Jc, null).tolist(), "group": g.name,
                                "nominal_mass_kg": b.mass_kg, "nominal_com_m": b.com_m.tolist()}
-        return {"load_kind": self.kind, "load_mass_kg": mass, "load_mass_se_kg": float(se_of(cov, self.mass_row)[0]),
+        return {"load_kind": self.kind, "load_mass_kg": mass, "load_mass_se_kg": float(se_of(cov, self.mass_row, null)[0]),
                 "urdf_groups": groups, "urdf_links": links}
