@@ -36,6 +36,7 @@ import time
 
 import numpy as np
 
+from ..calibration import Calibration
 from ..data import Dataset
 from ..errors import DataFormatError
 from ..geometry import project_to_so3
@@ -47,7 +48,7 @@ from .problem import FreeLoadData, compress, difference_noise, n_lifted, predict
 from .quasistatic import select_quasi_static
 from .result import WRENCH, FreeLoadResult, FreeLoadResults
 
-__all__ = ["fit_free_loads", "fit_free_load", "free_load_data", "FreeLoadResult", "FreeLoadResults", "FreeLoadData"]
+__all__ = ["fit_free_loads", "fit_free_load", "free_load_data", "free_load_calibration", "FreeLoadResult", "FreeLoadResults", "FreeLoadData"]
 
 log = logging.getLogger(__name__)
 
@@ -252,3 +253,26 @@ def fit_free_loads(ds: Dataset, settings: FreeLoadSettings | None = None) -> Fre
     if not legs:
         raise DataFormatError(f"{ds.manifest or 'dataset'}: no transducer carries a free load (every one has a {{leg}}_phi column)")
     return FreeLoadResults({k: fit_free_load(ds, k, settings) for k in legs})
+
+
+def free_load_calibration(res: FreeLoadResults, robot) -> Calibration:
+    """The :class:`~ftcal_nlp.calibration.Calibration` of free loads: per transducer its offsets with se, the load's
+    weight, and the load's keys of ``OUTPUT_FORMAT.md`` (``load_mass_kg``, ``load_com_m``, URDF groups and links,
+    with se; what is undetermined and the determined combinations), written by ``calibration.json``."""
+    from ..calibration import LegCalibration
+
+    legs = {}
+    for k, r in res.legs.items():
+        rep = r.load_report()
+        R_nom = robot.transducers[k].rotation
+        com = np.asarray(rep.get("load_com_m", [np.nan] * 3), float)
+        if R_nom is not None:
+            rep["rotation_to_body"] = (R_nom @ r.rotation).tolist()
+        rep["mount_rotation"] = r.rotation.tolist()
+        legs[k] = LegCalibration(
+            offset=r.offset.copy(), leg_weight_N=rep["load_mass_kg"] * robot.g, com_phi=np.zeros(1), com_xyz=com[None],
+            rotation_to_body=R_nom @ r.rotation if R_nom is not None else r.rotation.copy(),
+            position_from_com_m=np.zeros(3) if robot.transducers[k].position_m is None else robot.transducers[k].position_m.copy(),
+            offset_se=r.se[:6].copy(), leg_weight_se_N=rep["load_mass_se_kg"] * robot.g, load=rep)
+    mass = np.nan if robot.mass_kg is None else robot.mass_kg
+    return Calibration(legs, mass, robot.g, model="free_load", meta={"free_load": {"identifiability": res.identifiability()}})
