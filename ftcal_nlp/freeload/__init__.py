@@ -52,9 +52,11 @@ __all__ = ["fit_free_loads", "fit_free_load", "free_load_data", "free_load_calib
 
 log = logging.getLogger(__name__)
 
-# a direction's component on a parameter (normalised units) above this fraction of its largest marks the
-# parameter as touched by it (se = inf)
+# a direction's components (unit vector, normalised units) above this fraction of its largest are named in its text
 FLAG_FRACTION = 0.05
+# ... and any component above this marks the parameter as undetermined (se = inf): the null space's eigenvectors are
+# accurate to ~eps / (eigenvalue gap) ~ 1e-11 at the identifiability threshold, so a larger component is real
+TOUCH_TOL = 1e-6
 
 
 def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> FreeLoadData:
@@ -120,6 +122,18 @@ def _ridge(A: np.ndarray, weight: float) -> np.ndarray:
     return weight * np.where(dg > 0, dg, fill)
 
 
+def _null_penalty(A: np.ndarray, s: FreeLoadSettings) -> np.ndarray | None:
+    """``S N N^T S`` over the directions the information ``A`` (local coordinates) leaves undetermined (``nlp.py``)."""
+    keep = np.r_[np.ones(len(A) - 3, bool), np.full(3, s.mount_rotation)]
+    ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
+    if ident.determined.all():
+        return None
+    N = ident.vectors[:, ~ident.determined] * ident.scale[:, None]
+    P = np.zeros_like(A)
+    P[np.ix_(keep, keep)] = N @ N.T
+    return P
+
+
 def _describe(u: np.ndarray, names: list[str], ratio: float) -> str:
     a = np.abs(u)
     big = np.flatnonzero(a >= FLAG_FRACTION * a.max())
@@ -169,7 +183,8 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         Jl = nlp.jacobian(x[:6], x[6:6 + p], E)
         Al = Jl.T @ Qw @ Jl
         ridge = np.r_[_ridge(Al[:6 + p, :6 + p], s.prior_weight), np.full(9, _ridge(Al[6 + p:, 6 + p:], s.prior_weight).mean())]
-        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, what=what)
+        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, what=what,
+                          null_penalty=_null_penalty(Al, s))
         iters += int(st.get("iter_count", 0))
         E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
         rss = mom.rss(nlp.z(np.r_[x[:6 + p], E.ravel(order="F")]))
@@ -194,7 +209,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     undetermined, touched = [], np.zeros(int(keep.sum()), bool)
     for j in np.flatnonzero(~ident.determined):
         u = ident.vectors[:, j]
-        touched |= np.abs(u) >= FLAG_FRACTION * np.abs(u).max()
+        touched |= np.abs(u) >= TOUCH_TOL
         undetermined.append(_describe(u, kn, float(ident.ratio[j])))
     se_k = se[keep]
     se_k[touched] = np.inf
