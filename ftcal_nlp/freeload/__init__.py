@@ -39,7 +39,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..data import Dataset
 from ..errors import DataFormatError
-from ..geometry import project_to_so3
+from ..geometry import project_to_so3, rotation_to_rotvec
 from ..loads import load_for
 from ..settings import FreeLoadSettings
 from ..solver import identifiability
@@ -142,6 +142,27 @@ def _describe(u: np.ndarray, names: list[str], ratio: float) -> str:
     return " ".join(f"{un[i]:+.2f} {names[i]}" for i in big) + f" [eigenvalue ratio {max(ratio, 0.0):.1e}]"
 
 
+def _rref(A: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Reduced row echelon form of the rows of ``A`` (the same row space): each row has a leading 1 and zeros in
+    the other rows' leading columns; entries below ``tol`` (relative) are set to 0."""
+    A = np.array(A, float)
+    rows, r = A.shape[0], 0
+    for col in range(A.shape[1]):
+        if r == rows:
+            break
+        piv = r + int(np.argmax(np.abs(A[r:, col])))
+        if abs(A[piv, col]) <= tol * max(np.abs(A).max(), 1e-300):
+            continue
+        A[[r, piv]] = A[[piv, r]]
+        A[r] /= A[r, col]
+        others = np.arange(rows) != r
+        A[others] -= np.outer(A[others, col], A[r])
+        r += 1
+    A = A[:r]
+    A[np.abs(A) < tol * max(np.abs(A).max(), 1e-300)] = 0.0
+    return A
+
+
 def _combo_text(a: np.ndarray, names: list[str]) -> str:
     idx = np.flatnonzero(np.abs(a) > 1e-6)
     return " ".join(f"{a[i]:+.3g} {names[i]}" for i in idx)
@@ -221,13 +242,11 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         rank = int((sv > 1e-8).sum())
         comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
         tn = [n for n, t in zip(kn, touched) if t]
-        xk = np.r_[w_o, theta, np.zeros(3)][keep]
+        xk = np.r_[w_o, theta, rotation_to_rotvec(E)][keep]
         Ck = cov[np.ix_(keep, keep)]
-        for c in comp.T:
+        for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
             a = np.zeros(len(kn))
-            a[touched] = c * ident.scale[touched]
-            a /= np.abs(a).max()
-            a[np.abs(a) < 1e-6] = 0.0
+            a[touched] = c
             determined.append({"combination": _combo_text(a[touched], tn), "value": float(a @ xk),
                                "se": float(np.sqrt(max(a @ Ck @ a, 0.0))),
                                "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
