@@ -120,6 +120,12 @@ def test_simulated_payload_recovers_truth(seed, tmp_path) -> None:
     res = simulate_payload(PayloadConfig(seed=seed, n_orientations=10, hold_s=6.0, move_s=3.0, mount_rot_deg=2.0))
     ds = read_dataset(write_free_load(res, tmp_path))
     _payload_checks(fit_free_load(ds, res.truth["transducer"]), res.truth)
+    from ftcal_nlp.freeload.quasistatic import select_quasi_static
+
+    rec = ds.hanging[0]
+    mask = select_quasi_static(rec.t, rec.wrench["wrist"][:, :3], rec.quat, rec.gravity, {}, FreeLoadSettings()).mask
+    # held samples, and the slowest ends of the (minimum-jerk) moves, which are quasi-static too: a few
+    assert mask.sum() > 0.8 * res.held.sum() and np.sum(mask & ~res.held) < 0.05 * mask.sum()
 
 
 @pytest.mark.parametrize("seed", [5, 6])
@@ -128,6 +134,34 @@ def test_simulated_urdf_leg_recovers_truth(seed, tmp_path) -> None:
     ds = read_dataset(write_free_load(res, tmp_path))
     r = fit_free_load(ds, res.truth["transducer"])
     _urdf_checks(r, res.truth)
+
+
+def test_quasi_static_thresholds_rise_with_the_noise(tmp_path) -> None:
+    """10x the readings' noise and a jittery orientation stream: the thresholds rise (logged, stored), most held
+    samples are kept, no moving one is, and the truth is recovered at the (larger) se."""
+    res = simulate_payload(PayloadConfig(seed=9, n_orientations=10, hold_s=6.0, move_s=3.0, noise_force_N=0.2,
+                                         noise_torque_Nm=0.006, mocap_jitter_deg=0.5))
+    ds = read_dataset(write_free_load(res, tmp_path))
+    r = fit_free_load(ds, "wrist")
+    sel = r.selection["wrist"]
+    assert sel["thresholds"]["force_N_s"] > FreeLoadSettings().deriv_threshold_N_s
+    assert sel["thresholds"]["rotation_rad_s"] > FreeLoadSettings().rotation_rate_threshold_rad_s
+    assert sel["kept"] > 0.7 * res.held.sum()
+    from ftcal_nlp.freeload.quasistatic import select_quasi_static
+
+    rec = ds.hanging[0]
+    mask = select_quasi_static(rec.t, rec.wrench["wrist"][:, :3], rec.quat, rec.gravity, {}, FreeLoadSettings()).mask
+    # with raised thresholds the slowest ends of the (minimum-jerk) moves pass too: a few, and quasi-static
+    assert mask.sum() == sel["kept"] and np.sum(mask & ~res.held) < 0.05 * mask.sum()
+    _payload_checks_se_only(r, res.truth)
+
+
+def _payload_checks_se_only(r, truth: dict) -> None:
+    rep = r.load_report()
+    assert abs(_z(rep["load_mass_kg"], truth["mass_kg"], rep["load_mass_se_kg"])) < Z
+    assert np.all(np.abs(_z(rep["load_com_m"], truth["com_m"], rep["load_com_se_m"])) < Z)
+    assert np.all(np.abs(_z(r.offset, truth["offset"], r.se[:6])) < Z)
+    assert np.all(np.abs(_z(r.mount_rotvec, truth["mount_rotvec"], r.se[-3:])) < Z)
 
 
 def test_gravity_columns_and_a_fixed_mount(tmp_path) -> None:
