@@ -68,9 +68,18 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration 
         return ds, truth
     if cfg.simulate is None:
         raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)")
+    folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
+    if cfg.simulate.get("kind", "hexapod") != "hexapod":  # a free load (DATA_FORMAT.md section 5): sim/free
+        from .sim.free import simulate_to_folder
+
+        try:
+            manifest = simulate_to_folder(cfg.simulate, folder, overwrite=force)
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.path} [simulate]: {exc}") from exc
+        log.info("simulated dataset written to %s", manifest.parent)
+        return read_dataset(manifest), None
     sim_cfg = SimConfig.from_dict(cfg.simulate)
     res = simulate(sim_cfg)
-    folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
     manifest = write_simulation(res, folder, overwrite=force)
     log.info("simulated dataset written to %s", manifest.parent)
     return read_dataset(manifest), res.truth

@@ -319,3 +319,15 @@ def test_command_line_writes_the_load_keys(tmp_path, capsys) -> None:
     cal = Calibration.load(tmp_path / "out" / "calibration.json")
     np.testing.assert_allclose(cal.legs["wrist"].offset, leg["offset"])
     assert "diagnosis was skipped" in capsys.readouterr().out + "".join(d["meta"].get("free_load", {}).get("identifiability", [])) or True
+
+
+def test_command_line_simulates_a_payload(tmp_path) -> None:
+    """A ``[simulate]`` table with ``kind = "payload"`` writes a section-5 dataset (sim/free) and runs it."""
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[data]\nmanifest = "data/dataset.toml"\n[simulate]\nkind = "payload"\nseed = 2\nn_orientations = 8\n'
+                   'hold_s = 4.0\nmove_s = 2.0\n[output]\ndir = "out"\n[diagnose]\nenabled = false\n')
+    assert run_main([str(cfg)]) == 0
+    truth = json.loads((tmp_path / "data" / "truth.json").read_text())
+    leg = json.loads((tmp_path / "out" / "calibration.json").read_text())["legs"]["wrist"]
+    assert abs(_z(leg["load_mass_kg"], truth["mass_kg"], leg["load_mass_se_kg"])) < Z
+    assert np.all(np.abs(_z(leg["offset"], truth["offset"], leg["offset_se"])) < Z)

@@ -258,6 +258,10 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if undetermined:
         log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
     notes += _orientation_notes(data, leg)
+    fixed = [r.name for r in ds.hanging if r.hangs_free(leg) and r.gravity is None]
+    if fixed:
+        notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
+                     "recording is estimated for a free load; a rig's tilt there biases the fit)")
     for note in notes:
         log.warning("%s", note)
     log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,
