@@ -331,3 +331,26 @@ def test_command_line_simulates_a_payload(tmp_path) -> None:
     leg = json.loads((tmp_path / "out" / "calibration.json").read_text())["legs"]["wrist"]
     assert abs(_z(leg["load_mass_kg"], truth["mass_kg"], leg["load_mass_se_kg"])) < Z
     assert np.all(np.abs(_z(leg["offset"], truth["offset"], leg["offset_se"])) < Z)
+
+
+def test_payload_held_in_recordings_with_gravity_body_only(tmp_path) -> None:
+    """One recording per held orientation, gravity by ``gravity_body`` (no orientation columns, no opposite
+    partners: a payload needs none); the truth is recovered and the missing tilt terms are noted."""
+    import tomli_w
+
+    res = simulate_payload(PayloadConfig(seed=10, n_orientations=8, hold_s=4.0, move_s=2.0))
+    write_free_load(res, tmp_path)
+    df = res.frame
+    R_WB = res.R_WB
+    entries = []
+    for h in range(res.config.n_orientations):
+        rows = res.hold_index == h
+        g_B = -R_WB[np.flatnonzero(rows)[0]][2, :]                                # R_WB^T [0, 0, -1]
+        df.loc[rows, ["t"] + [c for c in df.columns if c.startswith("wrist_")]].to_csv(tmp_path / f"h{h}.csv", index=False)
+        entries.append({"file": f"h{h}.csv", "kind": "hanging", "gravity_body": [float(x) for x in g_B]})
+    (tmp_path / "dataset.toml").write_bytes(tomli_w.dumps({"robot": "robot.toml", "recording": entries}).encode())
+    ds = read_dataset(tmp_path / "dataset.toml")
+    assert len(ds.hanging) == 8 and all(r.gravity is None and r.quat is None for r in ds.hanging)
+    r = fit_free_load(ds, "wrist")
+    _payload_checks(r, res.truth)
+    assert any("gravity_body only" in n for n in r.notes)
