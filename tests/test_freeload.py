@@ -354,3 +354,38 @@ def test_payload_held_in_recordings_with_gravity_body_only(tmp_path) -> None:
     r = fit_free_load(ds, "wrist")
     _payload_checks(r, res.truth)
     assert any("gravity_body only" in n for n in r.notes)
+
+
+def test_hexapod_hanging_gravity_body_from_orientation_columns(tmp_path) -> None:
+    """A hexapod's hanging recordings with ``qw..qz`` and no ``gravity_body``: the nominal direction is the mean
+    per-sample gravity (its legs' hanging fit needs one per recording) and the opposite pairs still hold."""
+    import tomllib
+
+    import tomli_w
+    from conftest import require_sample
+
+    from ftcal_nlp.data import hanging_pairs, read_table
+    from ftcal_nlp.geometry import rotation_between, rotation_to_quat
+
+    src = require_sample()
+    man = tomllib.loads((src / "dataset.toml").read_text())
+    shutil.copy(src / man["robot"], tmp_path / "robot.toml")
+    entries = []
+    for e in man["recording"]:
+        if e["kind"] != "hanging":
+            continue
+        df = read_table(src / e["file"])
+        gb = np.asarray(e["gravity_body"], float)
+        R_WB = rotation_between(gb, np.array([0.0, 0.0, -1.0]))               # B's gravity_body onto world down
+        q = rotation_to_quat(R_WB[None])[0]
+        for c, v in zip(("qw", "qx", "qy", "qz"), q):
+            df[c] = v
+        name = Path(e["file"]).stem + ".csv"
+        df.to_csv(tmp_path / name, index=False)
+        entries.append({"file": name, "kind": "hanging"})
+    (tmp_path / "dataset.toml").write_bytes(tomli_w.dumps({"robot": "robot.toml", "recording": entries}).encode())
+    ds = read_dataset(tmp_path / "dataset.toml")
+    assert ds.free_load_legs == ()
+    for r, e in zip(ds.hanging, [e for e in man["recording"] if e["kind"] == "hanging"]):
+        np.testing.assert_allclose(r.gravity_body, e["gravity_body"], atol=1e-9)
+    assert len(hanging_pairs(ds.hanging)) == 2
