@@ -95,6 +95,10 @@ def test_shared_sample_payload_recovers_truth() -> None:
     _payload_checks(r, json.loads((SHARED / "sample_payload" / "truth.json").read_text()))
     sel = r.selection["wrist"]
     assert sel["kept"] + sel["dropped"] == sel["samples"] == 23300 and 0.5 < sel["kept"] / sel["samples"] < 0.9
+    rec = ds.hanging[0]
+    assert r.used["wrist"].sum() == sel["kept"] == r.n_used
+    res = rec.wrench["wrist"] - r.predict_recording(rec, ds.robot.g)          # the model at every sample
+    np.testing.assert_allclose(res[r.used["wrist"]].std(0), r.sigma, rtol=0.02)
 
 
 @needs_samples

@@ -9,7 +9,8 @@ API (the result object other modules build on):
   ``conf_int()``, ``summary()``), ``identifiability()`` (what the data leave undetermined, which
   combinations they determine), ``load_report()`` (the ``calibration.json`` keys of the load),
   ``predict(gravity_B, q)`` / ``predict_recording(rec, g)`` (model readings of any sample), ``offset``,
-  ``theta``, ``rotation`` (``E``), ``sigma``, ``rms``, ``selection`` (kept / dropped per recording).
+  ``theta``, ``rotation`` (``E``), ``sigma``, ``rms``, ``selection`` (kept / dropped per recording, thresholds),
+  ``used`` (recording -> boolean mask of the samples the fit used).
 
 Model (``loads.base``): ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``, ``b = R_nom^T g_B`` the
 nominal gravity in ft for each sample (``R_nom`` from ``robot.toml`` or from the URDF for the sample's joint
@@ -64,7 +65,7 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     s = settings
     g = ds.robot.g
     joints = tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ()))
-    ys, gs, qs, src, ts, idx, names, selection = [], [], [], [], [], [], [], {}
+    ys, gs, qs, src, ts, idx, names, selection, masks = [], [], [], [], [], [], [], {}, {}
     recs = [r for r in ds.hanging if r.hangs_free(leg)]
     if not recs:
         raise DataFormatError(f"{ds.manifest or 'dataset'}: transducer {leg}: no hanging recording in which its load hangs free "
@@ -77,6 +78,7 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
         log.info("%s, transducer %s: %d of %d samples quasi-static (%d dropped: moving, or orientation not tracked)",
                  rec.path or rec.name, leg, sel.counts["kept"], sel.counts["samples"], sel.counts["dropped"])
         m = sel.mask
+        masks[rec.name] = m
         ys.append(rec.wrench[leg][m])
         gs.append(g * grav[m])
         qs.append({j: rec.q[j][m] if j in rec.q else np.zeros(int(m.sum())) for j in joints})
@@ -101,7 +103,7 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     K = load.lever(q, n)
     source = np.concatenate(src)
     noise0 = difference_noise(y, source, np.concatenate(idx))
-    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0)
+    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks)
 
 
 def _lin_map(p: int, mu: np.ndarray) -> np.ndarray:
@@ -268,7 +270,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
              float(mu @ theta), np.degrees(np.linalg.norm(np.r_[E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2),
              np.array2string(rms, precision=3))
     return FreeLoadResult(leg, load, w_o.copy(), theta.copy(), E, tuple(names), cov, se, sig, rms, mom.n, data.selection,
-                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null)
+                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null, data.masks)
 
 
 def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:

@@ -59,6 +59,7 @@ class FreeLoadData:
     names: tuple[str, ...]
     selection: dict[str, dict] = field(default_factory=dict)
     noise0: np.ndarray | None = None
+    masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
 
     @property
     def n(self) -> int:
