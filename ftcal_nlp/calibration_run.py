@@ -51,6 +51,7 @@ from .uncertainty import CalibrationCovariance
 
 if TYPE_CHECKING:  # the diagnosis reads a CalibrationRun (diagnose_run): a run-time import here would be a cycle
     from .diagnose.result import DiagnosisResult
+    from .freeload import FreeLoadResults
 
 __all__ = ["CalibrationRun", "JointCovariance", "joint_covariance"]
 
@@ -76,11 +77,12 @@ class JointCovariance(ResultsMixin):
         return self.cov
 
 
-def joint_covariance(hanging: HangingResult | None, standing: StandingResult | None) -> JointCovariance:
+def joint_covariance(hanging: HangingResult | None, standing: StandingResult | None,
+                     free_loads: FreeLoadResults | None = None) -> JointCovariance:
     """The parameters of both stages and their joint covariance: the standing block conditional on the
     hanging estimates plus ``G Cov(theta_h) G^T`` when the standing result has the sensitivity ``G``,
     else the blocks side by side as independent (module docstring)."""
-    stages = [r for r in (hanging, standing) if r is not None]
+    stages = [r for r in (hanging, standing, free_loads) if r is not None]
     params = pd.concat([s.params for s in stages]) if stages else pd.Series(dtype=float)
     n = len(params)
     cov = np.zeros((n, n))
@@ -90,7 +92,7 @@ def joint_covariance(hanging: HangingResult | None, standing: StandingResult | N
         m = len(s.params)
         cov[i : i + m, i : i + m] = np.nan_to_num(s._cov_array(), nan=0.0, posinf=0.0)
         i += m
-    how = "hanging only" if standing is None else "standing only (offsets-only run)" if hanging is None else "independent blocks"
+    how = "free loads (independent blocks)" if free_loads is not None else "hanging only" if standing is None else "standing only (offsets-only run)" if hanging is None else "independent blocks"
     G = standing.sensitivity if standing is not None and hanging is not None else None
     if G is not None:
         nh = len(hanging.params)
@@ -140,16 +142,17 @@ class CalibrationRun(ResultsMixin):
     notes: tuple[str, ...] = ()
     uncertainty: CalibrationCovariance | None = None
     tracked_offsets: dict[str, TrackedOffsets] = field(default_factory=dict)
+    free_loads: FreeLoadResults | None = None   # the loads of DATA_FORMAT.md section 5 (issue 22)
 
     # ------------------------------------------------------------------ results protocol
 
-    def _stages(self) -> list[HangingResult | StandingResult]:
-        return [r for r in (self.hanging, self.standing) if r is not None]
+    def _stages(self) -> list[HangingResult | StandingResult | FreeLoadResults]:
+        return [r for r in (self.hanging, self.standing, self.free_loads) if r is not None]
 
     @cached_property
     def joint(self) -> JointCovariance:
         """Hanging and standing parameters with their joint covariance (module docstring)."""
-        return joint_covariance(self.hanging, self.standing)
+        return joint_covariance(self.hanging, self.standing, self.free_loads)
 
     def joint_covariance(self) -> tuple[pd.Series, np.ndarray, np.ndarray, str]:
         """``(params, cov, bse, how)`` of :attr:`joint`."""
@@ -168,7 +171,8 @@ class CalibrationRun(ResultsMixin):
 
     def summary(self) -> Summary:
         """Key facts of the run, then the stage summaries' tables."""
-        facts = [("robot", f"{len(self.dataset.robot.legs)} legs, {self.dataset.robot.mass_kg:g} kg"),
+        mass = self.dataset.robot.mass_kg
+        facts = [("robot", f"{len(self.dataset.robot.legs)} legs" + ("" if mass is None else f", {mass:g} kg")),
                  ("recordings", f"{len(self.dataset.hanging)} hanging, {len(self.dataset.standing)} standing, "
                                 f"{len(self.dataset.walking)} walking"),
                  ("model", str(self.calibration.model))]
