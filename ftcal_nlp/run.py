@@ -57,18 +57,35 @@ def prepare_output(folder: Path, force: bool, *, create: bool = True) -> None:
         folder.mkdir(parents=True, exist_ok=True)
 
 
-def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration | None]:
-    """The dataset of the config: read from the manifest, or simulated (and written) first."""
+def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | None]:
+    """The dataset of the config: read from the manifest, or simulated (and written) first; with its truth
+    (``truth.json`` beside the manifest: a Calibration for a hexapod, a ``truth.LoadTruth`` for a free load).
+
+    ``[simulate] kind = "payload" | "urdf_leg"`` simulates a section-5 dataset (``sim.free``); no ``kind``
+    (or ``"hexapod"``) the BigAnt one."""
+    from .sim.free import KINDS as FREE_KINDS, simulate_free, write_free_load
+    from .sim.free import config_from_dict as free_config
+    from .truth import load_truth, load_truth_from_dict
+
     if cfg.manifest is not None and cfg.manifest.is_file():
         ds = read_dataset(cfg.manifest)
         truth_path = cfg.manifest.parent / "truth.json"
-        truth = Calibration.load(truth_path, mass_kg=ds.robot.mass_kg, g=ds.robot.g) if truth_path.is_file() else None
+        truth = load_truth(truth_path, mass_kg=ds.robot.mass_kg, g=ds.robot.g, robot=ds.robot) if truth_path.is_file() else None
         return ds, truth
     if cfg.simulate is None:
         raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)")
+    folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
+    if cfg.simulate.get("kind", "hexapod") in FREE_KINDS:
+        try:
+            free = simulate_free(free_config(cfg.simulate))
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.path}: {exc}", path=cfg.path, key="simulate") from None
+        manifest = write_free_load(free, folder, overwrite=force)
+        log.info("simulated %s dataset written to %s", free.config.kind, manifest.parent)
+        ds = read_dataset(manifest)
+        return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
     sim_cfg = SimConfig.from_dict(cfg.simulate)
     res = simulate(sim_cfg)
-    folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
     manifest = write_simulation(res, folder, overwrite=force)
     log.info("simulated dataset written to %s", manifest.parent)
     return read_dataset(manifest), res.truth
