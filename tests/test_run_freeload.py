@@ -71,3 +71,22 @@ def test_bad_simulate_key_is_a_config_error(tmp_path) -> None:
     with pytest.raises(ConfigError, match="unknown key.*mass"):
         load_or_simulate(load_config(tmp_path / "c.toml"), force=False)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kind", ["payload", "urdf_leg"])
+def test_load_or_simulate_writes_and_reads_a_section5_dataset(tmp_path, kind) -> None:
+    from ftcal_nlp.run import load_or_simulate
+
+    (tmp_path / "c.toml").write_text(f'[simulate]\nkind = "{kind}"\ndir = "data"\nn_orientations = 3\nhold_s = 1.0\nseed = 2\n'
+                                     '[output]\ndir = "out"\n')
+    cfg = load_config(tmp_path / "c.toml")
+    ds, truth = load_or_simulate(cfg, force=False)
+    folder = tmp_path / "data"
+    assert (folder / "dataset.toml").is_file() and (folder / "truth.json").is_file()
+    assert isinstance(truth, LoadTruth) and truth.kind == kind and ds.robot.legs == (truth.transducer,)
+    assert (folder / "robot.urdf").is_file() == (kind == "urdf_leg")
+    # the same truth when read back from the written folder by a later run
+    (tmp_path / "d.toml").write_text('[data]\nmanifest = "data/dataset.toml"\n[output]\ndir = "out"\n')
+    ds2, truth2 = load_or_simulate(load_config(tmp_path / "d.toml"), force=False)
+    assert isinstance(truth2, LoadTruth) and np.array_equal(truth2.offset, truth.offset) and truth2.ft_link == truth.ft_link
+    assert ds2.recordings[0].n == ds.recordings[0].n
