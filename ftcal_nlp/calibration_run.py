@@ -70,12 +70,13 @@ class CalibrationRun(ResultsMixin):
     notes: list[str] = field(default_factory=list)
     uncertainty: Any = None        # uncertainty.CalibrationCovariance: joint covariance and sensor noise for the se columns
     tracked_offsets: dict[str, Any] = field(default_factory=dict)   # recording name -> tracking.TrackedOffsets
+    free_loads: Any = None         # freeload.FreeLoadResults: the loads of DATA_FORMAT.md section 5 (issue 22)
     _joint: tuple | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ results protocol
 
     def _stages(self) -> list:
-        return [r for r in (self.hanging, self.standing) if r is not None]
+        return [r for r in (self.hanging, self.standing, self.free_loads) if r is not None]
 
     def joint_covariance(self) -> tuple[pd.Series, np.ndarray, np.ndarray, str]:
         """``(params, cov, bse, how)`` over hanging and standing parameters (module docstring)."""
@@ -91,7 +92,7 @@ class CalibrationRun(ResultsMixin):
             m = len(s.params)
             cov[i : i + m, i : i + m] = np.nan_to_num(s._cov_array(), nan=0.0, posinf=0.0)
             i += m
-        how = "hanging only" if self.standing is None else "standing only (offsets-only run)" if self.hanging is None else "independent blocks"
+        how = "free loads (independent blocks)" if self.free_loads is not None else "hanging only" if self.standing is None else "standing only (offsets-only run)" if self.hanging is None else "independent blocks"
         G = getattr(self.standing, "sensitivity", None) if self.standing is not None and self.hanging is not None else None
         if G is not None:
             nh = len(self.hanging.params)
@@ -122,7 +123,8 @@ class CalibrationRun(ResultsMixin):
 
     def summary(self) -> Summary:
         """Key facts of the run, then the stage summaries' tables."""
-        facts = [("robot", f"{len(self.dataset.robot.legs)} legs, {self.dataset.robot.mass_kg:g} kg"),
+        mass = self.dataset.robot.mass_kg
+        facts = [("robot", f"{len(self.dataset.robot.legs)} legs" + ("" if mass is None else f", {mass:g} kg")),
                  ("recordings", f"{len(self.dataset.hanging)} hanging, {len(self.dataset.standing)} standing, "
                                 f"{len(self.dataset.walking)} walking"),
                  ("model", str(self.calibration.model))]

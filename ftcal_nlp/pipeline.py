@@ -21,6 +21,11 @@ bounds the rotations against the design. Optional comparisons (the report's
 baselines) and the diagnosis that cannot run on a dataset are skipped with one
 warning and a note in ``run.notes`` (the report lists them).
 
+A dataset whose transducers all carry free loads (``DATA_FORMAT.md`` section 5:
+rigid payloads, URDF links) takes one stage instead, the free-load estimator
+(:func:`ftcal_nlp.freeload.fit_free_loads`); its standing and walking stages are
+skipped (logged), and so is the diagnosis for now (issue 23 extends it).
+
 With ``offsets_only=<earlier Calibration>`` only the offsets are re-estimated
 from the standing poses and everything else of the earlier calibration is kept
 (report Sec. V); no hanging stage runs.
@@ -144,6 +149,33 @@ def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> Sens
         return None
 
 
+def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float],
+                          notes: list[str]) -> CalibrationRun:
+    """Section-5 datasets: every transducer's free load by the free-load estimator; the hexapod stages do not apply."""
+    from .freeload import fit_free_loads, free_load_calibration
+
+    hexapod = [k for k in ds.robot.legs if k not in ds.free_load_legs]
+    if hexapod:
+        raise DataFormatError(f"{ds.manifest or 'dataset'}: transducers {hexapod} have {{leg}}_phi columns (hexapod legs) and "
+                              f"{list(ds.free_load_legs)} carry free loads; one dataset of both kinds is not supported yet")
+    for kind in ("standing", "walking"):
+        if ds.of_kind(kind):
+            msg = f"{kind} recordings skipped: the free-load calibration uses the hanging recordings only"
+            log.warning("%s", msg)
+            notes.append(msg)
+    with stage("free loads", timings, cpu):
+        res = fit_free_loads(ds, s.free_load)
+    notes += res.identifiability()
+    if s.diagnose.enabled:
+        msg = "the sim-to-real gap diagnosis was skipped: it does not cover free loads yet (issue 23)"
+        log.info("%s", msg)
+        notes.append(msg)
+    cal = free_load_calibration(res, ds.robot)
+    run = CalibrationRun(s, ds, cal, timings=timings, cpu_timings=cpu, notes=notes)
+    run.free_loads = res
+    return run
+
+
 def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
               offsets_only: Calibration | None = None) -> CalibrationRun:
     """Calibrate ``dataset`` (interchange format, ``data.read_dataset``) with ``settings`` (module docstring).
@@ -157,6 +189,8 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
     timings: dict[str, float] = {}
     cpu: dict[str, float] = {}
     notes: list[str] = []
+    if ds.free_load_legs:
+        return _calibrate_free_loads(ds, s, timings, cpu, notes)
     hang = hang_base = None
     with stage("plausibility checks", timings, cpu):
         check_dataset(ds, offsets_only)

@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 from .models import REPORT_CANDIDATES
 from .solver import REL_EIG_TOL
 
-__all__ = ["PoseExtraction", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
+__all__ = ["PoseExtraction", "FreeLoadSettings", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
            "OffsetsOnlySettings", "CorrectSettings", "CalibrationSettings", "with_overrides"]
 
 T = TypeVar("T")
@@ -194,6 +194,39 @@ class CorrectSettings:
 
 
 @dataclass(frozen=True)
+class FreeLoadSettings:
+    """Free loads (``DATA_FORMAT.md`` section 5; ``ftcal_nlp.freeload``): quasi-static sample selection and the fit.
+
+    A sample is used where the body's rate of turn, every joint's rate and the force-derivative norm
+    (Savitzky-Golay, ``window_s``, ``polyorder``) are under their thresholds; each threshold rises to
+    ``noise_factor`` times the median of its rate over the samples the other two call still, when that is
+    larger (noisier streams, as the standing poses do). ``mount_rotation``: estimate the transducer's mounting
+    rotation; ``prior_weight``: weight of the load's nominal values (the URDF's) relative to the information of
+    each parameter, which pins only what the data leave undetermined; ``loads``: transducer -> load name or
+    ``module:Class`` instead of the dataset's kind."""
+
+    window_s: float = 0.31
+    polyorder: int = 2
+    rotation_rate_threshold_rad_s: float = 0.02
+    joint_rate_threshold_rad_s: float = 0.02
+    deriv_threshold_N_s: float = 1.0
+    noise_factor: float = 2.0
+    max_gap_factor: float = 3.0
+    min_samples: int = 50
+    mount_rotation: bool = True
+    prior_weight: float = 1e-8
+    rel_eig_tol: float = REL_EIG_TOL
+    loads: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("window_s", "rotation_rate_threshold_rad_s", "joint_rate_threshold_rad_s", "deriv_threshold_N_s", "max_gap_factor"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"FreeLoadSettings.{name}: expected a positive number, got {getattr(self, name)!r}")
+        if not self.noise_factor >= 0 or not self.prior_weight >= 0:
+            raise ValueError("FreeLoadSettings: noise_factor and prior_weight must be >= 0")
+
+
+@dataclass(frozen=True)
 class CalibrationSettings:
     """Everything :func:`ftcal_nlp.calibrate` needs besides the dataset."""
 
@@ -203,3 +236,4 @@ class CalibrationSettings:
     diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
     seed: int = 0
     correct: CorrectSettings = field(default_factory=CorrectSettings)
+    free_load: FreeLoadSettings = field(default_factory=FreeLoadSettings)
