@@ -53,7 +53,36 @@ def test_bench_writes_the_load_parts(tmp_path) -> None:
         assert (tmp_path / name).is_file(), name
     t = res["load_speed"]["times"]
     done = set(zip(t.problem, t.estimator))
-    assert {("payload", "ft_calib"), ("payload", "calib_force")} <= done
-    for problem in ("payload", "urdf_chain6"):                # the NLP: a row or a named failure, never nothing
-        assert (problem, "nlp") in done or f"{problem}/nlp" in res["load_speed"]["failures"]
-    assert np.all(t.wall_s > 0)
+    assert res["load_speed"]["failures"] == {}
+    assert done == {("payload", "nlp"), ("payload", "ft_calib"), ("payload", "calib_force"), ("urdf_chain6", "nlp")}
+    assert np.all(t.wall_s > 0) and np.all(t.first_call_s > 0)
+    acc = res["loads"]
+    assert not any(c.endswith("_failure") for c in acc["info"].columns), acc["info"].filter(like="failure")
+    s = acc["summary"].set_index(["scenario", "estimator", "group"])
+    for key in [("payload_mount", "nlp", g) for g in ("offsets", "mass", "com", "mount_rotation")] + \
+               [("urdf_leg", "nlp", g) for g in ("offsets", "total_mass", "first_moments", "mount_rotation")]:
+        assert np.isfinite(s.loc[key, "ratio"]) and s.loc[key, "ratio"] > 0, key
+    assert not [k for k in s.index if k[0] == "urdf_leg" and k[1] != "nlp"]      # no peer models a URDF load
+
+
+def test_nlp_reaches_the_bound_and_matches_the_peers_where_their_model_holds() -> None:
+    """16 payload datasets without and with a ~1 deg mounting rotation (same seeds: same truth and noise but for
+    the rotation). The NLP's errors over the bound pool to 1 (208 z values per scenario; their sd of about
+    1/sqrt(2 x 208) grows with the correlations within a dataset: 0.8..1.2, the issue's target, is ~4 of it);
+    where the peers' model holds, ft_calib, which is told the mounting, reaches its known-mount bound and the
+    NLP's offsets and mass match its errors; with the rotation the NLP is unchanged and ft_calib is not."""
+    st = LoadAccuracySettings(seeds=tuple(range(16)), scenarios=("payload_no_mount", "payload_mount"),
+                              payload={"n_orientations": 8, "hold_s": 6.0})
+    acc = run_load_accuracy(st, progress=False)
+    assert not any(c.endswith("_failure") for c in acc["info"].columns)
+    d = acc["rows"]
+    s = acc["summary"].set_index(["scenario", "estimator", "group"])
+    for sc in ("payload_no_mount", "payload_mount"):
+        z = d[(d.scenario == sc) & (d.estimator == "nlp")].z
+        assert 0.8 < np.sqrt(np.mean(z**2)) < 1.2, sc
+    ft = d[(d.scenario == "payload_no_mount") & (d.estimator == "ft_calib")].z_known.dropna()
+    assert 0.8 < np.sqrt(np.mean(ft**2)) < 1.2
+    for g in ("offsets", "mass"):
+        a, b = s.loc[("payload_no_mount", "nlp", g), "rms_error"], s.loc[("payload_no_mount", "ft_calib", g), "rms_error"]
+        assert 0.8 < a / b < 1.25, g
+    assert s.loc[("payload_mount", "nlp", "com"), "ratio"] < 1.2 < 20 < s.loc[("payload_mount", "ft_calib", "com"), "ratio"]

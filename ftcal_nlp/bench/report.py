@@ -302,7 +302,9 @@ def loads_markdown(acc: dict) -> list[str]:
            "(`crb_loads.py`): the readings' Fisher information at the truth over the held samples, mounting rotation "
            "unknown; `/ known-mount CRB`: against the bound with the mounting known (ft_calib's assumption). URDF "
            "groups are compared on what the data determine (`Bound.project`; statics see the total mass and the "
-           "base first moments). The peers get the simulator's held samples and the nominal ft orientation.", ""]
+           "base first moments). The peers get the simulator's held samples and the nominal ft orientation; the NLP "
+           "reads the written dataset and selects its quasi-static samples itself (a few % more than the holds: the "
+           "slow ends of the moves, which the simulator writes quasi-static), so it can sit slightly below 1.", ""]
     t = loads_table(acc)
     if len(t):
         out += [md_table(t), ""]
