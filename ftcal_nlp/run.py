@@ -121,10 +121,7 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
             for note in res.diagnosis.joint.notes:
                 log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
     with stage("report", res.timings):
-        if res.free_loads is not None:  # the report's sections for free loads come with issue 22b: the summary for now
-            (cfg.output_dir / "report.md").write_text(f"```\n{res.summary().as_text()}\n```\n")
-        else:
-            write_report(res, cfg.output_dir)
+        write_report(res, cfg.output_dir)   # free loads: report/loads.py
     print(summary_text(res, cfg))
     return res
 
