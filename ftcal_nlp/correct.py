@@ -117,6 +117,10 @@ def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .correct_loads import main_if_free_load   # a wrist payload's contact wrench (DATA_FORMAT.md section 5)
+
+    if (rc := main_if_free_load(argv)) is not None:
+        return rc
     ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.correct", description=__doc__.splitlines()[0])
     ap.add_argument("calibration", help="calibration.json written by a run")
     ap.add_argument("recording", help="recording in the interchange format (CSV or Parquet)")
