@@ -265,6 +265,12 @@ def read_urdf_tree(path: Path, where: str):
 
     if not path.is_file():
         raise DataFormatError(f"{where}: URDF file {path} not found", path=path)
+    import xml.etree.ElementTree as ET
+
+    try:  # yourdfpy repairs malformed XML silently: a truncated file is an error here, not a guess
+        ET.parse(path)
+    except ET.ParseError as exc:
+        raise DataFormatError(f"{where}: {path} cannot be parsed as a URDF (malformed XML: {exc}); expected a URDF file", path=path) from exc
     try:
         return load_tree(path)
     except DataFormatError as exc:

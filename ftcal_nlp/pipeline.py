@@ -48,6 +48,7 @@ from .correct import correct_recording_full
 from .data import DataFormatError, Dataset
 from .diagnose import diagnose_run
 from .hanging import HangingResult, fit_hanging
+from .loads import LegComCurve
 from .selection import select_models
 from .sensor_noise import SensorNoise, estimate_sensor_noise
 from .settings import CalibrationSettings
@@ -89,7 +90,7 @@ def stage(name: str, timings: dict[str, float], cpu: dict[str, float] | None = N
 
 def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float], notes: list[str]) -> tuple[HangingResult, HangingResult | None]:
     with stage("hanging", timings, cpu):
-        hang = fit_hanging(ds.hanging, ds.robot, s.hanging)  # logs its own warnings
+        hang = LegComCurve().fit(ds.hanging, ds.robot, s.hanging)  # the hexapod legs' load: fit_hanging; logs its own warnings
     base = None
     if s.hanging.compare_baseline and s.hanging.method != "baseline":
         with stage("hanging (baseline)", timings, cpu):

@@ -84,6 +84,9 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
         log.info("simulated %s dataset written to %s", free.config.kind, manifest.parent)
         ds = read_dataset(manifest)
         return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
+    if cfg.simulate.get("kind", "hexapod") != "hexapod":
+        raise ConfigError(f"{cfg.path} [simulate]: kind = {cfg.simulate['kind']!r}; known kinds: "
+                          f"{['hexapod', *sorted(FREE_KINDS)]}", path=cfg.path, key="simulate.kind")
     sim_cfg = SimConfig.from_dict(cfg.simulate)
     res = simulate(sim_cfg)
     manifest = write_simulation(res, folder, overwrite=force)

@@ -39,7 +39,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..data import Dataset
 from ..errors import DataFormatError
-from ..geometry import project_to_so3
+from ..geometry import project_to_so3, rotation_to_rotvec
 from ..loads import load_for
 from ..settings import FreeLoadSettings
 from ..solver import identifiability
@@ -52,9 +52,11 @@ __all__ = ["fit_free_loads", "fit_free_load", "free_load_data", "free_load_calib
 
 log = logging.getLogger(__name__)
 
-# a direction's component on a parameter (normalised units) above this fraction of its largest marks the
-# parameter as touched by it (se = inf)
+# a direction's components (unit vector, normalised units) above this fraction of its largest are named in its text
 FLAG_FRACTION = 0.05
+# ... and any component above this marks the parameter as undetermined (se = inf): the null space's eigenvectors are
+# accurate to ~eps / (eigenvalue gap) ~ 1e-11 at the identifiability threshold, so a larger component is real
+TOUCH_TOL = 1e-6
 
 
 def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> FreeLoadData:
@@ -120,12 +122,45 @@ def _ridge(A: np.ndarray, weight: float) -> np.ndarray:
     return weight * np.where(dg > 0, dg, fill)
 
 
+def _null_penalty(A: np.ndarray, s: FreeLoadSettings) -> np.ndarray | None:
+    """``S N N^T S`` over the directions the information ``A`` (local coordinates) leaves undetermined (``nlp.py``)."""
+    keep = np.r_[np.ones(len(A) - 3, bool), np.full(3, s.mount_rotation)]
+    ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
+    if ident.determined.all():
+        return None
+    N = ident.vectors[:, ~ident.determined] * ident.scale[:, None]
+    P = np.zeros_like(A)
+    P[np.ix_(keep, keep)] = N @ N.T
+    return P
+
+
 def _describe(u: np.ndarray, names: list[str], ratio: float) -> str:
     a = np.abs(u)
     big = np.flatnonzero(a >= FLAG_FRACTION * a.max())
     big = big[np.argsort(-a[big])][:8]
     un = u / np.abs(u[big]).max()
     return " ".join(f"{un[i]:+.2f} {names[i]}" for i in big) + f" [eigenvalue ratio {max(ratio, 0.0):.1e}]"
+
+
+def _rref(A: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Reduced row echelon form of the rows of ``A`` (the same row space): each row has a leading 1 and zeros in
+    the other rows' leading columns; entries below ``tol`` (relative) are set to 0."""
+    A = np.array(A, float)
+    rows, r = A.shape[0], 0
+    for col in range(A.shape[1]):
+        if r == rows:
+            break
+        piv = r + int(np.argmax(np.abs(A[r:, col])))
+        if abs(A[piv, col]) <= tol * max(np.abs(A).max(), 1e-300):
+            continue
+        A[[r, piv]] = A[[piv, r]]
+        A[r] /= A[r, col]
+        others = np.arange(rows) != r
+        A[others] -= np.outer(A[others, col], A[r])
+        r += 1
+    A = A[:r]
+    A[np.abs(A) < tol * max(np.abs(A).max(), 1e-300)] = 0.0
+    return A
 
 
 def _combo_text(a: np.ndarray, names: list[str]) -> str:
@@ -169,7 +204,8 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         Jl = nlp.jacobian(x[:6], x[6:6 + p], E)
         Al = Jl.T @ Qw @ Jl
         ridge = np.r_[_ridge(Al[:6 + p, :6 + p], s.prior_weight), np.full(9, _ridge(Al[6 + p:, 6 + p:], s.prior_weight).mean())]
-        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, what=what)
+        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, what=what,
+                          null_penalty=_null_penalty(Al, s))
         iters += int(st.get("iter_count", 0))
         E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
         rss = mom.rss(nlp.z(np.r_[x[:6 + p], E.ravel(order="F")]))
@@ -194,7 +230,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     undetermined, touched = [], np.zeros(int(keep.sum()), bool)
     for j in np.flatnonzero(~ident.determined):
         u = ident.vectors[:, j]
-        touched |= np.abs(u) >= FLAG_FRACTION * np.abs(u).max()
+        touched |= np.abs(u) >= TOUCH_TOL
         undetermined.append(_describe(u, kn, float(ident.ratio[j])))
     se_k = se[keep]
     se_k[touched] = np.inf
@@ -206,13 +242,11 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         rank = int((sv > 1e-8).sum())
         comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
         tn = [n for n, t in zip(kn, touched) if t]
-        xk = np.r_[w_o, theta, np.zeros(3)][keep]
+        xk = np.r_[w_o, theta, rotation_to_rotvec(E)][keep]
         Ck = cov[np.ix_(keep, keep)]
-        for c in comp.T:
+        for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
             a = np.zeros(len(kn))
-            a[touched] = c * ident.scale[touched]
-            a /= np.abs(a).max()
-            a[np.abs(a) < 1e-6] = 0.0
+            a[touched] = c
             determined.append({"combination": _combo_text(a[touched], tn), "value": float(a @ xk),
                                "se": float(np.sqrt(max(a @ Ck @ a, 0.0))),
                                "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
@@ -224,6 +258,10 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if undetermined:
         log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
     notes += _orientation_notes(data, leg)
+    fixed = [r.name for r in ds.hanging if r.hangs_free(leg) and r.gravity is None]
+    if fixed:
+        notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
+                     "recording is estimated for a free load; a rig's tilt there biases the fit)")
     for note in notes:
         log.warning("%s", note)
     log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,

@@ -3,7 +3,7 @@
 Unknowns ``x = [w_o (6), theta (p), E (3x3)]``. With the channel moments of
 ``problem.py`` and weights ``W_c = 1 / sigma_c^2``:
 
-    min  1/(2N) [ ||R z(x) - c||^2  +  sum_i r_i (x_i - x0_i)^2 ]
+    min  1/(2N) [ ||R z(x) - c||^2  +  sum_i r_i (x_i - x0_i)^2  +  e^T P_N e ]
     s.t. E^T E = I   (6 equations),   det E >= 0,
 
 with ``Q_W = U L U^T``, ``R = L^1/2 U^T``, ``c = L^-1/2 U^T v_W`` (the positive
@@ -20,7 +20,12 @@ ridge ``r_i = prior_weight * A_ii`` (``A`` the information at the start)
 pulls toward ``x0`` (the load's nominal values, ``E = I``) only where the data
 say nothing: for a determined direction of scaled information ``lambda`` it
 moves the estimate by a fraction ``prior_weight / lambda`` (<= 1e-3 at the
-identifiability threshold).
+identifiability threshold). Where the information at the start already has
+undetermined directions (``N``, scaled), ``P_N = S N N^T S`` (``S`` the
+scaling, unit weight in scaled units) holds the local deviation
+``e = [w_o - w_o0, theta - theta0, vee(E - E^T) / 2]`` at the prior along them
+only: without it IPOPT wanders along a flat valley (one gravity direction
+leaves the rotation about it and mass vs offset free).
 
 The Jacobian of ``z`` in local coordinates ``[w_o, theta, delta]`` with
 ``E = E* (I + [delta]x)`` gives the Gauss-Newton information ``J^T Q_W J`` at
@@ -65,12 +70,14 @@ class FreeLoadNLP:
         Rq, c = ca.SX.sym("R", d, d), ca.SX.sym("c", d)
         nx = 6 + p + 9
         r, x0, inv_n = ca.SX.sym("r", nx), ca.SX.sym("x0", nx), ca.SX.sym("inv_n")
+        Pn = ca.SX.sym("Pn", 9 + p, 9 + p)
         x = ca.vertcat(w_o, theta, ca.vec(E))
         z = _lifted(w_o, theta, E, mu)
-        obj = 0.5 * inv_n * (ca.sumsqr(ca.mtimes(Rq, z) - c) + ca.dot(r, (x - x0) ** 2))
+        e = ca.vertcat(w_o - x0[:6], theta - x0[6:6 + p], 0.5 * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]))
+        obj = 0.5 * inv_n * (ca.sumsqr(ca.mtimes(Rq, z) - c) + ca.dot(r, (x - x0) ** 2) + ca.dot(e, ca.mtimes(Pn, e)))
         EtE = ca.mtimes(E.T, E) - ca.DM.eye(3)
         g = ca.vertcat(*[EtE[i, k] for i in range(3) for k in range(i, 3)], ca.det(E))
-        P = ca.vertcat(ca.vec(Rq), c, r, x0, inv_n)
+        P = ca.vertcat(ca.vec(Rq), c, r, x0, inv_n, ca.vec(Pn))
         solver = ipopt(f"freeload_nlp_p{p}", {"x": x, "p": P, "f": obj, "g": g}, **_IPOPT)
         delta, Es = ca.SX.sym("delta", 3), ca.SX.sym("Es", 3, 3)
         z_loc = _lifted(w_o, theta, ca.mtimes(Es, ca.SX.eye(3) + skew(delta)), mu)
@@ -88,7 +95,7 @@ class FreeLoadNLP:
         return np.r_[np.zeros(6), np.inf]
 
     def solve(self, Q: np.ndarray, v: np.ndarray, n: int, ridge: np.ndarray, x0: np.ndarray, start: np.ndarray,
-              *, mount_rotation: bool, what: str) -> tuple[np.ndarray, dict]:
+              *, mount_rotation: bool, what: str, null_penalty: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
         """The optimum ``x`` and IPOPT's stats; raises :class:`~ftcal_nlp.errors.SolverError` naming ``what``."""
         lam, U = np.linalg.eigh(Q)
         ok = lam > 1e-13 * max(lam.max(), 1e-300)
@@ -96,7 +103,8 @@ class FreeLoadNLP:
         R[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
         c = np.zeros(len(v))
         c[: ok.sum()] = (U[:, ok].T @ v) / np.sqrt(lam[ok])
-        P = np.concatenate([R.ravel(order="F"), c, ridge, x0, [1.0 / n]])
+        Pn = np.zeros((9 + self.p, 9 + self.p)) if null_penalty is None else null_penalty
+        P = np.concatenate([R.ravel(order="F"), c, ridge, x0, [1.0 / n], Pn.ravel(order="F")])
         lbx, ubx = np.full(len(start), -np.inf), np.full(len(start), np.inf)
         if not mount_rotation:  # E held at the nominal (identity)
             lbx[-9:] = ubx[-9:] = np.eye(3).ravel(order="F")
