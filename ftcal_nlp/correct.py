@@ -136,6 +136,10 @@ def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     from .cli import add_common, guarded, parse, setup
+    from .correct_loads import main_if_free_load   # a wrist payload's contact wrench (DATA_FORMAT.md section 5)
+
+    if (rc := main_if_free_load(argv)) is not None:
+        return rc
 
     ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.correct", description=__doc__.splitlines()[0],
                                  epilog="The calibration's covariance file (meta.covariance_file, calibration_cov.npz written "

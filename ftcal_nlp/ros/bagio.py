@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 import shutil
 from contextlib import ExitStack
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
@@ -87,6 +87,7 @@ class BagStreams:
     joints: dict[str, Stream]
     joint_names_seen: frozenset[str]
     pose: Stream | None
+    extra: dict = field(default_factory=dict)      # section 5: e.g. "imu" (ros/freeload.py)
 
 
 # ----------------------------------------------------------------------------- reading
