@@ -123,3 +123,31 @@ def test_the_toy_correction_removes_the_ramp_from_a_walk(toy):
     assert left < 4 * np.sqrt(block["eta_cov"][0][0]) * np.abs(t_h).max()
     with pytest.raises(ValueError, match="not an effect of the library"):
         correct_for_effect(cal, w, phi, R, rec.t)       # the global registry does not know the toy
+
+
+def test_a_units_kind_decides_its_correction():
+    """Each unit's own correction: a body effect (cable, mass, leg inertia, moving CoMs) leaves per-foot readings and
+    orientations as they are and adds no covariance; the sensor effects and the motion-capture bias change them."""
+    from ftcal_nlp.calibration import Calibration
+
+    sim = simulate(SimConfig.from_dict({"n_poses": 12, "hanging_cycles": 0.5, "walk_cycles": 0.2, "seed": 3}))
+    truth = sim.truth
+    legs = truth.leg_names
+    rng = np.random.default_rng(0)
+    N, K = 9, len(legs)
+    w, phi = rng.normal(size=(N, K, 6)), rng.uniform(0, 2 * np.pi, (N, K))
+    R, t = np.broadcast_to(np.eye(3), (N, 3, 3)).copy(), np.linspace(0, 3600.0, N)
+    changed = {}
+    for name, unit in EFFECTS.items():
+        eta = rng.normal(size=200)
+        meta = {"effect": {"name": name, "eta": list(eta), "t_ref_s": 0.0, "eta_cov": np.eye(200).tolist(),
+                           "parameters": {f"hanging:{k}.fz/h": {"value": 1.0, "se": 0.1} for k in legs},
+                           "R_nominal": np.asarray(sim.dataset.robot.nominal_rotations()).tolist()}}
+        cal = Calibration(truth.legs, truth.mass_kg, truth.g, truth.model, truth.com_body_m, meta)
+        w2, R2, cov = correct_for_effect(cal, w, phi, R, t)
+        changed[name] = not (np.array_equal(w2, w) and np.array_equal(R2, R))
+        if unit.kind == "body" and name != "mocap_bias":
+            assert not changed[name] and cov is None, name
+    assert changed["mocap_bias"] and all(changed[n] for n, u in EFFECTS.items() if u.kind == "sensor" and n != "hysteresis")
+    assert {n for n, u in EFFECTS.items() if u.kind == "body"} == {"tether_force", "robot_mass", "mocap_bias", "leg_inertia",
+                                                                    "moving_com"}

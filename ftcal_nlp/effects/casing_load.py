@@ -30,9 +30,7 @@ class CasingLoadInjector(EffectInjector):
     magnitude = Magnitude("N, amplitude of the shaft-angle dependent force", (0.3, 1.5), 1.0)
 
     def matrices(self, K: int) -> np.ndarray:
-        if not hasattr(self, "_M") or len(self._M) != K:
-            self._M = self.rng.normal(0.0, 1.0 / np.sqrt(2.0), (K, 2, 2))
-        return self.scale * self._M
+        return self.scale * self.drawn("_M", K, lambda K: self.rng.normal(0.0, 1.0 / np.sqrt(2.0), (K, 2, 2)))
 
     def readings(self, ctx, w):
         M = self.matrices(w.shape[1])

@@ -30,13 +30,13 @@ class ChassisFlexInjector(EffectInjector):
 
     def axes(self, truth) -> np.ndarray:
         """Rotation per newton of vertical load, rad/N, in ft_k (K, 3)."""
-        K = len(truth.legs)
-        if not hasattr(self, "_c") or len(self._c) != K:
+        def draw(K):
             ang = self.rng.uniform(0, 2 * np.pi, K)
             amp = self.rng.uniform(0.7, 1.3, K)
             c_B = np.stack([np.cos(ang), np.sin(ang), np.zeros(K)], axis=1) * amp[:, None]
-            self._c = np.einsum("kji,kj->ki", truth.R, c_B)  # R_k^T c_B
-        return self.scale * _DEG / REF_FORCE_N * self._c
+            return np.einsum("kji,kj->ki", truth.R, c_B)  # R_k^T c_B
+
+        return self.scale * _DEG / REF_FORCE_N * self.drawn("_c", len(truth.legs), draw)
 
     def readings(self, ctx, w):
         truth = ctx.truth

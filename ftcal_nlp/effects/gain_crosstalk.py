@@ -29,9 +29,7 @@ class GainCrosstalkInjector(EffectInjector):
     magnitude = Magnitude("rms of the force-gain matrix entries (fraction)", (0.01, 0.03), 0.02)
 
     def matrices(self, K: int) -> np.ndarray:
-        if not hasattr(self, "_E") or len(self._E) != K:
-            self._E = self.rng.normal(0.0, 1.0, (K, 3, 3))
-        return self.scale * self._E
+        return self.scale * self.drawn("_E", K, lambda K: self.rng.normal(0.0, 1.0, (K, 3, 3)))
 
     def readings(self, ctx, w):
         E = self.matrices(w.shape[1])

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -141,6 +141,15 @@ class EffectInjector(NoEffect):
     @classmethod
     def default_scale(cls) -> float:
         return cls.magnitude.test
+
+    def drawn(self, key: str, K: int, draw: Callable[[int], np.ndarray]) -> np.ndarray:
+        """The injector's own random parameters of ``K`` legs, ``draw(K)`` (from ``self.rng``) once and kept as
+        attribute ``key``: the same for every recording of a session, drawn again only for another ``K``."""
+        v = self.__dict__.get(key)
+        if v is None or len(v) != K:
+            v = draw(K)
+            setattr(self, key, v)
+        return v
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(scale={self.scale:g}, seed={self.seed})"

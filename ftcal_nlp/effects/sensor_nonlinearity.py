@@ -30,10 +30,11 @@ class SensorNonlinearityInjector(EffectInjector):
     magnitude = Magnitude("relative error at 20 N / 2 N*m", (0.003, 0.01), 0.01)
 
     def coefficients(self, K: int) -> np.ndarray:
-        if not hasattr(self, "_q") or len(self._q) != K:
+        def draw(K):
             sign = self.rng.choice([-1.0, 1.0], 6)
-            self._q = sign * self.rng.uniform(0.8, 1.2, (K, 6)) / _REF
-        return self.scale * self._q
+            return sign * self.rng.uniform(0.8, 1.2, (K, 6)) / _REF
+
+        return self.scale * self.drawn("_q", K, draw)
 
     def readings(self, ctx, w):
         return w + self.coefficients(w.shape[1])[None] * ctx.applied**2

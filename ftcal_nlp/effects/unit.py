@@ -29,8 +29,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from .injection import EffectInjector, Magnitude, NoEffect
+from .correction import correct_by_face
 from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym
+from .injection import EffectInjector, Magnitude, NoEffect
 
 log = logging.getLogger(__name__)
 
@@ -133,8 +134,6 @@ class Effect:
         if self.kind == "body":
             log.info("%s: %s acts on the body, not on the transducers' readings: per-foot wrenches are unchanged", source, self.name)
             return w, R_WB, None
-        from .correction import correct_by_face
-
         return correct_by_face(self, cal, block, ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
 
     def __repr__(self) -> str:
