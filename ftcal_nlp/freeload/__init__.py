@@ -20,11 +20,13 @@ angles), ``E`` the mounting rotation (``R_true = R_nom E``, exact SO(3)), ``thet
 1. quasi-static samples of each recording in which the load hangs free (``quasistatic.py``; counts logged);
 2. the exact compression of the samples into channel moments (``problem.py``: no loop over samples);
 3. a start by linear least squares with ``E = I``; then the NLP with exact SO(3) (``nlp.py``), weighted by
-   the readings' noise (first differences), re-weighted once by the residual sd per channel;
+   the readings' noise (first differences), re-weighted once by the residual sd per channel; what the data
+   leave undetermined stays at the load's prior (the URDF's values; ``E = I``), nothing else does;
 4. Gauss-Newton information ``J^T Q_W J`` in local coordinates (``E = E* (I + [delta]x)``), its scaled
    eigen-analysis (``solver.identifiability``): covariance on the determined subspace, ``bse`` inf for
    parameters in undetermined directions, those directions named, and the determined combinations of the
-   parameters they touch given with se.
+   parameters they touch given with se (reduced row echelon form: for ``shared/sample_urdf`` the total mass,
+   the sum of the three bodies' y first moments, ...).
 
 The hexapod tilt terms (one gravity tilt per hanging recording) are not estimated for free loads: with
 gravity per sample, a constant tilt of the orientation stream is a mounting rotation for a payload.
