@@ -393,3 +393,29 @@ def test_hexapod_hanging_gravity_body_from_orientation_columns(tmp_path) -> None
     for r, e in zip(ds.hanging, [e for e in man["recording"] if e["kind"] == "hanging"]):
         np.testing.assert_allclose(r.gravity_body, e["gravity_body"], atol=1e-9)
     assert len(hanging_pairs(ds.hanging)) == 2
+
+
+@needs_samples
+def test_links_fixed_together_form_one_group(tmp_path) -> None:
+    """A link fixed to the sensor (a cover: the group ``fixed``, in the ft frame) and a toe fixed below the foot
+    (one group with it): the readings see only each group's sum, the estimator fits the groups and the truth of
+    their sums is recovered."""
+    text = (SHARED / "sample_urdf" / "robot.urdf").read_text().replace("</robot>", """
+  <link name="cover"><inertial><origin xyz="0.01 0.0 -0.01" rpy="0 0 0"/><mass value="0.3"/>
+    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial></link>
+  <joint name="cover_fix" type="fixed"><parent link="leg_ft"/><child link="cover"/><origin xyz="0 0 -0.02" rpy="0 0 0.3"/></joint>
+  <link name="toe"><inertial><origin xyz="0.02 0.0 0.0" rpy="0 0 0"/><mass value="0.1"/>
+    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial></link>
+  <joint name="toe_fix" type="fixed"><parent link="foot"/><child link="toe"/><origin xyz="0.1 0 -0.04" rpy="0 0.2 0"/></joint>
+</robot>""")
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(text)
+    res = simulate_urdf_leg(UrdfLegConfig(seed=13, urdf=str(urdf), transducer="leg", ft_link="leg_ft", n_orientations=10,
+                                          poses_per_orientation=3, hold_s=4.0, move_s=2.0))
+    ds = read_dataset(write_free_load(res, tmp_path / "data"))
+    r = fit_free_load(ds, "leg")
+    groups = {g.name: g.links for g in r.load.groups}
+    assert groups["fixed"] == ("cover",) and set(groups["ankle"]) == {"foot", "toe"}
+    _urdf_checks(r, res.truth)
+    rep = r.load_report()
+    assert "toe" not in rep["urdf_links"] and set(rep["urdf_groups"]["ankle"]["links"]) == {"foot", "toe"}
