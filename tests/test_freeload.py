@@ -419,3 +419,20 @@ def test_links_fixed_together_form_one_group(tmp_path) -> None:
     _urdf_checks(r, res.truth)
     rep = r.load_report()
     assert "toe" not in rep["urdf_links"] and set(rep["urdf_groups"]["ankle"]["links"]) == {"foot", "toe"}
+
+
+@needs_samples
+def test_a_joint_that_never_moves_is_named(tmp_path) -> None:
+    """The ankle held at one angle: the foot cannot be told from the lower leg; the fit says so (a note naming the
+    joint, undetermined directions through the ankle's group) and still recovers what is determined."""
+    text = (SHARED / "sample_urdf" / "robot.urdf").read_text().replace(
+        '<limit lower="-0.6" upper="0.6" effort="100" velocity="5"/>', '<limit lower="0.2" upper="0.2000001" effort="100" velocity="5"/>')
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(text)
+    res = simulate_urdf_leg(UrdfLegConfig(seed=14, urdf=str(urdf), transducer="leg", ft_link="leg_ft", n_orientations=10,
+                                          poses_per_orientation=3, hold_s=4.0, move_s=2.0))
+    ds = read_dataset(write_free_load(res, tmp_path / "data"))
+    r = fit_free_load(ds, "leg")
+    assert any("joint 'ankle' never moves" in n for n in r.notes)
+    assert any("ankle" in d for d in r.undetermined)
+    _urdf_checks(r, res.truth)

@@ -60,6 +60,8 @@ FLAG_FRACTION = 0.05
 # ... and any component above this marks the parameter as undetermined (se = inf): the null space's eigenvectors are
 # accurate to ~eps / (eigenvalue gap) ~ 1e-11 at the identifiability threshold, so a larger component is real
 TOUCH_TOL = 1e-6
+# a joint whose angle spans less than this over the samples used never moved (its group is not separable)
+_STILL_JOINT_RAD = 1e-3
 
 
 def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> FreeLoadData:
@@ -105,7 +107,7 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     K = load.lever(q, n)
     source = np.concatenate(src)
     noise0 = difference_noise(y, source, np.concatenate(idx))
-    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks)
+    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q)
 
 
 def _lin_map(p: int, mu: np.ndarray) -> np.ndarray:
@@ -262,6 +264,11 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if undetermined:
         log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
     notes += _orientation_notes(data, leg)
+    for g in getattr(load, "groups", ()):
+        if g.joint is not None and np.ptp(data.q.get(g.joint, np.zeros(1))) < _STILL_JOINT_RAD:
+            notes.append(f"{leg}: joint '{g.joint}' never moves in the samples used (range "
+                         f"{np.ptp(data.q.get(g.joint, np.zeros(1))):.2g} rad): the links it carries ({', '.join(g.links)}) "
+                         "cannot be told apart from the group above them; their split is the URDF's")
     fixed = [r.name for r in ds.hanging if r.hangs_free(leg) and r.gravity is None]
     if fixed:
         notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "

@@ -60,6 +60,7 @@ class FreeLoadData:
     selection: dict[str, dict] = field(default_factory=dict)
     noise0: np.ndarray | None = None
     masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
+    q: dict[str, np.ndarray] = field(default_factory=dict)       # joint -> (N,) angles of the samples used
 
     @property
     def n(self) -> int:
