@@ -436,3 +436,17 @@ def test_a_joint_that_never_moves_is_named(tmp_path) -> None:
     assert any("joint 'ankle' never moves" in n for n in r.notes)
     assert any("ankle" in d for d in r.undetermined)
     _urdf_checks(r, res.truth)
+
+
+def test_a_list_of_poses_is_taken_as_holds(tmp_path, caplog) -> None:
+    """One row per pose (a mean per hold, a synthetic 1 s clock, as published pose tables are): every row is a hold
+    (logged), and 12 poses recover the truth at their se."""
+    res = simulate_payload(PayloadConfig(seed=15, n_orientations=12, hold_s=4.0, move_s=2.0))
+    write_free_load(res, tmp_path)
+    df = res.frame[res.held].groupby(res.hold_index[res.held]).mean()
+    df["t"] = 1000.0 + np.arange(len(df))
+    df.to_csv(tmp_path / "wrist.csv", index=False)
+    with caplog.at_level(logging.INFO):
+        r = fit_free_load(read_dataset(tmp_path / "dataset.toml"), "wrist")
+    assert r.n_used == 12 and any("a list of poses" in m for m in caplog.messages)
+    _payload_checks_se_only(r, res.truth)

@@ -91,12 +91,14 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
         idx.append(np.flatnonzero(m))
         names.append(rec.name)
     n = sum(len(y) for y in ys)
-    if n < s.min_samples:
+    n_unknown = 6 + len(load.param_names) + (3 if s.mount_rotation else 0)
+    min_samples = s.min_samples or int(np.ceil(2 * n_unknown / 6))
+    if n < min_samples:
         counts = "; ".join(f"{k}: {v['kept']} of {v['samples']}" for k, v in selection.items())
         raise DataFormatError(
             f"{', '.join(str(r.path or r.name) for r in recs)}: transducer {leg}: {n} quasi-static sample(s) "
             f"({counts}); expected at least "
-            f"{s.min_samples}: samples where the body turns slower than {s.rotation_rate_threshold_rad_s:g} rad/s, the joints "
+            f"{min_samples}: samples where the body turns slower than {s.rotation_rate_threshold_rad_s:g} rad/s, the joints "
             f"slower than {s.joint_rate_threshold_rad_s:g} rad/s and the forces change slower than {s.deriv_threshold_N_s:g} N/s "
             "(thresholds rise with the noise); is the load ever held still?")
     y = np.concatenate(ys)
