@@ -22,7 +22,9 @@ angles), ``E`` the mounting rotation (``R_true = R_nom E``, exact SO(3)), ``thet
 3. a start by linear least squares with ``E = I``; then the NLP with exact SO(3) (``nlp.py``), weighted by
    the readings' noise (first differences), re-weighted once by the residual sd per channel; what the data
    leave undetermined stays at the load's prior (the URDF's values; ``E = I``), nothing else does;
-4. Gauss-Newton information ``J^T Q_W J`` in local coordinates (``E = E* (I + [delta]x)``), its scaled
+4. Gauss-Newton information ``J^T Q_W J`` in local coordinates (``E = E* (I + [delta]x)``), the weights
+   shrunk where the residuals are serially correlated (AR(1) variance inflation, at most the samples per
+   hold: ``problem.serial_inflation``; white noise leaves them), its scaled
    eigen-analysis (``solver.identifiability``): covariance on the determined subspace, ``bse`` inf for
    parameters in undetermined directions, those directions named, and the determined combinations of the
    parameters they touch given with se (reduced row echelon form: for ``shared/sample_urdf`` the total mass,
@@ -47,7 +49,7 @@ from ..loads import load_for
 from ..settings import FreeLoadSettings
 from ..solver import identifiability
 from .nlp import nlp_for
-from .problem import FreeLoadData, compress, difference_noise, n_lifted, predict
+from .problem import FreeLoadData, compress, difference_noise, n_lifted, predict, serial_inflation
 from .quasistatic import select_quasi_static
 from .result import WRENCH, FreeLoadResult, FreeLoadResults
 
@@ -108,8 +110,9 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     b = np.einsum("nji,nj->ni", R_nom, g_B)
     K = load.lever(q, n)
     source = np.concatenate(src)
-    noise0 = difference_noise(y, source, np.concatenate(idx))
-    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q)
+    index = np.concatenate(idx)
+    noise0 = difference_noise(y, source, index)
+    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q, index)
 
 
 def _lin_map(p: int, mu: np.ndarray) -> np.ndarray:
@@ -222,8 +225,11 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         W = 1.0 / sig**2
     solve_time = time.perf_counter() - t0
     w_o, theta = x[:6], x[6:6 + p]
-    # information in local coordinates [w_o, theta, delta]
-    Qw, _, _ = mom.weighted(W)
+    # information in local coordinates [w_o, theta, delta]; serially correlated residuals (a model error that stays
+    # through a hold) carry less information than white noise: their weight shrinks by the AR(1) inflation
+    res = data.y - predict(data.b, data.K, theta, mu, E, w_o)
+    rho, inflation = serial_inflation(res, data.source, data.index)
+    Qw, _, _ = mom.weighted(W / inflation)
     J = nlp.jacobian(w_o, theta, E)
     info = J.T @ Qw @ J
     keep = np.r_[np.ones(6 + p, bool), np.full(3, s.mount_rotation)]
@@ -260,7 +266,6 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
                                "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
     null = np.zeros((n_all, int((~ident.determined).sum())))
     null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
-    res = data.y - predict(data.b, data.K, theta, mu, E, w_o)
     rms = np.sqrt((res**2).mean(axis=0))
     notes = []
     if undetermined:
@@ -271,6 +276,10 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
             notes.append(f"{leg}: joint '{g.joint}' never moves in the samples used (range "
                          f"{np.ptp(data.q.get(g.joint, np.zeros(1))):.2g} rad): the links it carries ({', '.join(g.links)}) "
                          "cannot be told apart from the group above them; their split is the URDF's")
+    if np.any(inflation > 2.0):
+        notes.append(f"{leg}: residuals correlated from sample to sample (lag-1 correlation {np.array2string(rho, precision=2)} "
+                     f"in fx..tz): se widened by {np.array2string(np.sqrt(inflation), precision=2)}; the model misses "
+                     "something that stays through a hold (the diagnosis looks for it)")
     fixed = [r.name for r in ds.hanging if r.hangs_free(leg) and r.gravity is None]
     if fixed:
         notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
