@@ -453,3 +453,25 @@ def test_a_list_of_poses_is_taken_as_holds(tmp_path, caplog) -> None:
         r = fit_free_load(read_dataset(tmp_path / "dataset.toml"), "wrist")
     assert r.n_used == 12 and any("a list of poses" in m for m in caplog.messages)
     _payload_checks_se_only(r, res.truth)
+
+
+@needs_samples
+def test_results_protocol_through_calibrate() -> None:
+    """``calibrate`` on a section-5 dataset: the run's params / bse / cov_params / conf_int / summary cover the free
+    loads; undetermined parameters have inf se and NaN covariance rows; the standing stages are absent."""
+    from ftcal_nlp.pipeline import calibrate
+    from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+
+    ds = read_dataset(SHARED / "sample_urdf" / "dataset.toml")
+    run = calibrate(ds, CalibrationSettings(diagnose=DiagnoseSettings(enabled=False)))
+    assert run.standing is None and run.poses is None and run.free_loads is not None
+    r = run.free_loads.legs["leg"]
+    assert list(run.params.index) == list(r.names)
+    cov = run.free_loads.cov_params()
+    und = list(r.undetermined_params)
+    assert und and np.all(np.isinf(run.bse[und])) and cov.loc[und[0]].drop(und[0]).isna().all()
+    ci = run.conf_int()
+    fin = np.isfinite(run.bse.to_numpy())
+    assert np.all(ci["lower"].to_numpy()[fin] < run.params.to_numpy()[fin])
+    text = str(run.summary())
+    assert "leg.hip_yaw.mass_kg" in text and "not determined by the data" in text and "determined:" in text
