@@ -116,7 +116,8 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
                 log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
     with stage("report", res.timings):
         if res.free_loads is not None:  # the report's sections for free loads come with issue 22b: the summary for now
-            (cfg.output_dir / "report.md").write_text(f"```\n{res.summary().as_text()}\n```\n")
+            skipped = "".join(f"* {n}\n" for n in res.notes if "skipped" in n)
+            (cfg.output_dir / "report.md").write_text(f"```\n{res.free_loads.summary().as_text()}\n```\n{skipped}")
         else:
             write_report(res, cfg.output_dir)
     print(summary_text(res, cfg))
