@@ -200,6 +200,8 @@ def test_orientations_about_one_axis_are_named(tmp_path) -> None:
     r = fit_free_load(ds, "wrist")
     assert r.undetermined and np.isinf(r.load_report()["load_mass_se_kg"])
     assert any("one direction" in n for n in r.notes)
+    assert any("wrist.mount." in d for d in r.undetermined)                  # the turn about gravity among them
+    assert len(r.undetermined) == 7 and len(r.determined) == 6   # one gravity direction: 6 numbers for 13 unknowns
 
 
 def _urdf_dataset(tmp_path: Path) -> Path:
