@@ -60,6 +60,8 @@ class FreeLoadData:
     selection: dict[str, dict] = field(default_factory=dict)
     noise0: np.ndarray | None = None
     masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
+    q: dict[str, np.ndarray] = field(default_factory=dict)       # joint -> (N,) angles of the samples used
+    index: np.ndarray | None = None                              # (N,) row of each sample in its recording
 
     @property
     def n(self) -> int:
@@ -102,29 +104,39 @@ def torque_features(K: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def compress(y: np.ndarray, b: np.ndarray, K: np.ndarray, chunk: int = _CHUNK) -> Moments:
-    """The channel moments of the module docstring, block by block."""
+    """The channel moments of the module docstring, block by block. A lever that is the same for every sample
+    (a rigid payload: ``K`` a broadcast view) makes every feature linear in ``[1, b_n]``: then the 4 x 4 moments of
+    ``[1, b_n]`` (and their products with ``y``) give every channel's exactly, at the cost of one pass."""
     n, _, p = K.shape
     d = n_lifted(p)
-    nz_l = np.flatnonzero(np.any(K != 0, axis=(0, 1))) if K.strides[0] else np.flatnonzero(np.any(K[0] != 0, axis=0))
+    constant = K.strides[0] == 0 or n == 1
+    nz_l = np.flatnonzero(np.any(K[0] != 0, axis=0)) if constant else np.flatnonzero(np.any(K != 0, axis=(0, 1)))
     cols = channel_columns(p, nz_l)
     Qs = [np.zeros((len(c), len(c))) for c in cols]
     vs = [np.zeros(len(c)) for c in cols]
-    s = np.zeros(6)
-    for a in range(0, n, chunk):
-        sl = slice(a, min(a + chunk, n))
-        yb, bb, Kb = y[sl], b[sl], K[sl]
-        ones = np.ones((len(yb), 1))
-        Xf = np.concatenate([ones, bb], axis=1)
-        G = Xf.T @ Xf                                   # shared by the three force channels
+    Xf = np.concatenate([np.ones((n, 1)), b], axis=1)
+    G = Xf.T @ Xf                                       # shared by the three force channels
+    Gy = Xf.T @ y                                       # (4, 6)
+    for i in range(3):
+        Qs[i], vs[i] = G, Gy[:, i]
+    s = np.einsum("nc,nc->c", y, y)
+    if constant:
+        A = torque_features(np.broadcast_to(K[0], (3, 3, p)), np.eye(3))        # (basis m, channel, 9p): linear in b
         for i in range(3):
-            Qs[i] += G
-            vs[i] += Xf.T @ yb[:, i]
-        Ft = torque_features(Kb, bb)
-        for i in range(3):
-            X = np.concatenate([ones, Ft[:, i, cols[3 + i][1:] - 15]], axis=1)
-            Qs[3 + i] += X.T @ X
-            vs[3 + i] += X.T @ yb[:, 3 + i]
-        s += np.einsum("nc,nc->c", yb, yb)
+            T = np.zeros((4, len(cols[3 + i])))
+            T[0, 0] = 1.0
+            T[1:, 1:] = A[:, i, cols[3 + i][1:] - 15]
+            Qs[3 + i], vs[3 + i] = T.T @ G @ T, T.T @ Gy[:, 3 + i]
+    else:
+        for a in range(0, n, chunk):
+            sl = slice(a, min(a + chunk, n))
+            yb, bb, Kb = y[sl], b[sl], K[sl]
+            ones = np.ones((len(yb), 1))
+            Ft = torque_features(Kb, bb)
+            for i in range(3):
+                X = np.concatenate([ones, Ft[:, i, cols[3 + i][1:] - 15]], axis=1)
+                Qs[3 + i] += X.T @ X
+                vs[3 + i] += X.T @ yb[:, 3 + i]
     Q = np.zeros((6, d, d))
     v = np.zeros((6, d))
     for c in range(6):
@@ -149,3 +161,21 @@ def difference_noise(y: np.ndarray, source: np.ndarray, index: np.ndarray) -> np
         return np.full(6, np.nan)
     d = np.diff(y, axis=0)[ok]
     return 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
+
+
+def serial_inflation(res: np.ndarray, source: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel the lag-1 correlation ``rho`` (6,) of the residuals ``res`` (N, 6) over consecutive samples and
+    the variance inflation of a mean under AR(1) errors, ``(1 + rho) / (1 - rho)``, between 1 and the samples per
+    run of consecutive samples (the limit of a residual that is one constant per hold: a model error, not noise).
+    White residuals give ~1. In a list of poses successive rows are successive poses: a correlation there is a
+    drift across the session, and widens the se likewise."""
+    idx = np.asarray(index)
+    ok = (np.diff(idx) == 1) & (np.diff(source) == 0)
+    if ok.sum() < 10:
+        return np.zeros(6), np.ones(6)
+    a, b = res[:-1][ok], res[1:][ok]
+    a, b = a - a.mean(0), b - b.mean(0)
+    rho = np.clip((a * b).sum(0) / np.sqrt((a * a).sum(0) * (b * b).sum(0)), -0.999, 0.999)
+    runs = int((~ok).sum()) + 1
+    cap = max(len(res) / runs, 1.0)
+    return rho, np.clip((1 + rho) / (1 - rho), 1.0, cap)
