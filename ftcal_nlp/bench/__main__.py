@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="the ~1-2 minute version (fewer datasets, repeats and points)")
     ap.add_argument("--out", default="reports/bench", help="output folder (default reports/bench)")
     ap.add_argument("--only", nargs="+", choices=PARTS, help="run only these parts")
-    ap.add_argument("--seeds", type=int, help="number of simulated datasets for the accuracy part")
+    ap.add_argument("--seeds", type=int, help="number of simulated datasets for the accuracy parts (hexapod and free loads)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
     a = ap.parse_args(argv)
     matplotlib.use("Agg")  # files only; the entry point, not the library, picks the backend
@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.only:
         s = replace(s, parts=tuple(a.only))
     if a.seeds:
-        s = replace(s, accuracy=replace(s.accuracy, seeds=tuple(range(a.seeds))))
+        s = replace(s, accuracy=replace(s.accuracy, seeds=tuple(range(a.seeds))), loads=replace(s.loads, seeds=tuple(range(a.seeds))))
     res = run_bench(s, a.out, progress=not a.no_progress)
     print(res["summary"])
     print(f"\nwritten: {os.path.abspath(a.out)}")
