@@ -191,6 +191,9 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
     cpu: dict[str, float] = {}
     notes: list[str] = []
     if ds.free_load_legs:
+        if offsets_only is not None:
+            raise DataFormatError(f"{ds.manifest or 'dataset'}: offsets-only re-estimation needs standing poses of a hexapod; "
+                                  f"transducers {list(ds.free_load_legs)} carry free loads (calibrate them anew)")
         return _calibrate_free_loads(ds, s, timings, cpu, notes)
     hang = hang_base = None
     with stage("plausibility checks", timings, cpu):

@@ -203,7 +203,8 @@ class FreeLoadSettings:
     larger (noisier streams, as the standing poses do). ``mount_rotation``: estimate the transducer's mounting
     rotation; ``prior_weight``: weight of the load's nominal values (the URDF's) relative to the information of
     each parameter, which pins only what the data leave undetermined; ``loads``: transducer -> load name or
-    ``module:Class`` instead of the dataset's kind."""
+    ``module:Class`` instead of the dataset's kind. A recording whose samples lie farther apart than ``window_s`` is
+    a list of poses: every sample is a hold."""
 
     window_s: float = 0.31
     polyorder: int = 2
@@ -212,7 +213,7 @@ class FreeLoadSettings:
     deriv_threshold_N_s: float = 1.0
     noise_factor: float = 2.0
     max_gap_factor: float = 3.0
-    min_samples: int = 50
+    min_samples: int = 0             # fewest quasi-static samples; 0: twice the unknowns in equations (6 per sample)
     mount_rotation: bool = True
     prior_weight: float = 1e-8
     rel_eig_tol: float = REL_EIG_TOL

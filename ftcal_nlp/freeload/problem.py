@@ -59,6 +59,9 @@ class FreeLoadData:
     names: tuple[str, ...]
     selection: dict[str, dict] = field(default_factory=dict)
     noise0: np.ndarray | None = None
+    masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
+    q: dict[str, np.ndarray] = field(default_factory=dict)       # joint -> (N,) angles of the samples used
+    index: np.ndarray | None = None                              # (N,) row of each sample in its recording
 
     @property
     def n(self) -> int:
@@ -148,3 +151,21 @@ def difference_noise(y: np.ndarray, source: np.ndarray, index: np.ndarray) -> np
         return np.full(6, np.nan)
     d = np.diff(y, axis=0)[ok]
     return 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
+
+
+def serial_inflation(res: np.ndarray, source: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel the lag-1 correlation ``rho`` (6,) of the residuals ``res`` (N, 6) over consecutive samples and
+    the variance inflation of a mean under AR(1) errors, ``(1 + rho) / (1 - rho)``, between 1 and the samples per
+    run of consecutive samples (the limit of a residual that is one constant per hold: a model error, not noise).
+    White residuals give ~1. In a list of poses successive rows are successive poses: a correlation there is a
+    drift across the session, and widens the se likewise."""
+    idx = np.asarray(index)
+    ok = (np.diff(idx) == 1) & (np.diff(source) == 0)
+    if ok.sum() < 10:
+        return np.zeros(6), np.ones(6)
+    a, b = res[:-1][ok], res[1:][ok]
+    a, b = a - a.mean(0), b - b.mean(0)
+    rho = np.clip((a * b).sum(0) / np.sqrt((a * a).sum(0) * (b * b).sum(0)), -0.999, 0.999)
+    runs = int((~ok).sum()) + 1
+    cap = max(len(res) / runs, 1.0)
+    return rho, np.clip((1 + rho) / (1 - rho), 1.0, cap)

@@ -14,6 +14,11 @@ threshold rises to ``noise_factor`` times the median of its rate over the
 samples the other two rates call still, when that is larger: noisier streams
 (mocap jitter, a noisier transducer) keep their holds instead of losing them
 all. The thresholds used and the kept/dropped counts are returned and logged.
+
+A recording whose samples lie farther apart than the filter window (median
+interval > ``window_s``) is a list of poses (one row per hold, e.g. an average
+or a snapshot per pose): no rate can be formed, each tracked sample is taken as
+a hold, and the log says so.
 """
 
 from __future__ import annotations
@@ -101,6 +106,11 @@ def select_quasi_static(t: np.ndarray, force: np.ndarray, quat: np.ndarray | Non
     tracked = np.ones(n, bool)
     if gravity is not None:
         tracked &= np.all(np.isfinite(gravity), axis=1)
+    if n < 2 or float(np.median(np.diff(t))) > s.window_s:
+        log.info("%s: samples %.3g s apart, more than the %g s window: a list of poses, each sample taken as a hold", where,
+                 float(np.median(np.diff(t))) if n > 1 else float("nan"), s.window_s)
+        counts = {"samples": n, "tracked": int(tracked.sum()), "kept": int(tracked.sum()), "dropped": int(n - tracked.sum())}
+        return QuasiStatic(tracked, {"pose_list": 1.0}, counts)
     rot, joint, dF = rates(t, force, quat, gravity, q, s)
     thr = {"rotation_rad_s": s.rotation_rate_threshold_rad_s, "joint_rad_s": s.joint_rate_threshold_rad_s,
            "force_N_s": s.deriv_threshold_N_s}

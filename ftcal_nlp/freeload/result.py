@@ -53,6 +53,7 @@ class FreeLoadResult(ResultsMixin):
     solve_time_s: float = 0.0
     eig_ratio: np.ndarray | None = None
     null: np.ndarray | None = None       # (n_params, r) undetermined directions in the parameters' own units
+    used: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) samples the fit used
 
     # ------------------------------------------------------------------ results protocol
 
