@@ -87,7 +87,8 @@ def _group_truth(truth, load) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[object, np.ndarray, np.ndarray]]:
-    """Per hanging recording in which ``leg``'s load hangs free: (recording, predicted (N, 6), quasi-static mask)."""
+    """Per hanging recording in which ``leg``'s load hangs free: (recording, predicted (N, 6), quasi-static mask: the
+    samples the fit used, ``FreeLoadResult.used``, else the estimator's selection recomputed)."""
     from ..freeload.quasistatic import select_quasi_static
 
     fit = res.free_loads.legs[leg]
@@ -98,8 +99,10 @@ def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[object, np
         if not rec.hangs_free(leg):
             continue
         pred = fit.predict_recording(rec, res.dataset.robot.g)
-        q = {j: rec.q[j] for j in joints if j in rec.q}
-        mask = select_quasi_static(rec.t, rec.wrench[leg][:, :3], rec.quat, rec.gravity, q, s, str(rec.path or rec.name)).mask
+        mask = getattr(fit, "used", {}).get(rec.name)          # the samples the fit used
+        if mask is None or len(mask) != rec.n:
+            q = {j: rec.q[j] for j in joints if j in rec.q}
+            mask = select_quasi_static(rec.t, rec.wrench[leg][:, :3], rec.quat, rec.gravity, q, s, str(rec.path or rec.name)).mask
         out.append((rec, pred, mask))
     return out
 
