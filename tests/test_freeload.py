@@ -290,6 +290,11 @@ def test_compression_is_exact() -> None:
     z = nlp_for(mu).z(np.r_[w_o, theta, E.ravel(order="F")])
     direct = ((y - predict(b, K, theta, mu, E, w_o)) ** 2).sum(axis=0)
     np.testing.assert_allclose(mom.rss(z), direct, rtol=1e-9)
+    # a constant lever (a payload) takes the short path through the moments of [1, b]: the same numbers
+    Kc = np.broadcast_to(K[0], K.shape)
+    mc, mg = compress(y, b, Kc), compress(y, b, np.ascontiguousarray(Kc), chunk=128)
+    np.testing.assert_allclose(mc.Q, mg.Q, rtol=1e-9, atol=1e-9 * np.abs(mg.Q).max())
+    np.testing.assert_allclose(mc.v, mg.v, rtol=1e-9, atol=1e-9 * np.abs(mg.v).max())
 
 
 def test_hexapod_dataset_reads_as_before() -> None:

@@ -52,6 +52,13 @@ def _lifted(w_o, theta, E, mu):
     return ca.vertcat(w_o, M * eR, *[theta[l] * eR for l in range(theta.shape[0])])
 
 
+def _lifted_mx(w_o, theta, E, mu):
+    """:func:`_lifted` for MX: ``theta (x) vec_r(E)`` as the columns of ``vec_r(E) theta^T``."""
+    eR = ca.vec(E.T)
+    M = ca.dot(ca.DM(mu), theta)
+    return ca.vertcat(w_o, M * eR, ca.vec(ca.mtimes(eR, theta.T)))
+
+
 @dataclass
 class FreeLoadNLP:
     """The solver and the local Jacobian for loads with ``p`` parameters and mass row ``mu`` (built once, reused)."""
@@ -66,24 +73,27 @@ class FreeLoadNLP:
     def build(cls, mu: np.ndarray) -> "FreeLoadNLP":
         p = len(mu)
         d = n_lifted(p)
-        w_o, theta, E = ca.SX.sym("w_o", 6), ca.SX.sym("theta", p), ca.SX.sym("E", 3, 3)
-        Rq, c = ca.SX.sym("R", d, d), ca.SX.sym("c", d)
+        # the solver in MX: the data matrix R (d x d) enters as one matrix-vector product, so building the NLP and
+        # its exact Hessian costs milliseconds at any size (SX would expand the d^2 products: seconds at d ~ 200)
+        w_o, theta, E = ca.MX.sym("w_o", 6), ca.MX.sym("theta", p), ca.MX.sym("E", 3, 3)
+        Rq, c = ca.MX.sym("R", d, d), ca.MX.sym("c", d)
         nx = 6 + p + 9
-        r, x0, inv_n = ca.SX.sym("r", nx), ca.SX.sym("x0", nx), ca.SX.sym("inv_n")
-        Pn = ca.SX.sym("Pn", 9 + p, 9 + p)
+        r, x0, inv_n = ca.MX.sym("r", nx), ca.MX.sym("x0", nx), ca.MX.sym("inv_n")
+        Pn = ca.MX.sym("Pn", 9 + p, 9 + p)
         x = ca.vertcat(w_o, theta, ca.vec(E))
-        z = _lifted(w_o, theta, E, mu)
+        z = _lifted_mx(w_o, theta, E, mu)
         e = ca.vertcat(w_o - x0[:6], theta - x0[6:6 + p], 0.5 * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]))
         obj = 0.5 * inv_n * (ca.sumsqr(ca.mtimes(Rq, z) - c) + ca.dot(r, (x - x0) ** 2) + ca.dot(e, ca.mtimes(Pn, e)))
         EtE = ca.mtimes(E.T, E) - ca.DM.eye(3)
         g = ca.vertcat(*[EtE[i, k] for i in range(3) for k in range(i, 3)], ca.det(E))
         P = ca.vertcat(ca.vec(Rq), c, r, x0, inv_n, ca.vec(Pn))
         solver = ipopt(f"freeload_nlp_p{p}", {"x": x, "p": P, "f": obj, "g": g}, **_IPOPT)
+        w_s, th_s, E_s = ca.SX.sym("w_o", 6), ca.SX.sym("theta", p), ca.SX.sym("E", 3, 3)
         delta, Es = ca.SX.sym("delta", 3), ca.SX.sym("Es", 3, 3)
-        z_loc = _lifted(w_o, theta, ca.mtimes(Es, ca.SX.eye(3) + skew(delta)), mu)
-        xl = ca.vertcat(w_o, theta, delta)
+        z_loc = _lifted(w_s, th_s, ca.mtimes(Es, ca.SX.eye(3) + skew(delta)), mu)
+        xl = ca.vertcat(w_s, th_s, delta)
         jac = ca.Function(f"freeload_jac_p{p}", [xl, Es], [ca.jacobian(z_loc, xl)])
-        lifted = ca.Function(f"freeload_z_p{p}", [x], [z])
+        lifted = ca.Function(f"freeload_z_p{p}", [ca.vertcat(w_s, th_s, ca.vec(E_s))], [_lifted(w_s, th_s, E_s, mu)])
         return cls(p, np.asarray(mu, float), solver, jac, lifted)
 
     @property

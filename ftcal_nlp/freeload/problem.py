@@ -104,29 +104,39 @@ def torque_features(K: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def compress(y: np.ndarray, b: np.ndarray, K: np.ndarray, chunk: int = _CHUNK) -> Moments:
-    """The channel moments of the module docstring, block by block."""
+    """The channel moments of the module docstring, block by block. A lever that is the same for every sample
+    (a rigid payload: ``K`` a broadcast view) makes every feature linear in ``[1, b_n]``: then the 4 x 4 moments of
+    ``[1, b_n]`` (and their products with ``y``) give every channel's exactly, at the cost of one pass."""
     n, _, p = K.shape
     d = n_lifted(p)
-    nz_l = np.flatnonzero(np.any(K != 0, axis=(0, 1))) if K.strides[0] else np.flatnonzero(np.any(K[0] != 0, axis=0))
+    constant = K.strides[0] == 0 or n == 1
+    nz_l = np.flatnonzero(np.any(K[0] != 0, axis=0)) if constant else np.flatnonzero(np.any(K != 0, axis=(0, 1)))
     cols = channel_columns(p, nz_l)
     Qs = [np.zeros((len(c), len(c))) for c in cols]
     vs = [np.zeros(len(c)) for c in cols]
-    s = np.zeros(6)
-    for a in range(0, n, chunk):
-        sl = slice(a, min(a + chunk, n))
-        yb, bb, Kb = y[sl], b[sl], K[sl]
-        ones = np.ones((len(yb), 1))
-        Xf = np.concatenate([ones, bb], axis=1)
-        G = Xf.T @ Xf                                   # shared by the three force channels
+    Xf = np.concatenate([np.ones((n, 1)), b], axis=1)
+    G = Xf.T @ Xf                                       # shared by the three force channels
+    Gy = Xf.T @ y                                       # (4, 6)
+    for i in range(3):
+        Qs[i], vs[i] = G, Gy[:, i]
+    s = np.einsum("nc,nc->c", y, y)
+    if constant:
+        A = torque_features(np.broadcast_to(K[0], (3, 3, p)), np.eye(3))        # (basis m, channel, 9p): linear in b
         for i in range(3):
-            Qs[i] += G
-            vs[i] += Xf.T @ yb[:, i]
-        Ft = torque_features(Kb, bb)
-        for i in range(3):
-            X = np.concatenate([ones, Ft[:, i, cols[3 + i][1:] - 15]], axis=1)
-            Qs[3 + i] += X.T @ X
-            vs[3 + i] += X.T @ yb[:, 3 + i]
-        s += np.einsum("nc,nc->c", yb, yb)
+            T = np.zeros((4, len(cols[3 + i])))
+            T[0, 0] = 1.0
+            T[1:, 1:] = A[:, i, cols[3 + i][1:] - 15]
+            Qs[3 + i], vs[3 + i] = T.T @ G @ T, T.T @ Gy[:, 3 + i]
+    else:
+        for a in range(0, n, chunk):
+            sl = slice(a, min(a + chunk, n))
+            yb, bb, Kb = y[sl], b[sl], K[sl]
+            ones = np.ones((len(yb), 1))
+            Ft = torque_features(Kb, bb)
+            for i in range(3):
+                X = np.concatenate([ones, Ft[:, i, cols[3 + i][1:] - 15]], axis=1)
+                Qs[3 + i] += X.T @ X
+                vs[3 + i] += X.T @ yb[:, 3 + i]
     Q = np.zeros((6, d, d))
     v = np.zeros((6, d))
     for c in range(6):
