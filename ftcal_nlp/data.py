@@ -482,7 +482,7 @@ def _check_joint_units(q: dict[str, np.ndarray], robot: Robot, where: str) -> No
     ``_JOINT_LIMIT_SLACK_RAD`` (or beyond ``_MAX_TURNS`` turns) is an error suspecting degrees."""
     for name, v in q.items():
         jt = robot.tree.joint(name)
-        if jt.type not in ("revolute", "continuous"):
+        if jt.type != "revolute":  # prismatic: metres; continuous: may turn without bound (unwrapped)
             continue
         lo_q, hi_q = np.percentile(v, [1, 99])
         big = max(abs(lo_q), abs(hi_q))

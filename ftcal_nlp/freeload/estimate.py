@@ -267,7 +267,7 @@ def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
         return [f"{leg}: gravity stays within ~1 deg of one direction in ft over all quasi-static samples ({', '.join(data.names)}): "
                 "one orientation cannot separate the offsets from the load; hang it in several"]
     if sv[1] < 0.02:
-        return [f"{leg}: the gravity directions in ft all lie near one cone or arc (orientations about one axis, "
+        return [f"{leg}: the gravity directions in ft vary along one line only (a short arc: small turns about one axis, "
                 f"{', '.join(data.names)}): what they cannot separate is named as undetermined"]
     return []
 
