@@ -118,6 +118,15 @@ def test_orientations_about_the_vertical_are_flagged() -> None:
     assert "mass_kg" in text and "com_" in text and "mount_r" in text
 
 
+def test_turning_about_one_horizontal_axis_determines_everything() -> None:
+    """The contrast: about a horizontal axis gravity sweeps a plane in ft; the force's harmonics give mass, offset
+    and the rotation (phase and tilt of the circle), the torque's the CoM: nothing is flagged."""
+    R_WB = rotvec_to_rotation(np.linspace(0, np.pi / 2, 400)[:, None] * np.array([1.0, 0.0, 0.0]))
+    g = gravity_in_ft(R_WB, np.eye(3), 9.81)
+    b = cl.payload_bound(g, 1.5, np.array([0.006, -0.004, 0.08]), np.array([0.02] * 3 + [6e-4] * 3))
+    assert b.identifiable and b.unidentified == ()
+
+
 def test_two_gravity_directions_leave_one_com_component() -> None:
     g = np.repeat(np.array([[0, 0, -9.81], [0, -9.81, 0]]), 200, axis=0)
     b = cl.payload_bound(g, 1.5, np.array([0.006, -0.004, 0.08]), np.array([0.02] * 3 + [6e-4] * 3), mount=False)

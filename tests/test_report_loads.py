@@ -28,6 +28,7 @@ def test_payload_report_has_the_load_table_readings_and_residuals(payload_run) -
     md = (out / "report.md").read_text()
     for head in ("## Summary", "## Load of wrist", "## Residuals", "## Stage times"):
         assert head in md
+    assert "Free-load fit of wrist" in md and "kept" in md and "dropped" in md     # quasi-static counts in the report
     assert (out / "load_readings_wrist.png").stat().st_size > 10_000 and "load_readings_wrist.png" in md
     assert (out / "report.html").is_file()
     import pandas as pd

@@ -52,7 +52,7 @@ WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 class LoadAccuracySettings:
     """``seeds`` per scenario; ``payload`` / ``urdf`` overrides of the simulator's configs."""
 
-    seeds: tuple[int, ...] = tuple(range(10))
+    seeds: tuple[int, ...] = tuple(range(20))
     scenarios: tuple[str, ...] = SCENARIOS
     estimators: tuple[str, ...] = ("nlp", "ft_calib", "calib_force")
     payload: dict = field(default_factory=dict)

@@ -5,7 +5,8 @@ first moments, mounting rotation; estimate ± se, the truth beside it when ``tru
 dataset); the measured and the predicted reading per component over time of every recording in which the
 load hangs free, and the residual (measured - predicted) below them, quasi-static samples marked (the fit
 uses those; the moves show what a static model leaves out); the residual RMS per component over the
-quasi-static samples and over all, beside the noise sd the fit weighted with; what the data leave
+quasi-static samples and over all, beside the noise sd the fit weighted with; the fit's facts (samples kept
+and dropped per recording, IPOPT); what the data leave
 undetermined and the determined combinations; stage times. Predictions come from
 ``FreeLoadResult.predict_recording`` (the fitted model:
 ``f = M E^T b + f_o``, ``t = s x E^T b + t_o``); the quasi-static selection is the estimator's own
@@ -86,7 +87,8 @@ def _group_truth(truth, load) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[object, np.ndarray, np.ndarray]]:
-    """Per hanging recording in which ``leg``'s load hangs free: (recording, predicted (N, 6), quasi-static mask)."""
+    """Per hanging recording in which ``leg``'s load hangs free: (recording, predicted (N, 6), quasi-static mask: the
+    samples the fit used, ``FreeLoadResult.used``, else the estimator's selection recomputed)."""
     from ..freeload.quasistatic import select_quasi_static
 
     fit = res.free_loads.legs[leg]
@@ -97,8 +99,10 @@ def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[object, np
         if not rec.hangs_free(leg):
             continue
         pred = fit.predict_recording(rec, res.dataset.robot.g)
-        q = {j: rec.q[j] for j in joints if j in rec.q}
-        mask = select_quasi_static(rec.t, rec.wrench[leg][:, :3], rec.quat, rec.gravity, q, s, str(rec.path or rec.name)).mask
+        mask = getattr(fit, "used", {}).get(rec.name)          # the samples the fit used
+        if mask is None or len(mask) != rec.n:
+            q = {j: rec.q[j] for j in joints if j in rec.q}
+            mask = select_quasi_static(rec.t, rec.wrench[leg][:, :3], rec.quat, rec.gravity, q, s, str(rec.path or rec.name)).mask
         out.append((rec, pred, mask))
     return out
 
@@ -156,6 +160,13 @@ def fig_readings(res: "CalibrationRun", leg: str, path: Path, max_points: int = 
     return path
 
 
+def _facts(fit) -> Table:
+    """The fit's summary facts (``FreeLoadResult.summary``) as a two-column table."""
+    facts = fit.summary().facts
+    df = pd.DataFrame({"value": [str(v) for _, v in facts]}, index=pd.Index([str(k) for k, _ in facts], name="fact"))
+    return Table(f"Free-load fit of {fit.leg}", df)
+
+
 def _figure(fn, *args) -> Path | None:
     try:
         return fn(*args)
@@ -194,6 +205,9 @@ def load_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
         sec.add(Figure(name, _figure(fig_readings, res, leg, folder / name),
                        f"Transducer {leg}: measured (grey) and predicted (blue) reading per component over time, and the "
                        "residual (black: the quasi-static samples the fit uses; orange: moves)."))
+        sec.add(Text("The estimator's own summary (quasi-static samples kept and dropped per recording, residual RMS "
+                     "against the noise sd it weighted with, IPOPT):"))
+        sec.add(_facts(fit))
         ident = fit.identifiability()
         sec.add(Text("What the data determine: " + ("every parameter." if not ident else "")))
         if ident:
