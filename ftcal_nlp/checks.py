@@ -77,7 +77,8 @@ from __future__ import annotations
 
 import itertools
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -494,6 +495,7 @@ def check_dataset(ds: Dataset, prior=None) -> None:
     :class:`~ftcal_nlp.calibration.Calibration` when only the offsets are re-estimated (no hanging)."""
     log.info("plausibility checks: %s", THRESHOLDS)
     robot_source = str(ds.robot_path or "robot.toml")
+    check_distinct_recordings(ds)
     check_shaft_angles(ds)
     if prior is None:
         if not ds.hanging:
@@ -704,3 +706,100 @@ def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[Sensor
         sub = rec if rec.n <= CHECK_ROWS else rec.select(np.arange(0, rec.n, -(-rec.n // CHECK_ROWS)))
         check_on_ground(sub, robot, offsets, weights, whose="the calibration's")
     return sensor_faults(rec, robot.legs)
+
+
+# ----------------------------------------------------------------------------- a calibration dataset's sensors and files
+
+
+def check_distinct_recordings(ds: Dataset) -> None:
+    """No recording listed twice (the same file, or the same samples under another name): each would count twice
+    and shrink every standard error by sqrt 2."""
+    seen: dict[tuple, Recording] = {}
+    for rec in ds.recordings:
+        key = (rec.n, float(rec.t[0]) if rec.n else 0.0, float(rec.t[-1]) if rec.n else 0.0)
+        other = seen.get(key)
+        same_file = other is not None and other.path is not None and rec.path is not None and Path(other.path).resolve() == Path(rec.path).resolve()
+        if other is not None and (same_file or (np.array_equal(other.t, rec.t) and all(
+                np.array_equal(other.wrench[k], rec.wrench[k], equal_nan=True) for k in rec.wrench))):
+            raise DataFormatError(
+                f"{ds.manifest or 'dataset'}: recordings {_src(other)} and {_src(rec)} are the same "
+                f"{'file' if same_file else 'samples'} listed twice; expected each recording once (twice, it would count "
+                "twice and every standard error would shrink by sqrt 2)"
+            )
+        seen[key] = rec
+
+
+#: a calibration recording with more of its rows held than this is refused rather than fitted on the rest
+MAX_FAULT_SHARE = 0.5
+
+
+def screen_sensor_faults(ds: Dataset) -> tuple[Dataset, list[str]]:
+    """Dead, stuck or clipped channels of the calibration recordings (hanging, standing), named before fitting.
+
+    A leg whose channels are held in every calibration recording is an error (nothing to calibrate it from);
+    otherwise the held rows of each such recording are left out of the fit, a warning names leg, columns, file
+    and share, and the returned notes (for the report) say so. Walking recordings are left whole: their
+    correction flags the rows (``{leg}_fault``)."""
+    calib = [r for r in ds.recordings if r.kind in ("hanging", "standing")]
+    found = {r.name: sensor_faults(r, ds.robot.legs) for r in calib}
+    by_leg: dict[str, list[SensorFault]] = {}
+    for fs in found.values():
+        for f in fs:
+            by_leg.setdefault(f.leg, []).append(f)
+    for leg, fs in by_leg.items():
+        if len(fs) == len(calib):
+            raise DataFormatError(
+                f"leg {leg}: its transducer does not move in any calibration recording: " + "; ".join(f.describe() for f in fs)
+                + f"; expected readings that change with the pose (is the sensor of leg {leg} connected, within its range?)"
+            )
+    if not by_leg:
+        return ds, []
+    notes, recs = [], []
+    for rec in ds.recordings:
+        fs = found.get(rec.name, [])
+        if fs:
+            rows = np.any([f.rows for f in fs], axis=0)
+            if rows.mean() > MAX_FAULT_SHARE:
+                raise DataFormatError("; ".join(f.describe() for f in fs) + f": {100 * rows.mean():.0f} % of the recording; "
+                                      f"expected at most {100 * MAX_FAULT_SHARE:.0f} % of a calibration recording held (is the "
+                                      "sensor connected, within its range?)")
+            for f in fs:
+                msg = f"{f.describe()}: those rows are left out of the calibration"
+                log.warning("%s", msg)
+                notes.append(f"sensor fault: {msg}")
+            rec = rec.select(~rows)
+        recs.append(rec)
+    return replace(ds, recordings=tuple(recs)), notes
+
+
+#: the standing residual (RMS over poses, force and torque norms) this many times the per-sample sensor noise of
+#: the summed readings is far above noise: pose medians average many samples, so a fit that explains the data
+#: leaves well below 1x (the sample: 0.25x); a dead leg leaves 25-170x
+RESIDUAL_NOISE_FACTOR = 5.0
+
+
+def residual_note(residuals: np.ndarray, noise, cal) -> str | None:
+    """A warning text when the calibrated standing residual is far above the sensor noise, else None.
+
+    ``residuals`` (P, 6) total-wrench residuals per pose (N, N*m); ``noise`` a
+    :class:`~ftcal_nlp.sensor_noise.SensorNoise` (None: nothing to compare with); ``cal`` the calibration (the
+    transducers' lever arms ``p_k``). The per-sample noise of the summed readings: force ``sqrt(sum_k tr S_f,k)``, torque
+    ``sqrt(sum_k tr S_t,k + |p_k|^2 tr S_f,k)`` (isotropic lever-arm term)."""
+    if noise is None or residuals is None or len(residuals) == 0:
+        return None
+    r = np.asarray(residuals, float)
+    legs = [k for k in cal.leg_names if k in noise.readings]
+    covs = [noise.readings[k] for k in legs]
+    positions = [cal.legs[k].position_from_com_m for k in legs]
+    f_var = sum(float(np.trace(c[:3, :3])) for c in covs)
+    t_var = sum(float(np.trace(c[3:, 3:])) + float(np.sum(p**2)) * float(np.trace(c[:3, :3])) for c, p in zip(covs, positions))
+    rms_f = float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))))
+    rms_t = float(np.sqrt(np.mean(np.sum(r[:, 3:] ** 2, axis=1))))
+    ratio_f, ratio_t = rms_f / np.sqrt(f_var), rms_t / np.sqrt(t_var)
+    if max(ratio_f, ratio_t) <= RESIDUAL_NOISE_FACTOR:
+        return None
+    return (f"the calibrated standing residual ({rms_f:.3g} N, {rms_t:.3g} N*m RMS over the poses) is {ratio_f:.0f}x "
+            f"(forces) and {ratio_t:.0f}x (torques) the per-sample sensor noise of the summed readings ({np.sqrt(f_var):.3g} N, "
+            f"{np.sqrt(t_var):.3g} N*m); expected below {RESIDUAL_NOISE_FACTOR:g}x: the model misses something in these data. "
+            "See the diagnosis ([diagnose] enabled = true: diagnosis.json and the report's Diagnosis section: which "
+            "effect, which leg) and any sensor fault named above")

@@ -345,6 +345,9 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
             continue
         recs.append(read_recording(manifest.parent / file, robot, kind=kind, gravity_body=gb, name=Path(file).stem))
     ds = Dataset(robot, tuple(recs), manifest.parent, manifest, robot_path)
+    from .checks import check_distinct_recordings  # (checks imports this module)
+
+    check_distinct_recordings(ds)  # before pairing: a file listed twice is named as such
     if kinds is None or "hanging" in kinds:
         hanging_pairs(ds.hanging)
     return ds

@@ -38,7 +38,7 @@ import numpy as np
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
-from .checks import check_dataset, check_transducer_poses
+from .checks import check_dataset, check_transducer_poses, screen_sensor_faults
 from .correct import correct_recording_full
 from .data import DataFormatError, Dataset
 from .diagnose import diagnose_run
@@ -159,6 +159,8 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
     notes: list[str] = []
     hang = hang_base = None
     with stage("plausibility checks", timings, cpu):
+        ds, screened = screen_sensor_faults(ds)  # dead / stuck / clipped channels: named, their rows left out
+        notes += screened
         check_dataset(ds, offsets_only)
     poses = _poses(ds, s, timings, cpu)  # before hanging: a dataset without poses fails fast
     if offsets_only is not None:
