@@ -76,7 +76,10 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     w_raw, phi, R_raw = rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat)
     w, R, w_cov = correct_for_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
     # ... and its parameters' uncertainty enters the se like reading noise
-    res = correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    try:
+        res = correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    except DataFormatError as exc:  # the tracking's refusals name no file
+        raise DataFormatError(f"{src}: {'offsets tracked (--track-offsets): ' if settings.track_offsets else ''}{exc}") from exc
     return flag_faults(res, faults, ok)
 
 
