@@ -267,12 +267,14 @@ def check_shaft_angles(ds: Dataset) -> None:
                 )
 
 
-def _check_shaft_rate(rec: Recording, legs: tuple[str, ...]) -> None:
-    """The 99th percentile of every shaft's rate below ``MAX_PHI_RATE_RAD_S`` (degrees turn 57x faster)."""
+def _check_shaft_rate(rec: Recording, legs: tuple[str, ...], stride: int = 1) -> None:
+    """The 99th percentile of every shaft's rate below ``MAX_PHI_RATE_RAD_S`` (degrees turn 57x faster); with
+    ``stride`` > 1 from every ``stride``-th pair of consecutive samples (a long recording to correct)."""
     if rec.n < 2:
         return
-    phi = rec.phi_array(legs)
-    rate = np.abs(np.diff(phi, axis=0)) / np.diff(rec.t)[:, None]
+    i = np.arange(0, rec.n - 1, max(1, int(stride)))
+    phi = np.stack([rec.phi[k] for k in legs], axis=1)
+    rate = np.abs(phi[i + 1] - phi[i]) / (rec.t[i + 1] - rec.t[i])[:, None]
     r99 = np.percentile(rate, 99, axis=0)
     if r99.max() > MAX_PHI_RATE_RAD_S:
         k = legs[int(np.argmax(r99))]
@@ -698,12 +700,13 @@ def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[Sensor
     seconds, shaft angles in radians, and (on the ground) the readings' sign and unit, the quaternion order and the
     torque columns against the calibration (``robot`` carries its rotations and positions); errors raise. Returns
     the sensor faults (warnings: the caller logs them and flags the rows)."""
+    # medians and percentiles: a regular subsample of a long recording says the same at a fraction of the cost
+    stride = max(1, -(-rec.n // CHECK_ROWS))
     check_clock(rec)
-    _check_shaft_rate(rec, robot.legs)
+    _check_shaft_rate(rec, robot.legs, stride)
     if rec.kind in ("walking", "standing") and rec.quat is not None:
         offsets, weights, _, _ = cal.stacked(robot.legs)
-        # medians and percentiles: a regular subsample of a long recording says the same at a fraction of the cost
-        sub = rec if rec.n <= CHECK_ROWS else rec.select(np.arange(0, rec.n, -(-rec.n // CHECK_ROWS)))
+        sub = rec if stride == 1 else rec.select(np.arange(0, rec.n, stride))
         check_on_ground(sub, robot, offsets, weights, whose="the calibration's")
     return sensor_faults(rec, robot.legs)
 

@@ -104,7 +104,12 @@ def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: boo
             log.warning("%s names no covariance file (meta.covariance_file): standard errors from the sensor noise alone%s",
                         calibration_path, "" if noise_of(cal) is not None else " (none stored either: se columns NaN)")
         return None
-    return CalibrationCovariance.load(Path(calibration_path).parent / name, noise_of(cal))
+    path = Path(calibration_path).parent / name
+    if not path.is_file():
+        raise DataFormatError(f"{path}: calibration covariance file not found; {calibration_path} names it in meta.covariance_file "
+                              f"(the run writes it beside calibration.json): expected it beside the calibration (copy both "
+                              "together) for the se columns", path=path)
+    return CalibrationCovariance.load(path, noise_of(cal))
 
 
 def correct_file(cal: Calibration, path: str | Path, cov: CalibrationCovariance | None = None,

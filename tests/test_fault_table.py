@@ -293,3 +293,13 @@ def test_a_residual_far_above_the_noise_points_at_the_diagnosis():
     note = residual_note(big, noise, cal)
     assert note is not None and re.search(r"is 10x \(forces\).*expected below 5x.*diagnosis", note), note
     assert residual_note(big, None, cal) is None  # no noise estimate: nothing to compare with
+
+
+def test_correct_says_where_the_covariance_file_should_be(calibration, tmp_path, capsys):
+    d = json.loads(calibration.read_text())
+    d.setdefault("meta", {})["covariance_file"] = "calibration_cov.npz"
+    p = tmp_path / "calibration.json"
+    p.write_text(json.dumps(d))
+    line = _one_error(correct_main([str(p), str(require_sample() / "walk.csv"), "-o", str(tmp_path / "c.csv")]), capsys.readouterr().err)
+    assert re.search(r"calibration_cov\.npz: calibration covariance file not found; .*calibration\.json names it in "
+                     r"meta\.covariance_file .*beside the calibration", line), line
