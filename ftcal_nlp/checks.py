@@ -107,6 +107,9 @@ TORQUE_MAP_RATIO = 0.7
 STILL_RAD_S = 0.05
 STILL_STRIDE = 5
 BODY_WEIGHT_FACTOR = 3.0
+# standing: the summed readings along the up axis over the body weight; every simulator effect keeps 0.95-1.01,
+# two legs of six left out of robot.toml give 0.58 (0.27-0.80), one ~0.83
+LOAD_SHARE = (0.8, 1.25)
 ROTATION_BOUND_DEG = 20.0
 # One leg off is a wiring fault of that leg (the diagnosis places it); more legs share a convention.
 MAX_FAULTY_LEGS = 1
@@ -116,7 +119,7 @@ THRESHOLDS = (
     f"shaft-angle periodicity ratio < {DEGREES_RATIO:g} and rate < {MAX_PHI_RATE_RAD_S:g} rad/s, standing tilt < {TILT_DEG:.0f} deg (p{TILT_PERCENTILE}; "
     f"p99 of still rows < {TILT_MIN_DEG:g} deg unless another quaternion order is {QUAT_ORDER_RATIO:g}x closer), "
     f"moment residual of any other torque order or sign > {TORQUE_MAP_RATIO:g}x as given, "
-    f"body weight within {BODY_WEIGHT_FACTOR:g}x, fitted rotations < {ROTATION_BOUND_DEG:.0f} deg "
+    f"body weight within {BODY_WEIGHT_FACTOR:g}x (standing, along the up axis: {LOAD_SHARE[0]:g}..{LOAD_SHARE[1]:g}x), fitted rotations < {ROTATION_BOUND_DEG:.0f} deg "
     f"from the design (relative translations < {TRANSLATION_BOUND_M * 1e3:.0f} mm: a warning)"
 )
 
@@ -345,6 +348,16 @@ def check_on_ground(rec: Recording, robot: Robot, offsets: np.ndarray, leg_weigh
             f"{along * body:.4g} N along the quaternion's up axis; expected the weight of the body without legs, "
             f"{body:.4g} N (mass_kg = {robot.mass_kg:g} less {whose} leg weights), within a factor {BODY_WEIGHT_FACTOR:g} "
             "for a robot on the ground: are the forces, or mass_kg, in another unit?"
+        )
+    if rec.kind == "standing" and not LOAD_SHARE[0] <= along <= LOAD_SHARE[1]:
+        a = np.einsum("ni,ni->n", S_B, up) / body
+        lo, hi = np.percentile(a, [10, 90])
+        raise DataFormatError(
+            f"{src}: standing, the readings less {whose} offsets (columns {{leg}}_fx..{{leg}}_fz) carry a median {along:.2f} "
+            f"({lo:.2f}..{hi:.2f}, 10th..90th percentile) of the weight of the body without legs ({body:.4g} N) along the "
+            f"quaternion's up axis; expected 1 within {LOAD_SHARE[0]:g}..{LOAD_SHARE[1]:g} (the simulator's effects stay within "
+            f"0.95..1.01): is a leg that bears weight missing from robot.toml (legs = {list(legs)}), or mass_kg = "
+            f"{robot.mass_kg:g} off?"
         )
     check_torque_axes(rec, robot, offsets)
     check_quaternion(rec, S_B, ok)

@@ -303,3 +303,19 @@ def test_correct_says_where_the_covariance_file_should_be(calibration, tmp_path,
     line = _one_error(correct_main([str(p), str(require_sample() / "walk.csv"), "-o", str(tmp_path / "c.csv")]), capsys.readouterr().err)
     assert re.search(r"calibration_cov\.npz: calibration covariance file not found; .*calibration\.json names it in "
                      r"meta\.covariance_file .*beside the calibration", line), line
+
+
+def test_legs_left_out_of_robot_toml_are_found_before_fitting(tmp_path, capsys, monkeypatch):
+    """Two legs of six removed from robot.toml and the files: their feet still carry the robot."""
+    def four(folder, frames):
+        p = folder / "robot.toml"
+        text = p.read_text().replace('legs = ["FL", "ML", "HL", "FR", "MR", "HR"]', 'legs = ["FL", "ML", "HL", "FR"]')
+        p.write_text(text.split("[transducers.MR]")[0])
+        for name, df in frames.items():
+            frames[name] = df.drop(columns=[c for c in df.columns if c.startswith(("MR_", "HR_"))])
+
+    monkeypatch.setitem(CASES, "_four_legs", four)
+    broken_sample(require_sample(), tmp_path / "data", "_four_legs")
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(r"standing\.parquet: standing, .*carry a median 0\.5\d .*of the weight of the body without legs.*expected 1 "
+                     r"within 0\.8\.\.1\.25.*a leg that bears weight missing from robot\.toml \(legs = \['FL', 'ML', 'HL', 'FR'\]\)", line), line
