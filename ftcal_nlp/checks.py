@@ -77,7 +77,8 @@ from __future__ import annotations
 
 import itertools
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -106,6 +107,9 @@ TORQUE_MAP_RATIO = 0.7
 STILL_RAD_S = 0.05
 STILL_STRIDE = 5
 BODY_WEIGHT_FACTOR = 3.0
+# standing: the summed readings along the up axis over the body weight; every simulator effect keeps 0.95-1.01,
+# two legs of six left out of robot.toml give 0.58 (0.27-0.80), one ~0.83
+LOAD_SHARE = (0.8, 1.25)
 ROTATION_BOUND_DEG = 20.0
 # One leg off is a wiring fault of that leg (the diagnosis places it); more legs share a convention.
 MAX_FAULTY_LEGS = 1
@@ -115,7 +119,7 @@ THRESHOLDS = (
     f"shaft-angle periodicity ratio < {DEGREES_RATIO:g} and rate < {MAX_PHI_RATE_RAD_S:g} rad/s, standing tilt < {TILT_DEG:.0f} deg (p{TILT_PERCENTILE}; "
     f"p99 of still rows < {TILT_MIN_DEG:g} deg unless another quaternion order is {QUAT_ORDER_RATIO:g}x closer), "
     f"moment residual of any other torque order or sign > {TORQUE_MAP_RATIO:g}x as given, "
-    f"body weight within {BODY_WEIGHT_FACTOR:g}x, fitted rotations < {ROTATION_BOUND_DEG:.0f} deg "
+    f"body weight within {BODY_WEIGHT_FACTOR:g}x (standing, along the up axis: {LOAD_SHARE[0]:g}..{LOAD_SHARE[1]:g}x), fitted rotations < {ROTATION_BOUND_DEG:.0f} deg "
     f"from the design (relative translations < {TRANSLATION_BOUND_M * 1e3:.0f} mm: a warning)"
 )
 
@@ -266,12 +270,14 @@ def check_shaft_angles(ds: Dataset) -> None:
                 )
 
 
-def _check_shaft_rate(rec: Recording, legs: tuple[str, ...]) -> None:
-    """The 99th percentile of every shaft's rate below ``MAX_PHI_RATE_RAD_S`` (degrees turn 57x faster)."""
+def _check_shaft_rate(rec: Recording, legs: tuple[str, ...], stride: int = 1) -> None:
+    """The 99th percentile of every shaft's rate below ``MAX_PHI_RATE_RAD_S`` (degrees turn 57x faster); with
+    ``stride`` > 1 from every ``stride``-th pair of consecutive samples (a long recording to correct)."""
     if rec.n < 2:
         return
-    phi = rec.phi_array(legs)
-    rate = np.abs(np.diff(phi, axis=0)) / np.diff(rec.t)[:, None]
+    i = np.arange(0, rec.n - 1, max(1, int(stride)))
+    phi = np.stack([rec.phi[k] for k in legs], axis=1)
+    rate = np.abs(phi[i + 1] - phi[i]) / (rec.t[i + 1] - rec.t[i])[:, None]
     r99 = np.percentile(rate, 99, axis=0)
     if r99.max() > MAX_PHI_RATE_RAD_S:
         k = legs[int(np.argmax(r99))]
@@ -342,6 +348,16 @@ def check_on_ground(rec: Recording, robot: Robot, offsets: np.ndarray, leg_weigh
             f"{along * body:.4g} N along the quaternion's up axis; expected the weight of the body without legs, "
             f"{body:.4g} N (mass_kg = {robot.mass_kg:g} less {whose} leg weights), within a factor {BODY_WEIGHT_FACTOR:g} "
             "for a robot on the ground: are the forces, or mass_kg, in another unit?"
+        )
+    if rec.kind == "standing" and not LOAD_SHARE[0] <= along <= LOAD_SHARE[1]:
+        a = np.einsum("ni,ni->n", S_B, up) / body
+        lo, hi = np.percentile(a, [10, 90])
+        raise DataFormatError(
+            f"{src}: standing, the readings less {whose} offsets (columns {{leg}}_fx..{{leg}}_fz) carry a median {along:.2f} "
+            f"({lo:.2f}..{hi:.2f}, 10th..90th percentile) of the weight of the body without legs ({body:.4g} N) along the "
+            f"quaternion's up axis; expected 1 within {LOAD_SHARE[0]:g}..{LOAD_SHARE[1]:g} (the simulator's effects stay within "
+            f"0.95..1.01): is a leg that bears weight missing from robot.toml (legs = {list(legs)}), or mass_kg = "
+            f"{robot.mass_kg:g} off?"
         )
     check_torque_axes(rec, robot, offsets)
     check_quaternion(rec, S_B, ok)
@@ -494,6 +510,7 @@ def check_dataset(ds: Dataset, prior=None) -> None:
     :class:`~ftcal_nlp.calibration.Calibration` when only the offsets are re-estimated (no hanging)."""
     log.info("plausibility checks: %s", THRESHOLDS)
     robot_source = str(ds.robot_path or "robot.toml")
+    check_distinct_recordings(ds)
     check_shaft_angles(ds)
     if prior is None:
         if not ds.hanging:
@@ -696,11 +713,109 @@ def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[Sensor
     seconds, shaft angles in radians, and (on the ground) the readings' sign and unit, the quaternion order and the
     torque columns against the calibration (``robot`` carries its rotations and positions); errors raise. Returns
     the sensor faults (warnings: the caller logs them and flags the rows)."""
+    # medians and percentiles: a regular subsample of a long recording says the same at a fraction of the cost
+    stride = max(1, -(-rec.n // CHECK_ROWS))
     check_clock(rec)
-    _check_shaft_rate(rec, robot.legs)
+    _check_shaft_rate(rec, robot.legs, stride)
     if rec.kind in ("walking", "standing") and rec.quat is not None:
         offsets, weights, _, _ = cal.stacked(robot.legs)
-        # medians and percentiles: a regular subsample of a long recording says the same at a fraction of the cost
-        sub = rec if rec.n <= CHECK_ROWS else rec.select(np.arange(0, rec.n, -(-rec.n // CHECK_ROWS)))
+        sub = rec if stride == 1 else rec.select(np.arange(0, rec.n, stride))
         check_on_ground(sub, robot, offsets, weights, whose="the calibration's")
     return sensor_faults(rec, robot.legs)
+
+
+# ----------------------------------------------------------------------------- a calibration dataset's sensors and files
+
+
+def check_distinct_recordings(ds: Dataset) -> None:
+    """No recording listed twice (the same file, or the same samples under another name): each would count twice
+    and shrink every standard error by sqrt 2."""
+    seen: dict[tuple, Recording] = {}
+    for rec in ds.recordings:
+        key = (rec.n, float(rec.t[0]) if rec.n else 0.0, float(rec.t[-1]) if rec.n else 0.0)
+        other = seen.get(key)
+        same_file = other is not None and other.path is not None and rec.path is not None and Path(other.path).resolve() == Path(rec.path).resolve()
+        if other is not None and (same_file or (np.array_equal(other.t, rec.t) and all(
+                np.array_equal(other.wrench[k], rec.wrench[k], equal_nan=True) for k in rec.wrench))):
+            raise DataFormatError(
+                f"{ds.manifest or 'dataset'}: recordings {_src(other)} and {_src(rec)} are the same "
+                f"{'file' if same_file else 'samples'} listed twice; expected each recording once (twice, it would count "
+                "twice and every standard error would shrink by sqrt 2)"
+            )
+        seen[key] = rec
+
+
+#: a calibration recording with more of its rows held than this is refused rather than fitted on the rest
+MAX_FAULT_SHARE = 0.5
+
+
+def screen_sensor_faults(ds: Dataset) -> tuple[Dataset, list[str]]:
+    """Dead, stuck or clipped channels of the calibration recordings (hanging, standing), named before fitting.
+
+    A leg whose channels are held in every calibration recording is an error (nothing to calibrate it from);
+    otherwise the held rows of each such recording are left out of the fit, a warning names leg, columns, file
+    and share, and the returned notes (for the report) say so. Walking recordings are left whole: their
+    correction flags the rows (``{leg}_fault``)."""
+    calib = [r for r in ds.recordings if r.kind in ("hanging", "standing")]
+    found = {r.name: sensor_faults(r, ds.robot.legs) for r in calib}
+    by_leg: dict[str, list[SensorFault]] = {}
+    for fs in found.values():
+        for f in fs:
+            by_leg.setdefault(f.leg, []).append(f)
+    for leg, fs in by_leg.items():
+        if len(fs) == len(calib):
+            raise DataFormatError(
+                f"leg {leg}: its transducer does not move in any calibration recording: " + "; ".join(f.describe() for f in fs)
+                + f"; expected readings that change with the pose (is the sensor of leg {leg} connected, within its range?)"
+            )
+    if not by_leg:
+        return ds, []
+    notes, recs = [], []
+    for rec in ds.recordings:
+        fs = found.get(rec.name, [])
+        if fs:
+            rows = np.any([f.rows for f in fs], axis=0)
+            if rows.mean() > MAX_FAULT_SHARE:
+                raise DataFormatError("; ".join(f.describe() for f in fs) + f": {100 * rows.mean():.0f} % of the recording; "
+                                      f"expected at most {100 * MAX_FAULT_SHARE:.0f} % of a calibration recording held (is the "
+                                      "sensor connected, within its range?)")
+            for f in fs:
+                msg = f"{f.describe()}: those rows are left out of the calibration"
+                log.warning("%s", msg)
+                notes.append(f"sensor fault: {msg}")
+            rec = rec.select(~rows)
+        recs.append(rec)
+    return replace(ds, recordings=tuple(recs)), notes
+
+
+#: the standing residual (RMS over poses, force and torque norms) this many times the per-sample sensor noise of
+#: the summed readings is far above noise: pose medians average many samples, so a fit that explains the data
+#: leaves well below 1x (the sample: 0.25x); a dead leg leaves 25-170x
+RESIDUAL_NOISE_FACTOR = 5.0
+
+
+def residual_note(residuals: np.ndarray, noise, cal) -> str | None:
+    """A warning text when the calibrated standing residual is far above the sensor noise, else None.
+
+    ``residuals`` (P, 6) total-wrench residuals per pose (N, N*m); ``noise`` a
+    :class:`~ftcal_nlp.sensor_noise.SensorNoise` (None: nothing to compare with); ``cal`` the calibration (the
+    transducers' lever arms ``p_k``). The per-sample noise of the summed readings: force ``sqrt(sum_k tr S_f,k)``, torque
+    ``sqrt(sum_k tr S_t,k + |p_k|^2 tr S_f,k)`` (isotropic lever-arm term)."""
+    if noise is None or residuals is None or len(residuals) == 0:
+        return None
+    r = np.asarray(residuals, float)
+    legs = [k for k in cal.leg_names if k in noise.readings]
+    covs = [noise.readings[k] for k in legs]
+    positions = [cal.legs[k].position_from_com_m for k in legs]
+    f_var = sum(float(np.trace(c[:3, :3])) for c in covs)
+    t_var = sum(float(np.trace(c[3:, 3:])) + float(np.sum(p**2)) * float(np.trace(c[:3, :3])) for c, p in zip(covs, positions))
+    rms_f = float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))))
+    rms_t = float(np.sqrt(np.mean(np.sum(r[:, 3:] ** 2, axis=1))))
+    ratio_f, ratio_t = rms_f / np.sqrt(f_var), rms_t / np.sqrt(t_var)
+    if max(ratio_f, ratio_t) <= RESIDUAL_NOISE_FACTOR:
+        return None
+    return (f"the calibrated standing residual ({rms_f:.3g} N, {rms_t:.3g} N*m RMS over the poses) is {ratio_f:.0f}x "
+            f"(forces) and {ratio_t:.0f}x (torques) the per-sample sensor noise of the summed readings ({np.sqrt(f_var):.3g} N, "
+            f"{np.sqrt(t_var):.3g} N*m); expected below {RESIDUAL_NOISE_FACTOR:g}x: the model misses something in these data. "
+            "See the diagnosis ([diagnose] enabled = true: diagnosis.json and the report's Diagnosis section: which "
+            "effect, which leg) and any sensor fault named above")

@@ -107,13 +107,13 @@ def _log_warning(message, category, filename, lineno, file=None, line=None) -> N
 
 def setup(args: argparse.Namespace) -> None:
     """Logging level and format from ``-v``/``-q``; Python warnings to the log; progress bars off on
-    ``--no-progress`` or ``-q`` (tqdm reads ``TQDM_DISABLE``); matplotlib's file-only backend."""
+    ``--no-progress`` or ``-q``; matplotlib's file-only backend."""
     level = logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING if getattr(args, "quiet", False) else logging.INFO
     logging.basicConfig(level=level, format=LOG_FORMAT, datefmt="%H:%M:%S")
     logging.getLogger().setLevel(level)
     route_warnings()
     if getattr(args, "no_progress", False) or getattr(args, "quiet", False):
-        os.environ["TQDM_DISABLE"] = "1"
+        disable_progress()
     # files only; the entry point, not the library, picks the backend (before pyplot is imported, if at all)
     if "matplotlib" in sys.modules:
         import matplotlib
@@ -121,6 +121,25 @@ def setup(args: argparse.Namespace) -> None:
         matplotlib.use("Agg")
     else:
         os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def disable_progress() -> None:
+    """No progress bar in this process: tqdm's classes default to ``disable=True`` (its ``TQDM_DISABLE`` is read
+    when tqdm is imported, which may have happened already); also set for child processes."""
+    import tqdm
+    import tqdm.auto
+
+    os.environ["TQDM_DISABLE"] = "1"
+    for cls in {tqdm.tqdm, tqdm.auto.tqdm}:
+        if not getattr(cls, "_ftcal_disabled", False):
+            orig = cls.__init__
+
+            def init(self, *a, _orig=orig, **k):
+                k["disable"] = True  # over the caller's disable=None (shown on a terminal)
+                _orig(self, *a, **k)
+
+            cls.__init__ = init
+            cls._ftcal_disabled = True
 
 
 def route_warnings() -> None:

@@ -76,7 +76,10 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     w_raw, phi, R_raw = rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat)
     w, R, w_cov = correct_for_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
     # ... and its parameters' uncertainty enters the se like reading noise
-    res = correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    try:
+        res = correct_arrays(cal, rec.t, w, phi, R, cov, settings, w_cov)
+    except DataFormatError as exc:  # the tracking's refusals name no file
+        raise DataFormatError(f"{src}: {'offsets tracked (--track-offsets): ' if settings.track_offsets else ''}{exc}") from exc
     return flag_faults(res, faults, ok)
 
 
@@ -101,7 +104,12 @@ def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: boo
             log.warning("%s names no covariance file (meta.covariance_file): standard errors from the sensor noise alone%s",
                         calibration_path, "" if noise_of(cal) is not None else " (none stored either: se columns NaN)")
         return None
-    return CalibrationCovariance.load(Path(calibration_path).parent / name, noise_of(cal))
+    path = Path(calibration_path).parent / name
+    if not path.is_file():
+        raise DataFormatError(f"{path}: calibration covariance file not found; {calibration_path} names it in meta.covariance_file "
+                              f"(the run writes it beside calibration.json): expected it beside the calibration (copy both "
+                              "together) for the se columns", path=path)
+    return CalibrationCovariance.load(path, noise_of(cal))
 
 
 def correct_file(cal: Calibration, path: str | Path, cov: CalibrationCovariance | None = None,

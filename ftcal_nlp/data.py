@@ -588,6 +588,9 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
     ds = Dataset(robot, tuple(recs), manifest.parent, manifest, robot_path)
     if payload:
         log.info("%s: transducer(s) %s have no {leg}_phi column: rigid payloads (DATA_FORMAT.md section 5)", where, list(payload))
+    from .checks import check_distinct_recordings  # (checks imports this module)
+
+    check_distinct_recordings(ds)  # before pairing: a file listed twice is named as such
     if any(ds.load_kind(k) == "leg_com_curve" for k in robot.legs) and ds.hanging:
         ds = _nominal_gravity_body(ds)
         if kinds is None or "hanging" in kinds:

@@ -44,7 +44,7 @@ import pandas as pd
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun, JointCovariance, joint_covariance
-from .checks import check_dataset, check_transducer_poses
+from .checks import check_dataset, check_transducer_poses, screen_sensor_faults
 from .correct import correct_recording_full
 from .data import Dataset
 from .diagnose import DiagnosisResult, diagnose_run
@@ -205,6 +205,8 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
         return _calibrate_free_loads(ds, s, timings, cpu, notes)
     hang = hang_base = None
     with stage("plausibility checks", timings, cpu):
+        ds, screened = screen_sensor_faults(ds)  # dead / stuck / clipped channels: named, their rows left out
+        notes += screened
         check_dataset(ds, offsets_only)
     poses = _poses(ds, s, timings, cpu)  # before hanging: a dataset without poses fails fast
     if offsets_only is not None:

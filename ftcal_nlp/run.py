@@ -27,6 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from .calibration import Calibration
 from .calibration_run import CalibrationRun
+from .checks import residual_note
 from .config import RunConfig, load_config
 from .errors import ConfigError, DataFormatError, FtcalError
 from .outdir import OutputExistsError, OutputFolder  # noqa: F401  (OutputExistsError: re-exported, run.OutputExistsError)
@@ -62,6 +63,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
     if cfg.simulate is None:
         raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)", path=cfg.manifest)
     folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
+    check_simulation_target(cfg, folder)
     if cfg.simulate.get("kind", "hexapod") in FREE_KINDS:
         try:
             free = simulate_free(free_config(cfg.simulate))
@@ -77,8 +79,37 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
     sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
     manifest = write_simulation(res, folder, overwrite=force)
-    log.info("simulated dataset written to %s", manifest.parent)
+    why = f"[data].manifest {cfg.manifest} not found: " if cfg.manifest is not None else ""
+    log.warning("%s: %sthe [simulate] table was simulated into %s; everything below is of SIMULATED data",
+                cfg.path, why, manifest.parent)
     return read_dataset(manifest), res.truth
+
+
+def check_simulation_target(cfg: RunConfig, folder: Path) -> None:
+    """A missing manifest is simulated only where the ``[simulate]`` table writes it, into a folder without
+    recordings: a manifest path with a typo must not calibrate simulated data in place of the dataset named."""
+    if cfg.manifest is None:
+        return
+    target = folder / "dataset.toml"
+    if target.absolute() != cfg.manifest.absolute():
+        raise ConfigError(
+            f"{cfg.path} [data].manifest: {cfg.manifest} not found; the [simulate] table writes {target}, so the run would "
+            "calibrate simulated data instead of the dataset named: a typo in the path? (to simulate, point [data].manifest "
+            "at the simulated dataset.toml)", path=cfg.path, key="data.manifest")
+    if folder.is_dir() and any(p.suffix in (".csv", ".parquet", ".toml") for p in folder.iterdir()):
+        raise ConfigError(
+            f"{cfg.path} [data].manifest: {cfg.manifest} not found, but {folder} holds recordings or tables; expected the "
+            "manifest of that dataset (a typo in its name?), or an empty folder to simulate into", path=cfg.path, key="data.manifest")
+
+
+def data_origin(cfg: RunConfig, truth: Calibration | None) -> str | None:
+    """How the dataset came to be, when simulated (a ``truth.json`` beside the manifest, or the ``[simulate]``
+    table of this run), else None."""
+    if truth is None:
+        return None
+    if cfg.manifest is not None and (cfg.manifest.parent / "truth.json").is_file():
+        return f"simulated: the dataset of {cfg.manifest} comes with its truth (truth.json beside it)"
+    return f"simulated by this run from the [simulate] table of {cfg.path}"
 
 
 def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
@@ -107,9 +138,12 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
     res = calibrate(ds, cfg.settings, offsets_only=prior)
     cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
-    # a new frozen run with what only the command line knows: the truth, the load time, the config
+    origin = data_origin(cfg, truth)
+    cov_meta["data"] = {"simulated": origin is not None, **({"origin": origin} if origin else {})}
+    # a new frozen run with what only the command line knows: the truth, the load time, the config, the notes
     res = replace(res, truth=truth, timings={"load": t_load, **res.timings},
                   calibration=replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta}))
+    res = replace(res, notes=_issue_notes(res, origin))
     with stage("write calibration", res.timings):
         res.calibration.save(folder / "calibration.json")
         if res.uncertainty is not None:
@@ -126,6 +160,22 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     with stage("report", res.timings):
         write_report(res, folder)
     return res
+
+
+def _issue_notes(res: CalibrationRun, origin: str | None) -> tuple[str, ...]:
+    """The run's notes with those of the command line: simulated data first; a standing residual far
+    above the sensor noise last (both logged)."""
+    front: list[str] = []
+    back: list[str] = []
+    if origin is not None:
+        log.info("the dataset is %s", origin)
+        front.append(f"The dataset is {origin}.")
+    if res.standing is not None and res.uncertainty is not None:
+        note = residual_note(res.standing.residuals, res.uncertainty.noise, res.calibration)
+        if note:
+            log.warning("%s", note)
+            back.append(note)
+    return (*front, *res.notes, *back)
 
 
 def effect_calibration(res: CalibrationRun) -> Calibration:

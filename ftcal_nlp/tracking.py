@@ -29,10 +29,21 @@ with ``G_k`` the mean over the leg's swing samples of
 (``r`` interpolating two CoM grid points, as in ``uncertainty.py``).
 
 Change since calibration, per leg: the time-mean tracked offset less the
-calibrated one, ``d`` (6,), with ``Cov(d) = Cov(mean) + Cov(w_o,cal)`` (the
-calibration's offset se); ``chi2 = d^T Cov(d)^-1 d`` on 6 dof; significant when
+calibrated one, ``d`` (6,), with ``Cov(d) = Cov(mean) + J C J^T`` (``J = G_k`` with
+the offsets' own columns beside it: ``d`` errs by ``-(G_k d_theta + d_w_o)``, and the
+hanging fit correlates the two; without the calibration's covariance the offsets'
+se alone); ``chi2 = d^T Cov(d)^-1 d`` on 6 dof; significant when
 its p-value is below ``SIGNIFICANCE`` (0.001). The drift within the recording
 (last sample less first) is reported beside it.
+
+What the swing phases support (issue 24): a recording whose shafts are all still in more than
+``MAX_STILL_SHARE`` of its samples is a standing session and is refused (its feet lift only between poses);
+a swing phase counts only when its shaft turns ``MIN_SWING_TRAVEL_RAD`` or more (a foot carried forward, not
+held up); ``t`` must be in seconds (``checks.MAX_SAMPLE_INTERVAL_S``); no leg with a usable swing is an error.
+What differs from one swing phase to the next is not noise that averages out: ``Sigma_k``'s component c is
+scaled by ``max(1, sum_phases S_pc^2 / sum_samples e_c^2)`` (``S_pc`` the residual sum of phase p; 1 in
+expectation for independent residuals). Size on drift-free simulated walks: ``python -m
+ftcal_nlp.bench.tracking_size`` (README).
 """
 
 from __future__ import annotations
@@ -47,7 +58,8 @@ from scipy.ndimage import binary_erosion
 from scipy.stats import chi2
 
 from .calibration import Calibration, interp_cells
-from .data import WRENCH_COMPONENTS
+from .checks import MAX_SAMPLE_INTERVAL_S
+from .data import WRENCH_COMPONENTS, DataFormatError
 from .geometry import skew
 from .physics import gravity_dir_in_ft, leg_gravity_wrench
 from .settings import CorrectSettings
@@ -59,6 +71,9 @@ log = logging.getLogger(__name__)
 SIGNIFICANCE = 1e-3
 DEGREE = 3
 MIN_SWING = 20          # swing samples a leg needs before its offsets are tracked
+MIN_PHASES = 1          # swing phases a leg needs (with two or more, their scatter enters the change's uncertainty)
+MAX_STILL_SHARE = 0.5   # a recording whose shafts are all still in more of its samples is a standing session
+MIN_SWING_TRAVEL_RAD = 1.0  # a swing phase turns the shaft this far (the sample's walk: 4.7-5 rad; its standing poses: < 0.6)
 SWING_MARGIN_S = 0.3    # swing samples this close to a stance sample are left out of the fit
 
 
@@ -84,6 +99,7 @@ class TrackedOffsets:
     calibrated_se: np.ndarray
     t_range: tuple[float, float]
     calibration_cov: np.ndarray | None = None
+    change_cov: np.ndarray | None = None
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Offsets (N, K, 6) in ft_k at times ``t`` and their covariances (N, K, 6, 6)."""
@@ -113,9 +129,13 @@ class TrackedOffsets:
                 rows.append({"leg": k, "tracked": False, "n_swing": int(self.n_swing[i])})
                 continue
             d = bm @ self.coef[i] - self.calibrated[i]
-            C = float(bm @ self.unit_cov[i] @ bm) * self.sigma[i] + np.diag(np.nan_to_num(self.calibrated_se[i]) ** 2)
-            if self.calibration_cov is not None:
-                C = C + self.calibration_cov[i]
+            C = float(bm @ self.unit_cov[i] @ bm) * self.sigma[i]
+            if self.change_cov is not None:  # the calibration's offsets and leg weight wrench, correlated as fitted
+                C = C + self.change_cov[i]
+            else:
+                C = C + np.diag(np.nan_to_num(self.calibrated_se[i]) ** 2)
+                if self.calibration_cov is not None:
+                    C = C + self.calibration_cov[i]
             x2 = float(d @ np.linalg.solve(C, d))
             p = float(chi2.sf(x2, 6))
             drift = bd @ self.coef[i]
@@ -190,6 +210,10 @@ def track_offsets(t: np.ndarray, y: np.ndarray, swing: np.ndarray, cal: Calibrat
     t = np.asarray(t, float)
     if len(t) < 2 or not np.all(np.diff(t) > 0):
         raise ValueError("track_offsets: sample times must be increasing, with at least two samples")
+    dt_med = float(np.median(np.diff(t)))
+    if dt_med > MAX_SAMPLE_INTERVAL_S:  # knot_s and the swing margin are seconds
+        raise DataFormatError(f"column t: median sampling interval {dt_med:.4g}; expected seconds (at most "
+                              f"{MAX_SAMPLE_INTERVAL_S:g}): is t in milliseconds? Offsets are tracked on a time axis in s")
     knots = _knots(float(t[0]), float(t[-1]), settings.knot_s)
     nb = len(knots) - DEGREE - 1
     Dm = np.diff(np.eye(nb), n=2, axis=0)
@@ -201,6 +225,11 @@ def track_offsets(t: np.ndarray, y: np.ndarray, swing: np.ndarray, cal: Calibrat
     sigma = np.zeros((K, 6, 6))
     tracked = np.zeros(K, bool)
     cal_cov = np.zeros((K, 6, 6)) if cov is not None and phi is not None and R_WB is not None else None
+    change_cov = np.zeros((K, 6, 6))
+    inflation = np.ones((K, 6))
+    if phi is not None:
+        check_walking(t, phi)
+        swing = walking_swing(swing, phi)
     dt = float(np.median(np.diff(t)))
     margin = int(round(SWING_MARGIN_S / dt))
     if margin > 0:
@@ -208,8 +237,11 @@ def track_offsets(t: np.ndarray, y: np.ndarray, swing: np.ndarray, cal: Calibrat
     n_sw = swing.sum(axis=0).astype(int)
     for i, k in enumerate(legs):  # legs, not samples
         m = swing[:, i]
-        if n_sw[i] < MIN_SWING:
-            log.warning("track offsets: leg %s has %d swing samples (< %d); its calibrated offsets are kept", k, n_sw[i], MIN_SWING)
+        phase = np.cumsum(np.r_[True, np.diff(np.flatnonzero(m)) > 1]) if n_sw[i] else np.zeros(0, int)
+        n_phase = int(phase[-1]) if len(phase) else 0
+        if n_sw[i] < MIN_SWING or n_phase < MIN_PHASES:
+            log.warning("track offsets: leg %s has %d swing samples in %d swing phase(s) (needs %d in %d or more); its "
+                        "calibrated offsets are kept", k, n_sw[i], n_phase, MIN_SWING, MIN_PHASES)
             continue
         B = BSpline.design_matrix(t[m], knots, DEGREE)
         BtB = (B.T @ B).toarray()
@@ -220,13 +252,82 @@ def track_offsets(t: np.ndarray, y: np.ndarray, swing: np.ndarray, cal: Calibrat
         res = y[m, i] - B @ beta
         edf = float(np.trace(Ai @ BtB))
         sigma[i] = res.T @ res / max(n_sw[i] - edf, 1.0)
+        # what differs from one swing phase to the next (a load left at lift-off, the leg's dynamics) is no noise
+        # that averages out: the phases' residual sums against the samples' (1 for independent residuals)
+        sums = np.zeros((n_phase, 6))
+        np.add.at(sums, phase - 1, res)
+        infl = np.sqrt(np.maximum(1.0, (sums**2).sum(axis=0) / np.maximum((res**2).sum(axis=0), 1e-300)))
+        sigma[i] = sigma[i] * np.outer(infl, infl)
+        inflation[i] = infl
         unit[i] = Ai @ BtB @ Ai
         coef[i] = beta
         tracked[i] = True
         if cal_cov is not None:
             G = _leg_weight_jacobian_mean(phi[m, i], R_WB[m], cal, k, cov)
             cal_cov[i] = G @ cov.cov @ G.T
-    return TrackedOffsets(legs, knots, coef, unit, sigma, tracked, n_sw, off_cal, off_se, (float(t[0]), float(t[-1])), cal_cov)
+            # the change since calibration, tracked - calibrated, errs by -(G d_theta + d_w_o): the same parameters'
+            # joint covariance with the offsets' own columns beside G (their errors are correlated in the hanging fit)
+            J = G.copy()
+            for j, c in enumerate(WRENCH_COMPONENTS):
+                if f"{k}.w_o.{c}" in pos_of(cov):
+                    J[j, pos_of(cov)[f"{k}.w_o.{c}"]] += 1.0
+            change_cov[i] = J @ cov.cov @ J.T
+    if not tracked.any():
+        raise DataFormatError(
+            f"no leg has {MIN_PHASES} swing phases of {MIN_SWING} samples or more (swing samples per leg "
+            f"{n_sw.tolist()}); expected a walking recording whose feet leave the ground: offsets are tracked from the "
+            "swing phases (a standing session has none to track them from)")
+    log.info("track offsets: phase-to-phase scatter inflates the swing noise by %s (per leg, largest component; 1: none)",
+             dict(zip(legs, np.round(inflation.max(axis=1), 2).tolist())))
+    return TrackedOffsets(legs, knots, coef, unit, sigma, tracked, n_sw, off_cal, off_se, (float(t[0]), float(t[-1])), cal_cov,
+                          change_cov if cal_cov is not None else None)
+
+
+def pos_of(cov) -> dict[str, int]:
+    """Parameter name -> column of the calibration covariance (cached on the object)."""
+    got = getattr(cov, "_ftcal_pos", None)
+    if got is None:
+        got = {n: i for i, n in enumerate(cov.names)}
+        try:
+            object.__setattr__(cov, "_ftcal_pos", got)
+        except (AttributeError, TypeError):
+            pass
+    return got
+
+
+def check_walking(t: np.ndarray, phi: np.ndarray) -> None:
+    """Refuse a standing session: every shaft still (``checks.STILL_RAD_S``) in more than ``MAX_STILL_SHARE`` of
+    the samples. Its feet lift only between poses, where a leg turning in the air is no walking swing."""
+    from .checks import STILL_RAD_S
+
+    if len(t) < 3:
+        return
+    still = np.all(np.abs(np.diff(phi, axis=0)) <= STILL_RAD_S * np.diff(t)[:, None], axis=1)
+    share = float(still.mean())
+    if share > MAX_STILL_SHARE:
+        raise DataFormatError(
+            f"columns {{leg}}_phi: every shaft is still in {100 * share:.0f} % of the samples: a standing session, not a walk; "
+            f"expected a walking recording (shafts still in at most {100 * MAX_STILL_SHARE:.0f} %) to track offsets from its "
+            "swing phases (for a standing session, re-estimate offsets with [offsets_only] in a run)")
+
+
+def walking_swing(swing: np.ndarray, phi: np.ndarray, min_travel: float = MIN_SWING_TRAVEL_RAD) -> np.ndarray:
+    """The swing phases (N, K) in which the leg's shaft turns by ``min_travel`` rad or more: a foot carried
+    forward. A foot held up in a standing pose (its shaft still; a standing session's tilted poses) may still
+    touch or pull, and is not a swing to take offsets from."""
+    out = swing.copy()
+    for i in range(swing.shape[1]):
+        idx = np.flatnonzero(swing[:, i])
+        if not len(idx):
+            continue
+        phase = np.cumsum(np.r_[True, np.diff(idx) > 1]) - 1
+        p = phi[idx, i]
+        lo = np.full(phase[-1] + 1, np.inf)
+        hi = np.full(phase[-1] + 1, -np.inf)
+        np.minimum.at(lo, phase, p)
+        np.maximum.at(hi, phase, p)
+        out[idx[(hi - lo)[phase] < min_travel], i] = False
+    return out
 
 
 def log_changes(tr: TrackedOffsets) -> list[str]:

@@ -108,7 +108,9 @@ def test_every_user_error_is_one_line_with_status_2(tmp_path, capsys):
 def test_no_python_warning_reaches_the_user():
     code = ("import warnings, numpy as np\nfrom ftcal_nlp import cli\nimport argparse\n"
             "cli.setup(argparse.Namespace(verbose=False, quiet=False, no_progress=True))\n"
-            "np.log(np.array([-1.0])); np.array([1.0]) / 0.0\nwarnings.warn('a developer message', UserWarning)\nprint('done')\n")
+            "np.log(np.array([-1.0])); np.array([1.0]) / 0.0\nwarnings.warn('a developer message', UserWarning)\n"
+            "from tqdm.auto import tqdm\nassert tqdm(range(2), disable=None).disable  # --no-progress over a terminal's default\n"
+            "print('done')\n")
     p = _py("-c", code)
     assert p.returncode == 0 and p.stdout.strip() == "done" and p.stderr == "", p.stderr
     v = _py("-c", code.replace("verbose=False", "verbose=True"))

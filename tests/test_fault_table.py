@@ -170,3 +170,152 @@ def test_run(fault, tmp_path, capsys, monkeypatch):
     line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
     assert re.search(RUN_FAULTS[fault], line), line
     assert not (tmp_path / "out").exists()
+
+
+# ----------------------------------------------------------------------------- sensor faults and duplicates in a calibration dataset
+
+
+def _in(file: str, mutate):
+    def apply(folder, frames):
+        mutate(frames[file])
+    return apply
+
+
+def test_run_refuses_a_leg_dead_in_every_recording_before_fitting(tmp_path, capsys, monkeypatch):
+    import ftcal_nlp.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "_hanging", lambda *a, **k: (_ for _ in ()).throw(AssertionError("fitted")))
+    monkeypatch.setitem(CASES, "_dead_all", _every_file(_dead))
+    broken_sample(require_sample(), tmp_path / "data", "_dead_all")
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(r"error: leg ML: its transducer does not move in any calibration recording: .*hang_xpos\.csv: leg ML columns "
+                     r"ML_fx, .*ML_tz reads 0 on every channel \(dead or unplugged\) on 8000 of 8000 samples \(100\.0 %", line), line
+    assert all(f in line for f in ("hang_xneg.csv", "hang_zpos.parquet", "hang_zneg.parquet", "standing.parquet"))
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_refuses_a_recording_mostly_held(tmp_path, capsys):
+    broken_sample(require_sample(), tmp_path / "data", None)
+    df = pd.read_parquet(tmp_path / "data" / "standing.parquet")
+    _dead(df)
+    df.to_parquet(tmp_path / "data" / "standing.parquet", index=False)
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(r"standing\.parquet: leg ML .* reads 0 on every channel .*100 % of the recording; expected at most 50 %", line), line
+
+
+def test_run_leaves_clipped_rows_out_and_says_so(tmp_path, caplog):
+    broken_sample(require_sample(), tmp_path / "data", None)
+    df = pd.read_parquet(tmp_path / "data" / "standing.parquet")
+    _clipped(df)
+    df.to_parquet(tmp_path / "data" / "standing.parquet", index=False)
+    with caplog.at_level(logging.WARNING):
+        assert run_main([str(_config(tmp_path))]) == 0
+    msg = r"standing\.parquet: leg FR columns FR_fz clipped at 20 on \d+ of 44400 samples \(1\d\.\d %.*left out of the calibration"
+    assert len([r for r in caplog.records if re.search(msg, r.getMessage())]) == 1
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Notes" in report and re.search(r"sensor fault: .*leg FR columns FR_fz clipped at 20", report)
+    # the calibration from the remaining rows still recovers the truth (the run's z-score check)
+    from test_run import _check_z, _z_scores
+    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.config import load_config
+    from ftcal_nlp.pipeline import calibrate
+    from ftcal_nlp.data import read_dataset
+
+    run = calibrate(read_dataset(tmp_path / "data" / "dataset.toml"), load_config(_config(tmp_path)).settings)
+    _check_z(_z_scores(run, run.calibration, Calibration.load(require_sample() / "truth.json", g=9.81)))
+
+
+def test_the_same_recording_twice_is_refused(tmp_path, capsys):
+    broken_sample(require_sample(), tmp_path / "data", None)
+    m = tmp_path / "data" / "dataset.toml"
+    m.write_text(m.read_text() + '\n[[recording]]\nfile = "hang_xpos.csv"\nkind = "hanging"\ngravity_body = [1, 0, 0]\n')
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(r"recordings .*hang_xpos\.csv and .*hang_xpos\.csv are the same file listed twice.*sqrt 2", line), line
+    # a copy under another name: the same samples
+    import shutil
+
+    shutil.copy(tmp_path / "data" / "standing.parquet", tmp_path / "data" / "standing_copy.parquet")
+    m.write_text(m.read_text().replace('\n[[recording]]\nfile = "hang_xpos.csv"\nkind = "hanging"\ngravity_body = [1, 0, 0]\n', "")
+                 + '\n[[recording]]\nfile = "standing_copy.parquet"\nkind = "standing"\n')
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(r"standing\.parquet and .*standing_copy\.parquet are the same samples listed twice", line), line
+
+
+def test_a_manifest_typo_with_a_simulate_table_is_not_simulated(tmp_path, capsys):
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[data]\nmanifest = "data/bigant_sm/dataset.toml"\n[simulate]\ndir = "data/bigant_sim"\nn_poses = 20\n'
+                   '[output]\ndir = "out"\n')
+    line = _one_error(run_main([str(cfg)]), capsys.readouterr().err)
+    assert re.search(r"\[data\]\.manifest: .*bigant_sm/dataset\.toml not found; the \[simulate\] table writes .*bigant_sim/dataset\.toml.*typo", line)
+    assert not (tmp_path / "data").exists() and not (tmp_path / "out").exists()
+    # the same with a typo in the file name
+    cfg.write_text('[data]\nmanifest = "rec/datset.toml"\n[simulate]\nn_poses = 20\n[output]\ndir = "out"\n')
+    line = _one_error(run_main([str(cfg)]), capsys.readouterr().err)
+    assert re.search(r"rec/datset\.toml not found; the \[simulate\] table writes .*rec/dataset\.toml", line), line
+    # a folder of recordings whose manifest is missing is not simulated into either
+    (tmp_path / "rec").mkdir()
+    (tmp_path / "rec" / "walk.csv").write_text("t\n0\n")
+    cfg.write_text('[data]\nmanifest = "rec/dataset.toml"\n[simulate]\nn_poses = 20\n[output]\ndir = "out"\n')
+    line = _one_error(run_main([str(cfg)]), capsys.readouterr().err)
+    assert re.search(r"rec/dataset\.toml not found, but .*rec holds recordings", line), line
+
+
+def test_simulated_data_is_said_to_be_simulated(tmp_path, capsys):
+    """The sample comes with its truth.json: the log, the report and calibration.json say the data are simulated."""
+    broken_sample(require_sample(), tmp_path / "data", None)
+    import shutil
+
+    shutil.copy(require_sample() / "truth.json", tmp_path / "data" / "truth.json")
+    assert run_main([str(_config(tmp_path))]) == 0
+    meta = json.loads((tmp_path / "out" / "calibration.json").read_text())["meta"]["data"]
+    assert meta["simulated"] is True and "truth.json" in meta["origin"]
+    assert "The dataset is simulated" in (tmp_path / "out" / "report.md").read_text()
+    (tmp_path / "data" / "truth.json").unlink()
+    assert run_main([str(_config(tmp_path)), "--force"]) == 0
+    assert json.loads((tmp_path / "out" / "calibration.json").read_text())["meta"]["data"] == {"simulated": False}
+
+
+def test_a_residual_far_above_the_noise_points_at_the_diagnosis():
+    from types import SimpleNamespace
+
+    from ftcal_nlp.checks import RESIDUAL_NOISE_FACTOR, residual_note
+    from ftcal_nlp.calibration import Calibration
+
+    cal = Calibration.load(require_sample() / "truth.json", g=9.81)
+    sd = 0.05  # N per force component and leg (the sample's README), 0.01 N*m per torque component
+    noise = SimpleNamespace(readings={k: np.diag([sd**2] * 3 + [0.01**2] * 3) for k in cal.leg_names})
+    per_sample = np.sqrt(len(cal.leg_names) * 3 * sd**2)
+    rng = np.random.default_rng(0)
+    small = rng.normal(size=(200, 6)) * np.r_[[0.04] * 3, [0.002] * 3]
+    assert residual_note(small, noise, cal) is None
+    big = small.copy()
+    big[:, :3] *= 2 * RESIDUAL_NOISE_FACTOR * per_sample / np.sqrt(np.mean(np.sum(small[:, :3] ** 2, axis=1)))
+    note = residual_note(big, noise, cal)
+    assert note is not None and re.search(r"is 10x \(forces\).*expected below 5x.*diagnosis", note), note
+    assert residual_note(big, None, cal) is None  # no noise estimate: nothing to compare with
+
+
+def test_correct_says_where_the_covariance_file_should_be(calibration, tmp_path, capsys):
+    d = json.loads(calibration.read_text())
+    d.setdefault("meta", {})["covariance_file"] = "calibration_cov.npz"
+    p = tmp_path / "calibration.json"
+    p.write_text(json.dumps(d))
+    line = _one_error(correct_main([str(p), str(require_sample() / "walk.csv"), "-o", str(tmp_path / "c.csv")]), capsys.readouterr().err)
+    assert re.search(r"calibration_cov\.npz: calibration covariance file not found; .*calibration\.json names it in "
+                     r"meta\.covariance_file .*beside the calibration", line), line
+
+
+def test_legs_left_out_of_robot_toml_are_found_before_fitting(tmp_path, capsys, monkeypatch):
+    """Two legs of six removed from robot.toml and the files: their feet still carry the robot."""
+    def four(folder, frames):
+        p = folder / "robot.toml"
+        text = p.read_text().replace('legs = ["FL", "ML", "HL", "FR", "MR", "HR"]', 'legs = ["FL", "ML", "HL", "FR"]')
+        p.write_text(text.split("[transducers.MR]")[0])
+        for name, df in frames.items():
+            frames[name] = df.drop(columns=[c for c in df.columns if c.startswith(("MR_", "HR_"))])
+
+    monkeypatch.setitem(CASES, "_four_legs", four)
+    broken_sample(require_sample(), tmp_path / "data", "_four_legs")
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(r"standing\.parquet: standing, .*carry a median 0\.5\d .*of the weight of the body without legs.*expected 1 "
+                     r"within 0\.8\.\.1\.25.*a leg that bears weight missing from robot\.toml \(legs = \['FL', 'ML', 'HL', 'FR'\]\)", line), line

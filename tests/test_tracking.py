@@ -1,6 +1,7 @@
 """Contact state and offsets tracked from swing phases (issue 15, items 2-4), on a later simulated walk."""
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -128,3 +129,65 @@ def test_config_correct_section(tmp_path):
     p.write_text(base + "[correct]\ncontact_enter_z = 12.0\n")
     with pytest.raises(ConfigError, match="hysteresis"):
         load_config(p)
+
+
+# ----------------------------------------------------------------------------- issue 24: only what the swing phases support
+
+
+def test_a_standing_session_is_refused(tmp_path, capsys):
+    """The sample's standing session lifts feet between poses: tracking called 2.9 N 'significant' there."""
+    import json
+
+    from conftest import require_sample
+    from ftcal_nlp.correct import main as correct_main
+    from ftcal_nlp.csvout import write_csv
+
+    sample = require_sample()
+    d = json.loads((sample / "truth.json").read_text())
+    d["g"] = 9.81
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(d))
+    src = write_csv(pd.read_parquet(sample / "standing.parquet"), tmp_path / "standing.csv")
+    out = tmp_path / "c.csv"
+    assert correct_main([str(cal), str(src), "-o", str(out), "--track-offsets"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"^error: .*standing\.csv: offsets tracked \(--track-offsets\): columns \{leg\}_phi: every shaft is still in "
+                     r"8\d % of the samples: a standing session, not a walk", err), err
+    assert not out.exists()
+
+
+def test_clock_in_ms_and_no_swing_are_refused():
+    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.data import DataFormatError
+    from ftcal_nlp.tracking import track_offsets
+
+    from conftest import require_sample
+
+    cal = Calibration.load(require_sample() / "truth.json", g=9.81)
+    K = len(cal.leg_names)
+    t = np.arange(500) * 10.0  # 100 Hz in milliseconds
+    y = np.zeros((500, K, 6))
+    swing = np.zeros((500, K), bool)
+    swing[100:200] = True
+    with pytest.raises(DataFormatError, match=r"column t: median sampling interval 10; expected seconds.*milliseconds"):
+        track_offsets(t, y, swing, cal)
+    with pytest.raises(DataFormatError, match=r"no leg has 1 swing phases of 20 samples or more.*expected a walking recording"):
+        track_offsets(t / 1000, y, np.zeros((500, K), bool), cal)
+    # a foot held up with its shaft still is no swing either
+    phi = np.tile(np.linspace(0, 20, 500)[:, None], (1, K))
+    phi[100:200] = phi[100]
+    with pytest.raises(DataFormatError, match=r"no leg has 1 swing phases"):
+        track_offsets(t / 1000, y, swing, cal, phi=phi)
+
+
+def test_chi2_test_holds_its_size_on_drift_free_walks():
+    """Six drift-free walks, each of a freshly simulated and calibrated robot (seed 0-5): no leg called significant
+    beyond chance. The 40-walk version is the bench ``python -m ftcal_nlp.bench.tracking_size`` (README)."""
+    from ftcal_nlp.bench.tracking_size import summary, tracking_size
+
+    s = summary(tracking_size(walks=6, seed=0))
+    print(s)
+    # nominal per walk: 1 - (1 - 1e-3)^6 = 0.6 %; one of six is allowed, two would be a 5e-4 event
+    assert s["walks_with_a_false_alarm"] <= 1 and s["leg_tests"] >= 30
+    # chi2 on 6 dof: mean 6, sd of a mean of 36 values 0.6
+    assert s["mean_chi2"] < 6 + 4 * 0.6
