@@ -206,10 +206,11 @@ def _simulate(path: Path, output: str | None, force: bool) -> int:
         raise ConfigError(f"{path}: no output folder; pass -o DIR or set [simulate] dir", path=path, key="simulate.dir")
     try:
         manifest = simulate_to_folder(table, folder, overwrite=force)
-    except (TypeError, ValueError) as exc:  # the simulator's own key checks
-        if isinstance(exc, FtcalError):
+    except (TypeError, ValueError) as exc:  # the simulator's own key checks: named with the config file
+        if isinstance(exc, FtcalError) and str(path) in str(exc):
             raise
-        raise ConfigError(f"{path} [simulate]: {exc}", path=path, key="simulate") from exc
+        msg = str(exc) if str(exc).startswith("[simulate]") else f"[simulate]: {exc}"
+        raise ConfigError(f"{path} {msg}", path=path, key=getattr(exc, "key", None) or "simulate") from exc
     print(f"wrote {manifest} (simulated)")
     return 0
 

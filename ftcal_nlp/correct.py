@@ -144,10 +144,6 @@ def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     from .cli import add_common, guarded, parse, setup
-    from .correct_loads import main_if_free_load   # a wrist payload's contact wrench (DATA_FORMAT.md section 5)
-
-    if (rc := main_if_free_load(argv)) is not None:
-        return rc
 
     ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.correct", description=__doc__.splitlines()[0],
                                  epilog="The calibration's covariance file (meta.covariance_file, calibration_cov.npz written "
@@ -170,6 +166,11 @@ def _main(args) -> int:
     for target in [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else []):
         if target.exists() and not args.force:
             raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
+    from .correct_loads import correct_free_load_file, payload_calibrations
+
+    free = payload_calibrations(args.calibration)   # a wrist payload's contact wrench (DATA_FORMAT.md section 5)
+    if free is not None:
+        return correct_free_load_file(free, args, out)
     cal = Calibration.load(args.calibration)
     check_calibration(cal, args.calibration)
     # the missing-covariance warning comes after the correction succeeded: a failure is one line

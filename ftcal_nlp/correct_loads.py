@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from .data import GRAVITY_COLUMNS, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
-from .errors import DataFormatError
+from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
 
 log = logging.getLogger(__name__)
@@ -161,8 +160,11 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration], df: pd.DataFrame, whe
 
 def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration] | None:
     """The payload calibrations of ``calibration.json``, or None when it is not a free-load calibration."""
-    d = json.loads(Path(cal_path).read_text())
-    legs = d.get("legs", {})
+    try:
+        d = json.loads(Path(cal_path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None   # the hexapod path reports an unreadable file in its own words
+    legs = d.get("legs", {}) if isinstance(d, dict) else {}
     if not legs or not all(isinstance(l, dict) and "load_kind" in l for l in legs.values()):
         return None
     out = {k: payload_from_json(l, k, float(d.get("g", 9.81)), str(cal_path)) for k, l in legs.items()}
@@ -170,41 +172,16 @@ def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration] 
     return out
 
 
-def main_if_free_load(argv: list[str] | None = None) -> int | None:
-    """The ``correct`` command for a free-load calibration; None when ``calibration.json`` is not one (the
-    hexapod correction then runs)."""
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.correct", description="contact wrench of a wrist transducer")
-    ap.add_argument("calibration")
-    ap.add_argument("recording")
-    ap.add_argument("-o", "--output", required=True)
-    ap.add_argument("--bag")
-    ap.add_argument("--force", action="store_true")
-    ap.add_argument("--track-offsets", action="store_true")
-    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        cal = payload_calibrations(args.calibration)
-    except (OSError, json.JSONDecodeError):
-        return None                                # the hexapod path reports an unreadable file in its own words
-    except DataFormatError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    if cal is None:
-        return None
+def correct_free_load_file(cal: dict, args: argparse.Namespace, out: Path) -> int:
+    """The ``correct`` command (``correct.py`` parses the line) for a free-load calibration ``cal``
+    (:func:`payload_calibrations`): the contact wrench of each wrist transducer, written to ``out``."""
+    from .csvout import write_csv
+
     for opt, name in ((args.bag, "--bag"), (args.track_offsets, "--track-offsets")):
         if opt:
-            print(f"error: {name} applies to hexapod calibrations; {args.calibration} holds free loads", file=sys.stderr)
-            return 2
-    out = Path(args.output)
-    if out.exists() and not args.force:
-        print(f"error: {out} exists; pass --force to overwrite", file=sys.stderr)
-        return 2
-    try:
-        df = contact_frame(cal, read_table(Path(args.recording)), str(args.recording))
-    except (DataFormatError, FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            raise ConfigError(f"{name} applies to hexapod calibrations; {args.calibration} holds free loads", key=name)
+    df = contact_frame(cal, read_table(Path(args.recording)), str(args.recording))
     out.parent.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out, index=False, float_format="%.7g")
+    write_csv(df, out)  # t and every value to the last bit (csvout.py)
     log.info("wrote %s (%d rows): contact wrench of %s in their ft frames", out, len(df), list(cal))
     return 0

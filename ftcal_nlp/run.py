@@ -298,14 +298,12 @@ def check_models(cfg: RunConfig) -> None:
     that defines the class): a :class:`ConfigError` before any data are read or fitted."""
     from .models import resolve
 
-    st = cfg.standing
+    st = cfg.settings.standing
     names = [("model", st.model)] if st.model != "auto" else [("candidates", c) for c in st.candidates]
     for key, name in names:
         try:
             resolve(name)
-        except FtcalError:
-            raise
-        except (ValueError, ImportError, SyntaxError, AttributeError, TypeError, OSError) as exc:
+        except (FtcalError, ValueError, ImportError, SyntaxError, AttributeError, TypeError, OSError) as exc:
             raise ConfigError(f"{cfg.path} [standing].{key}: {exc}", path=cfg.path, key=f"standing.{key}") from exc
 
 

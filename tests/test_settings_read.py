@@ -77,8 +77,15 @@ def test_every_setting_the_config_accepts_is_read(tmp_path):
         '[correct]\ntrack_offsets = true\n'  # the tracking settings are read only when tracking
     )
     cfg = load_config(cfg_path)
+    # a free load (DATA_FORMAT.md section 5): the free-load settings are read only there
+    free_path = tmp_path / "free.toml"
+    free_path.write_text('[simulate]\nkind = "payload"\ndir = "free_data"\nseed = 3\n[output]\ndir = "free_out"\n'
+                         '[free_load]\nloads = {wrist = "rigid_payload"}\n')
+    free_cfg = load_config(free_path)
     with recording_reads(classes) as reads:
         res = run(cfg)
+        free_res = run(free_cfg)
     assert res.diagnosis is not None and res.diagnosis.verdict == "effect"
+    assert free_res.free_loads is not None
     unread = sorted(leaf_fields(classes) - reads)
     assert not unread, f"settings the config accepts but nothing reads: {unread}"
