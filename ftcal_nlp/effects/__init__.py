@@ -18,6 +18,8 @@ Modules:
   :class:`LinearFace`, :func:`legendre_time`, :func:`design_check`).
 * ``unit.py``: :class:`Effect`, what a unit declares; ``correction.py``: a sensor
   effect's correction (its standing face evaluated on samples).
+* ``free_faces.py``: the free-load face protocol (issue 23): :class:`FreeLoadContext`,
+  :class:`FreeFace`, :func:`make_context`; units declare ``free_shapes``/``free_face``/``free_correct``.
 * ``registry.py``: ``LIBRARY_EFFECTS``, :data:`EFFECTS`, :func:`resolve_effects`,
   :func:`with_units` (a copy with a toy effect added), :func:`injector_classes`.
 * the units: ``offset_drift``, ``gain_crosstalk``, ``casing_load``, ``mocap_bias``,

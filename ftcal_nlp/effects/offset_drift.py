@@ -20,6 +20,9 @@ Model faces (``t_h`` hours since hanging):
 * hanging    a rate per leg, plus P_2, P_3 of the hanging time or a warm-up exp(-t/tau)
              on a grid of tau (the joint refit keeps the best held-out); walking swing: the rate
 
+Free loads (``free_faces.py``): ``P_1..P_d`` of the session time per channel over the free-load
+recordings, ``d`` in 1, 2, 3, 5 (the shape, chosen by held-out residual); corrected as ``y - X beta``.
+
 Correction: the offsets follow the joint fit's per-leg rates, ``w_o,k(t) = w_o,k + D_k (t - t_ref) / 1 h``
 (a straight line: it holds only near the session; ``--track-offsets`` follows drift), with
 variance ``(t - t_ref)^2 / 1 h^2 se(D_k)^2`` per component (the rates' correlations are not stored).
@@ -31,6 +34,7 @@ import logging
 
 import numpy as np
 
+from .free_faces import FreeFace, session_time_basis
 from .faces import TIME_BASIS, WRENCH, HangingLeg, ParamBlock, PoseSym, legendre_time, per_leg_face
 from .injection import HOUR_S, EffectInjector, InjectionContext, Magnitude, OffFaceInjector
 from .unit import Effect
@@ -201,6 +205,20 @@ class OffsetDrift(Effect):
     def swing_features(self, legs):
         # the walk comes after the hanging recordings: only the rate is carried over (a straight line)
         return OffsetDrift(self.degree).hanging_features(legs)
+
+    # ---- free loads (``free_faces.py``): a Legendre polynomial of the session time per channel
+    FREE_DEGREES = (1, 2, 3, 5)
+
+    def free_shapes(self, ctx):
+        # the degree is the shape: a line, a bend, an S and a flexible curve (held-out evidence picks one)
+        return tuple({"degree": d} for d in self.FREE_DEGREES)
+
+    def free_face(self, ctx, shape):
+        # P_1..P_d of the session time over the free-load recordings (the constant is the offsets' own)
+        d = int(shape["degree"])
+        if np.ptp(ctx.t) <= 0:
+            return None
+        return FreeFace.per_channel(session_time_basis(ctx, d), tuple(f"P{j}" for j in range(1, d + 1)), shape=shape)
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         # The offsets follow the per-leg rates of the joint hanging fit (a straight line in time)

@@ -15,6 +15,7 @@ An effect unit (``ftcal_nlp/effects/<name>.py``, one per name of the contract's 
 * the correction for ``correct``: :meth:`Effect.correct` (default: a sensor effect's
   standing face evaluated on the samples, :func:`.correction.correct_by_face`; a body
   effect changes no per-foot wrench);
+* the free-load face (``free_faces.py``): ``free_shapes``, ``free_face``, ``free_correct``, ``free_explains``;
 * the off-face validation shapes: ``shapes``, :class:`~.injection.OffFaceInjector`
   classes of the same effect with other shapes (what the validation sweep injects to
   test that the diagnosis is not tuned to the face's own formula).
@@ -122,6 +123,24 @@ class Effect:
 
     def swing_features(self, legs: list[HangingLeg]) -> LinearFace | None:
         return None
+
+    # ---- the free-load face (``free_faces.py``: the contract); no free face by default
+    #: the correlate its free-load residual lies along (None: ``explains``); "joint" means "joint:<name>"
+    free_explains: ClassVar[str | None] = None
+
+    def free_shapes(self, ctx) -> tuple[dict, ...]:
+        """The grid of nonlinear shape parameters of the free face (``free_faces.py``); ``()``: none."""
+        return ()
+
+    def free_face(self, ctx, shape: dict):
+        """A :class:`~.free_faces.FreeFace` (design columns linear in the effect's parameters) for ``shape``, or
+        None where it does not apply to these data."""
+        return None
+
+    def free_correct(self, ctx, shape: dict, beta: np.ndarray) -> np.ndarray:
+        """Readings (N, 6) of ``ctx`` corrected for the effect with parameters ``beta``: ``y - X beta``."""
+        face = self.free_face(ctx, shape)
+        return ctx.y if face is None else ctx.y - face.wrench(beta)
 
     # ---- the correction for `correct`
     def correct(self, cal, block: dict, ctx: AugContext, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t_h: np.ndarray,
