@@ -208,7 +208,13 @@ def test_sweep_plan_is_deterministic_and_complete():
     assert [x["index"] for x in a] == list(range(len(a)))
     clean = [x for x in a if x["role"] == "clean"]
     assert len(clean) >= 6
-    for role, names in (("library", LIBRARY), ("variant", VARIANTS)):
+    from ftcal_nlp.bench.validate import HEXAPOD_EFFECTS, HEXAPOD_VARIANTS
+
+    # the hexapod sweep: the effects with hexapod faces and the shapes a hexapod takes (free-load ones apart)
+    assert set(HEXAPOD_EFFECTS) == {n for n, u in LIBRARY.items() if "hexapod" in u.diagnosed_on} and "offset_drift" in HEXAPOD_EFFECTS
+    assert "clock_offset" not in HEXAPOD_EFFECTS and "clock_offset_drift" not in HEXAPOD_VARIANTS
+    assert {x["effect"] for x in a if x["role"] in ("library", "variant")} == set(HEXAPOD_EFFECTS) | set(HEXAPOD_VARIANTS)
+    for role, names in (("library", HEXAPOD_EFFECTS), ("variant", HEXAPOD_VARIANTS)):
         for name in names:
             got = [x for x in a if x["role"] == role and x["effect"] == name]
             assert sorted(x["size"] for x in got) == ["hi", "lo"], name

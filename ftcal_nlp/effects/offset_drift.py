@@ -133,6 +133,7 @@ class OffsetDrift(Effect):
     explains = "time"
     kind = "sensor"
     injector_cls = OffsetDriftInjector
+    applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
     shapes = (OffsetDriftRampInjector, OffsetDriftStepInjector, OffsetDriftFastInjector)
     shifts_offsets = True
     DEGREES = (1, 2, 4)   # the smooth time bases tried (attribution keeps the best held-out)

@@ -63,6 +63,12 @@ class Effect:
     #: with free transducer rotations the effect shows as a common tilt of the fitted frames
     #: (``faces.design_check``), which the diagnosis scores as the effect's design face
     design_face: ClassVar[bool] = False
+    #: the simulators its injector and shapes work in: "hexapod" (``ftcal_nlp.sim``), "free" (``ftcal_nlp.sim.free``,
+    #: a transducer with a free load: it needs nothing of a hexapod)
+    applies_to: ClassVar[frozenset] = frozenset({"hexapod"})
+    #: the datasets the diagnosis has model faces for: "hexapod" (standing / hanging / swing faces above),
+    #: "free" (free-load faces)
+    diagnosed_on: ClassVar[frozenset] = frozenset({"hexapod"})
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

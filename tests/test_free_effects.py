@@ -1,0 +1,129 @@
+"""The five effects of issue 23 (clock_offset, creep, inertial_load, joint_limit_contact, temperature):
+each injector against an analytic case, each free face recovering its own injection's parameters within
+4 se on simulated free-load data (plain weighted augmented least squares: the offsets beside the face),
+and each correction removing the effect."""
+
+import numpy as np
+import pytest
+
+from ftcal_nlp.effects import EFFECTS, InjectionContext, applies_to
+from ftcal_nlp.effects.free_faces import make_context
+from ftcal_nlp.geometry import rotation_to_quat
+from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free
+from ftcal_nlp.sim.free.physics import gravity_in_ft
+from ftcal_nlp.sim.free.simulate import rpy_to_rotation
+from ftcal_nlp.geometry import rotvec_to_rotation
+
+WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+_cache: dict = {}
+
+
+def simulate(kind: str = "payload", effects=(), **kw):
+    key = (kind, repr(effects), tuple(sorted(kw.items())))
+    if key not in _cache:
+        cls = PayloadConfig if kind == "payload" else UrdfLegConfig
+        _cache[key] = simulate_free(cls(effects=tuple(effects), **kw))
+    return _cache[key]
+
+
+def context(sim, pred=None, temperature=None):
+    """A FreeLoadContext of a simulated free load with the simulator's truth as the fit (pred: the noise-free
+    readings before the injectors, offsets included; gravity in the true ft frame)."""
+    cfg = sim.config
+    f = sim.frame
+    y = f[[f"{cfg.transducer}_{c}" for c in WRENCH]].to_numpy()
+    t = f["t"].to_numpy()
+    if cfg.kind == "payload":
+        R_ft = rpy_to_rotation(cfg.rotation_rpy) @ rotvec_to_rotation(np.asarray(sim.truth["mount_rotvec"]))
+        g_ft = gravity_in_ft(sim.R_WB, R_ft, cfg.g)
+    else:
+        g_ft = np.zeros((len(t), 3))   # not used by the faces tested on URDF legs
+    sigma = np.array([cfg.noise_force_N] * 3 + [cfg.noise_torque_Nm] * 3)
+    limits = {}
+    if sim.q:
+        from ftcal_nlp.kinematics import load_tree
+        from ftcal_nlp.sim.free.simulate import joint_limits
+
+        limits = joint_limits(load_tree(cfg.urdf_path))
+    return make_context(cfg.transducer, t, y, sim.clean if pred is None else pred, g_ft, still=sim.held,
+                        quat=rotation_to_quat(sim.R_WB), sigma=sigma, q=sim.q, joint_limits=limits, temperature=temperature)
+
+
+def fit(ctx, face):
+    """Weighted least squares of ``y - pred`` on [offsets | face]: (beta, se, residual rms per channel after)."""
+    n = ctx.n
+    A = np.concatenate([np.broadcast_to(np.eye(6), (n, 6, 6)), face.X], axis=2)
+    w = 1.0 / ctx.sigma
+    Aw = (A * w[None, :, None]).reshape(6 * n, -1)
+    rw = ((ctx.y - ctx.pred) * w).reshape(-1)
+    beta, *_ = np.linalg.lstsq(Aw, rw, rcond=None)
+    cov = np.linalg.inv(Aw.T @ Aw)
+    res = (ctx.y - ctx.pred) - np.einsum("nck,k->nc", A, beta)
+    return beta[6:], np.sqrt(np.diag(cov))[6:], np.sqrt(np.mean(res**2, axis=0)), beta[:6]
+
+
+def rms(a):
+    return np.sqrt(np.mean(np.asarray(a) ** 2, axis=0))
+
+
+def test_new_effects_are_registered_with_their_simulators():
+    for name in ("clock_offset", "creep", "inertial_load", "joint_limit_contact", "temperature"):
+        if name not in EFFECTS:
+            continue
+        u = EFFECTS[name]
+        assert "free" in u.applies_to and "free" in u.diagnosed_on
+        for s in u.shapes:
+            assert s.expect == name and "free" in applies_to(s.name)
+    with pytest.raises(ValueError, match="need a hexapod"):
+        PayloadConfig(effects=("casing_load",))
+
+
+# ----------------------------------------------------------------------------- clock_offset
+
+
+def _ictx(t, applied=None, **kw):
+    n = len(t)
+    args = dict(kind="hanging", name="r", t=t, phi=np.zeros((n, 1)), R_WB=np.broadcast_to(np.eye(3), (n, 3, 3)),
+                applied=np.zeros((n, 1, 6)) if applied is None else applied, pose_index=np.zeros(n, int), truth=None,
+                rng=np.random.default_rng(0))
+    args.update(kw)
+    return InjectionContext(**args)
+
+
+@pytest.mark.parametrize("delay", [0.004, 0.03, -0.02])
+def test_clock_offset_injector_shifts_a_sinusoid(delay):
+    t = np.arange(0.0, 20.0, 0.01)
+    w = np.zeros((len(t), 2, 6))
+    w[:, 0, 2] = 5.0 * np.sin(2 * np.pi * 0.5 * t)
+    w[:, 1, 4] = np.cos(2 * np.pi * 1.3 * t)
+    out = EFFECTS["clock_offset"].injector(scale=delay).readings(_ictx(t), w)
+    inner = slice(10, -10)
+    assert np.allclose(out[inner, 0, 2], 5.0 * np.sin(2 * np.pi * 0.5 * (t[inner] - delay)), atol=1e-6)
+    assert np.allclose(out[inner, 1, 4], np.cos(2 * np.pi * 1.3 * (t[inner] - delay)), atol=1e-5)
+
+
+def test_clock_offset_face_recovers_the_delay_and_the_correction_removes_it():
+    from ftcal_nlp.effects.clock_offset import refine_delay
+
+    d = 0.03
+    sim = simulate(effects=(EFFECTS["clock_offset"].injector(scale=d),))
+    ctx = context(sim)
+    unit = EFFECTS["clock_offset"]
+    assert {"channels": "all"} in unit.free_shapes(ctx)
+    face = unit.free_face(ctx, {"channels": "all"})
+    beta, se, after, off = fit(ctx, face)
+    assert abs(beta[0] - d) < 4 * se[0], (beta, se)
+    d_gn, se_gn = refine_delay(ctx.t, ctx.rec, ctx.y, ctx.pred, beta[0], ctx.sigma)
+    assert abs(d_gn - d) < 4 * se_gn and se_gn < 0.1 * d, (d_gn, se_gn)
+    before = rms(ctx.y - ctx.pred - (ctx.y - ctx.pred).mean(axis=0))
+    assert np.all(after < 1.1 * ctx.sigma) and before[0] > 2 * ctx.sigma[0]
+    corr = unit.free_correct(ctx, {"channels": "all"}, [d_gn])
+    inner = slice(10, -10)
+    assert np.all(rms((corr - ctx.pred)[inner]) < 1.1 * np.sqrt(2) * ctx.sigma)  # the noise, re-sampled
+    # the drift and jitter shapes still show as a delay of about their mean
+    for shape in ("clock_offset_drift", "clock_offset_jitter"):
+        cls = next(s for s in unit.shapes if s.name == shape)
+        sim2 = simulate(effects=(cls(scale=d, seed=1),))
+        c2 = context(sim2)
+        b2, s2, a2, _ = fit(c2, unit.free_face(c2, {"channels": "all"}))
+        assert 0.5 * d < b2[0] < 1.5 * d, (shape, b2, s2)
