@@ -157,6 +157,11 @@ class JointFit:
     dx_se: np.ndarray
     s2: float
     resid: np.ndarray
+    betas: tuple = ()          # per effect its parameter vector (face column order)
+
+    def wrench(self, steps: list[Candidate], i: int = 0) -> np.ndarray:
+        """The fitted wrench (N, 6) of the ``i``-th named effect."""
+        return steps[i].face.wrench(self.betas[i])
 
 
 def joint_fit(design: Design, J: np.ndarray, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:
@@ -176,9 +181,10 @@ def joint_fit(design: Design, J: np.ndarray, steps: list[Candidate], ctx: FreeLo
     se = np.sqrt(np.clip(np.diag(C), 0.0, None))
     # a direction the data leave undetermined has no se (pinv left it at zero)
     se = np.where(np.diag(G) > 0, se, np.inf)
-    out, c0 = [], J.shape[2]
+    out, betas, c0 = [], [], J.shape[2]
     for s in steps:
         sl = slice(c0, c0 + s.face.k)
         out.append({n: (float(v), float(e)) for n, v, e in zip(s.face.names, beta[sl], se[sl])})
+        betas.append(beta[sl])
         c0 += s.face.k
-    return JointFit(out, beta[:J.shape[2]], se[:J.shape[2]], s2, rw / design.w)
+    return JointFit(out, beta[:J.shape[2]], se[:J.shape[2]], s2, rw / design.w, tuple(betas))

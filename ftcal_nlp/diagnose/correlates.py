@@ -99,6 +99,7 @@ class CorrelateScore:
     heldout_rms: np.ndarray
     x: np.ndarray
     xlabel: str
+    wrench: np.ndarray        # (N, 6) the correlate's fitted wrench (all samples)
 
 
 def score_correlates(design: Design, J: np.ndarray, base: CVFit, ctx: FreeLoadContext,
@@ -111,5 +112,5 @@ def score_correlates(design: Design, J: np.ndarray, base: CVFit, ctx: FreeLoadCo
     X0 = J if extra is None else np.concatenate([J, extra], axis=2)
     for name, (face, x, label) in correlate_faces(ctx).items():
         cv = design.fit(np.concatenate([X0, face.X], axis=2))
-        out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label))
+        out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label, face.wrench(cv.beta[-face.k:])))
     return sorted(out, key=lambda s: -s.explained)

@@ -124,8 +124,13 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
             notes.append(f"{leg}: the held-out residual exceeds the floor by up to "
                          f"{100 * (np.max(excess_ratio(base, floor)) - 1):.0f} % without following any correlate: "
                          "reported as noise the floor underrates, not as a gap")
-    ratio_ref = excess_ratio(base if verdict != "none" else cur, floor)
-    comps = [c for c, r in zip(WRENCH, ratio_ref) if r > 1.0 + GAP_REL] if verdict != "none" else []
+    comps = []
+    if verdict == "effect":    # where the named effects' fitted wrench stands out of the noise
+        comps = _components(jf.wrench(ch.steps), floor)
+    elif verdict == "unexplained":
+        comps = [c for c, r in zip(WRENCH, excess_ratio(base, floor)) if r > 1.0 + GAP_REL]
+        if top is not None:   # where the correlate's fit stands out (a shared refit leaks a gap into other channels)
+            comps = _components(top.wrench, floor) or comps
     first_explains = _explains(ch.steps[0].effect, ch.steps[0]) if ch.steps else None
     explains = first_explains or (top.name if top is not None else None)
     where = {"recordings": list(ctx.names) if verdict != "none" else [], "legs": [leg] if verdict != "none" else [],
@@ -147,6 +152,13 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
 
 
 FLOOR_TEXT = "at least a few samples"
+#: a channel lies in the gap when the fitted wrench of what explains it has an RMS of at least this share of its floor
+COMPONENT_SHARE = 0.5
+
+
+def _components(w: np.ndarray, floor: np.ndarray) -> list[str]:
+    rel = np.sqrt(np.mean(w**2, axis=0)) / floor
+    return [c for c, r in zip(WRENCH, rel) if r >= COMPONENT_SHARE * rel.max() or r >= COMPONENT_SHARE]
 
 
 def diagnose_free(dataset: Dataset, free_loads, settings: DiagnoseSettings | None = None, *,
