@@ -81,19 +81,24 @@ def _bic(design: Design, cv: CVFit, ref: CVFit) -> float:
     return m * np.log(max(rss, 1e-300) / max(rss0, 1e-300)) + (cv.k - ref.k) * np.log(m)
 
 
-def score(design: Design, X0: np.ndarray, cur: CVFit, ctx: FreeLoadContext, effect: Effect) -> Candidate:
-    """``effect``'s best shape added to ``X0`` (module docstring), against the current fit ``cur``."""
+def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Effect, memo: dict | None = None) -> Candidate:
+    """``effect``'s best shape added to the parts ``X0`` (module docstring), against the current fit ``cur``; ``memo``
+    keeps each (effect, shape)'s face across rounds (its cached blocks stay valid)."""
+    memo = {} if memo is None else memo
     shapes = tuple(effect.free_shapes(ctx))
     if not shapes:
         return Candidate(effect, {}, None, None, status="not applicable", note="no free-load face")
     best = None
     tried = 0
     for shape in shapes:
-        face = effect.free_face(ctx, shape)
-        if face is None or not np.any(face.X):
+        key = (effect.name, repr(sorted(shape.items())))
+        if key not in memo:
+            memo[key] = effect.free_face(ctx, shape)
+        face = memo[key]
+        if face is None or not np.any(face.X if face.dense else face.basis):
             continue
         tried += 1
-        cv = design.fit(np.concatenate([X0, face.X], axis=2))
+        cv = design.fit(X0 + [face])
         if best is None or cv.sse < best[2].sse:
             best = (shape, face, cv)
     if best is None:
@@ -119,9 +124,10 @@ def accepted(c: Candidate, cur: CVFit, design: Design) -> tuple[bool, str]:
     return True, ""
 
 
-def run_chain(design: Design, J: np.ndarray, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray) -> Chain:
-    """The chain of the module docstring."""
-    ch = Chain(design.fit(J))
+def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray) -> Chain:
+    """The chain of the module docstring (``J`` the free-load model's Jacobian as a face)."""
+    ch = Chain(design.fit([J]))
+    memo: dict = {}
     while True:
         cur = ch.current
         if np.max(excess_ratio(cur, floor)) <= 1.0 + GAP_REL:
@@ -130,9 +136,9 @@ def run_chain(design: Design, J: np.ndarray, ctx: FreeLoadContext, effects: list
         if len(ch.steps) >= MAX_EFFECTS:
             ch.stop = f"{MAX_EFFECTS} effects named (the most the chain adds)"
             break
-        X0 = np.concatenate([J] + [s.face.X for s in ch.steps], axis=2)
+        X0 = [J] + [s.face for s in ch.steps]
         named = {s.effect.name for s in ch.steps}
-        cands = [score(design, X0, cur, ctx, e) for e in effects if e.name not in named]
+        cands = [score(design, X0, cur, ctx, e, memo) for e in effects if e.name not in named]
         cands.sort(key=lambda c: (c.cv is None, c.cv.sse if c.cv is not None else 0.0))
         ch.rounds.append(cands)
         ok = [c for c in cands if c.cv is not None]
@@ -164,16 +170,12 @@ class JointFit:
         return steps[i].face.wrench(self.betas[i])
 
 
-def joint_fit(design: Design, J: np.ndarray, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:
+def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:
     """The joint refit (module docstring)."""
-    X = np.concatenate([J] + [s.face.X for s in steps], axis=2)
-    A = design.weighted(X)
-    G = A.T @ A
-    from .free_cv import solve
-
-    beta = solve(G, A.T @ design.rw)
-    rw = (design.rw - A @ beta).reshape(design.n, 6)
-    m, k = rw.size, X.shape[2]
+    cv = design.fit([J] + [s.face for s in steps])
+    G, beta = cv.G, cv.beta
+    rw = cv.resid * design.w
+    m, k = rw.size, cv.k
     s2 = float((rw**2).sum() / max(m - k, 1))
     _, infl = serial_inflation(rw, ctx.rec, ctx.index)
     s2 *= float(np.mean(infl))
@@ -181,10 +183,10 @@ def joint_fit(design: Design, J: np.ndarray, steps: list[Candidate], ctx: FreeLo
     se = np.sqrt(np.clip(np.diag(C), 0.0, None))
     # a direction the data leave undetermined has no se (pinv left it at zero)
     se = np.where(np.diag(G) > 0, se, np.inf)
-    out, betas, c0 = [], [], J.shape[2]
+    out, betas, c0 = [], [], J.k
     for s in steps:
         sl = slice(c0, c0 + s.face.k)
         out.append({n: (float(v), float(e)) for n, v, e in zip(s.face.names, beta[sl], se[sl])})
         betas.append(beta[sl])
         c0 += s.face.k
-    return JointFit(out, beta[:J.shape[2]], se[:J.shape[2]], s2, rw / design.w, tuple(betas))
+    return JointFit(out, beta[:J.k], se[:J.k], s2, cv.resid, tuple(betas))

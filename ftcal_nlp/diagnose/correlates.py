@@ -102,15 +102,16 @@ class CorrelateScore:
     wrench: np.ndarray        # (N, 6) the correlate's fitted wrench (all samples)
 
 
-def score_correlates(design: Design, J: np.ndarray, base: CVFit, ctx: FreeLoadContext,
-                     extra: np.ndarray | None = None) -> list[CorrelateScore]:
+def score_correlates(design: Design, J: FreeFace, base: CVFit, ctx: FreeLoadContext,
+                     extra: list | None = None) -> list[CorrelateScore]:
     """Every correlate (module docstring) scored on ``design`` beside the Jacobian ``J`` (and ``extra`` face columns,
-    the effects already named), best first."""
+    the faces of the effects already named), best first."""
     floor_sse = 6.0 * design.n
     excess = max(base.sse - floor_sse, 1e-300)
     out = []
-    X0 = J if extra is None else np.concatenate([J, extra], axis=2)
+    X0 = [J] + list(extra or [])
     for name, (face, x, label) in correlate_faces(ctx).items():
-        cv = design.fit(np.concatenate([X0, face.X], axis=2))
+        cv = design.fit(X0 + [face])
+        design.forget(face)
         out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label, face.wrench(cv.beta[-face.k:])))
     return sorted(out, key=lambda s: -s.explained)

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..data import Dataset
 from ..effects import Effect, resolve_effects
+from ..effects.free_faces import FreeFace
 from ..settings import DiagnoseSettings
 from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
 from .correlates import EXPLAINED_MIN, CorrelateScore, score_correlates
@@ -95,7 +96,8 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
         floor = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
         floor = np.where(floor > 0, floor, 1e-9)
         notes.append(f"{leg}: no held, still stretch of {FLOOR_TEXT}: the floor is the scatter of successive differences")
-    J, _ = model_jacobian(ctx, fit)
+    Jx, names = model_jacobian(ctx, fit)
+    J = FreeFace(Jx, names)
     block = cv_blocks(ctx.hold, ctx.rec, s.folds)
     fold = fold_of_blocks(block, s.folds, s.seed)
     design = Design(ctx.y - ctx.pred, 1.0 / floor, block, fold)
@@ -105,7 +107,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     ratio_after = excess_ratio(cur, floor)
     gap_after = bool(np.max(ratio_after) > 1.0 + GAP_REL)
     gap_before = bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
-    extra = np.concatenate([st.face.X for st in ch.steps], axis=2) if ch.steps else None
+    extra = [st.face for st in ch.steps]
     # where: the gap as found (before any effect) when an effect explains it; what remains otherwise
     ref = cur if (gap_after and not ch.steps) or not ch.steps else base
     corr = score_correlates(design, J, ref, ctx, None) if (gap_before or gap_after) else []

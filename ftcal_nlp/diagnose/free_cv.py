@@ -102,17 +102,26 @@ class CVFit:
 
 
 class Design:
-    """The weighted residual and fold structure shared by every design of one transducer's diagnosis."""
+    """The weighted residual and fold structure shared by every design of one transducer's diagnosis.
+
+    A design is a list of parts (:class:`~ftcal_nlp.effects.free_faces.FreeFace`: the Jacobian, the faces named
+    so far, a candidate). Per fold, the weighted normal matrix's block of every pair of parts and the weighted
+    right-hand side of every part are computed once and cached (a part keeps its identity across designs); a
+    per-channel face meets only its channels' rows, so its blocks cost ``N m`` per channel, not ``6 N k``."""
 
     def __init__(self, r: np.ndarray, weight: np.ndarray, block: np.ndarray, fold: np.ndarray):
         self.r = np.asarray(r, float)
         self.w = np.asarray(weight, float)
+        self.w2 = self.w**2
         self.block = block
         self.fold = fold
         self.folds = int(fold.max()) + 1
         self.nb = int(block.max()) + 1
         self.rw = (self.r * self.w).reshape(-1)
-        self._fold_rows = [np.flatnonzero(fold == f) for f in range(self.folds)]
+        self._rows = [np.flatnonzero(fold == f) for f in range(self.folds)]
+        self._gram: dict = {}
+        self._vec: dict = {}
+        self._keep: dict = {}   # parts by id, so that an id is not reused while its blocks are cached
 
     @property
     def n(self) -> int:
@@ -122,23 +131,93 @@ class Design:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
         return (X * self.w[None, :, None]).reshape(-1, X.shape[2])
 
-    def fit(self, X: np.ndarray) -> CVFit:
-        """Blocked cross-validation of the design ``X`` (N, 6, k) (module docstring)."""
-        n, k = self.n, X.shape[2]
-        A = self.weighted(X)
-        G = A.T @ A
-        v = A.T @ self.rw
-        ho = np.empty((n, 6))
-        for rows in self._fold_rows:
-            if not len(rows):
-                continue
-            Af = (X[rows] * self.w[None, :, None]).reshape(-1, k)
-            rf = self.rw.reshape(n, 6)[rows].reshape(-1)
-            b = solve(G - Af.T @ Af, v - Af.T @ rf)
-            ho[rows] = (rf - Af @ b).reshape(-1, 6) / self.w
+    # ---- per-fold blocks
+    def _pair(self, a, b, rows) -> np.ndarray:
+        w2 = self.w2
+        if a.dense and b.dense:
+            Xa = a.X[rows] * w2[None, :, None]
+            return Xa.reshape(-1, a.k).T @ b.X[rows].reshape(-1, b.k)
+        if not a.dense and not b.dense:
+            Ba, Bb = a.basis[rows], b.basis[rows]
+            ma, mb = Ba.shape[1], Bb.shape[1]
+            BtB = Ba.T @ Bb
+            out = np.zeros((a.k, b.k))
+            for i, c in enumerate(a.channels):
+                if c in b.channels:
+                    j = b.channels.index(c)
+                    out[i * ma:(i + 1) * ma, j * mb:(j + 1) * mb] = w2[c] * BtB
+            return out
+        if a.dense:
+            return self._pair(b, a, rows).T
+        Ba, Xb = a.basis[rows], b.X[rows]
+        m = Ba.shape[1]
+        out = np.zeros((a.k, b.k))
+        for i, c in enumerate(a.channels):
+            out[i * m:(i + 1) * m] = w2[c] * (Ba.T @ Xb[:, c, :])
+        return out
+
+    def _rhs(self, a, rows) -> np.ndarray:
+        rr = self.r[rows] * self.w2
+        if a.dense:
+            return a.X[rows].reshape(-1, a.k).T @ rr.reshape(-1)
+        B = a.basis[rows]
+        return np.concatenate([B.T @ rr[:, c] for c in a.channels])
+
+    def _blocks(self, a, b) -> np.ndarray:
+        key = (id(a), id(b))
+        if key not in self._gram:
+            if (id(b), id(a)) in self._gram:
+                return self._gram[(id(b), id(a))].transpose(0, 2, 1)
+            self._keep[id(a)], self._keep[id(b)] = a, b
+            self._gram[key] = np.stack([self._pair(a, b, rows) for rows in self._rows])
+        return self._gram[key]
+
+    def _vecs(self, a) -> np.ndarray:
+        if id(a) not in self._vec:
+            self._keep[id(a)] = a
+            self._vec[id(a)] = np.stack([self._rhs(a, rows) for rows in self._rows])
+        return self._vec[id(a)]
+
+    def forget(self, part) -> None:
+        """Drop the cached blocks of ``part`` (a candidate that was not kept)."""
+        i = id(part)
+        for key in [k for k in self._gram if i in k]:
+            del self._gram[key]
+        self._vec.pop(i, None)
+        self._keep.pop(i, None)
+
+    def fit(self, parts) -> CVFit:
+        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (module docstring)."""
+        from ..effects.free_faces import FreeFace
+
+        if isinstance(parts, np.ndarray):
+            parts = [FreeFace(parts, tuple(f"c{j}" for j in range(parts.shape[2])))]
+        parts = list(parts)
+        ks = [p.k for p in parts]
+        off = np.r_[0, np.cumsum(ks)]
+        k = int(off[-1])
+        Gf = np.zeros((self.folds, k, k))
+        vf = np.zeros((self.folds, k))
+        for i, a in enumerate(parts):
+            vf[:, off[i]:off[i + 1]] = self._vecs(a)
+            for j in range(i, len(parts)):
+                blk = self._blocks(a, parts[j])
+                Gf[:, off[i]:off[i + 1], off[j]:off[j + 1]] = blk
+                if j != i:
+                    Gf[:, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 2, 1)
+        G, v = Gf.sum(axis=0), vf.sum(axis=0)
+
+        def model(beta, rows):
+            return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))
+
+        ho = np.empty((self.n, 6))
+        for f, rows in enumerate(self._rows):
+            if len(rows):
+                b = solve(G - Gf[f], v - vf[f])
+                ho[rows] = self.r[rows] - model(b, rows)
         beta = solve(G, v)
-        resid = (self.rw - A @ beta).reshape(n, 6) / self.w
-        bs = np.bincount(self.block, weights=((ho * self.w) ** 2).sum(axis=1), minlength=self.nb)
+        resid = self.r - model(beta, slice(None))
+        bs = np.bincount(self.block, weights=(ho**2 * self.w2).sum(axis=1), minlength=self.nb)
         return CVFit(ho, bs, beta, resid, G, k)
 
 
