@@ -127,3 +127,67 @@ def test_clock_offset_face_recovers_the_delay_and_the_correction_removes_it():
         c2 = context(sim2)
         b2, s2, a2, _ = fit(c2, unit.free_face(c2, {"channels": "all"}))
         assert 0.5 * d < b2[0] < 1.5 * d, (shape, b2, s2)
+
+
+def heldout(ctx, face, folds: int = 5) -> float:
+    """Blocked cross-validated weighted residual (sum of squares over folds of contiguous samples) of [offsets | face]."""
+    n = ctx.n
+    A = np.concatenate([np.broadcast_to(np.eye(6), (n, 6, 6)), face.X], axis=2) / ctx.sigma[None, :, None]
+    r = (ctx.y - ctx.pred) / ctx.sigma
+    block = np.arange(n) * folds // n
+    out = 0.0
+    for f in range(folds):
+        tr, te = block != f, block == f
+        beta, *_ = np.linalg.lstsq(A[tr].reshape(-1, A.shape[2]), r[tr].reshape(-1), rcond=None)
+        out += float(np.sum((r[te] - A[te] @ beta) ** 2))
+    return out
+
+
+def best_shape(unit, ctx):
+    faces = [unit.free_face(ctx, s) for s in unit.free_shapes(ctx)]
+    faces = [f for f in faces if f is not None]
+    return min(faces, key=lambda f: heldout(ctx, f))
+
+
+# ----------------------------------------------------------------------------- creep
+
+
+def test_creep_of_a_step_is_the_exponential():
+    t = np.arange(0.0, 30.0, 0.01)
+    L = np.zeros((len(t), 1, 6))
+    L[t >= 5.0, 0, :] = [10.0, -4.0, 2.0, 0.5, -0.2, 0.1]
+    inj = EFFECTS["creep"].injector_cls(scale=0.02, tau_s=3.0)
+    out = inj.readings(_ictx(t, applied=L), L.copy())
+    g = inj.gains(1)[0]
+    s = np.clip(t - t[np.argmax(t >= 5.0)], 0.0, None)   # from the first sample of the new load
+    expect = L[:, 0] - (t >= 5.0)[:, None] * g * L[-1, 0] * np.exp(-s / 3.0)[:, None]
+    assert np.allclose(out[:, 0], expect, atol=1e-12)
+    # irregular clock: the same exponential (the lag is exact for a load held between samples)
+    ti = np.sort(np.r_[t[::3], 5.0 + np.random.default_rng(1).uniform(0, 25, 500)])
+    Li = np.zeros((len(ti), 1, 6))
+    Li[ti >= 5.0, 0, :] = L[-1, 0]
+    oi = inj.readings(_ictx(ti, applied=Li), Li.copy())
+    si = np.clip(ti - ti[np.argmax(ti >= 5.0)], 0.0, None)
+    assert np.allclose(oi[:, 0], Li[:, 0] - (ti >= 5.0)[:, None] * g * L[-1, 0] * np.exp(-si / 3.0)[:, None], atol=1e-12)
+
+
+def test_creep_face_recovers_its_gains_and_the_heldout_residual_picks_tau():
+    unit = EFFECTS["creep"]
+    inj = unit.injector_cls(scale=0.01, seed=2, tau_s=4.0)
+    sim = simulate(effects=(inj,), seed=1)
+    ctx = context(sim)
+    face = unit.free_face(ctx, {"tau_s": 4.0})
+    beta, se, after, _ = fit(ctx, face)
+    g = inj.gains(1)[0]
+    assert np.all(np.abs(beta - g) < 4 * se), (beta, g, se)
+    assert np.all(after < 1.05 * ctx.sigma)
+    assert best_shape(unit, ctx).shape == {"tau_s": 4.0}
+    corr = unit.free_correct(ctx, {"tau_s": 4.0}, beta)
+    assert np.all(rms(corr - ctx.pred - (corr - ctx.pred).mean(axis=0)) < 1.05 * ctx.sigma)
+    # off the grid (3 s) and off the face (two time constants, logarithmic): a neighbouring tau, most of the gap closed
+    for cls, kw in ((type(inj), {"tau_s": 3.0}), (unit.shapes[0], {}), (unit.shapes[1], {})):
+        c2 = context(simulate(effects=(cls(scale=0.01, seed=2, **kw),), seed=1))
+        f2 = best_shape(unit, c2)
+        b2, s2, a2, _ = fit(c2, f2)
+        before = rms(c2.y - c2.pred - (c2.y - c2.pred).mean(axis=0))
+        assert np.all(b2 > 0) and np.all(a2 - c2.sigma < 0.5 * (before - c2.sigma)), (cls.name, f2.shape, b2, a2 / c2.sigma, before / c2.sigma)

@@ -43,15 +43,15 @@ def lowpass(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
     flat = x.reshape(len(x), -1)
     if np.ptp(dt) <= 1e-9 * max(float(np.mean(dt)), 1e-12):    # a regular clock: one IIR filter, no Python loop
         a0 = float(a[0])
-        zi = (1.0 - a0) * flat[0]
+        zi = (1.0 - a0) * flat[0]           # y_0 = x_0: the state at rest
         y = np.empty_like(flat)
         y[0] = flat[0]
-        y[1:] = lfilter([a0], [1.0, -(1.0 - a0)], flat[1:], axis=0, zi=zi[None, :])[0]
+        y[1:] = lfilter([a0], [1.0, -(1.0 - a0)], flat[:-1], axis=0, zi=zi[None, :])[0]
         return y.reshape(x.shape)
     y = np.empty_like(flat)
     y[0] = flat[0]
     for n in range(1, len(flat)):
-        y[n] = y[n - 1] + a[n - 1] * (flat[n] - y[n - 1])
+        y[n] = y[n - 1] + a[n - 1] * (flat[n - 1] - y[n - 1])
     return y.reshape(x.shape)
 
 
