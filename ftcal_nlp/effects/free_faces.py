@@ -64,26 +64,59 @@ WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 MIN_HOLD = 5
 
 
-@dataclass(frozen=True)
 class FreeFace:
     """An effect's free face for one shape: ``X`` (N, 6, k) design columns (the effect adds ``X beta`` to the
-    readings), ``names`` (k,) parameter labels with units, ``shape`` the shape parameters that built it."""
+    readings), ``names`` (k,) parameter labels with units, ``shape`` the shape parameters that built it.
 
-    X: np.ndarray
-    names: tuple[str, ...]
-    shape: dict = field(default_factory=dict)
+    A face whose columns act on one channel each (:meth:`per_channel`) keeps only its ``basis`` (N, m) and
+    ``channels``; ``X`` is then built on demand (the diagnosis uses the structure: a channel's columns meet
+    only that channel's rows)."""
 
-    def __post_init__(self):
-        if self.X.ndim != 3 or self.X.shape[1] != 6 or self.X.shape[2] != len(self.names):
-            raise ValueError(f"FreeFace: X must be (N, 6, {len(self.names)}), got {self.X.shape}")
+    def __init__(self, X: np.ndarray | None, names, shape: dict | None = None, *, basis: np.ndarray | None = None,
+                 channels: tuple[int, ...] = ()):
+        self.names = tuple(names)
+        self.shape = dict(shape or {})
+        self.basis = None if basis is None else np.asarray(basis, float)
+        self.channels = tuple(int(c) for c in channels)
+        self._X = None if X is None else np.asarray(X, float)
+        if self._X is None:
+            if self.basis is None or self.basis.ndim != 2 or self.basis.shape[1] * len(self.channels) != len(self.names):
+                raise ValueError(f"FreeFace: a per-channel face needs basis (N, m) with m x {len(self.channels)} channels = "
+                                 f"{len(self.names)} names")
+        elif self._X.ndim != 3 or self._X.shape[1] != 6 or self._X.shape[2] != len(self.names):
+            raise ValueError(f"FreeFace: X must be (N, 6, {len(self.names)}), got {self._X.shape}")
 
     @property
     def k(self) -> int:
         return len(self.names)
 
-    def wrench(self, beta: np.ndarray) -> np.ndarray:
-        """The effect's wrench (N, 6) for parameters ``beta`` (k,)."""
-        return self.X @ np.asarray(beta, float)
+    @property
+    def n(self) -> int:
+        return len(self._X) if self._X is not None else len(self.basis)
+
+    @property
+    def dense(self) -> bool:
+        return self._X is not None
+
+    @property
+    def X(self) -> np.ndarray:
+        if self._X is not None:
+            return self._X
+        n, m = self.basis.shape
+        X = np.zeros((n, 6, self.k))
+        for i, c in enumerate(self.channels):
+            X[:, c, i * m:(i + 1) * m] = self.basis
+        return X
+
+    def wrench(self, beta: np.ndarray, rows=slice(None)) -> np.ndarray:
+        """The effect's wrench (N, 6) (of ``rows``) for parameters ``beta`` (k,)."""
+        beta = np.asarray(beta, float)
+        if self._X is not None:
+            return self._X[rows] @ beta
+        B = self.basis[rows]
+        out = np.zeros((len(B), 6))
+        out[:, list(self.channels)] = B @ beta.reshape(len(self.channels), -1).T
+        return out
 
     @staticmethod
     def per_channel(basis: np.ndarray, labels: tuple[str, ...], unit_f: str = "N", unit_t: str = "N*m",
@@ -91,14 +124,9 @@ class FreeFace:
         """A face whose columns act one channel each: ``basis`` (N, m) per channel of ``channels``, labels
         ``"<channel>.<label> [unit]"`` (column order: channel-major)."""
         basis = np.asarray(basis, float)
-        chans = list(channels)
-        n, m = basis.shape
-        X = np.zeros((n, 6, m * len(chans)))
-        names = []
-        for i, c in enumerate(chans):
-            X[:, c, i * m:(i + 1) * m] = basis
-            names += [f"{WRENCH[c]}.{lab} [{unit_f if c < 3 else unit_t}]" for lab in labels]
-        return FreeFace(X, tuple(names), dict(shape or {}))
+        chans = tuple(channels)
+        names = [f"{WRENCH[c]}.{lab} [{unit_f if c < 3 else unit_t}]" for c in chans for lab in labels]
+        return FreeFace(None, tuple(names), shape, basis=basis, channels=chans)
 
 
 @dataclass(frozen=True)
