@@ -132,13 +132,9 @@ class Temperature(Effect):
         dT = Tl - Tl.mean()
         d = int(shape["degree"])
         basis = np.stack([dT**j for j in range(1, d + 1)], axis=1)
-        X = np.zeros((ctx.n, 6, 6 * d))
-        names = []
-        for c in range(6):
-            X[:, c, c * d:(c + 1) * d] = basis
-            unit = "N" if c < 3 else "N*m"
-            names += [f"{WRENCH[c]}.dT{'' if j == 1 else j} [{unit}/degC{'' if j == 1 else f'^{j}'}]" for j in range(1, d + 1)]
-        return FreeFace(X, tuple(names), dict(shape))
+        names = [f"{WRENCH[c]}.dT{'' if j == 1 else j} [{'N' if c < 3 else 'N*m'}/degC{'' if j == 1 else f'^{j}'}]"
+                 for c in range(6) for j in range(1, d + 1)]
+        return FreeFace(None, tuple(names), dict(shape), basis=basis, channels=tuple(range(6)))
 
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
