@@ -19,7 +19,9 @@ _cache: dict = {}
 
 
 def simulate(kind: str = "payload", effects=(), **kw):
-    key = (kind, repr(effects), tuple(sorted(kw.items())))
+    params = tuple((type(e).__name__, tuple(sorted((k, repr(v)) for k, v in vars(e).items() if k != "rng" and not k.startswith("_"))))
+                   for e in effects)
+    key = (kind, params, tuple(sorted(kw.items())))
     if key not in _cache:
         cls = PayloadConfig if kind == "payload" else UrdfLegConfig
         _cache[key] = simulate_free(cls(effects=tuple(effects), **kw))
@@ -191,3 +193,77 @@ def test_creep_face_recovers_its_gains_and_the_heldout_residual_picks_tau():
         b2, s2, a2, _ = fit(c2, f2)
         before = rms(c2.y - c2.pred - (c2.y - c2.pred).mean(axis=0))
         assert np.all(b2 > 0) and np.all(a2 - c2.sigma < 0.5 * (before - c2.sigma)), (cls.name, f2.shape, b2, a2 / c2.sigma, before / c2.sigma)
+
+
+# ----------------------------------------------------------------------------- temperature
+
+
+def test_temperature_injector_is_linear_in_its_column():
+    t = np.arange(1000.0, 1300.0, 0.1)
+    w = np.zeros((len(t), 2, 6))
+    inj = EFFECTS["temperature"].injector(scale=0.05, seed=4)
+    ctx = _ictx(t, applied=w)
+    T = inj.temperature(ctx)
+    assert T.shape == (len(t), 2) and 1.0 < np.ptp(T[:, 0]) < 8.0
+    out = inj.readings(ctx, w)
+    a = inj.gains(2)
+    assert np.allclose(out, a[None] * (T[..., None] - 25.0), atol=1e-12)
+    assert np.all((0.7 * 0.05 <= np.linalg.norm(a[:, :3], axis=1)) & (np.linalg.norm(a[:, :3], axis=1) <= 1.3 * 0.05))
+    assert np.allclose(np.linalg.norm(a[:, 3:], axis=1), 0.02 * 0.05)       # a 2 cm lever
+    lagged = next(s for s in EFFECTS["temperature"].shapes if s.name == "temperature_lag")(scale=0.05, seed=4, lag_s=60.0)
+    felt, TL = lagged.felt(ctx), lagged.temperature(ctx)
+    assert abs(felt[0, 0] - TL[0, 0]) < 1e-12 and np.std(np.diff(felt[:, 0])) < 0.5 * np.std(np.diff(TL[:, 0]))  # the lag smooths
+
+
+def test_temperature_column_round_trip_and_bad_values(tmp_path):
+    from ftcal_nlp.data import read_dataset, read_robot, recording_from_frame, recording_to_frame
+    from ftcal_nlp.errors import DataFormatError
+    from ftcal_nlp.sim.free.writer import write_free_load
+
+    sim = simulate(effects=(EFFECTS["temperature"].injector(scale=0.05),))
+    f = sim.frame
+    assert "wrist_temp_C" in f.columns
+    manifest = write_free_load(sim, tmp_path / "ds")
+    rec = read_dataset(manifest).recordings[0]
+    assert np.allclose(rec.temperature["wrist"], f["wrist_temp_C"], atol=1e-8)
+    robot = read_robot(manifest.parent / "robot.toml")
+    kw = dict(name="w", kind="hanging", payload_legs=("wrist",))
+    g = f.drop(columns=["wrist_temp_C"]).assign(temp_C=f["wrist_temp_C"].where(np.arange(len(f)) % 10 == 0))
+    rec2 = recording_from_frame(g, robot, **kw)
+    assert np.allclose(rec2.temperature["wrist"], f["wrist_temp_C"], atol=0.02)   # interpolated between its samples
+    assert np.allclose(recording_to_frame(rec, ())["wrist_temp_C"], rec.temperature["wrist"])
+    with pytest.raises(DataFormatError, match="wrist_temp_C.*expected degC"):
+        recording_from_frame(f.assign(wrist_temp_C=f["wrist_temp_C"] + 273.15), robot, **kw)
+    with pytest.raises(DataFormatError, match="wrist_temp_C"):
+        recording_from_frame(f.assign(wrist_temp_C=np.nan), robot, **kw)
+    assert recording_from_frame(f.drop(columns=["wrist_temp_C"]), robot, **kw).temperature == {}
+
+
+def test_temperature_face_recovers_its_gains_and_the_lag():
+    unit = EFFECTS["temperature"]
+    inj = unit.injector(scale=0.05, seed=3)
+    sim = simulate(effects=(inj,), seed=2)
+    ctx = context(sim, temperature=sim.frame["wrist_temp_C"].to_numpy())
+    assert len(unit.free_shapes(ctx)) == 6 and unit.free_shapes(context(sim)) == ()
+    shape = {"degree": 1, "lag_s": 0.0}
+    beta, se, after, _ = fit(ctx, unit.free_face(ctx, shape))
+    a = inj.gains(1)[0]
+    assert np.all(np.abs(beta - a) < 4 * se), ((beta - a) / se)
+    assert np.all(after < 1.05 * ctx.sigma)
+    corr = unit.free_correct(ctx, shape, beta)
+    assert np.all(rms(corr - ctx.pred - (corr - ctx.pred).mean(axis=0)) < 1.05 * ctx.sigma)
+    # the quadratic's coefficients
+    inj2 = unit.injector_cls(scale=0.05, seed=3, quadratic=0.3)
+    c2 = context(simulate(effects=(inj2,), seed=2), temperature=ctx.temperature)
+    b2, s2, _, _ = fit(c2, unit.free_face(c2, {"degree": 2, "lag_s": 0.0}))
+    a2 = inj2.gains(1)[0]
+    lin = b2[0::2] - 2 * b2[1::2] * (ctx.temperature.mean() - 25.0)   # the face is centred on the mean temperature
+    assert np.all(np.abs(b2[1::2] - 0.3 * a2) < 4 * s2[1::2]), ((b2[1::2] - 0.3 * a2) / s2[1::2])
+    assert np.all(np.abs(lin - a2) < 0.1 * np.abs(a2) + 4 * s2[0::2])
+    # the lagged shape: the held-out residual picks a lag, and the gap closes
+    lag = unit.shapes[0](scale=0.05, seed=3)
+    s3 = simulate(effects=(lag,), seed=2)
+    c3 = context(s3, temperature=s3.frame["wrist_temp_C"].to_numpy())
+    f3 = best_shape(unit, c3)
+    _, _, a3, _ = fit(c3, f3)
+    assert f3.shape["lag_s"] > 0 and np.all(a3 < 1.15 * c3.sigma), (f3.shape, a3 / c3.sigma)

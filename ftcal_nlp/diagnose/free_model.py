@@ -55,7 +55,7 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
         q = {j: (rec.q[j] if j in rec.q else np.zeros(rec.n))[ok] for j in joints}
         used = fit.used.get(rec.name)
         still = used[ok] if used is not None and len(used) == rec.n else None
-        temp = rec.extra.get("temperature") if isinstance(rec.extra, dict) else None
+        temp = rec.temperature.get(leg)   # the optional {leg}_temp_C / temp_C column (docs/proposals/temperature.md)
         parts.append(dict(t=rec.t[ok], y=rec.wrench[leg][ok], gB=g * grav[ok], q=q, still=still, index=np.flatnonzero(ok),
                           rec=np.full(int(ok.sum()), i), quat=None if rec.quat is None else rec.quat[ok],
                           temp=None if temp is None else np.asarray(temp, float)[ok]))

@@ -19,7 +19,7 @@ Readings (frames and equations in ``physics.py``):
 offset, creep, the load's inertia, joint-limit contact, temperature) through
 ``effects.apply_readings``; they see ``FreeLoadTruth`` (joint angles and limits, the
 load's inertial wrench when one asks for it) and may add recording columns
-(``columns(ctx)``, e.g. a temperature); the recorded orientation is ``R_WB exp([delta]x)``
+(a temperature ``{X}_temp_C`` from an injector's ``temperature(ctx)``); the recorded orientation is ``R_WB exp([delta]x)``
 (``delta`` white, ``mocap_jitter_deg``) through ``effects.apply_orientation``
 (mocap bias). Randomness: one ``np.random.SeedSequence(seed)`` split into
 truth, motion, sensor, mocap and effect streams, so a seed fixes every array.
@@ -165,13 +165,14 @@ def _context(cfg, name: str, t: np.ndarray, R_WB: np.ndarray, hold_index: np.nda
 
 
 def _effect_columns(cfg, ctx: dict) -> dict[str, np.ndarray]:
-    """Recording columns the injectors add (``columns(ctx)``, e.g. a temperature), in effect order."""
+    """Recording columns the injectors add: a transducer temperature ``{X}_temp_C`` (an injector's
+    ``temperature(ctx)`` (N, K) degC; ``DATA_FORMAT.md`` proposal ``docs/proposals/temperature.md``)."""
     from ...effects import InjectionContext
 
     out: dict[str, np.ndarray] = {}
     for e in cfg.effects:
-        if hasattr(e, "columns"):
-            out.update(e.columns(InjectionContext(rng=np.random.default_rng(0), **ctx)))
+        if hasattr(e, "temperature"):
+            out[f"{cfg.transducer}_temp_C"] = e.temperature(InjectionContext(rng=np.random.default_rng(0), **ctx))[:, 0]
     return out
 
 
