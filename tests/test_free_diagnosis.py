@@ -146,3 +146,27 @@ def test_a_gap_along_a_joint_is_unexplained_and_placed(tmp_path):
     assert leg.plot["correlate"] == "joint:r_knee" and leg.plot["component"] == "fx"
     js = json.loads(json.dumps(d.to_json_dict()))
     assert js["where"]["explains"] == "joint:r_knee"
+
+
+def test_run_writes_the_chain_and_its_report(tmp_path):
+    """``python -m ftcal_nlp.run`` on a simulated payload with two effects: diagnosis.json lists both (in order, with
+    parameters and se, held-out RMS after each; ``effect`` the first), and the report shows the chain and the figure."""
+    from ftcal_nlp.run import main as run_main
+
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[data]\nmanifest = "data/dataset.toml"\n[simulate]\nkind = "payload"\nseed = 21\nn_orientations = 12\n'
+                   'hold_s = 6.0\nmove_s = 3.0\neffects = [{name = "clock_offset", scale = 0.02}, '
+                   '{name = "offset_drift_ramp", scale = 20.0}]\n[output]\ndir = "out"\n[diagnose]\nenabled = true\n')
+    assert run_main([str(cfg)]) == 0
+    d = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert d["verdict"] == "effect" and [e["name"] for e in d["effects"]] == ["clock_offset", "offset_drift"]
+    assert d["effect"] == d["effects"][0]["name"] and d["where"]["explains"] == "motion"
+    for e in d["effects"]:
+        assert len(e["heldout_rms_after"]) == 6 and e["parameters"]
+        assert all(set(v) == {"value", "se"} for v in e["parameters"].values())
+    # each step shrinks the held-out RMS
+    rms = [np.asarray(d["shrinkage"]["heldout_rms_before"])] + [np.asarray(e["heldout_rms_after"]) for e in d["effects"]]
+    assert all(np.sum((a / rms[0]) ** 2) > np.sum((b / rms[0]) ** 2) for a, b in zip(rms, rms[1:]))
+    assert "wrist" in d["free_loads"] and d["free_loads"]["wrist"]["chain"]
+    rep = (tmp_path / "out" / "report.md").read_text()
+    assert "in the order added" in rep and "1. clock_offset" in rep and "2. offset_drift" in rep
