@@ -267,3 +267,50 @@ def test_temperature_face_recovers_its_gains_and_the_lag():
     f3 = best_shape(unit, c3)
     _, _, a3, _ = fit(c3, f3)
     assert f3.shape["lag_s"] > 0 and np.all(a3 < 1.15 * c3.sigma), (f3.shape, a3 / c3.sigma)
+
+
+# ----------------------------------------------------------------------------- joint_limit_contact
+
+
+def test_joint_limit_contact_is_a_ramp_to_the_limit():
+    from ftcal_nlp.effects.joint_limit_contact import ramp
+    from ftcal_nlp.sim.free.simulate import FreeLoadTruth
+
+    q = np.linspace(-1.0, 1.0, 201)            # limits -1 .. 1: onset 0.7 at q = 0.7 (upper) or -0.7 (lower)
+    r = ramp(q, -1.0, 1.0, 1, 0.7)
+    assert np.allclose(r, np.clip((q - 0.7) / 0.3, 0, None)) and r[-1] == pytest.approx(1.0) and r[170] == 0.0
+    assert np.allclose(ramp(q, -1.0, 1.0, -1, 0.7), np.clip((-0.7 - q) / 0.3, 0, None))
+    t = np.arange(len(q)) * 0.01
+    truth = FreeLoadTruth(("leg",), np.zeros((1, 6)), 9.81, q={"knee": q, "hip": 0 * q}, limits={"knee": (-1.0, 1.0), "hip": (-1.0, 1.0)})
+    inj = EFFECTS["joint_limit_contact"].injector(scale=2.0, seed=1)
+    out = inj.readings(_ictx(t, truth=truth), np.zeros((len(t), 1, 6)))
+    j, side, lo, hi = inj.where(_ictx(t, truth=truth))
+    assert j == "knee"                         # the only joint that moves
+    assert np.allclose(out[:, 0], ramp(q, -1, 1, side, 0.7)[:, None] * inj.W)
+    assert np.linalg.norm(inj.W[:3]) == pytest.approx(2.0) and np.linalg.norm(inj.W[3:]) == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="no moving joint with limits"):
+        inj.readings(_ictx(t, truth=FreeLoadTruth(("w",), np.zeros((1, 6)), 9.81)), np.zeros((len(t), 1, 6)))
+
+
+def test_joint_limit_contact_face_finds_the_joint_and_recovers_the_wrench():
+    unit = EFFECTS["joint_limit_contact"]
+    inj = unit.injector_cls(scale=2.0, seed=1, joint="r_knee", side=1, onset=0.7)
+    sim = simulate("urdf_leg", effects=(inj,), seed=3)
+    ctx = context(sim)
+    shapes = unit.free_shapes(ctx)
+    assert {"joint": "r_knee", "side": 1, "onset": 0.7} in shapes and all(s["joint"] in ctx.joint_limits for s in shapes)
+    best = best_shape(unit, ctx)
+    assert best.shape == {"joint": "r_knee", "side": 1, "onset": 0.7}, best.shape
+    beta, se, after, _ = fit(ctx, best)
+    assert np.all(np.abs(beta - inj.W) < 4 * se), ((beta - inj.W) / se)
+    assert np.all(after < 1.05 * ctx.sigma)
+    corr = unit.free_correct(ctx, best.shape, beta)
+    assert np.all(rms(corr - ctx.pred - (corr - ctx.pred).mean(axis=0)) < 1.05 * ctx.sigma)
+    # off the face: a soft (sigmoid) and a sticking contact are found at the same joint and side, most of the gap closed
+    for cls in unit.shapes:
+        c2 = context(simulate("urdf_leg", effects=(cls(scale=2.0, seed=1, joint="r_knee", side=1, onset=0.7),), seed=3))
+        f2 = best_shape(unit, c2)
+        _, _, a2, _ = fit(c2, f2)
+        before = rms(c2.y - c2.pred - (c2.y - c2.pred).mean(axis=0))
+        assert (f2.shape["joint"], f2.shape["side"]) == ("r_knee", 1), (cls.name, f2.shape)
+        assert np.all(a2 - c2.sigma < 0.5 * (before - c2.sigma)), (cls.name, a2 / c2.sigma, before / c2.sigma)
