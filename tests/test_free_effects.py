@@ -436,3 +436,30 @@ def test_inertial_load_point_mass_face_on_a_urdf_leg():
     before = rms(ctx.y - ctx.pred - (ctx.y - ctx.pred).mean(axis=0))
     assert np.all(np.abs(beta[:3] - 1.0) < 0.1), beta       # the forces: m a of the CoMs, exactly the physics
     assert np.all(after - ctx.sigma < 0.3 * (before - ctx.sigma)), (after / ctx.sigma, before / ctx.sigma)
+
+
+# ----------------------------------------------------------------------------- the hexapod simulator
+
+
+def test_hexapod_simulator_takes_the_sensor_effects_and_refuses_the_free_load_ones(tmp_path):
+    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.errors import ConfigError
+    from ftcal_nlp.sim import SimConfig, simulate as simulate_hexapod
+    from ftcal_nlp.sim.writer import write_simulation
+
+    tiny = {"n_poses": 8, "hanging_cycles": 0.5, "walk_cycles": 0.2, "seed": 1, "noise_force_N": 0.0, "noise_torque_Nm": 0.0}
+    clean = simulate_hexapod(SimConfig.from_dict(tiny))
+    for name in ("clock_offset", "creep", "temperature"):
+        assert "hexapod" in applies_to(name)
+        sim = simulate_hexapod(SimConfig.from_dict({**tiny, "effects": [name]}))
+        moved = max(np.abs(r.wrench[k] - c.wrench[k]).max() for r, c in zip(sim.dataset.recordings, clean.dataset.recordings)
+                    for k in r.wrench)
+        assert moved > 1e-3, name
+    temp = simulate_hexapod(SimConfig.from_dict({**tiny, "effects": ["temperature"]}))
+    rec = temp.dataset.recordings[0]
+    assert set(rec.temperature) == set(rec.wrench) and all(np.ptp(v) > 0 for v in rec.temperature.values())
+    back = read_dataset(write_simulation(temp, tmp_path / "hex"))
+    assert np.allclose(back.recordings[0].temperature[rec.legs[0]], rec.temperature[rec.legs[0]], atol=1e-6)
+    for name in ("inertial_load", "joint_limit_contact", "joint_limit_contact_smooth"):
+        with pytest.raises(ConfigError, match="free load"):
+            SimConfig.from_dict({**tiny, "effects": [name]})
