@@ -293,6 +293,9 @@ def test_diagnosis_json_follows_the_contract(tmp_path):
     assert d.verdict == "effect" and d.effect_fit is not None and len(js["effect_parameters"]) == len(d.effect_fit.effect_params)
     assert all(v["se"] is None or v["se"] > 0 for v in js["effect_parameters"].values())
     assert d.effect_fit.cov_params().shape == (len(d.effect_fit.params),) * 2 and "±" in d.effect_fit.summary().as_text()
+    # hexapod datasets name one effect: `effects` is that one, with the same parameters and the shrinkage's RMS after
+    assert [e["name"] for e in js["effects"]] == ["casing_load"] and js["effects"][0]["parameters"] == js["effect_parameters"]
+    assert js["effects"][0]["heldout_rms_after"] == js["shrinkage"]["heldout_rms_after"]
     from ftcal_nlp.report.diagnosis import diagnosis_section
 
     sec = diagnosis_section(d, tmp_path)

@@ -7,8 +7,8 @@ the design ``[J, X_1 .. X_m]`` of the free-load Jacobian and the faces named so 
 candidate is added when all of these hold (the stated test):
 
 * a gap remains: some channel's held-out RMS exceeds the noise floor by more than ``GAP_REL`` (relative);
-* the paired block-wise comparison favours it: the held-out sum of squares it saves, block by block
-  (``d_b``), has ``mean(d) / se(d) >= Z_MIN`` over the blocks;
+* the paired block-wise comparison favours it: the log ratio of the held-out sums of squares without and with
+  it, block by block (``d_b``), has ``mean(d) / se(d) >= Z_MIN`` over the blocks;
 * the saving is material against the floor: at least ``MIN_FLOOR_SHARE`` of the floor's sum of squares
   (``6 N`` in units of the noise variance: a saving smaller than 1 % of the noise is not an effect worth
   naming however significant), and at least ``MIN_EXCESS_SHARE`` of the held-out excess still over the floor.
@@ -33,7 +33,7 @@ from .free_cv import CVFit, Design, paired_gain, pinv
 GAP_REL = 0.15
 Z_MIN = 3.0
 MIN_FLOOR_SHARE = 0.01
-MIN_EXCESS_SHARE = 0.10
+MIN_EXCESS_SHARE = 0.25
 MAX_EFFECTS = 4
 
 

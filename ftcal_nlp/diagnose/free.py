@@ -66,6 +66,22 @@ class FreeLegDiagnosis:
     notes: list[str] = field(default_factory=list)
     plot: dict = field(default_factory=dict)
 
+    def to_json_dict(self) -> dict:
+        """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
+        lst = lambda a: [float(x) for x in a]  # noqa: E731
+        return {"verdict": self.verdict, "samples": self.n, "quasi_static": self.n_still, "cv_blocks": self.blocks,
+                "noise_floor": lst(self.floor), "floor_samples": self.floor_samples,
+                "heldout_rms_before": lst(self.before), "heldout_rms_after": lst(self.after),
+                "chain": [{"step": i + 1, "candidates": [{"effect": c.effect.name, "shape": c.shape, "status": c.status,
+                                                           "paired_z": None if c.cv is None else float(c.z),
+                                                           "explained": None if c.cv is None else float(c.excess_share),
+                                                           "heldout_rms_after": None if c.cv is None else lst(c.cv.rms())}
+                                                          for c in rd]} for i, rd in enumerate(self.chain.rounds)],
+                "stop": self.chain.stop,
+                "correlates": [{"correlate": c.name, "explained": float(c.explained), "heldout_rms_after": lst(c.heldout_rms)}
+                               for c in self.correlates],
+                "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes)}
+
     def effects_json(self) -> list[dict]:
         out = []
         for i, s in enumerate(self.chain.steps):

@@ -223,9 +223,12 @@ class Design:
 
 def paired_gain(before: CVFit, after: CVFit) -> tuple[float, float]:
     """``(gain, z)``: the held-out weighted sum of squares ``after`` saves over ``before``, as a fraction of
-    ``before``'s, and the paired z of the per-block savings (mean over blocks / its se)."""
-    d = before.block_sse - after.block_sse
+    ``before``'s, and the paired z of the per-block log ratios ``d_b = log(SSE_before,b / SSE_after,b)`` (mean over
+    blocks / its se). Log ratios, not differences: a real effect shrinks most blocks by a similar factor while its
+    absolute saving is concentrated where the load moves most, which would make the differences heavy-tailed."""
+    ok = (before.block_sse > 0) & (after.block_sse > 0)
+    d = np.log(before.block_sse[ok]) - np.log(after.block_sse[ok])
     B = len(d)
     sd = float(np.std(d, ddof=1)) if B > 1 else np.inf
     z = float(d.mean() / (sd / np.sqrt(B))) if sd > 0 else (np.inf if d.sum() > 0 else 0.0)
-    return float(d.sum() / max(before.sse, 1e-300)), z
+    return float((before.sse - after.sse) / max(before.sse, 1e-300)), z

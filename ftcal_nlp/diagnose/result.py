@@ -94,6 +94,8 @@ class DiagnosisResult:
             "balance": self.balance,
         }
         out["effects"] = self.effects_list()
+        if self.free is not None:
+            out["free_loads"] = {k: d.to_json_dict() for k, d in self.free.items()}
         if self.design is not None:
             d = self.design
             out["design_check"] = {"common_tilt_deg": _lst(d["tilt_deg"]), "tilt_se_deg": float(d["tilt_se_deg"]),
