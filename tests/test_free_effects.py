@@ -267,3 +267,199 @@ def test_temperature_face_recovers_its_gains_and_the_lag():
     f3 = best_shape(unit, c3)
     _, _, a3, _ = fit(c3, f3)
     assert f3.shape["lag_s"] > 0 and np.all(a3 < 1.15 * c3.sigma), (f3.shape, a3 / c3.sigma)
+
+
+# ----------------------------------------------------------------------------- joint_limit_contact
+
+
+def test_joint_limit_contact_is_a_ramp_to_the_limit():
+    from ftcal_nlp.effects.joint_limit_contact import ramp
+    from ftcal_nlp.sim.free.simulate import FreeLoadTruth
+
+    q = np.linspace(-1.0, 1.0, 201)            # limits -1 .. 1: onset 0.7 at q = 0.7 (upper) or -0.7 (lower)
+    r = ramp(q, -1.0, 1.0, 1, 0.7)
+    assert np.allclose(r, np.clip((q - 0.7) / 0.3, 0, None)) and r[-1] == pytest.approx(1.0) and r[170] == 0.0
+    assert np.allclose(ramp(q, -1.0, 1.0, -1, 0.7), np.clip((-0.7 - q) / 0.3, 0, None))
+    t = np.arange(len(q)) * 0.01
+    truth = FreeLoadTruth(("leg",), np.zeros((1, 6)), 9.81, q={"knee": q, "hip": 0 * q}, limits={"knee": (-1.0, 1.0), "hip": (-1.0, 1.0)})
+    inj = EFFECTS["joint_limit_contact"].injector(scale=2.0, seed=1)
+    out = inj.readings(_ictx(t, truth=truth), np.zeros((len(t), 1, 6)))
+    j, side, lo, hi = inj.where(_ictx(t, truth=truth))
+    assert j == "knee"                         # the only joint that moves
+    assert np.allclose(out[:, 0], ramp(q, -1, 1, side, 0.7)[:, None] * inj.W)
+    assert np.linalg.norm(inj.W[:3]) == pytest.approx(2.0) and np.linalg.norm(inj.W[3:]) == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="no moving joint with limits"):
+        inj.readings(_ictx(t, truth=FreeLoadTruth(("w",), np.zeros((1, 6)), 9.81)), np.zeros((len(t), 1, 6)))
+
+
+def test_joint_limit_contact_face_finds_the_joint_and_recovers_the_wrench():
+    unit = EFFECTS["joint_limit_contact"]
+    inj = unit.injector_cls(scale=2.0, seed=1, joint="r_knee", side=1, onset=0.7)
+    sim = simulate("urdf_leg", effects=(inj,), seed=3)
+    ctx = context(sim)
+    shapes = unit.free_shapes(ctx)
+    assert {"joint": "r_knee", "side": 1, "onset": 0.7} in shapes and all(s["joint"] in ctx.joint_limits for s in shapes)
+    best = best_shape(unit, ctx)
+    assert best.shape == {"joint": "r_knee", "side": 1, "onset": 0.7}, best.shape
+    beta, se, after, _ = fit(ctx, best)
+    assert np.all(np.abs(beta - inj.W) < 4 * se), ((beta - inj.W) / se)
+    assert np.all(after < 1.05 * ctx.sigma)
+    corr = unit.free_correct(ctx, best.shape, beta)
+    assert np.all(rms(corr - ctx.pred - (corr - ctx.pred).mean(axis=0)) < 1.05 * ctx.sigma)
+    # off the face: a soft (sigmoid) and a sticking contact are found at the same joint and side, most of the gap closed
+    for cls in unit.shapes:
+        c2 = context(simulate("urdf_leg", effects=(cls(scale=2.0, seed=1, joint="r_knee", side=1, onset=0.7),), seed=3))
+        f2 = best_shape(unit, c2)
+        _, _, a2, _ = fit(c2, f2)
+        before = rms(c2.y - c2.pred - (c2.y - c2.pred).mean(axis=0))
+        assert (f2.shape["joint"], f2.shape["side"]) == ("r_knee", 1), (cls.name, f2.shape)
+        assert np.all(a2 - c2.sigma < 0.5 * (before - c2.sigma)), (cls.name, a2 / c2.sigma, before / c2.sigma)
+
+
+# ----------------------------------------------------------------------------- inertial_load
+
+
+def _spin(omega=2.0, alpha=0.0, n=2001, T=4.0):
+    """R_WB(t) = Rz(omega t + alpha t^2 / 2) sampled on [0, T]."""
+    t = np.linspace(0.0, T, n)
+    ang = omega * t + 0.5 * alpha * t**2
+    return t, rotvec_to_rotation(ang[:, None] * np.array([0.0, 0.0, 1.0]))
+
+
+def test_inertial_wrench_of_a_spinning_and_an_accelerating_payload():
+    from ftcal_nlp.effects.inertial_load import frame_motion, rigid_parameters, rigid_regressor
+    from ftcal_nlp.sim.free.physics import inertial_wrench
+
+    m, k, c = 1.5, 0.04, np.array([0.05, 0.0, 0.08])
+    I_c = m * k**2 * np.eye(3)
+    t, R = _spin(omega=2.0)
+    body = [(m, np.broadcast_to(c, (len(t), 3)), np.broadcast_to(np.eye(3), (len(t), 3, 3)), I_c)]
+    w = inertial_wrench(t, R, np.zeros(3), np.eye(3), body)
+    # constant spin about z: the centrifugal pull m w^2 c_xy outwards, its moment m w^2 c_x c_z about y
+    inner = slice(5, -5)
+    assert np.allclose(w[inner], [m * 4.0 * c[0], 0, 0, 0, m * 4.0 * c[0] * c[2], 0], atol=1e-4)
+    # accelerating turn from rest (alpha = 3 rad/s^2, at t = 0): tangential force -m alpha c_x along y and the
+    # moment -(I_O alpha) of the inertia about O
+    t2, R2 = _spin(omega=0.0, alpha=3.0, T=0.5)
+    w2 = inertial_wrench(t2, R2, np.zeros(3), np.eye(3), [(m, np.broadcast_to(c, (len(t2), 3)), np.broadcast_to(np.eye(3), (len(t2), 3, 3)), I_c)])
+    pi = rigid_parameters(m, c, I_c)
+    I_O = I_c + m * (c @ c * np.eye(3) - np.outer(c, c))
+    assert np.allclose(w2[2, :3], [0, -m * 3.0 * c[0], 0], atol=1e-3)
+    assert np.allclose(w2[2, 3:], -I_O @ [0, 0, 3.0], atol=1e-4)
+    # the face's rigid regressor at the true parameters is the same wrench, on both motions
+    for tt, RR, ww in ((t, R, w), (t2, R2, w2)):
+        Y = rigid_regressor(*frame_motion(tt, np.zeros(len(tt), int), RR), np.zeros(3))
+        assert np.allclose((Y @ pi)[inner], ww[inner], atol=1e-6)
+
+
+def test_inertial_load_injector_adds_the_simulated_inertial_wrench():
+    from ftcal_nlp.sim.free.simulate import FreeLoadTruth
+
+    t = np.arange(100) * 0.01
+    w_in = np.random.default_rng(0).normal(size=(100, 6))
+    truth = FreeLoadTruth(("w",), np.zeros((1, 6)), 9.81, inertial=w_in)
+    out = EFFECTS["inertial_load"].injector(scale=0.7).readings(_ictx(t, truth=truth), np.ones((100, 1, 6)))
+    assert np.allclose(out[:, 0], 1.0 + 0.7 * w_in)
+    with pytest.raises(ValueError, match="no inertial wrench"):
+        EFFECTS["inertial_load"].injector().readings(_ictx(t, truth=FreeLoadTruth(("w",), np.zeros((1, 6)), 9.81)), np.ones((100, 1, 6)))
+    # the simulator: the injector at scale 1 reads as the config's physical inertial_load = 1
+    a = simulate(effects=(EFFECTS["inertial_load"].injector(scale=1.0),), noise_force_N=0.0, noise_torque_Nm=0.0)
+    b = simulate(inertial_load=1.0, noise_force_N=0.0, noise_torque_Nm=0.0)
+    cols = [f"wrist_{c}" for c in WRENCH]
+    assert np.allclose(a.frame[cols].to_numpy(), b.frame[cols].to_numpy(), atol=1e-12)
+    assert np.abs(a.frame[cols].to_numpy() - a.clean).max() > 0.01
+
+
+def _payload_context(sim):
+    from ftcal_nlp.loads import RigidPayload
+
+    cfg = sim.config
+    ctx = context(sim)
+    load = RigidPayload(rpy_to_rotation(cfg.rotation_rpy))
+    theta = np.r_[cfg.mass_kg, cfg.mass_kg * np.asarray(cfg.com_m)]
+    ctx = type(ctx)(**{**ctx.__dict__, "load": load, "theta": theta, "rotation": rotvec_to_rotation(np.asarray(sim.truth["mount_rotvec"]))})
+    ctx.extra.update(position_m=np.asarray(cfg.position_m))
+    return ctx
+
+
+def test_inertial_load_face_recovers_the_payloads_inertia():
+    from ftcal_nlp.effects.inertial_load import RIGID_NAMES, rigid_parameters
+
+    unit = EFFECTS["inertial_load"]
+    sim = simulate(effects=(unit.injector(scale=1.0),), seed=4)
+    cfg = sim.config
+    ctx = _payload_context(sim)
+    assert unit.free_shapes(ctx) == ({"model": "rigid"}, {"model": "points"})
+    face = unit.free_face(ctx, {"model": "rigid"})
+    beta, se, after, _ = fit(ctx, face)
+    R_ft = rpy_to_rotation(cfg.rotation_rpy) @ rotvec_to_rotation(np.asarray(sim.truth["mount_rotvec"]))
+    pi = rigid_parameters(cfg.mass_kg, cfg.com_m, cfg.mass_kg * cfg.gyration_radius_m**2 * np.eye(3), R_ft.T @ np.asarray(cfg.position_m))
+    z = (beta - pi) / se
+    assert np.all(np.abs(z) < 4), dict(zip(RIGID_NAMES, z.round(2)))
+    assert np.all(after < 1.05 * ctx.sigma)
+    corr = unit.free_correct(ctx, {"model": "rigid"}, beta)
+    assert np.all(rms(corr - ctx.pred - (corr - ctx.pred).mean(axis=0)) < 1.05 * ctx.sigma)
+    # the point-mass face: gains near 1 on the forces (the torques miss the tool's own rotational inertia)
+    bp, sp, ap, _ = fit(ctx, unit.free_face(ctx, {"model": "points"}))
+    assert np.all(np.abs(bp[:3] - 1.0) < 0.1), bp
+    assert np.all(se[:3] < 0.1 * np.abs(pi[:3]).max()) and np.all(se[3:] < 0.1 * np.abs(pi[3:]).max())   # all determined
+    # the ringing shape: still the inertia's gap, mostly closed by the rigid face
+    c2 = _payload_context(simulate(effects=(unit.shapes[0](scale=1.0),), seed=4))
+    b2, s2, a2, _ = fit(c2, unit.free_face(c2, {"model": "rigid"}))
+    before = rms(c2.y - c2.pred - (c2.y - c2.pred).mean(axis=0))
+    assert np.all(a2 - c2.sigma < 0.6 * (before - c2.sigma)), (a2 / c2.sigma, before / c2.sigma)
+
+
+def test_inertial_load_point_mass_face_on_a_urdf_leg():
+    from ftcal_nlp.kinematics import load_tree
+    from ftcal_nlp.loads import UrdfSubtree
+
+    unit = EFFECTS["inertial_load"]
+    sim = simulate("urdf_leg", effects=(unit.injector(scale=1.0),), seed=5)
+    cfg = sim.config
+    tree = load_tree(cfg.urdf_path)
+    load = UrdfSubtree(tree, cfg.ft_link)
+    theta = []
+    for g in load.groups:               # the true groups' mass and first moment (the simulator's bodies)
+        M, H = 0.0, np.zeros(3)
+        for link in g.links:
+            b = sim.truth["bodies"][link]
+            R, p = load._link_in_group(g, link)
+            M += b["mass_kg"]
+            H += b["mass_kg"] * (p + R @ np.asarray(b["com_m"]))
+        theta += [M, *H]
+    ctx = context(sim)
+    ctx = type(ctx)(**{**ctx.__dict__, "load": load, "theta": np.array(theta),
+                       "rotation": rotvec_to_rotation(np.asarray(sim.truth["mount_rotvec"]))})
+    assert unit.free_shapes(ctx) == ({"model": "points"},)      # a load with joints is no rigid body
+    beta, se, after, _ = fit(ctx, unit.free_face(ctx, {"model": "points"}))
+    before = rms(ctx.y - ctx.pred - (ctx.y - ctx.pred).mean(axis=0))
+    assert np.all(np.abs(beta[:3] - 1.0) < 0.1), beta       # the forces: m a of the CoMs, exactly the physics
+    assert np.all(after - ctx.sigma < 0.3 * (before - ctx.sigma)), (after / ctx.sigma, before / ctx.sigma)
+
+
+# ----------------------------------------------------------------------------- the hexapod simulator
+
+
+def test_hexapod_simulator_takes_the_sensor_effects_and_refuses_the_free_load_ones(tmp_path):
+    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.errors import ConfigError
+    from ftcal_nlp.sim import SimConfig, simulate as simulate_hexapod
+    from ftcal_nlp.sim.writer import write_simulation
+
+    tiny = {"n_poses": 8, "hanging_cycles": 0.5, "walk_cycles": 0.2, "seed": 1, "noise_force_N": 0.0, "noise_torque_Nm": 0.0}
+    clean = simulate_hexapod(SimConfig.from_dict(tiny))
+    for name in ("clock_offset", "creep", "temperature"):
+        assert "hexapod" in applies_to(name)
+        sim = simulate_hexapod(SimConfig.from_dict({**tiny, "effects": [name]}))
+        moved = max(np.abs(r.wrench[k] - c.wrench[k]).max() for r, c in zip(sim.dataset.recordings, clean.dataset.recordings)
+                    for k in r.wrench)
+        assert moved > 1e-3, name
+    temp = simulate_hexapod(SimConfig.from_dict({**tiny, "effects": ["temperature"]}))
+    rec = temp.dataset.recordings[0]
+    assert set(rec.temperature) == set(rec.wrench) and all(np.ptp(v) > 0 for v in rec.temperature.values())
+    back = read_dataset(write_simulation(temp, tmp_path / "hex"))
+    assert np.allclose(back.recordings[0].temperature[rec.legs[0]], rec.temperature[rec.legs[0]], atol=1e-6)
+    for name in ("inertial_load", "joint_limit_contact", "joint_limit_contact_smooth"):
+        with pytest.raises(ConfigError, match="free load"):
+            SimConfig.from_dict({**tiny, "effects": [name]})

@@ -79,7 +79,8 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     ctx = make_context(leg, cat("t"), cat("y"), pred, b @ fit.rotation, rec=cat("rec"), names=tuple(r.name for r in recs),
                        still=still, g_B=g_B, q=moving_q, joint_limits=_limits(load), quat=quat, temperature=temp,
                        index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation)
-    ctx.extra.update(b=b, K=K)
+    pos = ds.robot.transducers[leg].position_m
+    ctx.extra.update(b=b, K=K, **({} if pos is None else {"position_m": np.asarray(pos, float)}))  # inertial_load's O in B
     return ctx, notes
 
 

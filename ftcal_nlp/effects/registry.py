@@ -22,7 +22,7 @@ from .unit import KINDS, Effect
 LIBRARY_EFFECTS = (
     "offset_drift", "gain_crosstalk", "casing_load", "mocap_bias", "chassis_flex", "tether_force",
     "hysteresis", "leg_inertia", "robot_mass", "sensor_nonlinearity", "moving_com",
-    "clock_offset", "creep", "temperature",
+    "clock_offset", "creep", "inertial_load", "joint_limit_contact", "temperature",
 )
 
 

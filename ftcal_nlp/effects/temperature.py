@@ -26,12 +26,10 @@ Free face (``free_faces.py``): per channel ``(T_lag - Tbar)`` (and ``(T_lag - Tb
 thermal lag (0, 30, 90 s), chosen by held-out residual. None without a temperature.
 
 Correction: ``y - X beta`` (the free face on the recording's own temperature). A hexapod's
-``correct`` has no temperature to read: readings unchanged (logged).
+``correct`` has no temperature to read: readings unchanged (logged; ``Effect.correct``).
 """
 
 from __future__ import annotations
-
-import logging
 
 import numpy as np
 
@@ -39,8 +37,6 @@ from .free_faces import WRENCH, FreeFace
 from .injection import EffectInjector, Magnitude, OffFaceInjector
 from .signals import lowpass
 from .unit import Effect
-
-log = logging.getLogger(__name__)
 
 T_REF_C = 25.0
 
@@ -135,11 +131,6 @@ class Temperature(Effect):
         names = [f"{WRENCH[c]}.dT{'' if j == 1 else j} [{'N' if c < 3 else 'N*m'}/degC{'' if j == 1 else f'^{j}'}]"
                  for c in range(6) for j in range(1, d + 1)]
         return FreeFace(None, tuple(names), dict(shape), basis=basis, channels=tuple(range(6)))
-
-
-    def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
-        log.info("%s: temperature: a hexapod's correction has no temperature to read; readings unchanged", source)
-        return w, R_WB, None
 
 
 EFFECT = Temperature()

@@ -163,6 +163,9 @@ class Effect:
         if self.kind == "body":
             log.info("%s: %s acts on the body, not on the transducers' readings: per-foot wrenches are unchanged", source, self.name)
             return w, R_WB, None
+        if "hexapod" not in self.diagnosed_on:   # no standing face to evaluate (a free-load effect: ``free_correct``)
+            log.info("%s: %s has no hexapod face: readings unchanged", source, self.name)
+            return w, R_WB, None
         return correct_by_face(self, cal, block, ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
 
     def __repr__(self) -> str:
