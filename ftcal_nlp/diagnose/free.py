@@ -185,7 +185,6 @@ def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
                             where, ctx.n, int(ctx.still.sum()), 0, notes, {}, False)
 
 
-FLOOR_TEXT = "at least a few samples"
 #: a channel lies in the gap when the fitted wrench of what explains it has an RMS of at least this share of its floor
 COMPONENT_SHARE = 0.5
 
