@@ -118,9 +118,14 @@ class Design:
         self.folds = int(fold.max()) + 1
         self.nb = int(block.max()) + 1
         self.rw = (self.r * self.w).reshape(-1)
-        self._rows = [np.flatnonzero(fold == f) for f in range(self.folds)]
+        # samples sorted by fold: a fold is a slice, every part's rows a view (one copy of each part, not one per use)
+        self._order = np.argsort(fold, kind="stable")
+        edges = np.r_[0, np.cumsum(np.bincount(fold, minlength=self.folds))]
+        self._sl = [slice(int(edges[f]), int(edges[f + 1])) for f in range(self.folds)]
+        self._rp = self.r[self._order]
         self._gram: dict = {}
         self._vec: dict = {}
+        self._perm: dict = {}   # part id -> its rows in fold order (X or basis)
         self._keep: dict = {}   # parts by id, so that an id is not reused while its blocks are cached
 
     @property
@@ -131,14 +136,21 @@ class Design:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
         return (X * self.w[None, :, None]).reshape(-1, X.shape[2])
 
+    def _P(self, a) -> np.ndarray:
+        """Part ``a``'s X (dense) or basis (per channel), rows in fold order (cached)."""
+        if id(a) not in self._perm:
+            self._keep[id(a)] = a
+            self._perm[id(a)] = (a.X if a.dense else a.basis)[self._order]
+        return self._perm[id(a)]
+
     # ---- per-fold blocks
-    def _pair(self, a, b, rows) -> np.ndarray:
+    def _pair(self, a, b, sl) -> np.ndarray:
         w2 = self.w2
         if a.dense and b.dense:
-            Xa = a.X[rows] * w2[None, :, None]
-            return Xa.reshape(-1, a.k).T @ b.X[rows].reshape(-1, b.k)
+            Xa = self._P(a)[sl] * w2[None, :, None]
+            return Xa.reshape(-1, a.k).T @ self._P(b)[sl].reshape(-1, b.k)
         if not a.dense and not b.dense:
-            Ba, Bb = a.basis[rows], b.basis[rows]
+            Ba, Bb = self._P(a)[sl], self._P(b)[sl]
             ma, mb = Ba.shape[1], Bb.shape[1]
             BtB = Ba.T @ Bb
             out = np.zeros((a.k, b.k))
@@ -148,20 +160,28 @@ class Design:
                     out[i * ma:(i + 1) * ma, j * mb:(j + 1) * mb] = w2[c] * BtB
             return out
         if a.dense:
-            return self._pair(b, a, rows).T
-        Ba, Xb = a.basis[rows], b.X[rows]
+            return self._pair(b, a, sl).T
+        Ba, Xb = self._P(a)[sl], self._P(b)[sl]
         m = Ba.shape[1]
         out = np.zeros((a.k, b.k))
         for i, c in enumerate(a.channels):
             out[i * m:(i + 1) * m] = w2[c] * (Ba.T @ Xb[:, c, :])
         return out
 
-    def _rhs(self, a, rows) -> np.ndarray:
-        rr = self.r[rows] * self.w2
+    def _rhs(self, a, sl) -> np.ndarray:
+        rr = self._rp[sl] * self.w2
         if a.dense:
-            return a.X[rows].reshape(-1, a.k).T @ rr.reshape(-1)
-        B = a.basis[rows]
+            return self._P(a)[sl].reshape(-1, a.k).T @ rr.reshape(-1)
+        B = self._P(a)[sl]
         return np.concatenate([B.T @ rr[:, c] for c in a.channels])
+
+    def _pred(self, a, beta, sl) -> np.ndarray:
+        if a.dense:
+            return self._P(a)[sl] @ beta
+        B = self._P(a)[sl]
+        out = np.zeros((len(B), 6))
+        out[:, list(a.channels)] = B @ beta.reshape(len(a.channels), -1).T
+        return out
 
     def _blocks(self, a, b) -> np.ndarray:
         key = (id(a), id(b))
@@ -169,13 +189,13 @@ class Design:
             if (id(b), id(a)) in self._gram:
                 return self._gram[(id(b), id(a))].transpose(0, 2, 1)
             self._keep[id(a)], self._keep[id(b)] = a, b
-            self._gram[key] = np.stack([self._pair(a, b, rows) for rows in self._rows])
+            self._gram[key] = np.stack([self._pair(a, b, sl) for sl in self._sl])
         return self._gram[key]
 
     def _vecs(self, a) -> np.ndarray:
         if id(a) not in self._vec:
             self._keep[id(a)] = a
-            self._vec[id(a)] = np.stack([self._rhs(a, rows) for rows in self._rows])
+            self._vec[id(a)] = np.stack([self._rhs(a, sl) for sl in self._sl])
         return self._vec[id(a)]
 
     def forget(self, part) -> None:
@@ -184,6 +204,7 @@ class Design:
         for key in [k for k in self._gram if i in k]:
             del self._gram[key]
         self._vec.pop(i, None)
+        self._perm.pop(i, None)
         self._keep.pop(i, None)
 
     def fit(self, parts) -> CVFit:
@@ -206,17 +227,15 @@ class Design:
                 if j != i:
                     Gf[:, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 2, 1)
         G, v = Gf.sum(axis=0), vf.sum(axis=0)
-
-        def model(beta, rows):
-            return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))
-
-        ho = np.empty((self.n, 6))
-        for f, rows in enumerate(self._rows):
-            if len(rows):
+        hop = np.empty((self.n, 6))
+        for f, sl in enumerate(self._sl):
+            if sl.stop > sl.start:
                 b = solve(G - Gf[f], v - vf[f])
-                ho[rows] = self.r[rows] - model(b, rows)
+                hop[sl] = self._rp[sl] - sum(self._pred(p, b[off[i]:off[i + 1]], sl) for i, p in enumerate(parts))
+        ho = np.empty_like(hop)
+        ho[self._order] = hop
         beta = solve(G, v)
-        resid = self.r - model(beta, slice(None))
+        resid = self.r - sum(p.wrench(beta[off[i]:off[i + 1]]) for i, p in enumerate(parts))
         bs = np.bincount(self.block, weights=(ho**2 * self.w2).sum(axis=1), minlength=self.nb)
         return CVFit(ho, bs, beta, resid, G, k)
 
