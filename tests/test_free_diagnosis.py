@@ -75,11 +75,15 @@ def _step(fr, res):
     ("urdf", 5, ({"name": "clock_offset", "scale": 0.02},), None, "clock_offset"),
     ("payload", 6, ({"name": "creep"},), None, "creep"),
     ("urdf", 6, ({"name": "creep"},), None, "creep"),
+    ("payload", 9, ({"name": "temperature"},), None, "temperature"),              # a temperature column: its correlate
+    ("urdf", 9, ({"name": "inertial_load"},), None, "inertial_load"),
 ])
 def test_one_effect_is_named_alone(kind, seed, effects, add, expect, tmp_path):
     d, _ = _diagnose(_sim(kind, seed, effects, add), tmp_path)
     assert d.verdict == "effect" and d.effect == expect, d.statement
     assert _names(d) == [expect], d.statement
+    assert d.where["explains"] == {"offset_drift": "time", "clock_offset": "motion", "inertial_load": "motion",
+                                   "temperature": "temperature"}.get(expect, d.where["explains"])
     e = d.effects[0]
     assert all(p["se"] is None or p["se"] > 0 for p in e["parameters"].values())
     leg = next(iter(d.free.values()))
