@@ -132,6 +132,12 @@ def test_delay_and_its_se_recover_truth(tmp_path):
     assert vals, pars
     for v, se in vals:
         assert se is not None and abs(v - true) < 4 * se + 1e-3 * true, (v, se)
+    # the free-load parameters refit with it: the offsets are determined (finite se) and the truth within 4 se
+    jr = d.to_json_dict()["free_loads"]["wrist"]["joint_refit"]
+    truth = json.loads(json.dumps(_sim("payload", 7, ({"name": "clock_offset", "scale": true},)).truth))
+    for c, t in zip(WRENCH, truth["offset"]):
+        p = jr[f"wrist.offset.{c}"]
+        assert p["se"] is not None and abs(p["value"] - t) < 4 * p["se"], (c, p, t)
 
 
 def test_a_gap_along_a_joint_is_unexplained_and_placed(tmp_path):

@@ -220,10 +220,10 @@ def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoad
     s2 = float((rw**2).sum() / max(m - k, 1))
     _, infl = serial_inflation(rw, ctx.rec, ctx.index)
     s2 *= float(np.mean(infl))
-    C = pinv(G) * s2
-    se = np.sqrt(np.clip(np.diag(C), 0.0, None))
-    # a direction the data leave undetermined has no se (pinv left it at zero)
-    se = np.where(np.diag(G) > 0, se, np.inf)
+    Gi, undetermined = pinv(G)
+    se = np.sqrt(np.clip(np.diag(Gi * s2), 0.0, None))
+    # a parameter along a direction the data leave undetermined has no se (pinv left it at zero)
+    se = np.where(undetermined, np.inf, se)
     out, betas, c0 = [], [], J.k
     for s in steps:
         sl = slice(c0, c0 + s.face.k)

@@ -26,6 +26,8 @@ import numpy as np
 
 #: eigenvalues of the scaled normal matrix below this fraction of the largest are undetermined directions
 REL_EIG = 1e-10
+#: a parameter whose component along an undetermined direction (unit vector, scaled) exceeds this is undetermined
+TOUCH = 1e-6
 #: blocks per fold at least (fewer holds: time blocks instead)
 MIN_BLOCKS_PER_FOLD = 2
 
@@ -71,13 +73,16 @@ def solve(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (U[:, keep] @ ((U[:, keep].T @ (v / d)) / lam[keep])) / d
 
 
-def pinv(G: np.ndarray) -> np.ndarray:
-    """``G^+`` on the determined subspace; undetermined directions give 0 (their se is reported as inf by the caller)."""
+def pinv(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(G^+, undetermined)``: the inverse on the determined subspace and, per parameter, whether it has a component
+    (above ``TOUCH``) along a direction the data leave undetermined (its se is then infinite, not the 0 of ``G^+``)."""
     d = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    zero = d == 0
     d = np.where(d > 0, d, 1.0)
     lam, U = np.linalg.eigh(G / np.outer(d, d))
     keep = lam > REL_EIG * max(lam.max(), 1e-300)
-    return (U[:, keep] / lam[keep]) @ U[:, keep].T / np.outer(d, d)
+    touched = zero | (np.abs(U[:, ~keep]) > TOUCH).any(axis=1)
+    return (U[:, keep] / lam[keep]) @ U[:, keep].T / np.outer(d, d), touched
 
 
 @dataclass(frozen=True)
