@@ -84,8 +84,7 @@ def excess_ratio(cv: CVFit, floor: np.ndarray) -> np.ndarray:
 def _bic(design: Design, cv: CVFit, ref: CVFit) -> float:
     """BIC of ``cv``'s full-sample fit relative to ``ref``'s (weighted Gaussian)."""
     m = design.n * 6
-    rss = float(((cv.resid * design.w) ** 2).sum())
-    rss0 = float(((ref.resid * design.w) ** 2).sum())
+    rss, rss0 = cv.rss, ref.rss
     return m * np.log(max(rss, 1e-300) / max(rss0, 1e-300)) + (cv.k - ref.k) * np.log(m)
 
 
