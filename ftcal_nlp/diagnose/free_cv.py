@@ -174,7 +174,7 @@ class Design:
         Pa, Pb = self._P(a), self._P(b)
         if a.dense and b.dense:
             for i, sl in enumerate(self._sl):
-                out[i] = np.einsum("nca,ncb->cab", Pa[sl], Pb[sl], optimize=True) * w2[:, None, None]
+                out[i] = (Pa[sl].transpose(1, 2, 0) @ Pb[sl].transpose(1, 0, 2)) * w2[:, None, None]
             return out
         if not a.dense and not b.dense:
             ma, mb = Pa.shape[1], Pb.shape[1]
@@ -189,7 +189,8 @@ class Design:
             return self._pair(b, a).transpose(0, 1, 3, 2)
         m = Pa.shape[1]
         for i, sl in enumerate(self._sl):
-            BtX = np.einsum("nm,nck->cmk", Pa[sl], Pb[sl], optimize=True)      # (6, m, kb)
+            Xs = Pb[sl]
+            BtX = (Pa[sl].T @ Xs.reshape(len(Xs), -1)).reshape(m, 6, -1).transpose(1, 0, 2)      # (6, m, kb)
             for ia, c in enumerate(a.channels):
                 out[i, c, ia * m:(ia + 1) * m] = w2[c] * BtX[c]
         return out
@@ -201,7 +202,7 @@ class Design:
         P = self._P(a)
         for i, sl in enumerate(self._sl):
             if a.dense:
-                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])
+                out[i] = (P[sl] * rr[sl][:, :, None]).sum(axis=0)
             else:
                 Bt = P[sl].T @ rr[sl]                                           # (m, 6)
                 m = P.shape[1]
@@ -275,7 +276,7 @@ class Design:
                 continue
             b = solve(G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0))
             fold_beta[f] = b
-            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + np.einsum("bcij,i,j->bc", Gbc[bs], b, b)
+            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + (Gbc[bs] @ b) @ b
         beta = solve(G, v)
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)
