@@ -12,10 +12,14 @@ below ``REL_EIG`` of its largest eigenvalue are left at zero: what the data cann
 
 Held-out evidence: the samples are cut into blocks (:func:`cv_blocks`: each quasi-static hold with the
 move that follows it; without holds, time blocks), the blocks dealt to ``folds`` folds by a seeded
-permutation; each fold is predicted from the normal equations of the others
-(``G - G_f, v - v_f``: one pass over the data per design). :class:`CVFit` holds the held-out residual of
-every sample, so scores per channel (RMS in the readings' units) and per block (for paired tests) come
-from one fit.
+permutation; each fold is predicted from the normal equations of the others (``G - G_f, v - v_f``). The
+normal equations are kept per block and channel (:class:`Design`, cached per pair of parts), so a design's
+held-out sums of squares per block (for the paired tests) and per channel (RMS in the readings' units) follow
+without a pass over the samples:
+
+    SSE_bc = s_bc - 2 beta_f' v_bc + beta_f' G_bc beta_f      (block b in fold f, channel c)
+
+:class:`CVFit` forms the held-out residual of every sample only on demand (figures).
 """
 
 from __future__ import annotations
