@@ -78,11 +78,10 @@ from __future__ import annotations
 import itertools
 import logging
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
-from .data import Dataset, DataFormatError, Recording, hanging_pairs
+from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs
 from .geometry import quat_to_rotation, rotation_to_rotvec, skew
 from .robot import Robot
 
@@ -725,24 +724,6 @@ def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[Sensor
 
 
 # ----------------------------------------------------------------------------- a calibration dataset's sensors and files
-
-
-def check_distinct_recordings(ds: Dataset) -> None:
-    """No recording listed twice (the same file, or the same samples under another name): each would count twice
-    and shrink every standard error by sqrt 2."""
-    seen: dict[tuple, Recording] = {}
-    for rec in ds.recordings:
-        key = (rec.n, float(rec.t[0]) if rec.n else 0.0, float(rec.t[-1]) if rec.n else 0.0)
-        other = seen.get(key)
-        same_file = other is not None and other.path is not None and rec.path is not None and Path(other.path).resolve() == Path(rec.path).resolve()
-        if other is not None and (same_file or (np.array_equal(other.t, rec.t) and all(
-                np.array_equal(other.wrench[k], rec.wrench[k], equal_nan=True) for k in rec.wrench))):
-            raise DataFormatError(
-                f"{ds.manifest or 'dataset'}: recordings {_src(other)} and {_src(rec)} are the same "
-                f"{'file' if same_file else 'samples'} listed twice; expected each recording once (twice, it would count "
-                "twice and every standard error would shrink by sqrt 2)"
-            )
-        seen[key] = rec
 
 
 #: a calibration recording with more of its rows held than this is refused rather than fitted on the rest

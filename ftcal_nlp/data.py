@@ -588,8 +588,6 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
     ds = Dataset(robot, tuple(recs), manifest.parent, manifest, robot_path)
     if payload:
         log.info("%s: transducer(s) %s have no {leg}_phi column: rigid payloads (DATA_FORMAT.md section 5)", where, list(payload))
-    from .checks import check_distinct_recordings  # (checks imports this module)
-
     check_distinct_recordings(ds)  # before pairing: a file listed twice is named as such
     if any(ds.load_kind(k) == "leg_com_curve" for k in robot.legs) and ds.hanging:
         ds = _nominal_gravity_body(ds)
@@ -614,6 +612,25 @@ def _nominal_gravity_body(ds: Dataset) -> Dataset:
             r = replace(r, gravity_body=gb)
         recs.append(r)
     return replace(ds, recordings=tuple(recs))
+
+
+def check_distinct_recordings(ds: Dataset) -> None:
+    """No recording listed twice (the same file, or the same samples under another name): each would count twice
+    and shrink every standard error by sqrt 2."""
+    seen: dict[tuple, Recording] = {}
+    for rec in ds.recordings:
+        key = (rec.n, float(rec.t[0]) if rec.n else 0.0, float(rec.t[-1]) if rec.n else 0.0)
+        other = seen.get(key)
+        same_file = other is not None and other.path is not None and rec.path is not None and Path(other.path).resolve() == Path(rec.path).resolve()
+        if other is not None and (same_file or (np.array_equal(other.t, rec.t) and all(
+                np.array_equal(other.wrench[k], rec.wrench[k], equal_nan=True) for k in rec.wrench))):
+            raise DataFormatError(
+                f"{ds.manifest or 'dataset'}: recordings {str(other.path or other.name)} and {str(rec.path or rec.name)} are the same "
+                f"{'file' if same_file else 'samples'} listed twice; expected each recording once (twice, it would count "
+                "twice and every standard error would shrink by sqrt 2)"
+            )
+        seen[key] = rec
+
 
 
 def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tuple[Recording, Recording]]:

@@ -21,7 +21,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..data import DataFormatError
+from ..errors import DataFormatError
 from ..geometry import is_rotation
 from ..robot import Robot, Transducer
 
