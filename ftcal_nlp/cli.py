@@ -189,16 +189,10 @@ def simulate_main(argv: Sequence[str] | None = None, prog: str | None = None) ->
 
 
 def _simulate(path: Path, output: str | None, force: bool) -> int:
-    import tomllib
-
+    from .config import read_toml
     from .sim import simulate_to_folder
 
-    if not path.is_file():
-        raise ConfigError(f"{path}: config file not found", path=path)
-    try:
-        d = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})", path=path) from exc
+    d = read_toml(path)
     table = dict(d["simulate"]) if isinstance(d.get("simulate"), dict) else d
     where = table.pop("dir", None)
     folder = Path(output) if output else (path.parent / where if isinstance(where, str) else None)
