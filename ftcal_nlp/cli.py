@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .errors import ConfigError, FtcalError
+from .errors import ConfigError, FtcalError, OutputError
 
 log = logging.getLogger("ftcal_nlp.cli")
 
@@ -228,6 +228,8 @@ def _simulate(path: Path, output: str | None, force: bool) -> int:
         raise ConfigError(f"{path}: no output folder; pass -o DIR or set [simulate] dir", path=path, key="simulate.dir")
     try:
         manifest = simulate_to_folder(table, folder, overwrite=force)
+    except FileExistsError as exc:
+        raise OutputError(f"{folder / 'dataset.toml'} exists; pass --force to replace the dataset", path=folder) from exc
     except (TypeError, ValueError) as exc:  # the simulator's own key checks
         if isinstance(exc, FtcalError):
             raise
