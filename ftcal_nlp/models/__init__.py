@@ -3,9 +3,7 @@
 ``MODELS`` is a plain dict name -> class. :func:`resolve` accepts a registered
 name, ``"package.module:Class"``, ``"path/to/file.py:Class"``, an
 :class:`ErrorModel` class or instance; an unknown name raises ``ValueError``
-listing the known ones. A model name read from a ``calibration.json``
-(:class:`~ftcal_nlp.calibration.ModelName`) is looked up in the registry only:
-code named in a data file is never imported.
+listing the known ones.
 """
 
 from __future__ import annotations
@@ -14,10 +12,11 @@ import importlib
 import importlib.util
 from pathlib import Path
 
-from ..calibration import ModelName
 from ..errors import ConfigError
 from .base import Block, ErrorModel, ModelContext, ModelSpec, make_spec, so3_variable, vector_variable
 from .builtin import Full, OffsetsOnly, Rot6Trans1, Trans1, Trans6
+
+from ..calibration import ModelName  # noqa: E402  (a model name read from a calibration file: registry only)
 
 MODELS: dict[str, type[ErrorModel]] = {
     "full": Full,
@@ -53,16 +52,19 @@ def _load_class(spec: str) -> type:
 
 
 def resolve(name_or_path: str | ErrorModel | type) -> ErrorModel:
-    """An error-model instance from a registered name, ``module:Class``, a path, a class or an instance."""
+    """An error-model instance from a registered name, ``module:Class``, a path, a class or an instance.
+
+    A name read from a ``calibration.json`` (:class:`~ftcal_nlp.calibration.ModelName`) is looked up in the
+    registry only: code named in a data file is never imported."""
     obj = name_or_path
     if isinstance(obj, ErrorModel):
         return obj
+    if isinstance(obj, ModelName) and obj not in MODELS:  # read from a calibration file: never imported (issue 24)
+        raise ConfigError(f"error model {str.__str__(obj)!r} of a calibration file is not a registered name; known models: "
+                          f"{sorted(MODELS)} (a calibration names its model; code is never imported from a data file)")
     if isinstance(obj, str):
         if obj in MODELS:
             return MODELS[obj]()
-        if isinstance(obj, ModelName):  # read from a calibration file: never imported (issue 24)
-            raise ConfigError(f"error model {str.__str__(obj)!r} of a calibration file is not a registered name; known models: "
-                              f"{sorted(MODELS)} (a calibration names its model; code is never imported from a data file)")
         if ":" not in obj:
             raise ValueError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
         obj = _load_class(obj)
