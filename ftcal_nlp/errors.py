@@ -11,20 +11,22 @@ command line can print one ``error:`` line and a caller can catch by kind:
 * :class:`SolverError` -- a solver did not report success; ``status`` holds
   the solver's own status text.
 * :class:`OutputError` -- a result cannot be written where asked (exists,
-  not writable, locked); ``path`` names the folder or file.
+  not writable, locked); ``path`` names the folder or file. Its
+  :class:`OutputExistsError` (an earlier result is there and overwriting was
+  not asked for) is also a ``FileExistsError``.
 
 Anything else that escapes is a defect, not a user error: the command line
 and :func:`ftcal_nlp.pipeline.optional` report it with its traceback.
 
 The subclasses also derive from the built-in they replaced (``ValueError``,
-``RuntimeError``) so that callers written against those still work.
+``RuntimeError``, ``FileExistsError``) so that callers written against those still work.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["FtcalError", "DataFormatError", "ConfigError", "SolverError", "OutputError"]
+__all__ = ["FtcalError", "DataFormatError", "ConfigError", "SolverError", "OutputError", "OutputExistsError"]
 
 
 class FtcalError(Exception):
@@ -63,3 +65,7 @@ class OutputError(FtcalError, RuntimeError):
     def __init__(self, message: str, *, path: str | Path | None = None):
         super().__init__(message)
         self.path = None if path is None else Path(path)
+
+
+class OutputExistsError(OutputError, FileExistsError):
+    """The output (folder or file) holds an earlier result and overwriting was not asked for."""

@@ -33,7 +33,6 @@ import casadi as ca
 import numpy as np
 
 from .calibration import Calibration, LegCalibration
-from .errors import ConfigError, OutputError
 from .geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
 
 log = logging.getLogger(__name__)
@@ -260,6 +259,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
+    from .errors import ConfigError, OutputError
+
     out = Path(args.output)
     if not args.name.isidentifier():
         raise ConfigError(f"--name {args.name!r} is not a C identifier", key="--name")

@@ -32,15 +32,11 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from .errors import OutputError
+from .errors import OutputError, OutputExistsError
 
 __all__ = ["OutputFolder", "OutputExistsError", "check_writable"]
 
 log = logging.getLogger(__name__)
-
-
-class OutputExistsError(OutputError):
-    """The output folder holds an earlier result and ``--force`` was not given."""
 
 
 def _nearest_existing(p: Path) -> Path:

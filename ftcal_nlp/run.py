@@ -123,7 +123,7 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     origin = data_origin(cfg, truth)
     cov_meta["data"] = {"simulated": origin is not None, **({"origin": origin} if origin else {})}
     res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta})
-    _issue_notes(res, origin)
+    res = replace(res, notes=type(res.notes)(_issue_notes(res, origin)))
     with stage("write calibration", res.timings):
         res.calibration.save(folder / "calibration.json")
         if res.uncertainty is not None:
@@ -142,16 +142,19 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     return res
 
 
-def _issue_notes(res: CalibrationRun, origin: str | None) -> None:
-    """Notes for the log and the report: simulated data; a standing residual far above the sensor noise."""
+def _issue_notes(res: CalibrationRun, origin: str | None) -> list[str]:
+    """The run's notes with what the log and the report must say beside them: simulated data (first); a
+    standing residual far above the sensor noise (last, a warning)."""
+    notes = list(res.notes)
     if origin is not None:
         log.info("the dataset is %s", origin)
-        res.notes.insert(0, f"The dataset is {origin}.")
+        notes.insert(0, f"The dataset is {origin}.")
     if res.standing is not None and res.uncertainty is not None:
         note = residual_note(res.standing.residuals, res.uncertainty.noise, res.calibration)
         if note:
             log.warning("%s", note)
-            res.notes.append(note)
+            notes.append(note)
+    return notes
 
 
 def effect_calibration(res: CalibrationRun) -> Calibration:
