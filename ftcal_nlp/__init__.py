@@ -3,6 +3,8 @@
 ``calibrate(dataset, settings) -> CalibrationRun`` runs the whole method (Wu & Revzen:
 hanging, standing poses, model selection, standing, per-foot ground wrenches, and the
 sim-to-real gap diagnosis); :mod:`ftcal_nlp.settings` holds every setting with its default.
+Datasets of any robot (``DATA_FORMAT.md`` section 5: payloads, URDF loads) go through the same
+``calibrate`` to the free-load estimator (:mod:`ftcal_nlp.freeload`, loads in :mod:`ftcal_nlp.loads`).
 """
 
 from typing import TYPE_CHECKING
@@ -10,6 +12,7 @@ from typing import TYPE_CHECKING
 from .settings import (
     CalibrationSettings,
     DiagnoseSettings,
+    FreeLoadSettings,
     HangingSettings,
     PoseExtraction,
     SelectionSettings,
@@ -36,4 +39,4 @@ def __getattr__(name: str):
 
 
 __all__ = ["calibrate", "CalibrationRun", "CalibrationSettings", "HangingSettings", "StandingSettings",
-           "SelectionSettings", "DiagnoseSettings", "PoseExtraction"]
+           "SelectionSettings", "DiagnoseSettings", "PoseExtraction", "FreeLoadSettings"]

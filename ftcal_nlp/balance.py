@@ -39,17 +39,18 @@ import casadi as ca
 import numpy as np
 
 from .calibration import Calibration
+from .errors import ConfigError, DataFormatError
 from .geometry import ArrayLike, _is_symbolic, cross, stack_wrench, transform_wrench
+from .settings import BALANCES  # the names live with the settings that choose them
 
 __all__ = ["BALANCES", "K_DIAG", "check_balance", "n_features", "features", "residual", "weights", "knorm2", "to_world"]
 
 K_DIAG = np.array([1.0, 1.0, 1.0, 10.0, 10.0, 10.0])  # eq. 8: torques weighted so N and N*m compare
-BALANCES = ("exact", "report")
 
 
 def check_balance(balance: str) -> str:
     if balance not in BALANCES:
-        raise ValueError(f"unknown balance {balance!r}; known: {list(BALANCES)}")
+        raise ConfigError(f"unknown balance {balance!r}; known: {list(BALANCES)}", key="standing.balance")
     return balance
 
 
@@ -68,7 +69,8 @@ def features(w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, prior: Calibrat
     if check_balance(balance) == "report":
         r = np.stack([prior.legs[k].com(phi[:, i]) for i, k in enumerate(legs)], axis=1)  # (P, K, 3)
         if not np.all(np.isfinite(r)):
-            raise ValueError("report balance: the prior's leg CoM curves are NaN at some standing shaft angles")
+            raise DataFormatError("report balance: the prior's leg CoM curves are NaN at some standing shaft angles "
+                                  "(the hanging recordings do not cover them)")
         cols.append((r[:, :, :, None] * z[:, None, None, :]).reshape(P, 9 * K))
     return np.concatenate(cols, axis=1)
 

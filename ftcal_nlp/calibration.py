@@ -33,6 +33,7 @@ class LegCalibration:
     position_from_com_se_m: np.ndarray | None = None
     com_xyz_se: np.ndarray | None = None
     rotation_se_rad: np.ndarray | None = None   # se of the rotation vector of R_k (left perturbation, B axes)
+    load: dict | None = None           # a free load's calibration.json keys (DATA_FORMAT.md section 5, freeload)
 
     def com(self, phi: np.ndarray) -> np.ndarray:
         """Leg CoM ``r_k(phi)`` in ft_k, (N, 3) m, by periodic linear interpolation of the grid."""
@@ -189,6 +190,11 @@ class Calibration:
 
         legs = {}
         for k, l in self.legs.items():
+            if l.load is not None:  # a free load: offsets and the load's keys (OUTPUT_FORMAT.md), no hexapod keys
+                legs[k] = {"offset": lst(l.offset), "offset_se": lst(l.offset_se), "leg_weight_N": float(l.leg_weight_N),
+                           "leg_weight_se_N": None if l.leg_weight_se_N is None or not np.isfinite(l.leg_weight_se_N)
+                           else float(l.leg_weight_se_N), **_nulls(l.load)}
+                continue
             d = {
                 "offset": lst(l.offset),
                 "offset_se": lst(l.offset_se),
@@ -208,7 +214,7 @@ class Calibration:
             "model": self.model,
             "legs": legs,
             "com_body_m": lst(self.com_body_m),
-            "mass_kg": float(self.mass_kg),
+            "mass_kg": None if self.mass_kg is None or not np.isfinite(self.mass_kg) else float(self.mass_kg),
             "g": float(self.g),
             **({"meta": _nulls(self.meta)} if self.meta else {}),
         }
@@ -230,6 +236,13 @@ class Calibration:
             raise DataFormatError(f"{source}: missing key 'legs'")
         legs = {}
         for k, l in d["legs"].items():
+            if "load_mass_kg" in l and "leg_com_grid" not in l:  # a free load (section 5)
+                legs[k] = LegCalibration(offset=arr(l["offset"], (6,)), leg_weight_N=float(l.get("leg_weight_N", np.nan)),
+                                         com_phi=np.zeros(1), com_xyz=arr([l.get("load_com_m") or [np.nan] * 3]),
+                                         rotation_to_body=np.eye(3), position_from_com_m=np.zeros(3),
+                                         offset_se=arr(l.get("offset_se")), leg_weight_se_N=l.get("leg_weight_se_N"),
+                                         load={kk: v for kk, v in l.items() if kk not in ("offset", "offset_se", "leg_weight_N", "leg_weight_se_N")})
+                continue
             for key in ("offset", "leg_weight_N", "leg_com_grid", "rotation_to_body", "position_from_com_m"):
                 if key not in l:
                     raise DataFormatError(f"{source}: legs.{k} is missing key '{key}'")
@@ -249,6 +262,8 @@ class Calibration:
             )
         m = d.get("mass_kg", d.get("mass_true_kg", mass_kg))
         gg = d.get("g", g)
+        if m is None and legs and all(l.load is not None for l in legs.values()):
+            m = np.nan  # free loads only: no robot mass is needed (DATA_FORMAT.md section 5)
         if m is None or gg is None:
             raise DataFormatError(f"{source}: mass_kg and g are needed (in the file or as arguments)")
         com = d.get("com_body_m")

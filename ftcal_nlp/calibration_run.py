@@ -19,110 +19,160 @@ with ``G = d theta_s / d theta_h`` from the implicit-function theorem at the
 standing optimum (``StandingResult.sensitivity``). When the standing result
 carries no sensitivity (baseline solver) the blocks are joined as independent
 and ``joint_covariance`` says so.
+
+Built once. A run is frozen and every field is set when it is made
+(:func:`ftcal_nlp.calibrate` builds the parts first); what derives from its
+fields (the joint covariance, :attr:`CalibrationRun.joint`) is a cached property
+of the object, so it cannot go stale. To add to a finished run (the command
+line adds the dataset's truth and its load time) ``dataclasses.replace`` makes
+a new run, whose derived quantities are computed afresh.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from . import naive
 from .calibration import Calibration
-from .data import Dataset
+from .data import Dataset, Recording
+from .hanging.result import HangingResult
 from .results import ResultsMixin, Summary, fmt_pm
+from .selection import SelectionResult
 from .settings import CalibrationSettings
+from .standing.poses import Poses
+from .standing.result import StandingResult
+from .tracking import TrackedOffsets
+from .uncertainty import CalibrationCovariance
 
-__all__ = ["CalibrationRun"]
+if TYPE_CHECKING:  # the diagnosis reads a CalibrationRun (diagnose_run): a run-time import here would be a cycle
+    from .diagnose.result import DiagnosisResult
+    from .freeload import FreeLoadResults
+
+__all__ = ["CalibrationRun", "JointCovariance", "joint_covariance"]
 
 
-@dataclass
+@dataclass(frozen=True)
+class JointCovariance(ResultsMixin):
+    """Hanging and standing parameters with their joint covariance (module docstring), in the
+    results protocol; ``how`` says how the two blocks were joined."""
+
+    values: pd.Series
+    cov: np.ndarray
+    se: np.ndarray
+    how: str
+
+    @property
+    def params(self) -> pd.Series:
+        return self.values
+
+    def _bse_array(self) -> np.ndarray:
+        return self.se
+
+    def _cov_array(self) -> np.ndarray:
+        return self.cov
+
+
+def joint_covariance(hanging: HangingResult | None, standing: StandingResult | None,
+                     free_loads: FreeLoadResults | None = None) -> JointCovariance:
+    """The parameters of both stages and their joint covariance: the standing block conditional on the
+    hanging estimates plus ``G Cov(theta_h) G^T`` when the standing result has the sensitivity ``G``,
+    else the blocks side by side as independent (module docstring)."""
+    stages = [r for r in (hanging, standing, free_loads) if r is not None]
+    params = pd.concat([s.params for s in stages]) if stages else pd.Series(dtype=float)
+    n = len(params)
+    cov = np.zeros((n, n))
+    bse = np.concatenate([s._bse_array() for s in stages]) if stages else np.zeros(0)
+    i = 0
+    for s in stages:
+        m = len(s.params)
+        cov[i : i + m, i : i + m] = np.nan_to_num(s._cov_array(), nan=0.0, posinf=0.0)
+        i += m
+    how = "free loads (independent blocks)" if free_loads is not None else "hanging only" if standing is None else "standing only (offsets-only run)" if hanging is None else "independent blocks"
+    G = standing.sensitivity if standing is not None and hanging is not None else None
+    if G is not None:
+        nh = len(hanging.params)
+        Gm = G.reindex(index=standing.params.index, columns=hanging.params.index).fillna(0.0).to_numpy()
+        hb = hanging._bse_array()
+        Gm[:, ~np.isfinite(hb)] = 0.0  # undetermined hanging parameters carry no finite covariance to pass on
+        Ch = cov[:nh, :nh]
+        cov[nh:, nh:] += Gm @ Ch @ Gm.T
+        cov[nh:, :nh] = Gm @ Ch
+        cov[:nh, nh:] = cov[nh:, :nh].T
+        sb = bse[nh:]
+        fin = np.isfinite(sb)
+        sb[fin] = np.sqrt(np.clip(np.diag(cov[nh:, nh:])[fin], 0, None))
+        bse[nh:] = sb
+        how = "standing conditional on hanging plus the propagated hanging covariance"
+    return JointCovariance(params, cov, bse, how)
+
+
+@dataclass(frozen=True)
 class CalibrationRun(ResultsMixin):
-    """The result of :func:`ftcal_nlp.calibrate` (module docstring).
+    """The result of :func:`ftcal_nlp.calibrate` (module docstring): frozen, built once.
 
-    ``hanging``/``hanging_baseline``: :class:`~ftcal_nlp.hanging.HangingResult` (None in an
-    offsets-only run); ``poses``: :class:`~ftcal_nlp.standing.Poses`; ``selection``:
-    :class:`~ftcal_nlp.selection.SelectionResult` (None for a fixed model);
-    ``standing``/``standing_baseline``: :class:`~ftcal_nlp.standing.StandingResult`;
-    ``diagnosis``: the diagnosis result or None; ``truth``: the dataset's
-    ``truth.json`` when it has one; ``corrected``: recording name -> ground-wrench
-    table (``OUTPUT_FORMAT.md`` columns, then se and contact columns); ``timings``/``cpu_timings``: stage -> wall / CPU
-    seconds; ``uncertainty``: the covariance and sensor noise the se come from; ``tracked_offsets``: per walking
+    ``hanging``/``hanging_baseline``: None in an offsets-only run (the baseline also when it was not
+    asked for or could not run); ``selection``: None for a fixed model; ``standing_baseline``: None
+    unless asked for; ``diagnosis``: None when disabled or skipped; ``truth``: the dataset's
+    ``truth.json`` when it has one; ``corrected``: recording name -> ground-wrench table
+    (``OUTPUT_FORMAT.md`` columns, then se and contact columns); ``timings``/``cpu_timings``: stage
+    -> wall / CPU seconds; ``notes``: what was skipped or noticed, for the report; ``uncertainty``:
+    the covariance and sensor noise the se columns come from; ``tracked_offsets``: per walking
     recording the offsets tracked from its swing phases (``[correct] track_offsets``).
     """
 
     settings: CalibrationSettings
     dataset: Dataset
     calibration: Calibration
-    hanging: Any = None
-    hanging_baseline: Any = None
-    poses: Any = None
-    selection: Any = None
-    standing: Any = None
-    standing_baseline: Any = None
-    diagnosis: Any = None
+    hanging: HangingResult | None = None
+    hanging_baseline: HangingResult | None = None
+    poses: Poses | None = None
+    selection: SelectionResult | None = None
+    standing: StandingResult | None = None
+    standing_baseline: StandingResult | None = None
+    diagnosis: DiagnosisResult | None = None
     truth: Calibration | None = None
     corrected: dict[str, pd.DataFrame] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    uncertainty: Any = None        # uncertainty.CalibrationCovariance: joint covariance and sensor noise for the se columns
-    tracked_offsets: dict[str, Any] = field(default_factory=dict)   # recording name -> tracking.TrackedOffsets
-    _joint: tuple | None = field(default=None, repr=False)
+    notes: tuple[str, ...] = ()
+    uncertainty: CalibrationCovariance | None = None
+    tracked_offsets: dict[str, TrackedOffsets] = field(default_factory=dict)
+    free_loads: FreeLoadResults | None = None   # the loads of DATA_FORMAT.md section 5 (issue 22)
 
     # ------------------------------------------------------------------ results protocol
 
-    def _stages(self) -> list:
-        return [r for r in (self.hanging, self.standing) if r is not None]
+    def _stages(self) -> list[HangingResult | StandingResult | FreeLoadResults]:
+        return [r for r in (self.hanging, self.standing, self.free_loads) if r is not None]
+
+    @cached_property
+    def joint(self) -> JointCovariance:
+        """Hanging and standing parameters with their joint covariance (module docstring)."""
+        return joint_covariance(self.hanging, self.standing, self.free_loads)
 
     def joint_covariance(self) -> tuple[pd.Series, np.ndarray, np.ndarray, str]:
-        """``(params, cov, bse, how)`` over hanging and standing parameters (module docstring)."""
-        if self._joint is not None:
-            return self._joint
-        stages = self._stages()
-        params = pd.concat([s.params for s in stages]) if stages else pd.Series(dtype=float)
-        n = len(params)
-        cov = np.zeros((n, n))
-        bse = np.concatenate([s._bse_array() for s in stages]) if stages else np.zeros(0)
-        i = 0
-        for s in stages:
-            m = len(s.params)
-            cov[i : i + m, i : i + m] = np.nan_to_num(s._cov_array(), nan=0.0, posinf=0.0)
-            i += m
-        how = "hanging only" if self.standing is None else "standing only (offsets-only run)" if self.hanging is None else "independent blocks"
-        G = getattr(self.standing, "sensitivity", None) if self.standing is not None and self.hanging is not None else None
-        if G is not None:
-            nh = len(self.hanging.params)
-            Gm = G.reindex(index=self.standing.params.index, columns=self.hanging.params.index).fillna(0.0).to_numpy()
-            hb = self.hanging._bse_array()
-            Gm[:, ~np.isfinite(hb)] = 0.0  # undetermined hanging parameters carry no finite covariance to pass on
-            Ch = cov[:nh, :nh]
-            cov[nh:, nh:] += Gm @ Ch @ Gm.T
-            cov[nh:, :nh] = Gm @ Ch
-            cov[:nh, nh:] = cov[nh:, :nh].T
-            sb = bse[nh:]
-            fin = np.isfinite(sb)
-            sb[fin] = np.sqrt(np.clip(np.diag(cov[nh:, nh:])[fin], 0, None))
-            bse[nh:] = sb
-            how = "standing conditional on hanging plus the propagated hanging covariance"
-        self._joint = (params, cov, bse, how)
-        return self._joint
+        """``(params, cov, bse, how)`` of :attr:`joint`."""
+        j = self.joint
+        return j.values, j.cov, j.se, j.how
 
     @property
     def params(self) -> pd.Series:
-        return self.joint_covariance()[0]
+        return self.joint.values
 
     def _bse_array(self) -> np.ndarray:
-        return self.joint_covariance()[2]
+        return self.joint.se
 
     def _cov_array(self) -> np.ndarray:
-        return self.joint_covariance()[1]
+        return self.joint.cov
 
     def summary(self) -> Summary:
         """Key facts of the run, then the stage summaries' tables."""
-        facts = [("robot", f"{len(self.dataset.robot.legs)} legs, {self.dataset.robot.mass_kg:g} kg"),
+        mass = self.dataset.robot.mass_kg
+        facts = [("robot", f"{len(self.dataset.robot.legs)} legs" + ("" if mass is None else f", {mass:g} kg")),
                  ("recordings", f"{len(self.dataset.hanging)} hanging, {len(self.dataset.standing)} standing, "
                                 f"{len(self.dataset.walking)} walking"),
                  ("model", str(self.calibration.model))]
@@ -130,7 +180,7 @@ class CalibrationRun(ResultsMixin):
             facts.append(("poses", " -> ".join(f"{v} {k}" for k, v in self.poses.counts.items())))
         if self.selection is not None:
             facts.append(("model selection", f"{self.selection.folds}-fold CV and BIC chose {self.selection.best}"))
-        facts.append(("covariance", self.joint_covariance()[3]))
+        facts.append(("covariance", self.joint.how))
         if self.diagnosis is not None:
             facts.append(("diagnosis", f"{self.diagnosis.verdict}" + (f" ({self.diagnosis.effect})" if self.diagnosis.effect else "")))
         s = Summary("ftcal_nlp calibration run", facts)
@@ -154,7 +204,7 @@ class CalibrationRun(ResultsMixin):
         offsets, weights, _, _ = self.calibration.stacked(robot.legs)
         return naive.no_transformation_error_residuals(self.poses.w_m, self.poses.R_WB, offsets, weights, robot)
 
-    def naive_ground_wrenches(self, rec) -> tuple[np.ndarray, np.ndarray]:
+    def naive_ground_wrenches(self, rec: Recording) -> tuple[np.ndarray, np.ndarray]:
         """Naive-tare per-foot wrenches of recording ``rec`` and its row mask (``naive.py``)."""
         robot = self.dataset.robot
         return naive.naive_ground_wrenches(rec, naive.naive_bias(self.dataset.hanging, robot), robot)

@@ -230,10 +230,11 @@ def _simulate(path: Path, output: str | None, force: bool) -> int:
         manifest = simulate_to_folder(table, folder, overwrite=force)
     except FileExistsError as exc:
         raise OutputError(f"{folder / 'dataset.toml'} exists; pass --force to replace the dataset", path=folder) from exc
-    except (TypeError, ValueError) as exc:  # the simulator's own key checks
-        if isinstance(exc, FtcalError):
+    except (TypeError, ValueError) as exc:  # the simulator's own key checks: named with the config file
+        if isinstance(exc, FtcalError) and str(path) in str(exc):
             raise
-        raise ConfigError(f"{path} [simulate]: {exc}", path=path, key="simulate") from exc
+        msg = str(exc) if str(exc).startswith("[simulate]") else f"[simulate]: {exc}"
+        raise ConfigError(f"{path} {msg}", path=path, key=getattr(exc, "key", None) or "simulate") from exc
     print(f"wrote {manifest} (simulated)")
     return 0
 

@@ -9,110 +9,128 @@ The minimal config of ``OUTPUT_FORMAT.md`` works on any dataset::
     [diagnose]
     enabled = true
 
-Every other section has defaults (see the dataclasses below). Instead of
-``[data] manifest`` a ``[simulate]`` table may describe a dataset to generate
-with :mod:`ftcal_nlp.sim` (written to ``[simulate] dir`` when given, else into
-the output folder).
+Every other table is a field of :class:`~ftcal_nlp.settings.CalibrationSettings`
+(``[hanging]``, ``[standing]`` with ``[standing.poses]``, ``[selection]``,
+``[diagnose]``, ``[correct]``) or ``[offsets_only]``; its keys are the fields of
+that settings dataclass, mapped generically (by the dataclass' fields and their
+types), so the defaults and the valid keys live in ``settings.py`` alone. An
+unknown key is a :class:`~ftcal_nlp.errors.ConfigError` naming the file and the
+key and listing the valid ones. Instead of ``[data] manifest`` a ``[simulate]``
+table may describe a dataset to generate with :mod:`ftcal_nlp.sim` (written to
+``[simulate] dir`` when given, else into the output folder).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import tomllib
-from dataclasses import dataclass, field, fields, replace
+import types
+import typing
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
-from .settings import (
-    BALANCES,
-    COVARIANCES,
-    HANGING_METHODS,
-    STANDING_SOLVERS,
-    WEIGHTINGS,
-    CalibrationSettings,
-    CorrectSettings,
-    DiagnoseSettings,
-    HangingSettings,
-    OffsetsOnlySettings,
-    PoseExtraction,
-    SelectionSettings,
-    StandingSettings,
-)
+from .settings import CalibrationSettings, OffsetsOnlySettings
 
-
+__all__ = ["RunConfig", "load_config", "ConfigError"]
 
 
 @dataclass(frozen=True)
 class RunConfig:
+    """A run config: where the data and the output are, and the settings of :func:`ftcal_nlp.calibrate`
+    (each TOML table ``[hanging]``, ``[standing]``, ... is the field of :class:`CalibrationSettings` of
+    that name)."""
+
     path: Path
     manifest: Path | None
     simulate: dict[str, Any] | None
     simulate_dir: Path | None
     output_dir: Path
-    hanging: HangingSettings = field(default_factory=HangingSettings)
-    standing: StandingSettings = field(default_factory=StandingSettings)
-    selection: SelectionSettings = field(default_factory=SelectionSettings)
-    diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
+    settings: CalibrationSettings = field(default_factory=CalibrationSettings)
     offsets_only: OffsetsOnlySettings = field(default_factory=OffsetsOnlySettings)
-    seed: int = 0
-    correct: CorrectSettings = field(default_factory=CorrectSettings)
-
-    @property
-    def settings(self) -> CalibrationSettings:
-        """What :func:`ftcal_nlp.calibrate` needs of this config."""
-        return CalibrationSettings(self.hanging, self.standing, self.selection, self.diagnose, self.seed, self.correct)
 
 
-# key-level choices: checked here too so that the error names the key before the dataclass sees it
-_CHOICES = {
-    ("hanging", "method"): HANGING_METHODS,
-    ("standing", "solver"): STANDING_SOLVERS,
-    ("standing", "balance"): BALANCES,
-    ("standing", "weighting"): WEIGHTINGS,
-    ("standing", "covariance"): COVARIANCES,
-}
+# tables of the config besides the fields of CalibrationSettings
+_RUN_TABLES = ("data", "simulate", "output", "offsets_only")
+# keys that were accepted once and are gone, with what to use instead
+_REMOVED = {"seed": "the top-level seed was read by nothing; the seeds are [simulate] seed (the simulated data), "
+                    "[selection] seed and [diagnose] seed (their cross-validation splits)"}
 
 
-def _build(cls, table: dict, where: str, section: str):
-    """Instantiate dataclass ``cls`` from ``table``, checking keys and types."""
+def _is_type(value: Any, hint: Any) -> bool:
+    """Whether a TOML value fits the type hint of a settings field (an int is a float, not a bool)."""
+    if hint is Any:
+        return True
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_is_type(value, h) for h in typing.get_args(hint))
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is Path:
+        return isinstance(value, str)
+    if origin is tuple:
+        return isinstance(value, list) and all(isinstance(v, str) for v in value)
+    return isinstance(value, hint)
+
+
+def _expected(hint: Any) -> str:
+    """What a field of type ``hint`` takes in TOML, in words."""
+    args = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_origin(hint) in (typing.Union, types.UnionType) else [hint]
+    words = {bool: "true or false", int: "an integer", float: "a number", str: "a string", Path: "a path string"}
+    return " or ".join(words.get(a, "a list of names" if typing.get_origin(a) is tuple else getattr(a, "__name__", str(a))) for a in args)
+
+
+def _convert(value: Any, hint: Any, base: Path) -> Any:
+    """A checked TOML value as the field wants it: lists become tuples, numbers floats, paths relative to the config."""
+    args = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    if isinstance(value, list):
+        return tuple(value)
+    if Path in args and isinstance(value, str):
+        return _norm(base / value)
+    if float in args and int not in args and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def _build(cls: type, table: Any, path: Path, section: str, base: Path) -> Any:
+    """Instantiate the settings dataclass ``cls`` from the TOML ``table`` of ``section``: one key per
+    field, of the field's type; a field that is itself a settings dataclass is the sub-table
+    ``[section.field]``. Unknown keys and wrong types are errors naming the file and the key."""
+    where = f"{path} [{section}]"
     if not isinstance(table, dict):
-        raise ConfigError(f"{where}: expected a table, got {type(table).__name__}")
+        raise ConfigError(f"{where}: expected a table, got {type(table).__name__}", path=path, key=section)
     known = {f.name: f for f in fields(cls)}
     unknown = sorted(set(table) - set(known))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(known)}")
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(known)}", path=path,
+                          key=f"{section}.{unknown[0]}" if section else unknown[0])
+    hints = typing.get_type_hints(cls)
+    choices = getattr(cls, "CHOICES", {})
     kwargs = {}
     for name, value in table.items():
-        default = getattr(cls(), name)
-        key = f"{where}.{name}"
-        if isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ConfigError(f"{key}: expected true or false, got {value!r}")
-        elif isinstance(default, int) and not isinstance(default, bool):
-            if not isinstance(value, int) or isinstance(value, bool):
-                raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        elif isinstance(default, float):
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
-                raise ConfigError(f"{key}: expected a number, got {value!r}")
-            value = float(value)
-        elif isinstance(default, tuple) or (default is None and name in ("effects",)):
-            if isinstance(value, str):
-                value = (value,)
-            if not isinstance(value, list | tuple) or not all(isinstance(v, str) for v in value):
-                raise ConfigError(f"{key}: expected a list of names, got {value!r}")
-            value = tuple(value)
-        elif isinstance(default, str) and not isinstance(value, str):
-            if not (name == "smoothing" and isinstance(value, (int, float))):
-                raise ConfigError(f"{key}: expected a string, got {value!r}")
-        choices = _CHOICES.get((section, name))
-        if choices and value not in choices:
-            raise ConfigError(f"{key}: expected one of {list(choices)}, got {value!r}")
-        kwargs[name] = value
+        hint, key = hints[name], f"{section}.{name}" if section else name
+        if dataclasses.is_dataclass(hint):
+            kwargs[name] = _build(hint, value, path, key, base)
+            continue
+        if isinstance(value, str) and typing.get_origin(hint) is tuple:
+            value = [value]  # one name for a list of names
+        if not _is_type(value, hint):
+            raise ConfigError(f"{where}.{name}: expected {_expected(hint)}, got {value!r}", path=path, key=key)
+        if name in choices and value not in choices[name][1]:
+            raise ConfigError(f"{where}.{name}: expected one of {list(choices[name][1])}, got {value!r}", path=path, key=key)
+        kwargs[name] = _convert(value, hint, base)
     try:
         return cls(**kwargs)
-    except ValueError as exc:  # the settings check their own ranges
-        raise ConfigError(f"{where}: {exc}") from exc
+    except ConfigError as exc:  # the settings check their own ranges and combinations
+        raise ConfigError(f"{where}: {exc}", path=path, key=exc.key) from exc
 
 
 def _norm(p: Path) -> Path:
@@ -124,71 +142,52 @@ def load_config(path: str | Path) -> RunConfig:
     """Read and validate a run config; paths in it are relative to the config file."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"{path}: config file not found")
+        raise ConfigError(f"{path}: config file not found", path=path)
     try:
         d = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+        raise ConfigError(f"{path}: not valid TOML ({exc})", path=path) from exc
     base = path.parent
-    allowed = {"data", "simulate", "output", "hanging", "standing", "selection", "diagnose", "offsets_only", "seed", "correct"}
+    settings_tables = [f.name for f in fields(CalibrationSettings)]
+    allowed = set(_RUN_TABLES) | set(settings_tables)
     unknown = sorted(set(d) - allowed)
     if unknown:
-        raise ConfigError(f"{path}: unknown section(s) {unknown}; known: {sorted(allowed)}")
+        hints = "".join(f"; {k}: {_REMOVED[k]}" for k in unknown if k in _REMOVED)
+        raise ConfigError(f"{path}: unknown section(s) {unknown}; known: {sorted(allowed)}{hints}", path=path, key=unknown[0])
 
     manifest = None
     data = d.get("data", {})
     if data:
         if set(data) - {"manifest"}:
-            raise ConfigError(f"{path} [data]: unknown key(s) {sorted(set(data) - {'manifest'})}; known keys: ['manifest']")
+            raise ConfigError(f"{path} [data]: unknown key(s) {sorted(set(data) - {'manifest'})}; known keys: ['manifest']",
+                              path=path, key="data")
         if not isinstance(data.get("manifest"), str):
-            raise ConfigError(f"{path} [data].manifest: expected a path string to dataset.toml")
+            raise ConfigError(f"{path} [data].manifest: expected a path string to dataset.toml", path=path, key="data.manifest")
         manifest = _norm(base / data["manifest"])
     simulate = d.get("simulate")
     sim_dir = None
     if simulate is not None:
         if not isinstance(simulate, dict):
-            raise ConfigError(f"{path} [simulate]: expected a table")
+            raise ConfigError(f"{path} [simulate]: expected a table", path=path, key="simulate")
         simulate = dict(simulate)
         if "dir" in simulate:
             sim_dir = _norm(base / str(simulate.pop("dir")))
     if manifest is None and simulate is None:
-        raise ConfigError(f"{path}: needs [data].manifest (a dataset.toml) or a [simulate] table")
+        raise ConfigError(f"{path}: needs [data].manifest (a dataset.toml) or a [simulate] table", path=path, key="data.manifest")
 
     out = d.get("output", {})
     if not isinstance(out, dict) or not isinstance(out.get("dir"), str):
-        raise ConfigError(f"{path} [output].dir: expected a path string for the output folder")
+        raise ConfigError(f"{path} [output].dir: expected a path string for the output folder", path=path, key="output.dir")
     if set(out) - {"dir"}:
-        raise ConfigError(f"{path} [output]: unknown key(s) {sorted(set(out) - {'dir'})}; known keys: ['dir']")
+        raise ConfigError(f"{path} [output]: unknown key(s) {sorted(set(out) - {'dir'})}; known keys: ['dir']", path=path, key="output")
 
-    standing_tbl = dict(d.get("standing", {}))
-    poses_tbl = standing_tbl.pop("poses", {})
-    standing = _build(StandingSettings, standing_tbl, f"{path} [standing]", "standing")
-    try:
-        poses = _build(PoseExtraction, poses_tbl, f"{path} [standing.poses]", "poses")
-    except ValueError as exc:  # PoseExtraction checks its own ranges
-        raise ConfigError(f"{path} [standing.poses]: {exc}") from exc
-    standing = replace(standing, poses=poses)
-    off_tbl = d.get("offsets_only", {})
-    off = OffsetsOnlySettings()
-    if off_tbl:
-        if set(off_tbl) - {"calibration"} or not isinstance(off_tbl.get("calibration"), str):
-            raise ConfigError(f"{path} [offsets_only]: expected only 'calibration' = path to an earlier calibration.json")
-        off = OffsetsOnlySettings(_norm(base / off_tbl["calibration"]))
-    seed = d.get("seed", 0)
-    if not isinstance(seed, int):
-        raise ConfigError(f"{path} seed: expected an integer, got {seed!r}")
-    sel = _build(SelectionSettings, d.get("selection", {}), f"{path} [selection]", "selection")
+    settings = _build(CalibrationSettings, {k: d[k] for k in settings_tables if k in d}, path, "", base)
     return RunConfig(
         path=path,
         manifest=manifest,
         simulate=simulate,
         simulate_dir=sim_dir,
         output_dir=_norm(base / out["dir"]),
-        hanging=_build(HangingSettings, d.get("hanging", {}), f"{path} [hanging]", "hanging"),
-        standing=standing,
-        selection=sel,
-        diagnose=_build(DiagnoseSettings, d.get("diagnose", {}), f"{path} [diagnose]", "diagnose"),
-        offsets_only=off,
-        seed=seed,
-        correct=_build(CorrectSettings, d.get("correct", {}), f"{path} [correct]", "correct"),
+        settings=settings,
+        offsets_only=_build(OffsetsOnlySettings, d.get("offsets_only", {}), path, "offsets_only", base),
     )

@@ -166,6 +166,11 @@ def _main(args) -> int:
     for target in [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else []):
         if target.exists() and not args.force:
             raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
+    from .correct_loads import correct_free_load_file, payload_calibrations
+
+    free = payload_calibrations(args.calibration)   # a wrist payload's contact wrench (DATA_FORMAT.md section 5)
+    if free is not None:
+        return correct_free_load_file(free, args, out)
     cal = Calibration.load(args.calibration)
     check_calibration(cal, args.calibration)
     # the missing-covariance warning comes after the correction succeeded: a failure is one line

@@ -60,6 +60,7 @@ import numpy as np
 from .geometry import skew
 from .hanging.binning import interp_weights, periodic_grid
 from .standing.problem import K_DIAG
+from .settings import HangingSettings
 from .solver import REL_EIG_TOL
 
 MEDIAN_EFFICIENCY = np.pi / 2  # var(median of n Gaussian samples) ~ (pi/2) sigma^2 / n
@@ -289,7 +290,7 @@ def sinusoid_map(lay: HangingLayout) -> np.ndarray:
     return T
 
 
-def hanging_bound(sim, n_grid: int = 72, rel_tol: float = REL_EIG_TOL) -> HangingBound:
+def hanging_bound(sim, n_grid: int = HangingSettings.n_grid, rel_tol: float = REL_EIG_TOL) -> HangingBound:
     """Hanging CRB of a simulation at its truth (configured noise, the recordings' own shaft angles)."""
     legs = tuple(sim.dataset.robot.legs)
     sigma = sensor_sigma(sim.config)
@@ -307,7 +308,7 @@ def hanging_bound(sim, n_grid: int = 72, rel_tol: float = REL_EIG_TOL) -> Hangin
     return HangingBound(legs, bounds, layouts, fishers)
 
 
-def interpolation_bias(sim, leg: str, n_grid: int = 72) -> np.ndarray:
+def interpolation_bias(sim, leg: str, n_grid: int = HangingSettings.n_grid) -> np.ndarray:
     """Pseudo-true CoM grid minus the truth's grid values, (G, 3) m.
 
     The grid model (linear interpolation) cannot follow the true curve exactly;

@@ -6,6 +6,16 @@ wrench the leg exerts on the transducer, in ``ft_k`` about its origin, plus the
 transducer offset ``w_o`` and noise (report eq. 1); SI units; ``qw..qz`` map
 body vectors to world vectors; ``{leg}_phi`` is unwrapped, 0 = leg straight down.
 
+Section 5 (any robot): a transducer whose ``{leg}_phi`` column no hanging
+recording has carries a rigid payload; ``robot.toml`` ``urdf`` with
+``[transducers.X].link`` gives a load of URDF links, moved by the ``q_{joint}``
+columns (``Recording.q``; movable joints without a column are held at 0 and
+named in a warning); ``gx..gz`` or ``qw..qz`` in a ``hanging`` recording give the
+gravity direction per sample (``Recording.gravity``, unit, in B) and make
+``gravity_body`` optional (then no opposite partner is needed); a hanging
+recording's ``free = [...]`` names the transducers whose loads hang free in it;
+``mass_kg`` is needed only with standing or walking recordings.
+
 Only this module and the command-line modules touch files.
 """
 
@@ -20,14 +30,16 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from .errors import DataFormatError
-from .geometry import is_rotation
+from .errors import ConfigError, DataFormatError, OutputExistsError
+from .geometry import is_rotation, quat_to_rotation
 from .robot import Robot, Transducer
 
 log = logging.getLogger(__name__)
 
 WRENCH_COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
 QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
+GRAVITY_COLUMNS = ("gx", "gy", "gz")
+JOINT_PREFIX = "q_"
 KINDS = ("hanging", "standing", "walking")
 
 # A torque column in N*mm or a force column in mN is ~1000x too large. Forces on a
@@ -36,6 +48,10 @@ KINDS = ("hanging", "standing", "walking")
 _MAX_FORCE_IN_WEIGHTS = 20.0
 _MAX_LEVER_ARM_M = 3.0
 _MAX_POSITION_M = 5.0
+# Joint angles in degrees: a revolute joint's 99th percentile |q| beyond its URDF limit by more than this
+# (rad), or beyond 2 turns without limits, is not an angle in radians.
+_JOINT_LIMIT_SLACK_RAD = 0.5
+_MAX_TURNS = 2.0
 
 
 
@@ -47,9 +63,16 @@ class Recording:
     ``t``: (N,) s, strictly increasing, session clock. ``phi[leg]``: (N,) rad,
     unwrapped shaft angle. ``wrench[leg]``: (N, 6) raw reading in ft_leg, N and
     N*m. ``quat``: (N, 4) ``[qw, qx, qy, qz]`` of B in the world, NaN where the
-    motion capture was lost, or None (hanging). ``gravity_body``: (3,) nominal
+    motion capture was lost, or None (hanging with ``gravity_body``). ``gravity_body``: (3,) nominal
     gravity direction in B for hanging recordings. ``n_dropped``: rows with NaN
     readings that were dropped at load.
+
+    Section 5: ``phi`` holds only the transducers with a ``{leg}_phi`` column
+    (the others carry a rigid payload or URDF links); ``q[joint]`` (N,) rad or m
+    from the ``q_{joint}`` columns; ``gravity`` (N, 3) unit gravity direction
+    (pointing down) in B per sample of a hanging recording, from ``gx..gz`` or
+    ``qw..qz`` (NaN where not tracked), or None; ``free`` the transducers whose
+    loads hang free (None: all).
     """
 
     name: str
@@ -62,6 +85,9 @@ class Recording:
     path: Path | None = None
     n_dropped: int = 0
     extra: dict = field(default_factory=dict)
+    q: dict[str, np.ndarray] = field(default_factory=dict)
+    gravity: np.ndarray | None = None
+    free: tuple[str, ...] | None = None
 
     @property
     def n(self) -> int:
@@ -89,7 +115,23 @@ class Recording:
             phi={k: v[mask] for k, v in self.phi.items()},
             wrench={k: v[mask] for k, v in self.wrench.items()},
             quat=None if self.quat is None else self.quat[mask],
+            q={k: v[mask] for k, v in self.q.items()},
+            gravity=None if self.gravity is None else self.gravity[mask],
         )
+
+    def gravity_directions(self) -> np.ndarray:
+        """Unit gravity direction in B per sample (N, 3): ``gravity`` when the recording has it, else
+        ``gravity_body`` for every sample (NaN where the orientation was not tracked)."""
+        if self.gravity is not None:
+            return self.gravity
+        if self.gravity_body is None:
+            raise DataFormatError(f"{self.path or self.name}: no gravity direction (neither gravity_body nor qw..qz / gx..gz)")
+        gb = np.asarray(self.gravity_body, float)
+        return np.broadcast_to(gb / np.linalg.norm(gb), (self.n, 3)).copy()
+
+    def hangs_free(self, leg: str) -> bool:
+        """Whether transducer ``leg``'s load hangs free in this (hanging) recording (``free``; default all)."""
+        return self.kind == "hanging" and (self.free is None or leg in self.free)
 
 
 @dataclass(frozen=True)
@@ -117,18 +159,32 @@ class Dataset:
     def walking(self) -> tuple[Recording, ...]:
         return self.of_kind("walking")
 
+    def load_kind(self, leg: str) -> str:
+        """The kind of transducer ``leg``'s load (section 5): ``"leg_com_curve"`` (a ``{leg}_phi`` column:
+        a hexapod leg), ``"urdf_subtree"`` (a URDF ``link``) or ``"rigid_payload"``."""
+        if self.robot.transducers[leg].link is not None:
+            return "urdf_subtree"
+        if any(leg in r.phi for r in self.recordings):
+            return "leg_com_curve"
+        return "rigid_payload"
+
+    @property
+    def free_load_legs(self) -> tuple[str, ...]:
+        """Transducers whose load is not a hexapod leg (section 5): they go to the free-load estimator."""
+        return tuple(k for k in self.robot.legs if self.load_kind(k) != "leg_com_curve")
+
 
 # ----------------------------------------------------------------------------- reading
 
 
 def _load_toml(path: Path) -> dict:
     if not path.is_file():
-        raise DataFormatError(f"{path}: file not found")
+        raise DataFormatError(f"{path}: file not found", path=path)
     try:
         with path.open("rb") as fh:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
-        raise DataFormatError(f"{path}: not valid TOML ({exc})") from exc
+        raise DataFormatError(f"{path}: not valid TOML ({exc})", path=path) from exc
 
 
 def _require(d: dict, key: str, where: str, typ: type | tuple[type, ...]) -> object:
@@ -148,19 +204,25 @@ def _vec3(v: object, where: str) -> np.ndarray:
 
 
 def read_robot(path: str | Path) -> Robot:
-    """Read and validate ``robot.toml`` (format page section 2)."""
+    """Read and validate ``robot.toml`` (format page sections 2 and 5)."""
     path = Path(path)
     d = _load_toml(path)
     where = str(path)
-    mass = float(_require(d, "mass_kg", where, (int, float)))
+    mass = None
+    if "mass_kg" in d:  # section 5: only needed with standing or walking recordings (read_dataset checks)
+        mass = float(_require(d, "mass_kg", where, (int, float)))
+        if not (0 < mass < 1e4):
+            raise DataFormatError(f"{where}: 'mass_kg' = {mass} is not a plausible mass in kg", path=path, column="mass_kg")
     g = float(_require(d, "g", where, (int, float)))
-    if not (0 < mass < 1e4):
-        raise DataFormatError(f"{where}: 'mass_kg' = {mass} is not a plausible mass in kg")
     if not (1.0 < g < 30.0):
         raise DataFormatError(f"{where}: 'g' = {g} is not a plausible m/s^2 value")
     legs = _require(d, "legs", where, list)
     if not legs or not all(isinstance(k, str) for k in legs) or len(set(legs)) != len(legs):
         raise DataFormatError(f"{where}: 'legs' must be a non-empty list of distinct names")
+    urdf_path, tree = None, None
+    if "urdf" in d:
+        urdf_path = path.parent / str(_require(d, "urdf", where, str))
+        tree = read_urdf_tree(urdf_path, f"{where} key 'urdf'")
     tables = _require(d, "transducers", where, dict)
     transducers = {}
     for k in legs:
@@ -168,13 +230,22 @@ def read_robot(path: str | Path) -> Robot:
             raise DataFormatError(f"{where}: missing table [transducers.{k}]")
         t = tables[k]
         w = f"{where} [transducers.{k}]"
-        pos = _vec3(_require(t, "position_m", w, list), f"{w} position_m")
-        if np.linalg.norm(pos) > _MAX_POSITION_M:
-            raise DataFormatError(f"{w} position_m = {pos.tolist()}: more than {_MAX_POSITION_M} m from B; expected metres (is it in mm?)")
-        rot = np.asarray(_require(t, "rotation", w, list), dtype=float)
-        if not is_rotation(rot, tol=1e-4):
-            raise DataFormatError(f"{w} rotation: not a proper rotation matrix (R^T R = I, det R = +1): {rot.tolist()}")
-        transducers[k] = Transducer(k, pos, rot, t.get("model"))
+        link = t.get("link")
+        if link is not None:
+            link = _transducer_link(link, tree, w)
+        pos = rot = None
+        if link is None or "position_m" in t:
+            pos = _vec3(_require(t, "position_m", w, list), f"{w} position_m")
+            if np.linalg.norm(pos) > _MAX_POSITION_M:
+                raise DataFormatError(f"{w} position_m = {pos.tolist()}: more than {_MAX_POSITION_M} m from B; expected metres (is it in mm?)")
+        if link is None or "rotation" in t:
+            rot = np.asarray(_require(t, "rotation", w, list), dtype=float)
+            if not is_rotation(rot, tol=1e-4):
+                raise DataFormatError(f"{w} rotation: not a proper rotation matrix (R^T R = I, det R = +1): {rot.tolist()}")
+        if link is not None and (pos is not None or rot is not None):
+            log.info("%s: link '%s' given: the URDF gives the nominal pose for each sample's joint angles; position_m / rotation "
+                     "are not used for it", w, link)
+        transducers[k] = Transducer(k, pos, rot, t.get("model"), link)
     lm = d.get("leg_mass_kg")
     leg_mass = None
     if lm is not None:
@@ -184,16 +255,55 @@ def read_robot(path: str | Path) -> Robot:
             leg_mass = {k: float(lm[k]) for k in legs if k in lm}
         else:
             raise DataFormatError(f"{where}: 'leg_mass_kg' should be a number or a table per leg")
-    return Robot(str(d.get("name", path.parent.name)), mass, g, tuple(legs), transducers, leg_mass)
+    return Robot(str(d.get("name", path.parent.name)), mass, g, tuple(legs), transducers, leg_mass, urdf_path, tree)
+
+
+def read_urdf_tree(path: Path, where: str):
+    """The :class:`~ftcal_nlp.kinematics.KinematicTree` of a URDF file; a missing file or one that does
+    not parse is a :class:`DataFormatError` naming it and ``where`` it was named."""
+    from .kinematics import load_tree
+
+    if not path.is_file():
+        raise DataFormatError(f"{where}: URDF file {path} not found", path=path)
+    import xml.etree.ElementTree as ET
+
+    try:  # yourdfpy repairs malformed XML silently: a truncated file is an error here, not a guess
+        ET.parse(path)
+    except ET.ParseError as exc:
+        raise DataFormatError(f"{where}: {path} cannot be parsed as a URDF (malformed XML: {exc}); expected a URDF file", path=path) from exc
+    try:
+        return load_tree(path)
+    except DataFormatError as exc:
+        raise DataFormatError(f"{where}: {exc}", path=path) from exc
+    except Exception as exc:  # yourdfpy / lxml raise many types for a malformed file
+        raise DataFormatError(f"{where}: {path} cannot be parsed as a URDF ({type(exc).__name__}: {exc})", path=path) from exc
+
+
+def _transducer_link(link: object, tree, where: str) -> str:
+    """A transducer's ``link`` key: a link of the URDF, the child of a fixed joint (the sensor), with a load below it."""
+    if tree is None:
+        raise DataFormatError(f"{where}: key 'link' needs a URDF: add 'urdf = \"robot.urdf\"' to the robot.toml", column="link")
+    if not isinstance(link, str) or link not in tree.links:
+        raise DataFormatError(f"{where}: key 'link' = {link!r} is not a link of the URDF {tree.name!r} (links: {list(tree.links)})",
+                              column="link")
+    j = tree.joints.get(link)
+    if j is None or j.type != "fixed":
+        what = "the root link" if j is None else f"the child of {j.type} joint '{j.name}'"
+        raise DataFormatError(f"{where}: key 'link' = '{link}' is {what}; expected a sensor link, the child link of a fixed joint",
+                              column="link")
+    if not any(l in tree.bodies for l in tree.below(link)):
+        raise DataFormatError(f"{where}: key 'link' = '{link}': no link with mass below it in the URDF; expected the sensor "
+                              "whose load is the links below it", column="link")
+    return link
 
 
 def read_table(path: Path) -> pd.DataFrame:
     """The raw table of a CSV or Parquet recording (no validation: see :func:`recording_from_frame`)."""
     if not path.is_file():
-        raise DataFormatError(f"{path}: recording file not found")
+        raise DataFormatError(f"{path}: recording file not found", path=path)
     suffix = path.suffix.lower()
     if suffix not in (".parquet", ".csv", ".txt"):
-        raise DataFormatError(f"{path}: unknown recording type '{suffix}' (expected .csv or .parquet)")
+        raise DataFormatError(f"{path}: unknown recording type '{suffix}' (expected .csv or .parquet)", path=path)
     try:
         if suffix == ".parquet":
             return pd.read_parquet(path)
@@ -203,7 +313,7 @@ def read_table(path: Path) -> pd.DataFrame:
             return pd.read_csv(path, engine="c")
     except Exception as exc:  # pyarrow, pandas and OS errors alike: the file cannot be read as a table
         kind = "Parquet" if suffix == ".parquet" else "CSV"
-        raise DataFormatError(f"{path}: cannot be read as {kind} ({type(exc).__name__}: {exc}); truncated or not a {kind} file?") from exc
+        raise DataFormatError(f"{path}: cannot be read as {kind} ({type(exc).__name__}: {exc}); truncated or not a {kind} file?", path=path) from exc
 
 
 def _numeric(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
@@ -217,14 +327,14 @@ def _numeric(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
             bad = num.isna() & col.notna()
             if bad.any():
                 i = int(np.flatnonzero(bad.to_numpy())[0])
-                raise DataFormatError(f"{where}: column '{c}' row {i + 1} holds {col.iloc[i]!r}; expected a number")
+                raise DataFormatError(f"{where}: column '{c}' row {i + 1} holds {col.iloc[i]!r}; expected a number", column=c)
             col = num
         out[:, j] = col.to_numpy(dtype=float)
     empty = [c for j, c in enumerate(cols) if len(df) and not np.isfinite(out[:, j]).any()]
     if empty:
         what = ("the motion-capture orientation of B, empty only where tracking was lost" if set(empty) <= set(QUAT_COLUMNS)
                 else "numbers")
-        raise DataFormatError(f"{where}: column(s) {empty} hold no finite value; expected {what}")
+        raise DataFormatError(f"{where}: column(s) {empty} hold no finite value; expected {what}", column=empty[0])
     return out
 
 
@@ -237,28 +347,52 @@ def recording_from_frame(
     gravity_body: np.ndarray | None = None,
     source: str | None = None,
     path: Path | None = None,
+    payload_legs: Iterable[str] = (),
+    free: Iterable[str] | None = None,
 ) -> Recording:
-    """Validate a table with the columns of the format page and build a :class:`Recording`."""
+    """Validate a table with the columns of the format page and build a :class:`Recording`.
+
+    ``payload_legs``: transducers whose ``{leg}_phi`` column is not expected in a hanging recording (rigid
+    payloads, section 5; a transducer with a URDF ``link`` never has one). ``free``: the manifest's ``free``.
+    """
     where = source or name
     if kind not in KINDS:
         raise DataFormatError(f"{where}: kind '{kind}' is not one of {KINDS}")
-    expected = ["t"] + [f"{k}_{c}" for k in robot.legs for c in ("phi",) + WRENCH_COMPONENTS]
+    no_phi = {k for k in robot.legs if robot.transducers[k].link is not None}
+    if kind == "hanging":
+        no_phi |= set(payload_legs)
+    phi_legs = [k for k in robot.legs if k not in no_phi]
+    reading_cols = ["t"] + [f"{k}_{c}" for k in robot.legs for c in (("phi",) if k in phi_legs else ()) + WRENCH_COMPONENTS]
+    expected = list(reading_cols)
     needs_quat = kind in ("standing", "walking")
     if needs_quat:
         expected += list(QUAT_COLUMNS)
     missing = [c for c in expected if c not in df.columns]
     if missing:
-        raise DataFormatError(f"{where}: missing column(s) {missing}")
-    extra = [c for c in df.columns if c not in expected and not (c in QUAT_COLUMNS)]
+        raise DataFormatError(f"{where}: missing column(s) {missing}", path=path, column=missing[0])
+    cols_in = [str(c) for c in df.columns]
+    quat_cols = _complete_group(cols_in, QUAT_COLUMNS, where) if kind == "hanging" else []
+    g_cols = _complete_group(cols_in, GRAVITY_COLUMNS, where) if kind == "hanging" else []
+    joint_cols = [c for c in cols_in if c.startswith(JOINT_PREFIX)] if robot.tree is not None else []
+    urdf_joints = [jt.name for jt in robot.tree.joints.values()] if robot.tree is not None else []
+    for c in joint_cols:
+        if c[len(JOINT_PREFIX):] not in urdf_joints:
+            raise DataFormatError(f"{where}: column '{c}': the URDF {robot.urdf} has no joint '{c[len(JOINT_PREFIX):]}' "
+                                  f"(joints: {urdf_joints})", path=path, column=c)
+    known = set(expected) | set(QUAT_COLUMNS) | set(g_cols) | set(joint_cols)
+    extra = [c for c in df.columns if c not in known]
     if extra:
         log.warning("%s: extra column(s) ignored: %s", where, extra)
-    reading_cols = ["t"] + [f"{k}_{c}" for k in robot.legs for c in ("phi",) + WRENCH_COMPONENTS]
-    cols = reading_cols + (list(QUAT_COLUMNS) if needs_quat else [])
+    use_quat = needs_quat or (bool(quat_cols) and gravity_body is None)
+    orient_cols = (list(QUAT_COLUMNS) if use_quat else []) + g_cols + (quat_cols if not use_quat and not g_cols else [])
+    cols = reading_cols + joint_cols + orient_cols
     values = _numeric(df, cols, where)
-    bad = ~np.all(np.isfinite(values[:, : len(reading_cols)]), axis=1)
+    n_read = len(reading_cols) + len(joint_cols)
+    bad = ~np.all(np.isfinite(values[:, :n_read]), axis=1)
     n_bad = int(bad.sum())
     if n_bad:
-        log.warning("%s: dropped %d of %d rows with NaN or infinite readings", where, n_bad, len(df))
+        what = "readings or joint angles" if joint_cols else "readings"
+        log.warning("%s: dropped %d of %d rows with NaN or infinite %s", where, n_bad, len(df), what)
         values = values[~bad]
     if len(values) < 2:
         raise DataFormatError(f"{where}: fewer than 2 rows with finite readings ({len(values)} of {len(df)}); expected a recording")
@@ -266,25 +400,101 @@ def recording_from_frame(
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})")
+        raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})", path=path, column="t")
     phi, wrench = {}, {}
-    for i, k in enumerate(robot.legs):
-        phi[k] = values[:, 1 + 7 * i].copy()
-        wrench[k] = values[:, 2 + 7 * i: 8 + 7 * i].copy()
+    j = 1
+    for k in robot.legs:
+        if k in phi_legs:
+            phi[k] = values[:, j].copy()
+            j += 1
+        wrench[k] = values[:, j: j + 6].copy()
+        j += 6
         _check_units(wrench[k], robot, where, k)
+    q = {c[len(JOINT_PREFIX):]: values[:, len(reading_cols) + i].copy() for i, c in enumerate(joint_cols)}
+    if robot.tree is not None and kind == "hanging":
+        _check_joint_units(q, robot, where)
+        held = [jn for jn in robot.tree.movable if jn not in q]
+        if held:
+            log.warning("%s: no column for URDF joint(s) %s: held at 0 (expected columns %s)", where, held,
+                        [JOINT_PREFIX + jn for jn in held])
+    ov = values[:, n_read:]
     quat = None
-    if needs_quat:
-        quat = values[:, len(reading_cols):].copy()
+    if use_quat:
+        quat = ov[:, :4].copy()
         ok = np.all(np.isfinite(quat), axis=1)
         norms = np.linalg.norm(quat[ok], axis=1)
         if ok.any() and np.any(np.abs(norms - 1.0) > 1e-2):
             raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}..{norms.max():.3g}); "
-                                  "expected norm 1 within 0.01")
+                                  "expected norm 1 within 0.01", path=path, column="qw")
         quat[~ok] = np.nan
+    gravity = None
     if kind == "hanging":
-        if gravity_body is None:
-            raise DataFormatError(f"{where}: hanging recording needs 'gravity_body' in the manifest")
-    return Recording(name, kind, t, phi, wrench, quat, gravity_body, path, n_bad)
+        if g_cols:
+            gravity = _unit_rows(ov[:, -3:], where, "gx, gy, gz")
+        elif quat_cols:
+            qq = quat if quat is not None else _unit_quats(ov[:, :4], where)
+            gravity = -quat_to_rotation(np.nan_to_num(qq, nan=1.0))[:, 2, :]   # R_WB^T [0, 0, -1]
+            gravity[~np.all(np.isfinite(qq), axis=1)] = np.nan
+        if gravity_body is None and gravity is None:
+            raise DataFormatError(f"{where}: hanging recording needs 'gravity_body' in the manifest or the gravity per sample "
+                                  "(columns qw, qx, qy, qz or gx, gy, gz)")
+    free_t = None
+    if free is not None:
+        free_t = tuple(free)
+        bad_free = [k for k in free_t if k not in robot.legs]
+        if bad_free:
+            raise DataFormatError(f"{where}: free = {list(free_t)} names {bad_free}, not transducers of the robot (legs: {list(robot.legs)})")
+    return Recording(name, kind, t, phi, wrench, quat, gravity_body, path, n_bad, q=q, gravity=gravity, free=free_t)
+
+
+def _complete_group(columns: list[str], group: tuple[str, ...], where: str) -> list[str]:
+    """``group`` when the table has all of its columns, [] when none; some but not all is an error naming the missing."""
+    have = [c for c in group if c in columns]
+    if have and len(have) < len(group):
+        raise DataFormatError(f"{where}: column(s) {have} without {[c for c in group if c not in have]}; expected all of {list(group)}")
+    return list(group) if have else []
+
+
+def _unit_quats(q: np.ndarray, where: str) -> np.ndarray:
+    ok = np.all(np.isfinite(q), axis=1)
+    norms = np.linalg.norm(q[ok], axis=1)
+    if ok.any() and np.any(np.abs(norms - 1.0) > 1e-2):
+        raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}..{norms.max():.3g}); "
+                              "expected norm 1 within 0.01")
+    out = q.copy()
+    out[~ok] = np.nan
+    return out
+
+
+def _unit_rows(g: np.ndarray, where: str, what: str) -> np.ndarray:
+    """Rows of ``g`` normalised (the gravity direction: any scale); zero or non-finite rows become NaN."""
+    n = np.linalg.norm(g, axis=1)
+    ok = np.isfinite(n) & (n > 0)
+    if not ok.any():
+        raise DataFormatError(f"{where}: columns {what} hold no nonzero finite row; expected the direction of gravity in B")
+    out = np.full_like(g, np.nan)
+    out[ok] = g[ok] / n[ok, None]
+    return out
+
+
+def _check_joint_units(q: dict[str, np.ndarray], robot: Robot, where: str) -> None:
+    """Revolute joint angles in radians: the 99th percentile of |q| beyond the URDF limits by more than
+    ``_JOINT_LIMIT_SLACK_RAD`` (or beyond ``_MAX_TURNS`` turns) is an error suspecting degrees."""
+    for name, v in q.items():
+        jt = robot.tree.joint(name)
+        if jt.type != "revolute":  # prismatic: metres; continuous: may turn without bound (unwrapped)
+            continue
+        lo_q, hi_q = np.percentile(v, [1, 99])
+        big = max(abs(lo_q), abs(hi_q))
+        if jt.type == "revolute" and jt.lower is not None and jt.upper is not None and jt.upper > jt.lower:
+            over = max(jt.lower - lo_q, hi_q - jt.upper)
+            if over > _JOINT_LIMIT_SLACK_RAD:
+                raise DataFormatError(
+                    f"{where}: column '{JOINT_PREFIX}{name}' reaches {lo_q:.4g}..{hi_q:.4g}, beyond the URDF limits "
+                    f"[{jt.lower:g}, {jt.upper:g}] rad by {over:.3g}; expected radians (degrees?)", column=JOINT_PREFIX + name)
+        elif big > _MAX_TURNS * 2 * np.pi:
+            raise DataFormatError(f"{where}: column '{JOINT_PREFIX}{name}' reaches |q| = {big:.4g}, over {_MAX_TURNS:g} turns; "
+                                  "expected radians (degrees?)", column=JOINT_PREFIX + name)
 
 
 def legs_in_frame(df: pd.DataFrame) -> tuple[str, ...]:
@@ -293,33 +503,49 @@ def legs_in_frame(df: pd.DataFrame) -> tuple[str, ...]:
     return tuple(k for k in legs if all(f"{k}_{c}" in df.columns for c in ("phi",) + WRENCH_COMPONENTS))
 
 
+def _weight_scale_N(robot: Robot) -> float | None:
+    """The weight that bounds a reading's force: the robot's, else the URDF's total mass (section 5), else None."""
+    if robot.mass_kg is not None:
+        return robot.weight_N
+    if robot.tree is not None and robot.tree.bodies:
+        return robot.g * sum(b.mass_kg for b in robot.tree.bodies.values())
+    return None
+
+
 def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
     fmax = np.percentile(np.linalg.norm(w[:, :3], axis=1), 99)
     tmax = np.percentile(np.linalg.norm(w[:, 3:], axis=1), 99)
-    if fmax > _MAX_FORCE_IN_WEIGHTS * robot.weight_N:
+    weight = _weight_scale_N(robot)
+    if weight is not None and fmax > _MAX_FORCE_IN_WEIGHTS * weight:
+        what = "the robot's weight" if robot.mass_kg is not None else "the URDF's total weight"
         raise DataFormatError(
-            f"{where}: columns {leg}_fx..{leg}_fz reach {fmax:.4g}, over {_MAX_FORCE_IN_WEIGHTS:.0f}x the robot's weight "
-            f"({robot.weight_N:.4g} N); expected N (off by a unit factor such as 1000?)"
+            f"{where}: columns {leg}_fx..{leg}_fz reach {fmax:.4g}, over {_MAX_FORCE_IN_WEIGHTS:.0f}x {what} "
+            f"({weight:.4g} N); expected N (off by a unit factor such as 1000?)", column=f"{leg}_fx"
         )
-    if tmax > _MAX_LEVER_ARM_M * max(fmax, robot.weight_N):
+    if tmax > _MAX_LEVER_ARM_M * max(fmax, weight or 0.0):
         raise DataFormatError(
             f"{where}: columns {leg}_tx..{leg}_tz reach {tmax:.4g}, more than {_MAX_LEVER_ARM_M} m times the forces; "
-            "expected N*m (are they in N*mm?)"
+            "expected N*m (are they in N*mm?)", column=f"{leg}_tx"
         )
 
 
-def read_recording(path: str | Path, robot: Robot, *, kind: str, gravity_body=None, name: str | None = None) -> Recording:
-    """Read one CSV or Parquet recording and validate it against ``robot``."""
+def read_recording(path: str | Path, robot: Robot, *, kind: str, gravity_body=None, name: str | None = None,
+                   payload_legs: Iterable[str] = (), free: Iterable[str] | None = None) -> Recording:
+    """Read one CSV or Parquet recording and validate it against ``robot`` (``payload_legs``, ``free``:
+    :func:`recording_from_frame`)."""
     path = Path(path)
     df = read_table(path)
     gb = None if gravity_body is None else _vec3(list(gravity_body), f"{path} gravity_body")
-    return recording_from_frame(df, robot, name=name or path.stem, kind=kind, gravity_body=gb, source=str(path), path=path)
+    return recording_from_frame(df, robot, name=name or path.stem, kind=kind, gravity_body=gb, source=str(path), path=path,
+                                payload_legs=payload_legs, free=free)
 
 
 def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) -> Dataset:
-    """Read a dataset manifest (format page section 4) and every recording in it.
+    """Read a dataset manifest (format page sections 4 and 5) and every recording in it.
 
-    ``kinds`` restricts which recordings are loaded (e.g. only ``walking``).
+    ``kinds`` restricts which recordings are loaded (e.g. only ``walking``). A transducer without a URDF
+    ``link`` whose ``{leg}_phi`` column no hanging recording has carries a rigid payload (section 5).
+    Hanging recordings must come in opposite pairs only where a hexapod leg (a ``{leg}_phi`` column) needs them.
     """
     manifest = Path(manifest)
     d = _load_toml(manifest)
@@ -328,29 +554,66 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
     robot = read_robot(robot_path)
     entries = d.get("recording", [])
     if not isinstance(entries, list) or not entries:
-        raise DataFormatError(f"{where}: no [[recording]] entries")
-    recs = []
+        raise DataFormatError(f"{where}: no [[recording]] entries", path=manifest)
+    todo = []
     for i, e in enumerate(entries):
         w = f"{where} [[recording]] #{i + 1}"
         file = str(_require(e, "file", w, str))
         kind = str(_require(e, "kind", w, str))
         if kind not in KINDS:
             raise DataFormatError(f"{w}: kind '{kind}' is not one of {KINDS}")
-        gb = None
+        gb = free = None
         if kind == "hanging":
-            gb = _vec3(_require(e, "gravity_body", w, list), f"{w} gravity_body")
-            if abs(np.linalg.norm(gb) - 1.0) > 1e-3:
-                gb = gb / np.linalg.norm(gb)
+            if "gravity_body" in e:
+                gb = _vec3(_require(e, "gravity_body", w, list), f"{w} gravity_body")
+                if abs(np.linalg.norm(gb) - 1.0) > 1e-3:
+                    gb = gb / np.linalg.norm(gb)
+            if "free" in e:
+                free = _require(e, "free", w, list)
+                if not all(isinstance(k, str) for k in free):
+                    raise DataFormatError(f"{w}: key 'free' should be a list of transducer names, got {free!r}")
+        if kind in ("standing", "walking") and robot.mass_kg is None:
+            raise DataFormatError(f"{robot_path}: missing key 'mass_kg'; a dataset with {kind} recordings ({file}) needs the "
+                                  "robot's weighed total mass", path=robot_path, column="mass_kg")
         if kinds is not None and kind not in kinds:
             continue
-        recs.append(read_recording(manifest.parent / file, robot, kind=kind, gravity_body=gb, name=Path(file).stem))
+        todo.append((manifest.parent / file, kind, gb, free))
+    tables = [read_table(f) for f, *_ in todo]
+    hanging_cols = [set(map(str, df.columns)) for df, (_, kind, _, _) in zip(tables, todo) if kind == "hanging"]
+    payload = tuple(k for k in robot.legs if robot.transducers[k].link is None and hanging_cols
+                    and not any(f"{k}_phi" in c for c in hanging_cols))
+    recs = [recording_from_frame(df, robot, name=f.stem, kind=kind, gravity_body=gb, source=str(f), path=f,
+                                 payload_legs=payload, free=free)
+            for df, (f, kind, gb, free) in zip(tables, todo)]
     ds = Dataset(robot, tuple(recs), manifest.parent, manifest, robot_path)
+    if payload:
+        log.info("%s: transducer(s) %s have no {leg}_phi column: rigid payloads (DATA_FORMAT.md section 5)", where, list(payload))
     from .checks import check_distinct_recordings  # (checks imports this module)
 
     check_distinct_recordings(ds)  # before pairing: a file listed twice is named as such
-    if kinds is None or "hanging" in kinds:
-        hanging_pairs(ds.hanging)
+    if any(ds.load_kind(k) == "leg_com_curve" for k in robot.legs) and ds.hanging:
+        ds = _nominal_gravity_body(ds)
+        if kinds is None or "hanging" in kinds:
+            hanging_pairs(ds.hanging)
     return ds
+
+
+def _nominal_gravity_body(ds: Dataset) -> Dataset:
+    """Hexapod legs' hanging fit needs each hanging recording's nominal ``gravity_body``: where the manifest gives
+    none, the mean of the per-sample gravity (it must stay within 10 deg of it: one held orientation)."""
+    recs = []
+    for r in ds.recordings:
+        if r.kind == "hanging" and r.gravity_body is None:
+            gm = np.nanmean(r.gravity, axis=0)
+            gb = gm / np.linalg.norm(gm)
+            spread = np.degrees(np.arccos(np.clip(r.gravity[np.all(np.isfinite(r.gravity), axis=1)] @ gb, -1, 1))).max()
+            if spread > 10.0:
+                raise DataFormatError(f"{r.path or r.name}: the hexapod legs' hanging fit needs one held orientation per recording "
+                                      f"(gravity_body); the per-sample gravity spreads {spread:.0f} deg; expected within 10 deg")
+            log.info("%s: gravity_body %s from the per-sample gravity", r.path or r.name, np.round(gb, 4).tolist())
+            r = replace(r, gravity_body=gb)
+        recs.append(r)
+    return replace(ds, recordings=tuple(recs))
 
 
 def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tuple[Recording, Recording]]:
@@ -439,7 +702,7 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
     folder.mkdir(parents=True, exist_ok=True)
     manifest = folder / "dataset.toml"
     if manifest.exists() and not overwrite:
-        raise FileExistsError(f"{manifest} exists; pass overwrite=True to replace it")
+        raise OutputExistsError(f"{manifest} exists; pass overwrite=True to replace it", path=manifest)
     write_robot(ds.robot, folder / "robot.toml")
     entries = []
     for rec in ds.recordings:
@@ -452,7 +715,7 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
 
             write_csv(df, folder / fname)  # every float at full precision (csvout.py)
         else:
-            raise ValueError(f"fmt must be 'csv' or 'parquet', got {fmt!r}")
+            raise ConfigError(f"fmt must be 'csv' or 'parquet', got {fmt!r}", key="fmt")
         e: dict = {"file": fname, "kind": rec.kind}
         if rec.gravity_body is not None:
             e["gravity_body"] = [float(x) for x in rec.gravity_body]

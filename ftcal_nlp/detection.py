@@ -66,16 +66,18 @@ import numpy as np
 from scipy.stats import norm
 
 from .diagnose.attribute import GAP_THRESHOLD
-from .diagnose.standing_fit import AugmentedProblem, StandingData
+from .diagnose.standing_fit import AugmentedProblem
+from .effects import StandingData
 from .selection import fold_indices
+from .settings import DiagnoseSettings
 
 log = logging.getLogger(__name__)
 
 POWER = 0.8
 SIGNAL_RATE_HZ = 20.0     # signal runs: the rate does not change the mean square of a slow residual, only the run time
 KINDS = ("standing", "hanging")
-DIAGNOSIS_FOLDS = 5       # DiagnoseSettings' defaults
-DIAGNOSIS_SEED = 0
+DIAGNOSIS_FOLDS = DiagnoseSettings().folds   # the diagnosis' defaults (settings.py)
+DIAGNOSIS_SEED = DiagnoseSettings().seed
 MODEL = "full"            # what the default model selection picks on the simulator's protocols
 EXTRAPOLATION_MAX = 10.0  # (D1) is trusted up to this many test sizes; beyond, "not detected" (inf)
 REALISATIONS = 3          # draws of the effect's own random parameters (directions, per-leg sizes) behind (D4)
@@ -324,7 +326,7 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
     """Detection size (D4) of every library effect (or of ``effects``, names) on ``protocol``; ``sim``, ``hang``,
     ``poses`` the plan's noisy simulation of it (simulator seed ``seed``), its hanging fit and poses;
     ``smoothing`` the CoM weight its GCV picked."""
-    from .diagnose.effects import resolve_effects
+    from .effects import resolve_effects
     from .sim import simulate
     from .solver import SolverError
 
@@ -387,6 +389,6 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
             np.isfinite(v) for v in a1.values()) else (
             f"no standing or hanging gap below {EXTRAPOLATION_MAX:g}x its test size"
             + ("; the design check (a common tilt of the fitted frames) is what finds it, not predicted here"
-               if name in ("mocap_bias", "tether_force") else ""))
+               if eff.design_face else ""))
         out.append(DetectionSize(name, per[kind], mag.unit, kind if np.isfinite(per[kind]) else None, realistic, per, note))
     return Detection(tuple(out), fl, {k: float(v[0]) for k, v in spec.items()})

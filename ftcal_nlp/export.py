@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 
 from .calibration import Calibration, LegCalibration
+from .errors import ConfigError, DataFormatError, OutputError
 from .geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
 
 log = logging.getLogger(__name__)
@@ -52,11 +53,11 @@ def _com_interpolant(leg: LegCalibration, name: str) -> Callable[[ca.MX], ca.MX]
     the same as ``periodic_interp`` (np.interp: held constant outside the extended grid)."""
     if not np.all(np.isfinite(leg.com_xyz)):
         bad = np.flatnonzero(~np.all(np.isfinite(leg.com_xyz), axis=1))
-        raise ValueError(f"{name}: leg_com_grid.xyz has no value at grid points {bad.tolist()}; a controller needs a CoM at every shaft angle")
+        raise DataFormatError(f"{name}: leg_com_grid.xyz has no value at grid points {bad.tolist()}; a controller needs a CoM at every shaft angle")
     xp = np.concatenate([leg.com_phi, [leg.com_phi[0] + 2 * np.pi]])
     fp = np.concatenate([leg.com_xyz, leg.com_xyz[:1]])
     if np.any(np.diff(xp) <= 0):
-        raise ValueError(f"{name}: leg_com_grid.phi must increase within [0, 2pi)")
+        raise DataFormatError(f"{name}: leg_com_grid.phi must increase within [0, 2pi)")
     interp = ca.interpolant(name, "linear", [xp], fp.ravel())  # output index fastest
 
     def r(phi: ca.MX) -> ca.MX:
@@ -212,12 +213,12 @@ def compile_shared(files: ExportedFiles, cc: str | None = None, flags: tuple[str
     """Compile the exported source into a shared library beside it with the system C compiler."""
     cc = cc or shutil.which("cc") or shutil.which("gcc")
     if cc is None:
-        raise RuntimeError("no C compiler found (looked for cc and gcc on PATH)")
+        raise OutputError("no C compiler found (looked for cc and gcc on PATH)")
     lib = files.source.with_name(f"lib{files.source.stem}.so")
     cmd = [cc, *flags, "-fPIC", "-shared", str(files.source), "-o", str(lib), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr}")
+        raise OutputError(f"{' '.join(cmd)} failed:\n{proc.stderr}")
     return lib
 
 
@@ -259,8 +260,6 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
-    from .errors import ConfigError, OutputError
-
     out = Path(args.output)
     if not args.name.isidentifier():
         raise ConfigError(f"--name {args.name!r} is not a C identifier", key="--name")

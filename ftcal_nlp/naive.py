@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from .data import Recording
+from .errors import DataFormatError
 from .geometry import quat_to_rotation, remove_yaw, skew, transform_wrench
 from .physics import balance_residual_exact
 from .robot import Robot
@@ -32,7 +33,7 @@ __all__ = ["naive_bias", "naive_total_residuals", "no_transformation_error_resid
 def naive_bias(hanging: Sequence[Recording], robot: Robot) -> np.ndarray:
     """(K, 6) mean reading of the upright feet-in-the-air recording, ft_k axes (N, N*m)."""
     if not hanging:
-        raise ValueError("naive taring needs a hanging recording with the feet in the air")
+        raise DataFormatError("naive taring needs a hanging recording with the feet in the air")
     up = max(hanging, key=lambda r: float(r.gravity_body @ np.array([0.0, 0.0, -1.0])))
     return up.wrench_array(robot.legs).mean(axis=0)
 

@@ -21,6 +21,11 @@ bounds the rotations against the design. Optional comparisons (the report's
 baselines) and the diagnosis that cannot run on a dataset are skipped with one
 warning and a note in ``run.notes`` (the report lists them).
 
+A dataset whose transducers all carry free loads (``DATA_FORMAT.md`` section 5:
+rigid payloads, URDF links) takes one stage instead, the free-load estimator
+(:func:`ftcal_nlp.freeload.fit_free_loads`); its standing and walking stages are
+skipped (logged), and so is the diagnosis for now (issue 23 extends it).
+
 With ``offsets_only=<earlier Calibration>`` only the offsets are re-estimated
 from the standing poses and everything else of the earlier calibration is kept
 (report Sec. V); no hanging stage runs.
@@ -35,18 +40,22 @@ from dataclasses import replace
 from typing import Callable, Iterator, TypeVar
 
 import numpy as np
+import pandas as pd
 
 from .calibration import Calibration
-from .calibration_run import CalibrationRun
+from .calibration_run import CalibrationRun, JointCovariance, joint_covariance
 from .checks import check_dataset, check_transducer_poses, screen_sensor_faults
 from .correct import correct_recording_full
-from .data import DataFormatError, Dataset
-from .diagnose import diagnose_run
+from .data import Dataset
+from .diagnose import DiagnosisResult, diagnose_run
+from .errors import DataFormatError, FtcalError
 from .hanging import HangingResult, fit_hanging
+from .loads import LegComCurve
 from .selection import select_models
 from .sensor_noise import SensorNoise, estimate_sensor_noise
 from .settings import CalibrationSettings
 from .standing import Poses, extract_poses, fit_standing
+from .tracking import TrackedOffsets
 from .uncertainty import CalibrationCovariance
 
 __all__ = ["calibrate"]
@@ -57,17 +66,22 @@ T = TypeVar("T")
 
 
 def optional(what: str, notes: list[str], fn: Callable[[], T]) -> T | None:
-    """Run an optional comparison or stage; if it cannot run on this dataset, log one warning saying why,
-    record it in ``notes`` (the report lists them) and return None: the main estimate stands without it."""
+    """Run an optional comparison or stage and return its result, or None (the main estimate stands without it).
+
+    A :class:`~ftcal_nlp.errors.FtcalError` says why it cannot run on this dataset: one warning
+    ``"<what> was skipped: <why>"``, recorded in ``notes`` (the report lists them). Anything else is a
+    defect of the package, not of the data; it must not stop the run either, but it is named as one
+    (``"... was skipped by a defect (TypeName: msg); please report it"``) and its traceback logged at debug."""
     try:
         return fn()
-    except Exception as exc:  # noqa: BLE001 -- whatever stops a comparison must not stop the run
-        why = str(exc) if isinstance(exc, (ValueError, RuntimeError)) and str(exc) else f"{type(exc).__name__}: {exc}"
-        msg = f"{what} was skipped: {why}"
-        log.warning("%s", msg)
-        log.debug("%s", what, exc_info=True)
-        notes.append(msg)
-        return None
+    except FtcalError as exc:
+        msg, err = f"{what} was skipped: {str(exc) or type(exc).__name__}", exc
+    except Exception as exc:  # noqa: BLE001 -- a comparison must not stop the run; named as a defect
+        msg, err = f"{what} was skipped by a defect ({type(exc).__name__}: {exc}); please report it", exc
+    log.warning("%s", msg)
+    log.debug("%s", what, exc_info=err)
+    notes.append(msg)
+    return None
 
 
 @contextmanager
@@ -84,7 +98,7 @@ def stage(name: str, timings: dict[str, float], cpu: dict[str, float] | None = N
 
 def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float], notes: list[str]) -> tuple[HangingResult, HangingResult | None]:
     with stage("hanging", timings, cpu):
-        hang = fit_hanging(ds.hanging, ds.robot, s.hanging)  # logs its own warnings
+        hang = LegComCurve().fit(ds.hanging, ds.robot, s.hanging)  # the hexapod legs' load: fit_hanging; logs its own warnings
     base = None
     if s.hanging.compare_baseline and s.hanging.method != "baseline":
         with stage("hanging (baseline)", timings, cpu):
@@ -96,7 +110,8 @@ def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu
 def _poses(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float]) -> Poses:
     with stage("poses", timings, cpu):
         if not ds.standing:
-            raise DataFormatError(f"{ds.manifest or 'dataset'}: no standing recording; the transformation errors need standing poses")
+            raise DataFormatError(f"{ds.manifest or 'dataset'}: no standing recording; the transformation errors need standing poses",
+                                  path=ds.manifest)
         poses = Poses.concat([extract_poses(r, ds.robot, s.standing.poses) for r in ds.standing])
         log.info("poses: %s", " -> ".join(f"{v} {k}" for k, v in poses.counts.items()))
         if poses.n < _MIN_POSES:
@@ -106,7 +121,7 @@ def _poses(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: 
                 f"({', '.join(f'{v} {k}' for k, v in poses.counts.items())}); expected at least {_MIN_POSES}: poses where no "
                 f"column {{leg}}_phi moves faster than {p.phi_rate_threshold_rad_s:g} rad/s and the forces settle below "
                 f"{p.deriv_threshold_N_s:g} N/s for {p.min_steady_s:g} s with the orientation qw..qz tracked; does the robot ever "
-                "stand still? ([standing.poses] in the config sets the thresholds)"
+                "stand still? ([standing.poses] in the config sets the thresholds)", path=ds.standing[0].path
             )
     return poses
 
@@ -116,21 +131,20 @@ def _poses(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: 
 _MIN_POSES = 10
 
 
-def _with_joint_se(run: CalibrationRun) -> Calibration:
-    """The calibration with the standing se from the joint covariance (hanging uncertainty propagated,
+def _with_joint_se(cal: Calibration, joint: JointCovariance) -> Calibration:
+    """``cal`` with the standing se from the joint covariance (hanging uncertainty propagated,
     ``calibration_run.py``) and the rotations' se beside the contract's keys; se the stage did not
     estimate (NaN: kept from an earlier calibration) stay as they were."""
-    bse = run.bse
+    bse = joint.bse
     legs = {}
-    for k, l in run.calibration.legs.items():
+    for k, l in cal.legs.items():
         rot = bse.reindex([f"{k}.R_tilde.{c}" for c in "xyz"]).to_numpy(float)
         pos = bse.reindex([f"{k}.p_prime.{c}" for c in "xyz"]).to_numpy(float)
         kw = {"rotation_se_rad": rot} if not np.all(np.isnan(rot)) else {}
         if not np.all(np.isnan(pos)):
             kw["position_from_com_se_m"] = pos
         legs[k] = replace(l, **kw)
-    meta = {**run.calibration.meta, "covariance": run.joint_covariance()[3]}
-    return replace(run.calibration, legs=legs, meta=meta)
+    return replace(cal, legs=legs, meta={**cal.meta, "covariance": joint.how})
 
 
 def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> SensorNoise | None:
@@ -138,25 +152,57 @@ def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> Sens
     (``sensor_noise.py``); None (noted) when they have none."""
     try:
         return estimate_sensor_noise(list(ds.standing), ds.robot, s.standing.poses)
-    except ValueError as exc:
+    except DataFormatError as exc:
         log.warning("sensor noise not estimated (the se columns then carry the calibration part only): %s", exc)
         notes.append(f"sensor noise not estimated: {exc}")
         return None
+
+
+def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float],
+                          notes: list[str]) -> CalibrationRun:
+    """Section-5 datasets: every transducer's free load by the free-load estimator; the hexapod stages do not apply."""
+    from .freeload import fit_free_loads, free_load_calibration
+
+    hexapod = [k for k in ds.robot.legs if k not in ds.free_load_legs]
+    if hexapod:
+        raise DataFormatError(f"{ds.manifest or 'dataset'}: transducers {hexapod} have {{leg}}_phi columns (hexapod legs) and "
+                              f"{list(ds.free_load_legs)} carry free loads; one dataset of both kinds is not supported yet")
+    for kind in ("standing", "walking"):
+        if ds.of_kind(kind):
+            msg = f"{kind} recordings skipped: the free-load calibration uses the hanging recordings only"
+            log.warning("%s", msg)
+            notes.append(msg)
+    with stage("free loads", timings, cpu):
+        res = fit_free_loads(ds, s.free_load)
+    notes += res.identifiability()
+    if s.diagnose.enabled:
+        msg = "the sim-to-real gap diagnosis was skipped: it does not cover free loads yet (issue 23)"
+        log.info("%s", msg)
+        notes.append(msg)
+    cal = free_load_calibration(res, ds.robot)
+    return CalibrationRun(s, ds, cal, timings=timings, cpu_timings=cpu, notes=tuple(notes), free_loads=res)
 
 
 def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
               offsets_only: Calibration | None = None) -> CalibrationRun:
     """Calibrate ``dataset`` (interchange format, ``data.read_dataset``) with ``settings`` (module docstring).
 
-    Raises :class:`~ftcal_nlp.data.DataFormatError` for data that cannot calibrate (no standing
-    recording, no opposite hanging pair, ...) and :class:`~ftcal_nlp.solver.SolverError` when a
-    solver of the chosen method fails (a failing baseline is logged and recorded in ``notes``).
+    Builds every part first and the frozen :class:`CalibrationRun` from them (the diagnosis reads the
+    run as calibrated; the run returned holds it too). Raises :class:`~ftcal_nlp.errors.DataFormatError`
+    for data that cannot calibrate (no standing recording, no opposite hanging pair, ...) and
+    :class:`~ftcal_nlp.errors.SolverError` when a solver of the chosen method fails (a failing baseline
+    is logged and recorded in ``notes``).
     """
     s = CalibrationSettings() if settings is None else settings
     ds, robot = dataset, dataset.robot
     timings: dict[str, float] = {}
     cpu: dict[str, float] = {}
     notes: list[str] = []
+    if ds.free_load_legs:
+        if offsets_only is not None:
+            raise DataFormatError(f"{ds.manifest or 'dataset'}: offsets-only re-estimation needs standing poses of a hexapod; "
+                                  f"transducers {list(ds.free_load_legs)} carry free loads (calibrate them anew)")
+        return _calibrate_free_loads(ds, s, timings, cpu, notes)
     hang = hang_base = None
     with stage("plausibility checks", timings, cpu):
         ds, screened = screen_sensor_faults(ds)  # dead / stuck / clipped channels: named, their rows left out
@@ -197,21 +243,31 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
             # null standard errors in calibration.json are these: directions the poses do not determine
             "unidentified": list(standing.unidentified_params)}
     cal = replace(standing.calibration, model=str(model_name), meta={**standing.calibration.meta, **meta})
-    run = CalibrationRun(s, ds, cal, hang, hang_base, poses, selection, standing, standing_base, timings=timings, cpu_timings=cpu, notes=notes)
-    run.calibration = _with_joint_se(run)
+    joint = joint_covariance(hang, standing)
+    cal = _with_joint_se(cal, joint)
     with stage("sensor noise", timings, cpu):
         noise = _sensor_noise(ds, s, notes)
-    run.uncertainty = CalibrationCovariance.from_results(run, noise)
+    uncertainty = CalibrationCovariance.from_results(joint, noise)
     if noise is not None:
-        run.calibration = replace(run.calibration, meta={**run.calibration.meta, "sensor_noise": noise.to_json_dict()})
+        cal = replace(cal, meta={**cal.meta, "sensor_noise": noise.to_json_dict()})
+    corrected: dict[str, pd.DataFrame] = {}
+    tracked: dict[str, TrackedOffsets] = {}
     with stage("correct walking", timings, cpu):
         for rec in ds.walking:
-            c = correct_recording_full(run.calibration, rec, run.uncertainty, s.correct)
-            run.corrected[rec.name] = c.frame
+            c = correct_recording_full(cal, rec, uncertainty, s.correct)
+            corrected[rec.name] = c.frame
             if c.tracking is not None:
-                run.tracked_offsets[rec.name] = c.tracking
-            log.info("corrected %s: %d rows", rec.name, len(run.corrected[rec.name]))
-    if s.diagnose.enabled:
-        with stage("diagnosis", timings, cpu):
-            run.diagnosis = optional("the sim-to-real gap diagnosis", notes, lambda: diagnose_run(run))
-    return run
+                tracked[rec.name] = c.tracking
+            log.info("corrected %s: %d rows", rec.name, len(c.frame))
+
+    def built(diagnosis: DiagnosisResult | None = None) -> CalibrationRun:
+        return CalibrationRun(s, ds, cal, hang, hang_base, poses, selection, standing, standing_base, diagnosis,
+                              corrected=corrected, tracked_offsets=tracked, uncertainty=uncertainty,
+                              timings=dict(timings), cpu_timings=dict(cpu), notes=tuple(notes))
+
+    if not s.diagnose.enabled:
+        return built()
+    calibrated = built()  # what the diagnosis reads: the run as calibrated
+    with stage("diagnosis", timings, cpu):
+        diagnosis = optional("the sim-to-real gap diagnosis", notes, lambda: diagnose_run(calibrated))
+    return built(diagnosis)  # the same parts with the diagnosis, its stage time and notes

@@ -242,7 +242,7 @@ def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = N
     rotations and positions come from the pilot's own pose geometry; ``detection``: also the detection size
     of every library effect (True) or of the effects named (:mod:`ftcal_nlp.detection`, ~30 s more on the
     default protocol)."""
-    from .diagnose.effects import resolve_effects
+    from .effects import resolve_effects
     from .sim import simulate
     from .standing import extract_poses
 
@@ -369,11 +369,11 @@ def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None) -> 
 
 def _read_toml(path: Path) -> dict:
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
+        raise PlanError(f"{path}: file not found", path=path)
     try:
         return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{path}: not valid TOML ({exc})") from None
+        raise PlanError(f"{path}: not valid TOML ({exc})", path=path) from None
 
 
 def load_input(path: str | Path | None, protocol_file: str | Path | None = None) -> tuple[Protocol, Pilot | None]:

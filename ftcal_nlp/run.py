@@ -29,12 +29,12 @@ from .calibration import Calibration
 from .calibration_run import CalibrationRun
 from .checks import residual_note
 from .config import RunConfig, load_config
-from .errors import ConfigError, FtcalError
+from .errors import ConfigError, DataFormatError, FtcalError
 from .outdir import OutputExistsError, OutputFolder  # noqa: F401  (OutputExistsError: re-exported, run.OutputExistsError)
 from .correct import offsets_frame
 from .csvout import write_csv
-from .data import DataFormatError, Dataset, read_dataset
-from .diagnose.validate import run_validation
+from .data import Dataset, read_dataset
+from .bench.validate import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
@@ -45,18 +45,38 @@ COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in it
 log = logging.getLogger("ftcal_nlp.run")
 
 
-def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, Calibration | None]:
-    """The dataset of the config: read from the manifest, or simulated (and written) first."""
+def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | None]:
+    """The dataset of the config: read from the manifest, or simulated (and written) first; with its truth
+    (``truth.json`` beside the manifest: a Calibration for a hexapod, a ``truth.LoadTruth`` for a free load).
+
+    ``[simulate] kind = "payload" | "urdf_leg"`` simulates a section-5 dataset (``sim.free``); no ``kind``
+    (or ``"hexapod"``) the BigAnt one."""
+    from .sim.free import KINDS as FREE_KINDS, simulate_free, write_free_load
+    from .sim.free import config_from_dict as free_config
+    from .truth import load_truth, load_truth_from_dict
+
     if cfg.manifest is not None and cfg.manifest.is_file():
         ds = read_dataset(cfg.manifest)
         truth_path = cfg.manifest.parent / "truth.json"
-        truth = Calibration.load(truth_path, mass_kg=ds.robot.mass_kg, g=ds.robot.g) if truth_path.is_file() else None
+        truth = load_truth(truth_path, mass_kg=ds.robot.mass_kg, g=ds.robot.g, robot=ds.robot) if truth_path.is_file() else None
         return ds, truth
     if cfg.simulate is None:
-        raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)")
+        raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)", path=cfg.manifest)
     folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
     check_simulation_target(cfg, folder)
-    sim_cfg = SimConfig.from_dict(cfg.simulate)
+    if cfg.simulate.get("kind", "hexapod") in FREE_KINDS:
+        try:
+            free = simulate_free(free_config(cfg.simulate))
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.path}: {exc}", path=cfg.path, key="simulate") from None
+        manifest = write_free_load(free, folder, overwrite=force)
+        log.info("simulated %s dataset written to %s", free.config.kind, manifest.parent)
+        ds = read_dataset(manifest)
+        return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
+    if cfg.simulate.get("kind", "hexapod") != "hexapod":
+        raise ConfigError(f"{cfg.path} [simulate]: kind = {cfg.simulate['kind']!r}; known kinds: "
+                          f"{['hexapod', *sorted(FREE_KINDS)]}", path=cfg.path, key="simulate.kind")
+    sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
     manifest = write_simulation(res, folder, overwrite=force)
     why = f"[data].manifest {cfg.manifest} not found: " if cfg.manifest is not None else ""
@@ -117,13 +137,13 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     if cfg.offsets_only.calibration is not None:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
     res = calibrate(ds, cfg.settings, offsets_only=prior)
-    res.truth = truth
-    res.timings = {"load": t_load, **res.timings}
     cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
     origin = data_origin(cfg, truth)
     cov_meta["data"] = {"simulated": origin is not None, **({"origin": origin} if origin else {})}
-    res.calibration = replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta})
-    res = replace(res, notes=type(res.notes)(_issue_notes(res, origin)))
+    # a new frozen run with what only the command line knows: the truth, the load time, the config, the notes
+    res = replace(res, truth=truth, timings={"load": t_load, **res.timings},
+                  calibration=replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta}))
+    res = replace(res, notes=_issue_notes(res, origin))
     with stage("write calibration", res.timings):
         res.calibration.save(folder / "calibration.json")
         if res.uncertainty is not None:
@@ -142,19 +162,20 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     return res
 
 
-def _issue_notes(res: CalibrationRun, origin: str | None) -> list[str]:
-    """The run's notes with what the log and the report must say beside them: simulated data (first); a
-    standing residual far above the sensor noise (last, a warning)."""
-    notes = list(res.notes)
+def _issue_notes(res: CalibrationRun, origin: str | None) -> tuple[str, ...]:
+    """The run's notes with those of the command line: simulated data first; a standing residual far
+    above the sensor noise last (both logged)."""
+    front: list[str] = []
+    back: list[str] = []
     if origin is not None:
         log.info("the dataset is %s", origin)
-        notes.insert(0, f"The dataset is {origin}.")
+        front.append(f"The dataset is {origin}.")
     if res.standing is not None and res.uncertainty is not None:
         note = residual_note(res.standing.residuals, res.uncertainty.noise, res.calibration)
         if note:
             log.warning("%s", note)
-            notes.append(note)
-    return notes
+            back.append(note)
+    return (*front, *res.notes, *back)
 
 
 def effect_calibration(res: CalibrationRun) -> Calibration:
@@ -192,7 +213,13 @@ def summary_text(res: CalibrationRun, cfg: RunConfig) -> str:
     if res.standing is not None:
         r = np.asarray(res.standing.residuals)
         lines.append("calibrated total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((r**2).mean(0))))
+    if res.free_loads is not None:
+        for k, r in res.free_loads.legs.items():
+            lines.append(f"{k}: {r.n_used} quasi-static samples; residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in r.rms))
+            lines += [f"  {n}" for n in r.identifiability()]
     try:
+        if res.poses is None:
+            raise ValueError("no standing poses")
         naive = res.naive_total_residuals()
         lines.append("naive-tare total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((naive**2).mean(0))))
     except (ValueError, IndexError) as exc:
@@ -271,14 +298,12 @@ def check_models(cfg: RunConfig) -> None:
     that defines the class): a :class:`ConfigError` before any data are read or fitted."""
     from .models import resolve
 
-    st = cfg.standing
+    st = cfg.settings.standing
     names = [("model", st.model)] if st.model != "auto" else [("candidates", c) for c in st.candidates]
     for key, name in names:
         try:
             resolve(name)
-        except FtcalError:
-            raise
-        except (ValueError, ImportError, SyntaxError, AttributeError, TypeError, OSError) as exc:
+        except (FtcalError, ValueError, ImportError, SyntaxError, AttributeError, TypeError, OSError) as exc:
             raise ConfigError(f"{cfg.path} [standing].{key}: {exc}", path=cfg.path, key=f"standing.{key}") from exc
 
 

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import io
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
+from .errors import ConfigError
 from .calibration import Calibration
 from .results import bic as information_bic
 from .results import fmt_pm, latex_escape
@@ -59,18 +60,18 @@ class SelectionResult:
     """Scores of every candidate, the full-data fits, and the selected model (smallest BIC)."""
 
     scores: tuple[CandidateScore, ...]
-    results: dict[str, StandingResult] = field(default_factory=dict)
-    n_poses: int = 0
-    folds: int = 5
-    seed: int = 0
-    balance: str = "exact"
-    solver: str = "ipopt"
+    results: dict[str, StandingResult]
+    n_poses: int
+    folds: int                      # what the selection used (SelectionSettings), recorded
+    seed: int
+    balance: str
+    solver: str
 
     @property
     def best(self) -> str:
         ok = [s for s in self.scores if s.status == "ok" and np.isfinite(s.bic)]
         if not ok:
-            raise RuntimeError("model selection: no candidate was fitted successfully")
+            raise SolverError("model selection: no candidate was fitted successfully", "no candidate fitted")
         return min(ok, key=lambda s: s.bic).name
 
     @property
@@ -179,7 +180,7 @@ def to_latex(sel: SelectionResult) -> str:
 def fold_indices(n: int, folds: int, seed: int) -> list[np.ndarray]:
     """Seeded shuffle of ``range(n)`` split into ``folds`` nearly equal parts."""
     if folds < 2 or folds > n:
-        raise ValueError(f"cross-validation needs 2 <= folds <= number of poses ({n}), got {folds}")
+        raise ConfigError(f"cross-validation needs 2 <= folds <= number of poses ({n}), got {folds}", key="selection.folds")
     perm = np.random.default_rng(seed).permutation(n)
     return [np.sort(f) for f in np.array_split(perm, folds)]
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .data import Recording
+from .errors import DataFormatError
 from .geometry import quat_to_rotation, rotation_to_rotvec
 from .robot import Robot
 from .settings import PoseExtraction
@@ -61,14 +62,14 @@ class SensorNoise:
         try:
             rd = {k: np.array(v, float) for k, v in d["readings"].items()}
         except (KeyError, TypeError, AttributeError) as exc:
-            raise ValueError(f"{source}: expected 'readings' = {{leg: 6x6 covariance}}, got {d!r:.200}") from exc
+            raise DataFormatError(f"{source}: expected 'readings' = {{leg: 6x6 covariance}}, got {d!r:.200}") from exc
         for k, v in rd.items():
             if v.shape != (6, 6):
-                raise ValueError(f"{source}: readings.{k}: expected a 6x6 covariance, got shape {v.shape}")
+                raise DataFormatError(f"{source}: readings.{k}: expected a 6x6 covariance, got shape {v.shape}")
         o = d.get("orientation_rad")
         o = None if o is None else np.array(o, float)
         if o is not None and o.shape != (3, 3):
-            raise ValueError(f"{source}: orientation_rad: expected a 3x3 covariance, got shape {o.shape}")
+            raise DataFormatError(f"{source}: orientation_rad: expected a 3x3 covariance, got shape {o.shape}")
         return cls(rd, o, int(d.get("n_samples", 0)))
 
 
@@ -111,8 +112,8 @@ def estimate_sensor_noise(recordings: list[Recording], robot: Robot, settings: P
             So += e.T @ e
             no += int(ok.sum()) - 2
     if n <= 0:
-        raise ValueError(f"sensor noise: no steady standing run of at least {MIN_RUN} samples in "
-                         f"{[r.path or r.name for r in recordings]}")
+        raise DataFormatError(f"sensor noise: no steady standing run of at least {MIN_RUN} samples in "
+                              f"{[r.path or r.name for r in recordings]}")
     noise = SensorNoise({k: v / n for k, v in S.items()}, So / no if no > 0 else None, n)
     log.info("sensor noise from %d steady samples: force sd %s N, torque sd %s N*m, orientation sd %s deg", n,
              np.round(np.mean([noise.sd(k)[:3] for k in legs], axis=0), 4).tolist(),

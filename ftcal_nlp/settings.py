@@ -1,22 +1,29 @@
 """Settings of every stage: the one place their defaults live.
 
-A run config (``config.py``, TOML) fills these frozen dataclasses; Python users
+A run config (``config.py``, TOML) fills these frozen dataclasses: each of its
+tables is a field of :class:`CalibrationSettings` and its keys are the fields of
+that dataclass, so the valid keys, their types and defaults are stated here
+alone (``CHOICES`` names the fields with a fixed set of values). Python users
 build them directly and pass them to :func:`ftcal_nlp.calibrate` or to a stage
 (``fit_hanging(..., settings=HangingSettings(...))``). Stage functions take a
 settings object and keyword overrides of its fields; they never restate the
-defaults in their own signatures.
+defaults in their own signatures (a function below a stage takes the values
+from its caller, without defaults). A value out of range is a
+:class:`~ftcal_nlp.errors.ConfigError` whose ``key`` is the config key
+(``standing.poses.min_steady_s``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
+from .errors import ConfigError
 from .models import REPORT_CANDIDATES
 from .solver import REL_EIG_TOL
 
-__all__ = ["PoseExtraction", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
+__all__ = ["PoseExtraction", "FreeLoadSettings", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
            "OffsetsOnlySettings", "CorrectSettings", "CalibrationSettings", "with_overrides"]
 
 T = TypeVar("T")
@@ -39,6 +46,15 @@ def with_overrides(settings: T | None, cls: type[T], overrides: dict[str, Any], 
     return replace(s, **overrides) if overrides else s
 
 
+def _check_choices(obj: Any, section: str) -> None:
+    """Every field of ``obj`` named in its class's ``CHOICES`` (field -> (what it is, allowed values))
+    holds one of the allowed values."""
+    for name, (what, choices) in obj.CHOICES.items():
+        value = getattr(obj, name)
+        if value not in choices:
+            raise ConfigError(f"{type(obj).__name__}.{name}: unknown {what} {value!r}; known: {list(choices)}", key=f"{section}.{name}")
+
+
 @dataclass(frozen=True)
 class PoseExtraction:
     """Settings of the steady-pose detector (report Sec. I-B); thresholds in SI units."""
@@ -54,16 +70,17 @@ class PoseExtraction:
     deriv_noise_factor: float = 2.0         # noisier readings: the threshold rises to this many times the median
                                             # derivative norm of the still samples (0: the fixed threshold only)
 
+    CHOICES: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {"deriv_norm": ("derivative norm", ("legs", "total"))}
+
     def __post_init__(self) -> None:
-        if self.deriv_norm not in ("legs", "total"):
-            raise ValueError(f"PoseExtraction.deriv_norm: expected 'legs' or 'total', got {self.deriv_norm!r}")
+        _check_choices(self, "standing.poses")
         for name in ("window_s", "deriv_threshold_N_s", "min_steady_s", "phi_rate_threshold_rad_s"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"PoseExtraction.{name}: expected a positive number, got {getattr(self, name)!r}")
+                raise ConfigError(f"PoseExtraction.{name}: expected a positive number, got {getattr(self, name)!r}", key=f"standing.poses.{name}")
         if not self.deriv_noise_factor >= 0:
-            raise ValueError(f"PoseExtraction.deriv_noise_factor: expected a number >= 0, got {self.deriv_noise_factor!r}")
+            raise ConfigError(f"PoseExtraction.deriv_noise_factor: expected a number >= 0, got {self.deriv_noise_factor!r}", key="standing.poses.deriv_noise_factor")
         if not 0.0 <= self.max_mocap_missing <= 1.0:
-            raise ValueError(f"PoseExtraction.max_mocap_missing: expected a fraction in [0, 1], got {self.max_mocap_missing!r}")
+            raise ConfigError(f"PoseExtraction.max_mocap_missing: expected a fraction in [0, 1], got {self.max_mocap_missing!r}", key="standing.poses.max_mocap_missing")
 
 
 HANGING_METHODS = ("nlp", "baseline")
@@ -73,15 +90,12 @@ WEIGHTINGS = ("fgls", "knorm")
 COVARIANCES = ("gauss_newton", "sandwich")
 
 
-def _choice(cls: str, name: str, value, choices, what: str | None = None) -> None:
-    if value not in choices:
-        raise ValueError(f"{cls}.{name}: unknown {what or name} {value!r}; known: {list(choices)}")
-
-
 @dataclass(frozen=True)
 class HangingSettings:
     """Hanging stage (report Sec. III-A). ``smoothing``: ``"auto"`` (GCV) or the weight
     ``lam`` (1/m^2) of the CoM curve's second-difference penalty; ``n_grid``: CoM grid points."""
+
+    CHOICES: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {"method": ("hanging method", HANGING_METHODS)}
 
     method: str = "nlp"              # "nlp" or "baseline" (the report's own procedure)
     n_grid: int = 72
@@ -89,12 +103,12 @@ class HangingSettings:
     compare_baseline: bool = True    # also fit the report's baseline for the comparison figures
 
     def __post_init__(self) -> None:
-        _choice("HangingSettings", "method", self.method, HANGING_METHODS, "hanging method")
+        _check_choices(self, "hanging")
         if not (isinstance(self.n_grid, int) and not isinstance(self.n_grid, bool) and self.n_grid >= 8):
-            raise ValueError(f"HangingSettings.n_grid: expected an integer >= 8, got {self.n_grid!r}")
+            raise ConfigError(f"HangingSettings.n_grid: expected an integer >= 8, got {self.n_grid!r}", key="hanging.n_grid")
         if not (self.smoothing == "auto" or (isinstance(self.smoothing, (int, float)) and not isinstance(self.smoothing, bool)
                                             and self.smoothing >= 0)):
-            raise ValueError(f"HangingSettings.smoothing: expected 'auto' or a non-negative number, got {self.smoothing!r}")
+            raise ConfigError(f"HangingSettings.smoothing: expected 'auto' or a non-negative number, got {self.smoothing!r}", key="hanging.smoothing")
 
 
 @dataclass(frozen=True)
@@ -107,6 +121,10 @@ class StandingSettings:
     ``covariance``: ``"gauss_newton"`` or ``"sandwich"``; ``rel_eig_tol``: the
     identifiability threshold (``solver.py``)."""
 
+    CHOICES: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
+        "solver": ("solver", STANDING_SOLVERS), "balance": ("balance", BALANCES), "weighting": ("weighting", WEIGHTINGS),
+        "covariance": ("covariance", COVARIANCES)}
+
     model: str = "auto"
     candidates: tuple[str, ...] = REPORT_CANDIDATES
     solver: str = "ipopt"            # "ipopt" or "baseline" (Cayley + alternating least squares)
@@ -118,13 +136,10 @@ class StandingSettings:
     poses: PoseExtraction = field(default_factory=PoseExtraction)
 
     def __post_init__(self) -> None:
-        _choice("StandingSettings", "solver", self.solver, STANDING_SOLVERS)
-        _choice("StandingSettings", "balance", self.balance, BALANCES)
-        _choice("StandingSettings", "weighting", self.weighting, WEIGHTINGS)
-        _choice("StandingSettings", "covariance", self.covariance, COVARIANCES)
+        _check_choices(self, "standing")
         if self.solver == "baseline" and self.weighting != "knorm":
-            raise ValueError(f"StandingSettings: weighting {self.weighting!r} needs solver 'ipopt': "
-                             'solver = "baseline" is the report\'s K-norm method; set weighting = "knorm"')
+            raise ConfigError(f"StandingSettings: weighting {self.weighting!r} needs solver 'ipopt': "
+                              'solver = "baseline" is the report\'s K-norm method; set weighting = "knorm"', key="standing.weighting")
 
 
 @dataclass(frozen=True)
@@ -136,7 +151,7 @@ class SelectionSettings:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.folds, int) and self.folds >= 2):
-            raise ValueError(f"SelectionSettings.folds: expected an integer >= 2, got {self.folds!r}")
+            raise ConfigError(f"SelectionSettings.folds: expected an integer >= 2, got {self.folds!r}", key="selection.folds")
 
 
 @dataclass(frozen=True)
@@ -183,14 +198,48 @@ class CorrectSettings:
     def __post_init__(self) -> None:
         for name in ("knot_s", "contact_window_s", "contact_enter_z", "contact_leave_z", "contact_min_gap_N"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"CorrectSettings.{name}: expected a positive number, got {getattr(self, name)!r}")
+                raise ConfigError(f"CorrectSettings.{name}: expected a positive number, got {getattr(self, name)!r}", key=f"correct.{name}")
         if not self.penalty >= 0:
-            raise ValueError(f"CorrectSettings.penalty: expected a number >= 0, got {self.penalty!r}")
+            raise ConfigError(f"CorrectSettings.penalty: expected a number >= 0, got {self.penalty!r}", key="correct.penalty")
         if not 0 < self.contact_quantile < 0.5:
-            raise ValueError(f"CorrectSettings.contact_quantile: expected a number in (0, 0.5), got {self.contact_quantile!r}")
+            raise ConfigError(f"CorrectSettings.contact_quantile: expected a number in (0, 0.5), got {self.contact_quantile!r}", key="correct.contact_quantile")
         if not self.contact_leave_z >= self.contact_enter_z:
-            raise ValueError(f"CorrectSettings: contact_leave_z ({self.contact_leave_z}) must be >= contact_enter_z "
-                             f"({self.contact_enter_z}) (hysteresis)")
+            raise ConfigError(f"CorrectSettings: contact_leave_z ({self.contact_leave_z}) must be >= contact_enter_z "
+                              f"({self.contact_enter_z}) (hysteresis)", key="correct.contact_leave_z")
+
+
+@dataclass(frozen=True)
+class FreeLoadSettings:
+    """Free loads (``DATA_FORMAT.md`` section 5; ``ftcal_nlp.freeload``): quasi-static sample selection and the fit.
+
+    A sample is used where the body's rate of turn, every joint's rate and the force-derivative norm
+    (Savitzky-Golay, ``window_s``, ``polyorder``) are under their thresholds; each threshold rises to
+    ``noise_factor`` times the median of its rate over the samples the other two call still, when that is
+    larger (noisier streams, as the standing poses do). ``mount_rotation``: estimate the transducer's mounting
+    rotation; ``prior_weight``: weight of the load's nominal values (the URDF's) relative to the information of
+    each parameter, which pins only what the data leave undetermined; ``loads``: transducer -> load name or
+    ``module:Class`` instead of the dataset's kind. A recording whose samples lie farther apart than ``window_s`` is
+    a list of poses: every sample is a hold."""
+
+    window_s: float = 0.31
+    polyorder: int = 2
+    rotation_rate_threshold_rad_s: float = 0.02
+    joint_rate_threshold_rad_s: float = 0.02
+    deriv_threshold_N_s: float = 1.0
+    noise_factor: float = 2.0
+    max_gap_factor: float = 3.0
+    min_samples: int = 0             # fewest quasi-static samples; 0: twice the unknowns in equations (6 per sample)
+    mount_rotation: bool = True
+    prior_weight: float = 1e-8
+    rel_eig_tol: float = REL_EIG_TOL
+    loads: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("window_s", "rotation_rate_threshold_rad_s", "joint_rate_threshold_rad_s", "deriv_threshold_N_s", "max_gap_factor"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"FreeLoadSettings.{name}: expected a positive number, got {getattr(self, name)!r}")
+        if not self.noise_factor >= 0 or not self.prior_weight >= 0:
+            raise ValueError("FreeLoadSettings: noise_factor and prior_weight must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -201,5 +250,5 @@ class CalibrationSettings:
     standing: StandingSettings = field(default_factory=StandingSettings)
     selection: SelectionSettings = field(default_factory=SelectionSettings)
     diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
-    seed: int = 0
     correct: CorrectSettings = field(default_factory=CorrectSettings)
+    free_load: FreeLoadSettings = field(default_factory=FreeLoadSettings)

@@ -47,6 +47,7 @@ from scipy.sparse import csr_matrix
 
 from .calibration import Calibration, interp_cells
 from .data import WRENCH_COMPONENTS
+from .errors import DataFormatError
 from .geometry import remove_yaw, rotvec_to_rotation, skew
 from .physics import ground_wrenches
 from .sensor_noise import SensorNoise
@@ -100,15 +101,15 @@ class CalibrationCovariance:
     def load(cls, path: str | Path, noise: SensorNoise | None = None) -> "CalibrationCovariance":
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: calibration covariance file not found")
+            raise DataFormatError(f"{path}: calibration covariance file not found", path=path)
         try:
             with np.load(path, allow_pickle=False) as z:
                 names, cov, und = tuple(str(n) for n in z["names"]), np.array(z["cov"], float), np.array(z["undetermined"], bool)
         except (KeyError, ValueError, OSError) as exc:
-            raise ValueError(f"{path}: expected an .npz with arrays 'names', 'cov', 'undetermined' ({exc})") from exc
+            raise DataFormatError(f"{path}: expected an .npz with arrays 'names', 'cov', 'undetermined' ({exc})", path=path) from exc
         if cov.shape != (len(names), len(names)) or und.shape != (len(names),):
-            raise ValueError(f"{path}: 'cov' must be {len(names)}x{len(names)} and 'undetermined' of length {len(names)}, "
-                             f"got {cov.shape} and {und.shape}")
+            raise DataFormatError(f"{path}: 'cov' must be {len(names)}x{len(names)} and 'undetermined' of length {len(names)}, "
+                                  f"got {cov.shape} and {und.shape}", path=path)
         return cls(names, cov, und, noise)
 
 
@@ -310,7 +311,7 @@ def ground_wrench_se(w_m: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, cal: Ca
     if noise is not None:
         missing = [k for k in cal.leg_names if k not in noise.readings]
         if missing:
-            raise ValueError(f"sensor noise: no readings covariance for leg(s) {missing}; it has {sorted(noise.readings)}")
+            raise DataFormatError(f"sensor noise: no readings covariance for leg(s) {missing}; it has {sorted(noise.readings)}")
         Sig = np.stack([noise.readings[k] for k in cal.leg_names])
     v_cal = np.zeros((N, K + 1, 6))
     v_noise = np.zeros((N, K + 1, 6))

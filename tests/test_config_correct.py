@@ -10,6 +10,7 @@ from conftest import SAMPLE, require_sample
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.config import ConfigError, load_config
 from ftcal_nlp.correct import correct_file, main as correct_main
+from ftcal_nlp.settings import CalibrationSettings
 
 
 def _write(tmp_path, text):
@@ -21,8 +22,9 @@ def _write(tmp_path, text):
 def test_minimal_config(tmp_path):
     cfg = load_config(_write(tmp_path, '[data]\nmanifest = "d/dataset.toml"\n[output]\ndir = "out"\n[diagnose]\nenabled = true\n'))
     assert cfg.manifest == tmp_path / "d/dataset.toml" and cfg.output_dir == tmp_path / "out"
-    assert cfg.standing.model == "auto" and cfg.standing.solver == "ipopt" and cfg.standing.balance == "exact"
-    assert cfg.selection.folds == 5 and cfg.diagnose.enabled
+    st = cfg.settings.standing
+    assert st.model == "auto" and st.solver == "ipopt" and st.balance == "exact"
+    assert cfg.settings == CalibrationSettings()  # nothing but the defaults of settings.py
 
 
 @pytest.mark.parametrize(
@@ -49,7 +51,7 @@ def test_default_problem_config_is_valid():
     from pathlib import Path
 
     cfg = load_config(Path(__file__).resolve().parents[1] / "problems" / "bigant_sim.toml")
-    assert cfg.simulate is not None and cfg.standing.candidates == ("full", "rot6_trans1", "trans6", "trans1")
+    assert cfg.simulate is not None and cfg.settings.standing.candidates == ("full", "rot6_trans1", "trans6", "trans1")
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +94,8 @@ def test_correct_cli_bad_recording(truth_calibration, tmp_path, capsys):
 
 def test_pose_thresholds_are_config_keys(tmp_path):
     cfg = load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nderiv_threshold_N_s = 2.5\nmin_steady_s = 1.0\nderiv_norm = "total"\n'))
-    assert cfg.standing.poses.deriv_threshold_N_s == 2.5 and cfg.standing.poses.min_steady_s == 1.0 and cfg.standing.poses.deriv_norm == "total"
+    p = cfg.settings.standing.poses
+    assert p.deriv_threshold_N_s == 2.5 and p.min_steady_s == 1.0 and p.deriv_norm == "total"
     with pytest.raises(ConfigError, match=r"\[standing.poses\].*deriv_norm"):
         load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nderiv_norm = "max"\n'))
 
@@ -120,8 +123,62 @@ def test_calibration_json_is_strict_and_round_trips(truth_calibration, tmp_path)
 
 def test_weighting_key(tmp_path):
     cfg = load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nweighting = "knorm"\n'))
-    assert cfg.standing.weighting == "knorm"
+    assert cfg.settings.standing.weighting == "knorm"
     with pytest.raises(ConfigError, match=r"\[standing\].weighting"):
         load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nweighting = "ols"\n'))
     with pytest.raises(ConfigError, match=r'solver = "baseline".*weighting = "knorm"'):
         load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing]\nsolver = "baseline"\n'))
+
+
+def test_unknown_keys_name_the_file_and_the_key_and_list_the_valid_ones(tmp_path):
+    with pytest.raises(ConfigError) as exc:
+        load_config(_write(tmp_path, '[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n[standing.poses]\nwindow = 0.3\n'))
+    e = exc.value
+    assert e.path == tmp_path / "run.toml" and e.key == "standing.poses.window"
+    assert str(e).startswith(f"{tmp_path / 'run.toml'} [standing.poses]: unknown key(s) ['window']; known keys: ")
+    assert "'window_s'" in str(e) and "'min_steady_s'" in str(e)
+    # the top-level seed was set by bigant_sim.toml and read by nothing: gone, with where the seeds are
+    with pytest.raises(ConfigError, match=r"unknown section\(s\) \['seed'\].*\[selection\] seed and \[diagnose\] seed") as exc:
+        load_config(_write(tmp_path, 'seed = 0\n[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n'))
+    assert exc.value.key == "seed"
+
+
+def test_every_settings_field_is_a_config_key(tmp_path):
+    """The config maps onto the settings generically: a value for every field of every settings table
+    (non-defaults) comes back in ``cfg.settings``."""
+    text = ('[data]\nmanifest = "d.toml"\n[output]\ndir = "o"\n'
+            '[hanging]\nmethod = "baseline"\nn_grid = 36\nsmoothing = 2\ncompare_baseline = false\n'
+            '[standing]\nmodel = "full"\ncandidates = ["full", "trans1"]\nsolver = "baseline"\nbalance = "report"\n'
+            'weighting = "knorm"\ncovariance = "sandwich"\nrel_eig_tol = 1e-7\ncompare_baseline = false\n'
+            '[standing.poses]\nwindow_s = 0.5\nderiv_threshold_N_s = 2\nmin_steady_s = 1\npolyorder = 3\nderiv_norm = "total"\n'
+            'phi_rate_threshold_rad_s = 0.1\nmax_mocap_missing = 0.1\nmax_gap_factor = 4\nderiv_noise_factor = 0\n'
+            '[selection]\nfolds = 4\nseed = 3\n'
+            '[free_load]\nwindow_s = 0.5\npolyorder = 3\nrotation_rate_threshold_rad_s = 0.03\njoint_rate_threshold_rad_s = 0.03\n'
+            'deriv_threshold_N_s = 2\nnoise_factor = 3\nmax_gap_factor = 4\nmin_samples = 10\nmount_rotation = false\n'
+            'prior_weight = 1e-6\nrel_eig_tol = 1e-7\nloads = {wrist = "rigid_payload"}\n'
+            '[diagnose]\nenabled = false\neffects = ["offset_drift"]\nfolds = 3\nseed = 2\njoint_refit = false\n'
+            '[correct]\ntrack_offsets = true\nknot_s = 10\npenalty = 0.1\ncontact_window_s = 20\ncontact_quantile = 0.2\n'
+            'contact_enter_z = 4\ncontact_leave_z = 8\ncontact_min_gap_N = 5\n'
+            '[offsets_only]\ncalibration = "c/calibration.json"\n')
+    cfg = load_config(_write(tmp_path, text))
+    s = cfg.settings
+    assert (s.hanging.method, s.hanging.n_grid, s.hanging.smoothing, s.hanging.compare_baseline) == ("baseline", 36, 2.0, False)
+    assert s.standing.candidates == ("full", "trans1") and s.standing.balance == "report" and s.standing.covariance == "sandwich"
+    assert s.standing.rel_eig_tol == 1e-7 and s.standing.poses.polyorder == 3 and s.standing.poses.max_gap_factor == 4.0
+    assert isinstance(s.standing.poses.deriv_threshold_N_s, float) and s.standing.poses.deriv_noise_factor == 0.0
+    assert (s.selection.folds, s.selection.seed) == (4, 3)
+    assert s.diagnose.effects == ("offset_drift",) and (s.diagnose.folds, s.diagnose.seed, s.diagnose.joint_refit) == (3, 2, False)
+    assert s.correct.track_offsets and s.correct.knot_s == 10.0 and s.correct.contact_min_gap_N == 5.0
+    assert cfg.offsets_only.calibration == tmp_path / "c" / "calibration.json"
+    # and generically: every field of every settings table was set from the file (none kept its default)
+    from dataclasses import fields, is_dataclass
+
+    def kept(obj, default, where):
+        for f in fields(obj):
+            v, d = getattr(obj, f.name), getattr(default, f.name)
+            if is_dataclass(v):
+                yield from kept(v, d, f"{where}.{f.name}")
+            elif v == d:
+                yield f"{where}.{f.name}"
+
+    assert not list(kept(s, CalibrationSettings(), "settings")), list(kept(s, CalibrationSettings(), "settings"))

@@ -151,9 +151,15 @@ def test_position_in_millimetres(small):
 
 
 def test_missing_robot_key(small):
+    """``mass_kg`` is needed only with standing or walking recordings (DATA_FORMAT.md section 5)."""
     text = (small / "robot.toml").read_text().replace("mass_kg = 8.18\n", "")
     (small / "robot.toml").write_text(text)
-    with pytest.raises(DataFormatError, match=r"robot\.toml.*'mass_kg'"):
+    assert read_robot(small / "robot.toml").mass_kg is None
+    with pytest.raises(DataFormatError, match=r"robot\.toml: missing key 'mass_kg'.*standing"):
+        read_dataset(small / "dataset.toml")
+    text = text.replace("g = 9.81\n", "")
+    (small / "robot.toml").write_text(text)
+    with pytest.raises(DataFormatError, match=r"robot\.toml.*'g'"):
         read_robot(small / "robot.toml")
 
 

@@ -17,19 +17,19 @@ from conftest import SAMPLE, requires_sample
 
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.data import read_dataset
-from ftcal_nlp.diagnose import LIBRARY, DiagnosisResult, diagnose
-from ftcal_nlp.diagnose.effects import design_check
-from ftcal_nlp.diagnose.effects.base import HangingLeg, LinearFace
+from ftcal_nlp.diagnose import DiagnosisResult, diagnose
+from ftcal_nlp.effects import EFFECTS as LIBRARY, HangingLeg, LinearFace, design_check
 from ftcal_nlp.diagnose.linear_fit import score_linear
 from ftcal_nlp.diagnose.standing_fit import AugmentedProblem, StandingData
-from ftcal_nlp.diagnose.validate import plan, run_validation
+from ftcal_nlp.bench.validate import plan, run_validation
 from ftcal_nlp.diagnose.views import LegSeries, to_world
 from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
 from ftcal_nlp.hanging import fit_hanging
 from ftcal_nlp.settings import DiagnoseSettings
 from ftcal_nlp.physics import balance_residual_exact, balance_residual_report
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
-from ftcal_nlp.sim.effects import LIBRARY_EFFECTS, make_effects
+from ftcal_nlp.effects import LIBRARY_EFFECTS
+from ftcal_nlp.sim.effects import make_effects
 from ftcal_nlp.standing import Poses, extract_poses, fit_standing
 
 SEED = 11
@@ -179,7 +179,7 @@ def test_effect_faces_reproduce_their_injected_physics():
 
 
 def test_a_face_that_is_not_linear_in_the_features_is_refused():
-    from ftcal_nlp.diagnose.effects.base import Effect, ParamBlock
+    from ftcal_nlp.effects import Effect, ParamBlock
 
     class Squares(Effect):
         name = "bad"
@@ -307,7 +307,7 @@ def test_diagnosis_json_follows_the_contract(tmp_path):
 
 def test_localisation_finds_the_leg_of_a_one_leg_effect():
     """Casing load on one leg only: the hanging residual points at that leg."""
-    from ftcal_nlp.diagnose.effects.sensor import CasingLoadInjector
+    from ftcal_nlp.effects.casing_load import CasingLoadInjector
 
     class OneLeg(CasingLoadInjector):
         def matrices(self, K):

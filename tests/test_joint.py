@@ -142,7 +142,7 @@ def test_joint_hanging_fit_recovers_leg_weights_under_a_warm_up():
     residual among ``OffsetDrift.joint_variants``, none of which is the injector's exponential) must
     bring every leg weight back to truth. Tolerance: 0.015 N, what a warm-up curve 40 % off in its time
     constant leaves (the weights' own se is ~0.001 N); and at least 10x smaller than the bias."""
-    from ftcal_nlp.diagnose.effects.sensor import OffsetDrift
+    from ftcal_nlp.effects.offset_drift import OffsetDrift
     from ftcal_nlp.diagnose.joint import hanging_joint
     from ftcal_nlp.diagnose.views import hanging_series
     from ftcal_nlp.hanging import fit_hanging

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.linalg import null_space
 
+from ftcal_nlp.errors import ConfigError
 from ftcal_nlp.models import MODELS, REPORT_CANDIDATES, ErrorModel, ModelContext, resolve, so3_variable
 from ftcal_nlp.standing import fit_standing
 from ftcal_nlp.standing.result import physical
@@ -131,5 +132,5 @@ def test_custom_models_recover_their_own_truth(cls):
     assert res.rss < noise_floor_rss(poses, truth)
     if cls == "CommonRotation":  # one rotation: every leg's se is the same rotation's
         assert np.allclose(res.rotvec_se, res.rotvec_se[0])
-    with pytest.raises(NotImplementedError, match="baseline solver supports the built-in models only"):
+    with pytest.raises(ConfigError, match="baseline solver supports the built-in models only"):
         fit_standing(poses, hanging_prior(truth), SAMPLE_ROBOT, model=model, solver="baseline")

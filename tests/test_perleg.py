@@ -242,16 +242,16 @@ def test_point_mass_on_a_leg_is_a_changed_leg(fault):
 def test_missing_walking_and_few_samples_are_said_not_crashed():
     ds, run, _ = session(CLEAN_SEEDS[0])
     no_walk = replace(ds, recordings=tuple(r for r in ds.recordings if r.kind != "walking"))
-    res = perleg_checks(no_walk, run.calibration, run.poses, ds.robot)
+    res = perleg_checks(no_walk, run.calibration, run.poses, ds.robot, folds=5, seed=0)
     assert res.swing.fits == {} and any("no walking recordings" in s for s in res.statements)
     few = swing_check(ds, run.calibration, ds.robot, min_samples=10**6)
     assert few.fits == {} and len(few.notes) == len(ds.robot.legs) and "swing samples" in few.notes[0]
     blind = _modify(ds, ("walking",), lambda r: replace(r, quat=np.full_like(r.quat, np.nan)))
     sw = swing_check(blind, run.calibration, ds.robot)
     assert sw.fits == {} and sw.notes and "no swing phases" in sw.notes[0]
-    lm = linear_map_check(run.poses.subset(np.arange(12)), run.calibration, ds.robot)
+    lm = linear_map_check(run.poses.subset(np.arange(12)), run.calibration, ds.robot, folds=5, seed=0)
     assert lm.steps == () and "too few" in lm.note
-    res = perleg_checks(ds, run.calibration, None, ds.robot)
+    res = perleg_checks(ds, run.calibration, None, ds.robot, folds=5, seed=0)
     assert res.linear_map.n_poses == 0 and any("too few" in s for s in res.statements)
     assert "Per-leg checks" in res.summary().as_text()
 
@@ -281,5 +281,5 @@ def test_results_protocol_and_summaries():
 def test_checks_are_fast():
     ds, run, _ = session(CLEAN_SEEDS[0])
     t0 = time.perf_counter()
-    perleg_checks(ds, run.calibration, run.poses, ds.robot)
+    perleg_checks(ds, run.calibration, run.poses, ds.robot, folds=5, seed=0)
     assert time.perf_counter() - t0 < 3.0

@@ -1,13 +1,14 @@
 """``calibrate``: one call, no files, no printing; the joint covariance and the results protocol."""
 
 import os
-from dataclasses import replace
+from dataclasses import FrozenInstanceError, replace
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from ftcal_nlp import CalibrationRun, CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings, calibrate
+from ftcal_nlp.calibration_run import JointCovariance
 from ftcal_nlp.geometry import rotation_to_rotvec
 from ftcal_nlp.results import Summary, bic, fmt_pm
 from ftcal_nlp.sim import SimConfig, simulate
@@ -80,13 +81,22 @@ def test_propagate_gives_derived_standard_errors(sim_run):
     C = run.cov_params().loc[names, names].to_numpy()
     assert var == pytest.approx(C[0, 0] + C[1, 1] - 2 * C[0, 1], rel=1e-12)
     # a quantity that depends on an undetermined parameter is undetermined
-    fake = replace(run, _joint=None)
-    p, cov, bse, how = fake.joint_covariance()
-    bse = bse.copy()
-    bse[list(p.index).index(names[0])] = np.inf
-    fake._joint = (p, cov, bse, how)
-    out = fake.propagate(J)
+    j = run.joint
+    bse = j.se.copy()
+    bse[list(j.values.index).index(names[0])] = np.inf
+    out = JointCovariance(j.values, j.cov, bse, j.how).propagate(J)
     assert np.isinf(out[0, 0])
+
+
+def test_the_run_is_frozen_and_its_derived_quantities_cannot_go_stale(sim_run):
+    _, run, _ = sim_run
+    with pytest.raises(FrozenInstanceError):
+        run.standing = None
+    assert run.joint is run.joint  # cached on the object
+    # a run without the standing stage is a new object, with its own joint covariance
+    hanging_only = replace(run, standing=None)
+    assert hanging_only.joint.how == "hanging only" and list(hanging_only.params.index) == list(run.hanging.params.index)
+    assert run.joint.how.startswith("standing conditional on hanging")
 
 
 def test_conf_int_and_summary_render(sim_run):
@@ -132,3 +142,24 @@ def test_fast_shaft_hanging_finishes_without_the_baseline():
     z = np.array([(run.hanging.legs[k].leg_weight_N - sim.truth.legs[k].leg_weight_N) / run.hanging.legs[k].leg_weight_se_N
                   for k in sim.dataset.robot.legs])
     assert np.all(np.abs(z) < 3.5), z  # six weights: family-wise ~0.3 % false failure at 3.5 sd
+
+
+def test_a_defect_in_the_diagnosis_does_not_stop_the_run_and_is_named(sim_run, monkeypatch, caplog):
+    """Anything but the error family escaping an optional stage is a defect: the run goes on without it,
+    the note says so and asks for a report, and the traceback is logged at debug."""
+    import logging
+
+    from ftcal_nlp import pipeline
+
+    sim, run, _ = sim_run
+
+    def broken(_run):
+        raise KeyError("FL")
+
+    monkeypatch.setattr(pipeline, "diagnose_run", broken)
+    with caplog.at_level(logging.DEBUG, logger="ftcal_nlp.pipeline"):
+        again = calibrate(sim.dataset, replace(FAST, diagnose=DiagnoseSettings(enabled=True)))
+    assert again.diagnosis is None and "diagnosis" in again.timings
+    assert again.notes[-1] == "the sim-to-real gap diagnosis was skipped by a defect (KeyError: 'FL'); please report it"
+    pd.testing.assert_series_equal(again.params, run.params)  # the calibration stands without it
+    assert any(r.levelno == logging.DEBUG and r.exc_info and r.exc_info[0] is KeyError for r in caplog.records)

@@ -9,6 +9,7 @@ import os
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -33,8 +34,7 @@ def report(tmp_path_factory):
     sim = simulate(SimConfig.from_dict({"n_poses": 80, "hanging_cycles": 1.5, "walk_cycles": 0.5, "seed": 4}))
     settings = CalibrationSettings(selection=SelectionSettings(folds=FOLDS),
                                    diagnose=DiagnoseSettings(effects=("robot_mass", "offset_drift"), folds=3))
-    res = calibrate(sim.dataset, settings)
-    res.truth = sim.truth
+    res = replace(calibrate(sim.dataset, settings), truth=sim.truth)
     folder = tmp_path_factory.mktemp("report")
     write_report(res, folder)
     return res, folder

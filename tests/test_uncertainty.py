@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from ftcal_nlp import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings, calibrate
+from ftcal_nlp.errors import DataFormatError
 from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
 from ftcal_nlp.physics import ground_wrenches
 from ftcal_nlp.sensor_noise import SensorNoise, estimate_sensor_noise
@@ -128,8 +129,9 @@ def test_covariance_file_round_trip(runs, tmp_path):
     cc.save(tmp_path / "cov.npz")
     again = CalibrationCovariance.load(tmp_path / "cov.npz", cc.noise)
     assert again.names == cc.names and np.array_equal(again.cov, cc.cov)
-    with pytest.raises(FileNotFoundError, match="missing.npz"):
+    with pytest.raises(DataFormatError, match="missing.npz") as exc:
         CalibrationCovariance.load(tmp_path / "missing.npz")
+    assert exc.value.path == tmp_path / "missing.npz"
     np.savez(tmp_path / "bad.npz", names=np.array(["a"]), cov=np.zeros((2, 2)), undetermined=np.zeros(1, bool))
     with pytest.raises(ValueError, match="'cov' must be 1x1"):
         CalibrationCovariance.load(tmp_path / "bad.npz")

@@ -15,8 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.diagnose import LIBRARY
-from ftcal_nlp.diagnose.validate import (
+from ftcal_nlp.bench.validate import (
     check_config,
     effect_sizes,
     is_right,
@@ -27,8 +26,8 @@ from ftcal_nlp.diagnose.validate import (
 )
 from ftcal_nlp.geometry import quat_to_rotation, rotation_to_rotvec
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
-from ftcal_nlp.sim.effects import LIBRARY_EFFECTS
-from ftcal_nlp.sim.injectors import HOUR_S
+from ftcal_nlp.effects import EFFECTS as LIBRARY, LIBRARY_EFFECTS
+from ftcal_nlp.effects.injection import HOUR_S
 from ftcal_nlp.sim.variants import VARIANTS, OffFaceInjector
 
 SEED = 5

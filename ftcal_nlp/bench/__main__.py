@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     add_common(ap, output_help="output folder (default reports/bench)", output_default="reports/bench", old_output=("--out",),
                force_help="accepted for symmetry: the bench always rewrites its own files")
     ap.add_argument("--only", nargs="+", choices=PARTS, help="run only these parts")
-    ap.add_argument("--seeds", type=int, help="number of simulated datasets for the accuracy part")
+    ap.add_argument("--seeds", type=int, help="number of simulated datasets for the accuracy parts (hexapod and free loads)")
     a = parse(ap, argv)
     setup(a)
     if not (a.verbose or a.quiet):
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     if a.only:
         s = replace(s, parts=tuple(a.only))
     if a.seeds:
-        s = replace(s, accuracy=replace(s.accuracy, seeds=tuple(range(a.seeds))))
+        s = replace(s, accuracy=replace(s.accuracy, seeds=tuple(range(a.seeds))), loads=replace(s.loads, seeds=tuple(range(a.seeds))))
 
     def go() -> int:
         # set before numpy's first import when run as its own module; under `python -m ftcal_nlp bench` numpy is loaded

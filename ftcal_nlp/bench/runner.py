@@ -5,7 +5,9 @@ Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
 bench's problem), ``correction`` (correction.py: se throughput, offset tracking), ``export`` (export_speed.py: the
 exported C and the batched numpy correction), ``plan`` (plan_check.py: the plan's predicted se against the
 calibration's reported se and the spread over seeds), ``detect`` (detect_check.py: the plan's detection
-sizes against the diagnosis' detection rate at them). Results are written by report.py into ``out``.
+sizes against the diagnosis' detection rate at them), ``loads`` (accuracy_loads.py, crb_loads.py: the free loads of
+issue 22, NLP and the peers against the bound), ``load_speed`` (speed.py: payload of 1e5 samples, 6-joint URDF
+load of 1e4 held samples). Results are written by report.py into ``out``.
 """
 
 from __future__ import annotations
@@ -15,15 +17,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .accuracy import AccuracySettings
+from .accuracy_loads import LoadAccuracySettings
 from .correction import CorrectionBenchSettings
 from .detect_check import DetectCheckSettings
 from .export_speed import ExportSpeedSettings
 from .plan_check import PlanCheckSettings
 from ..plan import Protocol
 from .scaling import HANGING_TASKS, ScalingSettings
-from .speed import SpeedSettings
+from .speed import LoadSpeedSettings, SpeedSettings
 
-PARTS = ("accuracy", "speed", "scaling", "profile", "correction", "export", "plan", "detect")
+PARTS = ("accuracy", "loads", "speed", "load_speed", "scaling", "profile", "correction", "export", "plan", "detect")
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,8 @@ class BenchSettings:
     export: ExportSpeedSettings = field(default_factory=ExportSpeedSettings)
     plan: PlanCheckSettings = field(default_factory=PlanCheckSettings)
     detect: DetectCheckSettings = field(default_factory=DetectCheckSettings)
+    loads: LoadAccuracySettings = field(default_factory=LoadAccuracySettings)
+    load_speed: LoadSpeedSettings = field(default_factory=LoadSpeedSettings)
     profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
     profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
     parts: tuple[str, ...] = PARTS
@@ -56,6 +61,8 @@ def quick_settings() -> BenchSettings:
         export=ExportSpeedSettings(n_samples=300_000, repeats=3),
         plan=PlanCheckSettings(seeds=(0, 1, 2, 3)),
         detect=DetectCheckSettings(effects=("casing_load",), seeds=(0, 1, 2, 3), clean_seeds=(0,)),
+        loads=LoadAccuracySettings(seeds=(0, 1, 2, 3)),
+        load_speed=LoadSpeedSettings(repeats=1),
         profile_all=False,
         profile_count=1,
         mode="quick",
@@ -73,6 +80,8 @@ def tiny_settings() -> BenchSettings:
         correction=CorrectionBenchSettings(walk_minutes=0.25, sim_overrides={"n_poses": 60, "hanging_cycles": 1.5, "walk_cycles": 0.0}),
         export=ExportSpeedSettings(n_samples=2_000, repeats=1),
         plan=PlanCheckSettings(reference=Protocol(hanging_turns=0.5, n_poses=20), seeds=(0,), halves=False),
+        loads=LoadAccuracySettings(seeds=(0,), payload={"n_orientations": 6, "hold_s": 4.0}, urdf={"n_orientations": 4, "hold_s": 2.0}),
+        load_speed=LoadSpeedSettings(payload_samples=5_000, urdf_held=1_000, repeats=1),
         profile_all=False,
         profile_count=1,
         # the detect part diagnoses whole datasets (~20 s even this small); tests/test_detection.py covers the prediction
@@ -111,10 +120,17 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
     from .scaling import run_scaling
     from .speed import profile_targets, run_speed
 
-    acc = sp = sc = prof = corr = exp = plan = det = None
+    from .accuracy_loads import run_load_accuracy
+    from .speed import run_load_speed
+
+    acc = sp = sc = prof = corr = exp = plan = det = loads = lsp = None
     with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
         if "accuracy" in settings.parts:
             acc = run_accuracy(settings.accuracy, progress=progress)
+        if "loads" in settings.parts:
+            loads = run_load_accuracy(settings.loads, progress=progress)
+        if "load_speed" in settings.parts:
+            lsp = run_load_speed(settings.load_speed, progress=progress)
         if "speed" in settings.parts or "profile" in settings.parts:
             sp = run_speed(settings.speed, progress=progress)
         if "profile" in settings.parts:
@@ -132,9 +148,9 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
         if "detect" in settings.parts:
             det = run_detect_check(settings.detect)
     text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr,
-                            export=exp, plan=plan, detect=det)
+                            export=exp, plan=plan, detect=det, loads=loads, load_speed=lsp)
     return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "export": exp, "plan": plan,
-            "detect": det, "summary": text}
+            "detect": det, "loads": loads, "load_speed": lsp, "summary": text}
 
 
 __all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]

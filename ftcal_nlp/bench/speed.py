@@ -155,7 +155,7 @@ def run_speed(settings: SpeedSettings = SpeedSettings(), progress: bool = True) 
                 totals["nlp"]["run_with_diagnosis_wall_s"] = float(np.median(walls))
                 report_run = run
                 bar.update()
-        report_run.truth = sim.truth
+        report_run = replace(report_run, truth=sim.truth)  # a frozen run: a new one with the truth
         out_dir = Path(tmp) / "report"
         out_dir.mkdir()
         _, w, c = timed(lambda: write_report(report_run, out_dir), 1)
@@ -215,3 +215,95 @@ def profile_targets(context: dict, workdir: Path, names: list[str] | None = None
     report_dir.mkdir(parents=True, exist_ok=True)
     out["report"] = lambda: write_report(context["run_result"], report_dir)
     return out if names is None else {k: v for k, v in out.items() if k in names}
+
+
+# ----------------------------------------------------------------------------- free loads (issue 22, item 9)
+
+#: targets of issue 22: a payload of 1e5 samples, a 6-joint URDF load of 1e4 quasi-static samples
+LOAD_TARGETS_S = {"payload": 1.0, "urdf_chain6": 5.0}
+
+
+def chain_urdf_text(n_joints: int = 6) -> str:
+    """A URDF with ``n_joints`` revolute joints below a sensor link ``ft`` (axes z, y, y, x, y, x, ...; each link
+    a mass with an off-axis CoM), one joint above it: the speed bench's load of URDF links."""
+    axes = ["0 0 1", "0 1 0", "0 1 0", "1 0 0", "0 1 0", "1 0 0"]
+    links = ['<link name="base"><inertial><origin xyz="0 0 0"/><mass value="5.0"/>'
+             '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>',
+             '<link name="mount"><inertial><origin xyz="0 0 -0.02"/><mass value="0.5"/>'
+             '<inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial></link>', '<link name="ft"/>']
+    joints = ['<joint name="j_above" type="revolute"><parent link="base"/><child link="mount"/><origin xyz="0 0 -0.05"/>'
+              '<axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>',
+              '<joint name="ft_mount" type="fixed"><parent link="mount"/><child link="ft"/><origin xyz="0 0 -0.04" rpy="0 0 0.3"/></joint>']
+    parent = "ft"
+    for k in range(n_joints):
+        m = 1.5 - 0.2 * k
+        links.append(f'<link name="l{k}"><inertial><origin xyz="{0.01 * (k % 3)} {-0.008 + 0.004 * k} {-0.12 + 0.01 * k}"/>'
+                     f'<mass value="{m:.2f}"/><inertia ixx="0.005" ixy="0" ixz="0" iyy="0.005" iyz="0" izz="0.002"/></inertial></link>')
+        joints.append(f'<joint name="j{k}" type="revolute"><parent link="{parent}"/><child link="l{k}"/>'
+                      f'<origin xyz="0 0 {-0.05 if k == 0 else -0.2}"/><axis xyz="{axes[k % len(axes)]}"/>'
+                      f'<limit lower="-1.2" upper="1.2" effort="1" velocity="1"/></joint>')
+        parent = f"l{k}"
+    return '<?xml version="1.0"?>\n<robot name="chain6">\n' + "\n".join(links + joints) + "\n</robot>\n"
+
+
+@dataclass(frozen=True)
+class LoadSpeedSettings:
+    """Problem sizes: ``payload_samples`` samples of a wrist tool (all held but the moves), ``urdf_held`` held samples
+    of the ``urdf_joints``-joint chain; ``repeats`` per estimator (median reported)."""
+
+    payload_samples: int = 100_000
+    urdf_held: int = 10_000
+    urdf_joints: int = 6
+    repeats: int = 3
+    estimators: tuple[str, ...] = ("nlp", "ft_calib", "calib_force")
+
+
+def load_speed_configs(settings: LoadSpeedSettings, urdf_path: Path):
+    """The two timed problems: a payload of about ``payload_samples`` samples at 100 Hz (holds of 40 s, moves of
+    4 s), and the chain URDF with ``urdf_held`` held samples (50 holds: 10 tilts x 5 joint poses)."""
+    from ..sim.free import PayloadConfig, UrdfLegConfig
+
+    n_holds = max(2, int(round((settings.payload_samples / 100.0 + 4.0) / 44.0)))
+    hold_s = (settings.payload_samples / 100.0 - 4.0 * (n_holds - 1)) / n_holds
+    payload = PayloadConfig(seed=0, n_orientations=n_holds, hold_s=hold_s, move_s=4.0)
+    urdf = UrdfLegConfig(seed=0, urdf=str(urdf_path), transducer="ft", ft_link="ft", n_orientations=10,
+                         poses_per_orientation=5, hold_s=settings.urdf_held / 50 / 100.0, move_s=1.0)
+    return {"payload": payload, "urdf_chain6": urdf}
+
+
+def run_load_speed(settings: LoadSpeedSettings = LoadSpeedSettings(), progress: bool = True) -> dict:
+    """Wall time of each free-load estimator on the two problems (the estimate only, not the reading of the files:
+    quasi-static selection, compression, solve, covariance), median of ``repeats`` after a first call timed on
+    its own (``first_call_s``: CasADi builds its functions then). Returns ``times`` (DataFrame: problem,
+    estimator, n, n_held, joints_below_sensor, wall_s, wall_min_s, first_call_s, target_s) and ``failures``."""
+    from tqdm import tqdm
+
+    from ..sim.free import simulate_free
+    from .accuracy_loads import ESTIMATORS
+
+    rows, failures = [], {}
+    with tempfile.TemporaryDirectory(prefix="ftcal_load_speed_") as tmp:
+        urdf_path = Path(tmp) / "chain6.urdf"
+        urdf_path.write_text(chain_urdf_text(settings.urdf_joints))
+        cfgs = load_speed_configs(settings, urdf_path)
+        for problem, cfg in tqdm(cfgs.items(), desc="speed (free loads)", disable=not progress):
+            res = simulate_free(cfg)
+            for name in settings.estimators:
+                walls = []
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        # the first call builds the CasADi functions of the problem's size: timed on its own row
+                        first = ESTIMATORS[name](res, Path(tmp) / f"{problem}_{name}_first").wall_s
+                        for r in range(max(1, settings.repeats)):
+                            walls.append(ESTIMATORS[name](res, Path(tmp) / f"{problem}_{name}_{r}").wall_s)
+                except NotImplementedError:
+                    continue
+                except Exception as exc:       # shown in the summary, never a silent gap
+                    failures[f"{problem}/{name}"] = f"{type(exc).__name__}: {exc}"
+                    continue
+                rows.append({"problem": problem, "estimator": name, "n": len(res.held), "n_held": int(res.held.sum()),
+                             "joints_below_sensor": settings.urdf_joints if problem != "payload" else 0,
+                             "wall_s": float(np.median(walls)), "wall_min_s": float(np.min(walls)), "first_call_s": float(first),
+                             "target_s": LOAD_TARGETS_S[problem] if name == "nlp" else np.nan})
+    return {"times": pd.DataFrame(rows), "failures": failures, "settings": settings, "load_average": _load_average()}

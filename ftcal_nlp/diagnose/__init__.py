@@ -1,20 +1,31 @@
 """Sim-to-real gap diagnosis (issue 7): where the gap between the calibrated model and the
 robot lies, which unmodelled effect causes it, and how far it shrinks once that effect is added.
 
-* ``effects/``: the effect library, one plug-in per canonical effect of
-  ``OUTPUT_FORMAT.md``: the augmentation of the calibration model, paired with the
-  simulator's injector of the same effect (``ftcal_nlp.sim.injectors``, which the
-  simulator registers itself; nothing here is needed to simulate an effect).
-* ``views.py``: residuals per recording kind and data-derived noise floors.
-* ``standing_fit.py``, ``linear_fit.py``: the model with an effect added, cross-validated.
-* ``attribute.py``: scores, ranking, verdict; ``localise.py``: where and what it follows.
+Map of the package (``diagnose(...)``, ``diagnose_run(run)`` in ``core.py`` run them in this order):
+
+* ``views.py``: what the diagnosis looks at, per recording kind (standing poses, hanging
+  legs, walking swing and stance): residuals, their correlates, data-derived noise floors;
+  ``floor.py``: the standing floor (a variance-component model, REML).
+* ``standing_fit.py``: the calibration model with one effect's standing face added
+  (:class:`AugmentedProblem`, CasADi + IPOPT, k-fold cross-validated);
+  ``linear_fit.py``: the hanging and swing faces, cross-validated regressions;
+  ``scores.py``: :class:`KindScore` (held-out excess over the floor, ``delta_bic``).
+* ``attribute.py``: every candidate effect scored in turn, ranking and verdict (``decide``).
+* ``localise.py``: where the residual lies (legs, components) and what it follows.
+* ``perleg.py``: per-leg checks that need no effect library (a free linear map per leg,
+  each leg's weight refit on its swing phases).
+* ``joint.py``: the named effect refit with the whole calibration (``calibration_with_effect.json``).
 * ``result.py``: :class:`DiagnosisResult` (``diagnosis.json`` content, summary); ``report/`` renders it.
-* ``validate.py``: the withheld-effect validation
-  (``python -m ftcal_nlp.diagnose.validate problems/diagnose_validation.toml``).
+* ``core.py``: ``diagnose`` and ``diagnose_run``: views -> attribution -> localisation -> result.
+
+The candidate effects are not here: each is one unit of :mod:`ftcal_nlp.effects` (its
+injector, model faces and their variants, correction and off-face shapes), read from
+the registry ``ftcal_nlp.effects.EFFECTS`` (or a ``registry`` argument). The
+withheld-effect validation of the diagnosis is a benchmark:
+:mod:`ftcal_nlp.bench.validate` (``python -m ftcal_nlp.run problems/diagnose_validation.toml``).
 """
 
 from .core import diagnose, diagnose_run
-from .effects import LIBRARY
 from .result import DiagnosisResult
 
-__all__ = ["LIBRARY", "DiagnosisResult", "diagnose", "diagnose_run"]
+__all__ = ["DiagnosisResult", "diagnose", "diagnose_run"]

@@ -8,9 +8,9 @@ For each effect of the library and each recording kind where it has a face:
   fits with the effective number of added parameters;
 * hanging and walking swing: the linear faces (``linear_fit.py``), contiguous
   time-block folds;
-* design (mocap_bias, tether_force): when the model frees the transducer
-  rotations it absorbs a mocap bias (and a tether's horizontal force) as one
-  common tilt of all fitted frames; :func:`~.effects.body.design_check` tests for it.
+* design (the effects with ``design_face``: mocap_bias, tether_force): when the model
+  frees the transducer rotations it absorbs a mocap bias (and a tether's horizontal force)
+  as one common tilt of all fitted frames; :func:`ftcal_nlp.effects.design_check` tests for it.
 
 Effects are ranked by the sum of their ``delta_bic`` over the kinds where the
 gap lies (BIC penalises the parameters a candidate spends; the held-out
@@ -41,7 +41,7 @@ import casadi as ca
 import numpy as np
 
 from ..selection import fold_indices
-from .effects import Effect, design_check
+from ..effects import Effect, design_check
 from .linear_fit import base_linear, recalibrate, score_linear
 from .scores import KindScore
 from ..solver import SolverError
@@ -53,7 +53,6 @@ log = logging.getLogger(__name__)
 DBIC_STRONG = -10.0
 EXPLAINED_MIN = 0.5
 GAP_THRESHOLD = {"standing": 0.5, "hanging": 0.1, "walking swing": 1.0}
-DESIGN_EFFECTS = ("mocap_bias", "tether_force")
 
 
 @dataclass(frozen=True)
@@ -113,7 +112,7 @@ def rotations_free(problem: AugmentedProblem) -> bool:
     return any(ca.depends_on(R, problem.spec.x) for R in problem.spec.R)
 
 
-def attribute(views: Views, effects: list[Effect], model, prior, robot, balance: str, *, folds: int = 5, seed: int = 0,
+def attribute(views: Views, effects: list[Effect], model, prior, robot, balance: str, *, folds: int, seed: int,
               x_start: np.ndarray | None = None) -> Attribution:
     """Score every effect in ``effects`` (module docstring); ``x_start`` the model's fitted x (warm start)."""
     base: dict = {}
@@ -172,7 +171,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
         except SolverError as exc:
             status = f"failed: {exc.status}"
             log.warning("diagnosis: %s", exc)
-        dsg = design if (eff.name in DESIGN_EFFECTS and design is not None) else None
+        dsg = design if (eff.design_face and design is not None) else None
         if not kinds and dsg is None:
             note = note or "no face on these recordings"
             if status == "ok":

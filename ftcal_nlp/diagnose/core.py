@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..calibration_run import CalibrationRun
 from ..data import Dataset
+from ..effects import Effect, resolve_effects
 from ..models import ModelContext, resolve
 from ..robot import Robot
 from ..settings import DiagnoseSettings
@@ -31,7 +33,6 @@ from .attribute import (
     gap_threshold,
     ranking_bic,
 )
-from .effects import LIBRARY, resolve_effects
 from .joint import joint_refit
 from .perleg import perleg_checks
 from .localise import (
@@ -65,7 +66,7 @@ def _model_and_balance(calibration: Calibration, model: Any, balance: str | None
 
 def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, robot: Robot,
              settings: DiagnoseSettings | None = None, *, model: Any = None, balance: str | None = None,
-             x_start: np.ndarray | None = None) -> DiagnosisResult:
+             x_start: np.ndarray | None = None, registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
     """Diagnose the sim-to-real gap of a calibrated dataset.
 
     ``hanging_result``: the :class:`~ftcal_nlp.hanging.HangingResult` (None: no hanging view,
@@ -74,12 +75,14 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     calibration (its ``model`` and ``meta['balance']`` name the error model and balance);
     ``settings``: :class:`~ftcal_nlp.settings.DiagnoseSettings` (candidate effects, folds, seed);
     ``model``/``balance``: the calibration's error model and balance (None: from the calibration's
-    ``model`` and ``meta``); ``x_start``: the standing fit's decision vector (warm start).
+    ``model`` and ``meta``); ``x_start``: the standing fit's decision vector (warm start);
+    ``registry``: the candidate effects by name (None: ``ftcal_nlp.effects.EFFECTS``; ``settings.effects``
+    picks among them).
     """
     t0 = time.perf_counter()
     s = DiagnoseSettings() if settings is None else settings
     model, balance = _model_and_balance(calibration, model, balance)
-    effects = resolve_effects(s.effects)
+    effects = resolve_effects(s.effects, registry)
     legs = tuple(robot.legs)
     prior = hanging_result.to_calibration(robot) if hanging_result is not None else calibration
     notes = []
@@ -140,7 +143,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     joint = None
     if verdict == "effect" and s.joint_refit:
         try:
-            joint = joint_refit(views, by_name[effect].model_effect or LIBRARY[effect], model, prior, calibration, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
+            joint = joint_refit(views, by_name[effect].model_effect or resolve_effects([effect], registry)[0], model, prior, calibration, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
         except (SolverError, np.linalg.LinAlgError) as exc:
             views.notes.append(f"joint refit with {effect} failed: {exc}")
             log.warning("diagnosis: joint refit with %s failed: %s", effect, exc)
@@ -260,11 +263,12 @@ def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[s
     return out
 
 
-def diagnose_run(run: CalibrationRun) -> DiagnosisResult:
-    """The diagnosis of a calibration run with its own diagnose settings, model and balance."""
+def diagnose_run(run: CalibrationRun, registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
+    """The diagnosis of a calibration run with its own diagnose settings, model and balance (candidate
+    effects from ``registry``, None: ``ftcal_nlp.effects.EFFECTS``)."""
     st = run.standing
     balance = st.balance if st is not None else run.settings.standing.balance
     model = run.calibration.model
     x0 = st.x if (st is not None and getattr(st, "x", None) is not None and st.model == model) else None
     return diagnose(run.dataset, run.hanging, run.poses, run.calibration, run.dataset.robot, run.settings.diagnose,
-                    model=model, balance=balance, x_start=x0)
+                    model=model, balance=balance, x_start=x0, registry=registry)

@@ -105,7 +105,7 @@ from ..geometry import skew, transform_wrench
 from ..models import ModelContext, resolve
 from ..selection import fold_indices
 from ..standing.result import physical
-from .effects.base import legendre_time
+from ..effects.faces import legendre_time
 
 CHECK_ALPHA = 1e-3             # p-value below which the residual has more than the noise model
 IDENTIFIED_Z = 2.0             # s_theta^2 identified when it exceeds this many of its standard errors
@@ -440,8 +440,8 @@ class NoiseFloor:
 
 def fit_noise_floor(r_W: np.ndarray, readings: ReadingsNoise, G: np.ndarray, structure: np.ndarray, *,
                     J: np.ndarray | None = None, J_h: np.ndarray | None = None, C_h: np.ndarray | None = None,
-                    model_dof: int = 0, folds: int = 5, names: list[str] | None = None,
-                    R_HB: np.ndarray | None = None, J_h_fixed: np.ndarray | None = None, seed: int = 0) -> NoiseFloor:
+                    model_dof: int = 0, folds: int, names: list[str] | None = None,
+                    R_HB: np.ndarray | None = None, J_h_fixed: np.ndarray | None = None, seed: int) -> NoiseFloor:
     """Fit the noise model to the calibrated fit's own residuals and derive the floor (module docstring).
 
     ``r_W`` (P, 6) the calibrated fit's residuals, W axes; ``readings`` (:func:`readings_noise`);
@@ -554,7 +554,7 @@ def fit_noise_floor(r_W: np.ndarray, readings: ReadingsNoise, G: np.ndarray, str
 
 
 def _refit_terms(Jr: np.ndarray, C: np.ndarray, J_h: np.ndarray, C_h: np.ndarray, folds: int,
-                 seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                 seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Mean squares (6,) a held-out pose gets from the K-norm refit on the other folds: the refit's
     parameter error (sandwich ``A_f^-1 B_f A_f^-1`` of the training poses) and the hanging errors
     (``J_h`` (P, 6, h), variances ``C_h``) less what the refit absorbs of them; fold by fold, so a
@@ -580,7 +580,7 @@ def _refit_terms(Jr: np.ndarray, C: np.ndarray, J_h: np.ndarray, C_h: np.ndarray
 
 
 def _heldout_spread(C: np.ndarray, Jr: np.ndarray | None, J_h: np.ndarray | None, C_h: np.ndarray | None, folds: int,
-                    n_draws: int = SPREAD_DRAWS, seed: int = 0) -> np.ndarray:
+                    n_draws: int = SPREAD_DRAWS, *, seed: int) -> np.ndarray:
     """Relative sd (6,) of the held-out RMS per component under the noise model: ``n_draws`` seeded
     draws of the pose noise (``C`` (P, 6, 6)) and the hanging errors (``J_h`` (P, 6, h), ``C_h``),
     the K-norm refit on the training folds (``Jr`` (P, 6, r); None: no refit), RMS of the rest."""
@@ -611,7 +611,7 @@ def _chibar_sf(x: float, n: int) -> float:
     return float(sum(comb(n, k) / 2.0**n * chi2.sf(x, k) for k in range(1, n + 1)))
 
 
-def _structure_cv(reml: _Reml, s2: float, Xt_red: np.ndarray, folds: int, seed: int = 0) -> float:
+def _structure_cv(reml: _Reml, s2: float, Xt_red: np.ndarray, folds: int, seed: int) -> float:
     """Held-out whitened sum of squares with the structure columns over without (k-fold over poses,
     after the calibration and intercept columns are projected out): below 1 when the structure
     predicts poses it was not fitted to."""
@@ -635,7 +635,7 @@ def _structure_cv(reml: _Reml, s2: float, Xt_red: np.ndarray, folds: int, seed: 
     return ss1 / ss0 if ss0 > 0 else 1.0
 
 
-def _check(reml: _Reml, s2: float, X_red: np.ndarray, folds: int, seed: int = 0) -> dict:
+def _check(reml: _Reml, s2: float, X_red: np.ndarray, folds: int, seed: int) -> dict:
     """Structure and variance tests of the fitted noise model (module docstring)."""
     P = reml.P
     _, _, _, pr_full, beta, Ai = reml.solve(s2)

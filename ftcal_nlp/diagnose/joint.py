@@ -53,7 +53,8 @@ from ..calibration import Calibration
 from ..geometry import rotvec_to_rotation, skew
 from ..selection import fold_indices
 from ..solver import SolverError
-from .effects.base import AugContext, Effect, HangingLeg
+from ..effects.faces import AugContext, HangingLeg
+from ..effects.unit import Effect
 from .linear_fit import RIDGE, recalibrate, score_linear, time_folds
 from .standing_fit import AugmentedProblem
 from .views import LegSeries, Views
@@ -346,7 +347,7 @@ def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray) -> Ca
 
 
 def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, calibration: Calibration, robot,
-                balance: str, *, folds: int = 5, seed: int = 0, x_start: np.ndarray | None = None) -> JointRefit:
+                balance: str, *, folds: int, seed: int, x_start: np.ndarray | None = None) -> JointRefit:
     """The calibration refit with ``effect`` on every recording kind of ``views`` (module docstring).
 
     ``prior``: the hanging calibration the standing fit starts from; ``calibration``: the

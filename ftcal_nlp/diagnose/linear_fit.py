@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .effects.base import LinearFace
+from ..effects.faces import LinearFace
 from .scores import KindScore, base_score
 from .views import LegSeries
 
@@ -66,7 +66,7 @@ def base_linear(series: LegSeries) -> KindScore:
     return base_score(series.kind, mse / N_all, floor, z, z, n)
 
 
-def score_linear(series: LegSeries, face: LinearFace | None, folds: int = 5, after: LegSeries | None = None) -> tuple[KindScore, np.ndarray]:
+def score_linear(series: LegSeries, face: LinearFace | None, folds: int, after: LegSeries | None = None) -> tuple[KindScore, np.ndarray]:
     """Held-out and in-sample scores of ``face`` on ``series``; returns (score, beta on all data).
 
     ``after``: the same samples with the residual of a changed calibration (the standing

@@ -189,7 +189,7 @@ def series_families(l) -> dict:
     return {k: v for k, v in fam.items() if np.ptp(v, axis=0).max() > 1e-12}
 
 
-def localise_series(series: LegSeries, n_legs: int, folds: int = 5) -> KindLocal:
+def localise_series(series: LegSeries, n_legs: int, folds: int) -> KindLocal:
     from .linear_fit import time_folds
 
     fidx = time_folds(series, folds)

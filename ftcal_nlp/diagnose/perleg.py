@@ -496,8 +496,8 @@ def _parts_of(selected) -> dict:
     return free
 
 
-def linear_map_check(poses, calibration: Calibration, robot: Robot, *, balance: str | None = None, folds: int = 5,
-                     seed: int = 0, alpha: float = ALPHA, max_ratio: float = MAX_RATIO) -> LinearMapCheck:
+def linear_map_check(poses, calibration: Calibration, robot: Robot, *, balance: str | None = None, folds: int,
+                     seed: int, alpha: float = ALPHA, max_ratio: float = MAX_RATIO) -> LinearMapCheck:
     """Check 1 (module docstring) on standing ``poses`` (``standing.Poses``, legs in robot order).
 
     ``balance``: ``"exact"`` or ``"report"`` (None: the calibration's ``meta['balance']``, else exact).
@@ -927,7 +927,7 @@ def _findings(lm: LinearMapCheck, sw: SwingCheck) -> tuple[list[Finding], list[s
     return out, notes
 
 
-def perleg_checks(dataset: Dataset, calibration: Calibration, poses, robot: Robot, *, folds: int = 5, seed: int = 0,
+def perleg_checks(dataset: Dataset, calibration: Calibration, poses, robot: Robot, *, folds: int, seed: int,
                   balance: str | None = None, alpha: float = ALPHA, swing: LegSeries | None = None) -> PerLegFindings:
     """Run both per-leg checks (module docstring) and state the findings.
 

@@ -1,7 +1,7 @@
 """The calibration model with one effect added, fitted to standing poses (CasADi + IPOPT).
 
 For pose p the residual (B axes, about the reference point) is eq. (A) of
-``effects/base.py`` on top of the calibration's balance:
+``effects/faces.py`` on top of the calibration's balance:
 
     exact (physics.py (E)):  r_p = sum_k Ad_k (c_k - w_o,k) - M_b g [z~; 0] + e_p
     report (eq. 9):          r_p = sum_k Ad_k (c_k - w_o,k) + sum_k m_k g [z~; (R_k r_k(phi) + p'_k) x z~]
@@ -17,7 +17,7 @@ shifted the hanging offsets: ``- dw_o`` (6 parameters, B axes) is added for them
 
 Every face is linear in the pose's features ``phi_p`` (readings, up vector,
 orientation, time, previous readings, cos/sin phi, squares and products of
-readings, leg CoM x up; ``effects/base.py:PoseSym``), so
+readings, leg CoM x up; ``effects/faces.py:PoseSym``), so
 
     r_p = M(theta) [1; phi_p],   M = [r(theta, 0), d r / d phi]
 
@@ -54,105 +54,9 @@ from ..robot import Robot
 from ..balance import K_DIAG, check_balance, to_world
 from ..results import ResultsMixin, Summary, fmt_pm
 from ..solver import REL_EIG_TOL, SolverError, identifiability, ipopt, solve_checked
-from .effects.base import HARMONICS, TIME_BASIS, AugContext, Effect, ParamBlock, PoseSym, legendre_time
+from ..effects.faces import AugContext, ParamBlock, StandingData, pose_symbols  # noqa: F401  (StandingData: importable from here)
+from ..effects.unit import Effect
 
-
-
-@dataclass(frozen=True)
-class StandingData:
-    """Per-pose data of the standing poses (P poses, K legs), numpy.
-
-    ``w`` (P, K, 6) raw readings; ``z`` (P, 3) up in B; ``R_HB`` (P, 3, 3) orientation
-    without heading; ``t_h`` (P,) hours since the hanging reference time; ``prev``
-    (P, K, 6) previous pose's raw readings (= ``w`` where unknown); ``phi`` (P, K);
-    ``rcom`` (P, K, 3) leg CoMs at phi (hanging curves, ft_k, m); ``n_vert`` (K, 3)
-    the design-vertical ft axes; ``t_span`` (first, last) hours of the smooth time basis
-    (None: the range of ``t_h``; subsets keep their parent's); ``t_step`` hours, the change
-    point of the calibration's residual (``views.change_point``; the feature ``step`` is
-    ``t_h > t_step``; None: no step feature, zeros).
-    """
-
-    w: np.ndarray
-    z: np.ndarray
-    R_HB: np.ndarray
-    t_h: np.ndarray
-    prev: np.ndarray
-    phi: np.ndarray
-    rcom: np.ndarray
-    n_vert: np.ndarray
-    t_span: tuple[float, float] | None = None
-    t_step: float | None = None
-
-    def __post_init__(self):
-        if self.t_span is None:
-            t = np.asarray(self.t_h, float)
-            object.__setattr__(self, "t_span", (float(t.min()), float(t.max())) if len(t) else (0.0, 1.0))
-
-    def time_basis(self) -> np.ndarray:
-        """Legendre polynomials P_1..P_TIME_BASIS of the time scaled to [-1, 1] over ``t_span`` (P, TIME_BASIS)."""
-        return legendre_time(self.t_h, *self.t_span, range(1, TIME_BASIS + 1))
-
-    @property
-    def P(self) -> int:
-        return len(self.t_h)
-
-    @property
-    def K(self) -> int:
-        return self.w.shape[1]
-
-    def subset(self, idx) -> StandingData:
-        return StandingData(self.w[idx], self.z[idx], self.R_HB[idx], self.t_h[idx], self.prev[idx], self.phi[idx],
-                            self.rcom[idx], self.n_vert, self.t_span, self.t_step)
-
-    def features(self) -> np.ndarray:
-        """``phi_p`` (P, n_phi) in the order of :func:`pose_symbols`."""
-        P = self.P
-        nf = np.einsum("ki,pki->pk", self.n_vert, self.w[..., :3])
-        rz = self.rcom[:, :, :, None] * self.z[:, None, None, :]
-        return np.concatenate([
-            self.w.reshape(P, -1), self.z, self.R_HB.reshape(P, 9), self.t_h[:, None], self.t_h[:, None] ** 2,
-            self.prev.reshape(P, -1), np.cos(self.phi), np.sin(self.phi), (self.w**2).reshape(P, -1),
-            (nf[..., None] * self.w).reshape(P, -1), self.rcom.reshape(P, -1), rz.reshape(P, -1),
-            self.time_basis(), *[f(m * self.phi) for m in range(2, HARMONICS + 1) for f in (np.cos, np.sin)],
-            (self.t_h > self.t_step)[:, None].astype(float) if self.t_step is not None else np.zeros((P, 1)),
-        ], axis=1)
-
-
-def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
-    """One pose's features as an SX vector and its named views (columns of :meth:`StandingData.features`)."""
-    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K + TIME_BASIS + 2 * K * (HARMONICS - 1) + 1
-    d = ca.SX.sym("phi", n)
-    i = 0
-
-    def take(m):
-        nonlocal i
-        out = d[i : i + m]
-        i += m
-        return out
-
-    def legs6(v):
-        return [v[6 * k : 6 * k + 6] for k in range(K)]
-
-    w = take(6 * K)
-    z = take(3)
-    R = ca.reshape(take(9), 3, 3).T  # stored row by row
-    t_h = take(1)
-    t_h2 = take(1)
-    prev = take(6 * K)
-    cphi = take(K)
-    sphi = take(K)
-    w2 = take(6 * K)
-    nfw = take(6 * K)
-    rcom = take(3 * K)
-    rz = take(9 * K)
-    tb = take(TIME_BASIS)
-    harm = [(cphi, sphi)] + [(take(K), take(K)) for _ in range(2, HARMONICS + 1)]
-    step = take(1)
-    return d, PoseSym(
-        w=legs6(w), z=z, R_HB=R, t_h=t_h, t_h2=t_h2, prev=legs6(prev), cphi=cphi, sphi=sphi, w2=legs6(w2),
-        nfw=legs6(nfw), rcom=[rcom[3 * k : 3 * k + 3] for k in range(K)],
-        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)], tb=tb, harm=harm, step=step,
-    )
 
 
 def balance_residual_sx(R, p, w_o, c, z, zmap, rz, leg_weight_N, Mg: float, balance: str):
@@ -188,7 +92,7 @@ class AugmentedProblem:
         actx = AugContext(legs, offsets, robot.nominal_rotations(), m, prior.g)
         block = effect.standing_params(actx) if effect is not None else None
         shift = effect is not None and effect.shifts_offsets
-        if shift:  # the offset shift: a constant wrench in B (module docstring of effects/sensor.py)
+        if shift:  # the offset shift: a constant wrench in B (``Effect.shifts_offsets``, effects/unit.py)
             names = tuple(block.names if block is not None else ()) + tuple(f"dw_o.{c} [B]" for c in ("fx", "fy", "fz", "tx", "ty", "tz"))
             lb = np.r_[block.lb if block is not None else [], np.full(6, -20.0)]
             block = ParamBlock(names, np.zeros(len(names)), lb, -lb)

@@ -38,7 +38,8 @@ from ..data import Dataset, Recording
 from ..geometry import quat_to_rotation, remove_yaw
 from ..models import ModelContext
 from ..robot import Robot
-from .effects.base import HangingLeg
+from ..effects.faces import HangingLeg
+from ..settings import PoseExtraction
 from .floor import (
     MIN_RESIDUAL_DOF_PER_COL,
     calibrated_residual_B,
@@ -53,8 +54,9 @@ from .floor import (
 from .standing_fit import StandingData
 
 PREV_WINDOW_S = 0.5        # the previous pose's readings: median over its last half second
-SHAFT_RATE_RAD_S = 0.05    # a shaft faster than this is moving (standing/poses.py's default)
-SAVGOL_WINDOW_S = 0.31
+# the pose extraction's defaults (settings.py): a shaft faster than this is moving; the Savitzky-Golay window
+SHAFT_RATE_RAD_S = PoseExtraction().phi_rate_threshold_rad_s
+SAVGOL_WINDOW_S = PoseExtraction().window_s
 IN_AIR_MARGIN_RAD = 1.0    # a swing foot counts as in the air this far outside the stance range (compliant feet lift late)
 
 
@@ -178,7 +180,7 @@ def total_residual_B(w: np.ndarray, z: np.ndarray, cal: Calibration, legs) -> np
 
 
 def standing_view(dataset: Dataset, poses, calibration: Calibration, prior: Calibration, robot: Robot, t_ref: float,
-                  model_dof: int, folds: int, balance: str | None = None, model=None, seed: int = 0) -> StandingView:
+                  model_dof: int, folds: int, balance: str | None = None, model=None, *, seed: int) -> StandingView:
     """The standing view of ``poses`` (``standing.Poses``; their ``source`` indexes ``dataset.standing``);
     ``balance`` and ``model`` the calibration's (None: from its ``meta`` (else exact) and ``model``);
     ``folds``/``seed`` the diagnosis' cross-validation (the floor is the expected held-out RMS of it)."""

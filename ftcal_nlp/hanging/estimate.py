@@ -42,6 +42,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..geometry import rotation_between
 from .com_qp import ComQP, choose_smoothing, penalty, prior, torque_design
 from .model import LegState, rss
@@ -114,7 +115,7 @@ def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str, nlp_cache: dict 
     """
     t0 = time.perf_counter()
     if not (smoothing == "auto" or (isinstance(smoothing, (int, float)) and smoothing >= 0)):
-        raise ValueError(f"smoothing must be 'auto' or a non-negative number, got {smoothing!r}")
+        raise ConfigError(f"smoothing must be 'auto' or a non-negative number, got {smoothing!r}", key="hanging.smoothing")
     G = problem.n_grid
     nlp_cache = {} if nlp_cache is None else nlp_cache
     key = structure_key(problem)

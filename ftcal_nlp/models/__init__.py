@@ -2,8 +2,10 @@
 
 ``MODELS`` is a plain dict name -> class. :func:`resolve` accepts a registered
 name, ``"package.module:Class"``, ``"path/to/file.py:Class"``, an
-:class:`ErrorModel` class or instance; an unknown name raises ``ValueError``
-listing the known ones.
+:class:`ErrorModel` class or instance; an unknown name raises
+:class:`~ftcal_nlp.errors.ConfigError` listing the known ones. A model name read from a ``calibration.json``
+(:class:`~ftcal_nlp.calibration.ModelName`) is looked up in the registry only:
+code named in a data file is never imported.
 """
 
 from __future__ import annotations
@@ -12,11 +14,10 @@ import importlib
 import importlib.util
 from pathlib import Path
 
+from ..calibration import ModelName
 from ..errors import ConfigError
 from .base import Block, ErrorModel, ModelContext, ModelSpec, make_spec, so3_variable, vector_variable
 from .builtin import Full, OffsetsOnly, Rot6Trans1, Trans1, Trans6
-
-from ..calibration import ModelName  # noqa: E402  (a model name read from a calibration file: registry only)
 
 MODELS: dict[str, type[ErrorModel]] = {
     "full": Full,
@@ -33,11 +34,11 @@ REPORT_CANDIDATES: tuple[str, ...] = ("full", "rot6_trans1", "trans6", "trans1")
 def _load_class(spec: str) -> type:
     target, _, cls_name = spec.rpartition(":")
     if not target or not cls_name:
-        raise ValueError(f"error model {spec!r}: expected 'module:Class' or 'path/file.py:Class'")
+        raise ConfigError(f"error model {spec!r}: expected 'module:Class' or 'path/file.py:Class'")
     if target.endswith(".py") or "/" in target or "\\" in target:
         path = Path(target)
         if not path.is_file():
-            raise ValueError(f"error model {spec!r}: file {path} not found")
+            raise ConfigError(f"error model {spec!r}: file {path} not found", path=path)
         mod_spec = importlib.util.spec_from_file_location(f"ftcal_user_model_{path.stem}", path)
         module = importlib.util.module_from_spec(mod_spec)
         mod_spec.loader.exec_module(module)
@@ -45,37 +46,34 @@ def _load_class(spec: str) -> type:
         try:
             module = importlib.import_module(target)
         except ImportError as exc:
-            raise ValueError(f"error model {spec!r}: cannot import module {target!r} ({exc})") from exc
+            raise ConfigError(f"error model {spec!r}: cannot import module {target!r} ({exc})") from exc
     if not hasattr(module, cls_name):
-        raise ValueError(f"error model {spec!r}: module {target!r} has no attribute {cls_name!r}")
+        raise ConfigError(f"error model {spec!r}: module {target!r} has no attribute {cls_name!r}")
     return getattr(module, cls_name)
 
 
 def resolve(name_or_path: str | ErrorModel | type) -> ErrorModel:
-    """An error-model instance from a registered name, ``module:Class``, a path, a class or an instance.
-
-    A name read from a ``calibration.json`` (:class:`~ftcal_nlp.calibration.ModelName`) is looked up in the
-    registry only: code named in a data file is never imported."""
+    """An error-model instance from a registered name, ``module:Class``, a path, a class or an instance."""
     obj = name_or_path
     if isinstance(obj, ErrorModel):
         return obj
-    if isinstance(obj, ModelName) and obj not in MODELS:  # read from a calibration file: never imported (issue 24)
-        raise ConfigError(f"error model {str.__str__(obj)!r} of a calibration file is not a registered name; known models: "
-                          f"{sorted(MODELS)} (a calibration names its model; code is never imported from a data file)")
     if isinstance(obj, str):
         if obj in MODELS:
             return MODELS[obj]()
+        if isinstance(obj, ModelName):  # read from a calibration file: never imported (issue 24)
+            raise ConfigError(f"error model {str.__str__(obj)!r} of a calibration file is not a registered name; known models: "
+                              f"{sorted(MODELS)} (a calibration names its model; code is never imported from a data file)")
         if ":" not in obj:
-            raise ValueError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
+            raise ConfigError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
         obj = _load_class(obj)
     if isinstance(obj, type):
         inst = obj()
     else:
-        raise ValueError(f"error model: expected a name, 'module:Class' or an ErrorModel, got {type(obj).__name__}")
+        raise ConfigError(f"error model: expected a name, 'module:Class' or an ErrorModel, got {type(obj).__name__}")
     if not callable(getattr(inst, "build", None)):
-        raise ValueError(f"error model {name_or_path!r}: class has no build(ctx) method")
+        raise ConfigError(f"error model {name_or_path!r}: class has no build(ctx) method")
     if not getattr(inst, "name", ""):
-        raise ValueError(f"error model {name_or_path!r}: class has no 'name'")
+        raise ConfigError(f"error model {name_or_path!r}: class has no 'name'")
     return inst
 
 

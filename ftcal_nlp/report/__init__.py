@@ -322,6 +322,10 @@ def build_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
 
 def write_report(res: "CalibrationRun", folder: Path) -> Path:
     """Write tables, figures, ``report.md`` and ``report.html`` into ``folder``; returns the md path."""
+    if getattr(res, "free_loads", None) is not None:   # section-5 loads: their own sections (report/loads.py)
+        from .loads import write_load_report
+
+        return write_load_report(res, folder)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     secs = build_sections(res, folder)

@@ -32,13 +32,14 @@ from __future__ import annotations
 import logging
 import shutil
 from contextlib import ExitStack
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
 from ..data import DataFormatError
+from ..errors import ConfigError, OutputExistsError
 from . import rawscan
 from .wire import JOINT_TYPE, POSE_TYPE, WRENCH_TYPE, Group, Packed, decode_batch, encode_batch
 
@@ -86,6 +87,7 @@ class BagStreams:
     joints: dict[str, Stream]
     joint_names_seen: frozenset[str]
     pose: Stream | None
+    extra: dict = field(default_factory=dict)      # section 5: e.g. "imu" (ros/freeload.py)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -341,7 +343,7 @@ def typestore_for(storage: str):
     from rosbags.typesys import Stores, get_typestore
 
     if storage not in STORAGES:
-        raise ValueError(f"storage must be one of {STORAGES}, got {storage!r}")
+        raise ConfigError(f"storage must be one of {STORAGES}, got {storage!r}", key="storage")
     return get_typestore(Stores.ROS1_NOETIC if storage == "ros1" else Stores.LATEST)
 
 
@@ -452,15 +454,15 @@ def write_bag(path: str | Path, series: Sequence[TopicSeries], *, storage: str =
     ``zstd``; ROS 2 ``message`` (each message zstd-compressed).
     """
     if storage in COMPRESSIONS and compression not in COMPRESSIONS[storage]:
-        raise ValueError(f"compression for {storage} must be one of {COMPRESSIONS[storage]}, got {compression!r}")
+        raise ConfigError(f"compression for {storage} must be one of {COMPRESSIONS[storage]}, got {compression!r}", key="compression")
     path = Path(path)
     ts = typestore_for(storage)
     if path.exists():
         if not overwrite:
-            raise FileExistsError(f"{path} exists; a bag is never written over unless asked (overwrite)")
+            raise OutputExistsError(f"{path} exists; a bag is never written over unless asked (overwrite)", path=path)
         if path.is_dir():
             if not (path / "metadata.yaml").is_file():
-                raise FileExistsError(f"{path} is a folder but not a ROS 2 bag; not written over")
+                raise OutputExistsError(f"{path} is a folder but not a ROS 2 bag; not written over", path=path)
             shutil.rmtree(path)
         else:
             path.unlink()

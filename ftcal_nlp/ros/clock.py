@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from ..errors import DataFormatError
+
 
 @dataclass(frozen=True)
 class Resampled:
@@ -57,7 +59,7 @@ def sort_unique(stamps: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.
 def median_period(stamps: np.ndarray) -> float:
     """Median sample period (s) of a sorted stream with at least two samples."""
     if len(stamps) < 2:
-        raise ValueError("a stream needs at least two samples to have a period")
+        raise DataFormatError("a stream needs at least two samples to have a period")
     return float(np.median(np.diff(stamps)))
 
 

@@ -27,6 +27,11 @@ expected. :func:`write_ingested` writes over nothing unless asked.
 Readings are multiplied by ``wrench_sign`` and otherwise passed through: the
 format's reading is the wrench the leg exerts on the transducer, in ``ft_k``
 about its origin, offset included (report eq. 1).
+
+Section 5 (:mod:`.freeload`): ``[joint_columns]`` adds ``q_{joint}`` columns and ``[imu]`` ``qw..qz`` or
+``gx..gz`` on the same clock (rows without a joint position or an accelerometer gravity dropped and
+counted); legs without a ``[joints]`` entry get no ``{leg}_phi``; hanging recordings without
+``gravity_body`` read the orientation per sample and need no opposite partner.
 """
 
 from __future__ import annotations
@@ -46,12 +51,13 @@ from ..data import (
     Recording,
     hanging_pairs,
     recording_from_frame,
-    recording_to_frame,
     write_robot,
 )
 from ..csvout import write_csv
+from ..errors import ConfigError, OutputExistsError
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
+from .freeload import recording_frame
 from .mapfile import IngestMap, RecordingSpec, read_map
 
 log = logging.getLogger(__name__)
@@ -78,6 +84,8 @@ class IngestCounts:
     nan_readings: int = 0
     nan_orientation: int = 0
     invalid_pose_samples: int = 0
+    joint_columns_dropped: dict[str, int] = field(default_factory=dict)   # section 5: rows without q_{joint}
+    imu_dropped: int = 0                                                   # rows without accelerometer gravity
 
 
 @dataclass(frozen=True)
@@ -99,8 +107,10 @@ def _check_topics(m: IngestMap, spec: RecordingSpec, topics: dict[str, str]) -> 
     for k, t in m.wrench_topics.items():
         if t not in topics:
             raise BagError(f"{spec.bag}: topic '{t}' of map key [wrench_topics] {k} is not in the bag (topics: {listing})")
-    if m.joint_topic not in topics:
+    if m.joint_topic is not None and m.joint_topic not in topics:
         raise BagError(f"{spec.bag}: topic '{m.joint_topic}' of map key [joints] topic is not in the bag (topics: {listing})")
+    if m.free_keys is not None and m.free_keys.imu is not None and m.free_keys.imu.topic not in topics:
+        raise BagError(f"{spec.bag}: topic '{m.free_keys.imu.topic}' of map key [imu] topic is not in the bag (topics: {listing})")
     if spec.kind != "hanging" and m.pose_topic not in topics:
         raise BagError(f"{spec.bag}: topic '{m.pose_topic}' of map key [body_pose] topic is not in the bag (topics: {listing}); "
                        f"a {spec.kind} recording needs the body orientation")
@@ -124,6 +134,14 @@ def _check_streams(m: IngestMap, spec: RecordingSpec, s: BagStreams) -> None:
             raise BagError(f"{spec.bag}: joint '{n}' of map key [joints] {k} never has a position on '{m.joint_topic}' (joint names seen: {seen})")
         if len(s.joints[n]) < 2:
             raise BagError(f"{spec.bag}: joint '{n}' ([joints] {k}) has fewer than 2 positions")
+    jc = m.free_keys.joint_columns if m.free_keys is not None else None
+    for n in jc.names if jc is not None else ():
+        if n not in s.joints or len(s.joints[n]) < 2:
+            raise BagError(f"{spec.bag}: joint '{n}' of map key [joint_columns] names has fewer than 2 positions on '{jc.topic}' "
+                           f"(joint names seen: {sorted(s.joint_names_seen)})")
+    imu = s.extra.get("imu")
+    if imu is not None and len(imu) < 2:
+        raise BagError(f"{spec.bag}: topic '{imu.topic}' ([imu] topic) has {len(imu)} message(s); at least 2 are needed")
     if spec.kind != "hanging" and (s.pose is None or len(s.pose) < 2):
         raise BagError(f"{spec.bag}: topic '{m.pose_topic}' ([body_pose] topic) has fewer than 2 valid orientations")
     if m.time_source == "header":
@@ -160,6 +178,9 @@ def _stamps(st: Stream, m: IngestMap) -> np.ndarray:
 
 def _streams_used(m: IngestMap, s: BagStreams) -> list[Stream]:
     out = [s.wrench[t] for t in m.wrench_topics.values()] + [s.joints[n] for n in m.joint_names.values()]
+    jc = m.free_keys.joint_columns if m.free_keys is not None else None
+    out += [s.joints[n] for n in (jc.names if jc is not None else ()) if n in s.joints]
+    out += [s.extra["imu"]] if s.extra.get("imu") is not None else []
     return out + ([s.pose] if s.pose is not None else [])
 
 
@@ -204,7 +225,7 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
         keep &= ~miss
     outside, gap = {}, {}
     phi = {}
-    for k in legs:
+    for k in m.joint_names:
         st = s.joints[m.joint_names[k]]
         sj, pj, _ = sort_unique(_seconds(_stamps(st, m), epoch_ns), st.values[:, 0])
         # Unwrap in the stream's own order, before resampling: a wrapped angle
@@ -214,8 +235,14 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
         phi[k] = r.values[:, 0]
         outside[k], gap[k] = int(r.outside.sum()), int(r.in_gap.sum())
         keep &= ~r.missing
+    free = None
+    if m.free_keys is not None:                 # section 5: q_{joint}, IMU (ros/freeload.py)
+        from .freeload import free_columns
+
+        free = free_columns(m.free_keys, s.joints, s.extra.get("imu"), t, lambda x: _seconds(x, epoch_ns), lambda st: _stamps(st, m))
+        keep &= free.keep
     # NaN or infinite values inside a bag's messages (a driver's fault flag) drop the row too.
-    readings = np.concatenate([np.stack([phi[k] for k in legs], 1)] + [wrench[k] for k in legs], axis=1)
+    readings = np.concatenate([np.stack([phi[k] for k in phi], 1) if phi else np.zeros((len(t), 0))] + [wrench[k] for k in legs], axis=1)
     bad = keep & ~np.all(np.isfinite(readings), axis=1)
     keep &= ~bad
     quat = None
@@ -228,13 +255,16 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
         quat = slerp_quat(t, sp, qp, m.pose_max_gap_s).values[keep]
     cols: dict[str, np.ndarray] = {"t": t[keep]}
     for k in legs:
-        cols[f"{k}_phi"] = phi[k][keep]
+        if k in phi:
+            cols[f"{k}_phi"] = phi[k][keep]
         w = m.wrench_sign[k] * wrench[k][keep]
         for j, c in enumerate(WRENCH_COMPONENTS):
             cols[f"{k}_{c}"] = w[:, j]
     if quat is not None:
         for j, c in enumerate(QUAT_COLUMNS):
             cols[c] = quat[:, j]
+    if free is not None:
+        cols.update({c: v[keep] for c, v in free.columns.items()})
     df = pd.DataFrame(cols)
     counts = IngestCounts(
         name=spec.name,
@@ -249,6 +279,8 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
         nan_readings=int(bad.sum()),
         nan_orientation=0 if quat is None else int(np.isnan(quat[:, 0]).sum()),
         invalid_pose_samples=n_invalid_pose,
+        joint_columns_dropped={} if free is None else free.joint_dropped,
+        imu_dropped=0 if free is None else free.imu_dropped,
     )
     return df, counts
 
@@ -275,12 +307,18 @@ def read_bags(m: IngestMap, *, progress: bool | None = None) -> list[BagStreams]
             spec.bag,
             wrench_topics=m.wrench_topics.values(),
             joint_topic=m.joint_topic,
-            joint_names=m.joint_names.values(),
-            # hanging recordings do without orientation (the format ignores it there)
-            pose_topic=m.pose_topic if spec.kind != "hanging" else None,
+            joint_names=list(m.joint_names.values()) + list(m.free_keys.joint_columns.names if m.free_keys and m.free_keys.joint_columns else ()),
+            # hanging recordings do without orientation unless it gives their gravity per sample (section 5)
+            pose_topic=m.pose_topic if spec.kind != "hanging" or spec.gravity_body is None else None,
             check_topics=lambda topics, spec=spec: _check_topics(m, spec, topics),
             progress=progress,
         )
+        if m.free_keys is not None and m.free_keys.imu is not None:
+            from dataclasses import replace as _replace
+
+            from .freeload import read_imu
+
+            s = _replace(s, extra={**s.extra, "imu": read_imu(spec.bag, m.free_keys.imu.topic)})
         _check_streams(m, spec, s)
         out.append(s)
     return out
@@ -306,14 +344,16 @@ def ingest(map_or_path: IngestMap | str | Path, *, progress: bool | None = None)
         if len(df) < 2:
             raise DataFormatError(f"{spec.bag}: only {len(df)} row(s) left on the wrench clock after alignment ({_summary(c)})")
         # The format's own validation (units, monotonic t, NaN readings, unit quaternions).
-        rec = recording_from_frame(df, m.robot, name=spec.name, kind=spec.kind, gravity_body=spec.gravity_body, source=str(spec.bag))
+        rec = recording_from_frame(df, m.robot, name=spec.name, kind=spec.kind, gravity_body=spec.gravity_body, source=str(spec.bag),
+                                   payload_legs=m.payload_legs)
         if spec.kind != "hanging" and c.nan_orientation == c.n_rows:
             log.warning("%s: no row has a body orientation (mocap never overlaps the wrench clock)", spec.bag)
         log.info("%s -> %s: %s", spec.bag, spec.name, _summary(c))
         recs.append(rec)
         counts.append(c)
     ds = Dataset(m.robot, tuple(recs), None)
-    hanging_pairs(ds.hanging)
+    if not m.payload_legs and all(r.gravity_body is not None for r in ds.hanging):   # hexapod legs: opposite pairs
+        hanging_pairs(ds.hanging)
     return IngestResult(ds, tuple(counts), epoch, m)
 
 
@@ -333,6 +373,11 @@ def _summary(c: IngestCounts) -> str:
         parts.append(f"{c.nan_orientation} rows without orientation (NaN)")
     if c.invalid_pose_samples:
         parts.append(f"{c.invalid_pose_samples} invalid mocap samples ignored")
+    nz = {k: v for k, v in c.joint_columns_dropped.items() if v}
+    if nz:
+        parts.append(f"rows without a joint position (q_{{joint}}): {nz}")
+    if c.imu_dropped:
+        parts.append(f"{c.imu_dropped} rows without accelerometer gravity")
     return "; ".join(parts)
 
 
@@ -349,7 +394,7 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
 
     fmt = fmt or result.map.fmt
     if fmt not in ("csv", "parquet"):
-        raise ValueError(f"fmt must be 'csv' or 'parquet', got {fmt!r}")
+        raise ConfigError(f"fmt must be 'csv' or 'parquet', got {fmt!r}", key="fmt")
     folder = Path(folder)
     manifest = folder / "dataset.toml"
     ds = result.dataset
@@ -362,15 +407,15 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
             raise DataFormatError(f"{t}: would be written outside {folder}; a recording name must be a plain file stem")
     present = [str(x) for x in targets if x.exists()]
     if present and not overwrite:
-        raise FileExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them")
+        raise OutputExistsError(f"{folder}: would write over {present}; pass overwrite=True (--overwrite) to replace them", path=folder)
     if folder.exists() and not folder.is_dir():
-        raise FileExistsError(f"{folder} exists and is not a folder")
+        raise OutputExistsError(f"{folder} exists and is not a folder", path=folder)
     folder.mkdir(parents=True, exist_ok=True)
     write_robot(ds.robot, folder / "robot.toml")
     entries = []
     for rec, c in zip(ds.recordings, result.counts):
         fname = f"{rec.name}.{fmt}"
-        df = recording_to_frame(rec, ds.robot.legs)
+        df = recording_frame(rec, ds.robot.legs)   # section-5 columns too (ros/freeload.py)
         if fmt == "parquet":
             df.to_parquet(folder / fname, index=False)
         else:

@@ -27,6 +27,12 @@ the map; ``*`` marks keys beyond the issue's contract, all optional)::
     * [body_pose] max_gap_s = 0.05: longer mocap gaps give NaN orientation
     * [body_pose] link = "mocap_marker": URDF link the mocap rigid body tracks, when not B
     * [[recording]] name: output file stem (default: the bag's stem)
+
+Section 5 (any robot; :mod:`.freeload`): ``[joint_columns]`` (JointState -> ``q_{joint}``) and ``[imu]``
+(``sensor_msgs/Imu`` -> ``qw..qz`` or ``gx..gz``). In a section-5 map (one of those tables, or a robot file
+with a ``urdf``) a leg without a ``[joints]`` entry has no ``{leg}_phi`` column (its load is a payload or URDF
+links), ``[joints]`` may be absent, and a hanging recording needs no ``gravity_body`` when ``[imu]`` or
+``[body_pose]`` gives the orientation per sample.
 """
 
 from __future__ import annotations
@@ -34,11 +40,15 @@ from __future__ import annotations
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data import KINDS, DataFormatError, read_robot
 from ..robot import Robot
+
+if TYPE_CHECKING:
+    from .freeload import FreeKeys
 
 _MISSING = object()
 
@@ -76,6 +86,8 @@ class IngestMap:
     fmt: str
     recordings: tuple[RecordingSpec, ...]
     max_backward_s: float = 0.05
+    free_keys: "FreeKeys | None" = None        # section 5: [joint_columns], [imu] (ros/freeload.py)
+    payload_legs: tuple[str, ...] = ()          # legs without a [joints] entry in a section-5 map: no {leg}_phi
 
     @property
     def legs(self) -> tuple[str, ...]:
@@ -181,7 +193,7 @@ def _robot(d: dict, where: str, root: Path) -> tuple[Robot, dict[str, str] | Non
     return robot, tl, base, load_urdf(urdf_path)
 
 
-def _recordings(d: dict, where: str, root: Path) -> tuple[RecordingSpec, ...]:
+def _recordings(d: dict, where: str, root: Path, orientation_per_sample: bool = False) -> tuple[RecordingSpec, ...]:
     entries = d.get("recording")
     if not isinstance(entries, list) or not entries:
         raise DataFormatError(f"{where}: no [[recording]] entries")
@@ -193,7 +205,9 @@ def _recordings(d: dict, where: str, root: Path) -> tuple[RecordingSpec, ...]:
         if kind not in KINDS:
             raise DataFormatError(f"{w}: kind '{kind}' is not one of {KINDS}")
         gb = None
-        if kind == "hanging":
+        if kind == "hanging" and orientation_per_sample and "gravity_body" not in e:
+            pass                              # section 5: gravity per sample from [imu] or [body_pose]
+        elif kind == "hanging":
             gb = np.asarray(_get(e, "gravity_body", w, list), dtype=float)
             if gb.shape != (3,) or not np.all(np.isfinite(gb)) or np.linalg.norm(gb) < 1e-9:
                 raise DataFormatError(f"{w}: gravity_body should be 3 finite numbers, not all zero, got {e['gravity_body']!r}")
@@ -232,11 +246,13 @@ def read_map(path: str | Path) -> IngestMap:
     dup = {t for t in wt.values() if list(wt.values()).count(t) > 1}
     if dup:
         raise DataFormatError(f"{where} [wrench_topics]: topic(s) {sorted(dup)} given for more than one leg")
-    jt = _get(d, "joints", where, dict)
+    section5 = "joint_columns" in d or "imu" in d or getattr(robot, "tree", None) is not None
+    jt = _get(d, "joints", where, dict, {} if section5 else _MISSING)
     wj = f"{where} [joints]"
     reserved = ("topic", "max_gap_s", "zero_rad", "sign")
-    joint_topic = _get(jt, "topic", wj, str)
-    joint_names = _per_leg_str(jt, legs, wj, reserved)
+    shaft_legs = tuple(k for k in legs if k in jt) if section5 else legs
+    joint_topic = _get(jt, "topic", wj, str) if (jt or not section5) else None
+    joint_names = _per_leg_str(jt, shaft_legs, wj, reserved + tuple(k for k in legs if k not in shaft_legs))
     joint_gap = float(_get(jt, "max_gap_s", wj, (int, float), 0.25))
     bp = _get(d, "body_pose", where, dict, {})
     wp = f"{where} [body_pose]"
@@ -256,7 +272,14 @@ def read_map(path: str | Path) -> IngestMap:
             raise DataFormatError(f"{where}: '{key}' = {val} should be a positive number of seconds")
     if not max_back >= 0:
         raise DataFormatError(f"{where}: 'max_backward_s' = {max_back} should be a number of seconds >= 0")
-    recs = _recordings(d, where, root)
+    from .freeload import read_free_keys
+
+    free_keys = read_free_keys(d, where, robot, joint_topic)
+    if free_keys.imu is not None and pose_topic is not None:
+        raise DataFormatError(f"{where}: [imu] and [body_pose] both give the orientation of B; keep one")
+    if free_keys.joint_columns is not None:
+        joint_topic = free_keys.joint_columns.topic
+    recs = _recordings(d, where, root, section5 and (free_keys.imu is not None or pose_topic is not None))
     if pose_topic is None:
         needing = [r.name for r in recs if r.kind != "hanging"]
         if needing:
@@ -271,8 +294,8 @@ def read_map(path: str | Path) -> IngestMap:
         check_frame_ids=bool(_get(d, "check_frame_ids", where, bool, True)),
         joint_topic=joint_topic,
         joint_names=joint_names,
-        joint_zero_rad=_per_leg_num(jt.get("zero_rad"), legs, f"{wj} zero_rad", 0.0),
-        joint_sign=_per_leg_num(jt.get("sign"), legs, f"{wj} sign", 1.0, (1.0, -1.0)),
+        joint_zero_rad=_per_leg_num(jt.get("zero_rad"), shaft_legs, f"{wj} zero_rad", 0.0),
+        joint_sign=_per_leg_num(jt.get("sign"), shaft_legs, f"{wj} sign", 1.0, (1.0, -1.0)),
         joint_max_gap_s=joint_gap,
         pose_topic=pose_topic,
         pose_max_gap_s=pose_gap,
@@ -281,4 +304,6 @@ def read_map(path: str | Path) -> IngestMap:
         fmt=_choice(d, "format", where, ("parquet", "csv")),
         recordings=recs,
         max_backward_s=max_back,
+        free_keys=free_keys if free_keys.any else None,
+        payload_legs=tuple(k for k in legs if k not in shaft_legs),
     )

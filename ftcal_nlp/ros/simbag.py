@@ -23,6 +23,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..data import Dataset, Recording
+from ..errors import OutputExistsError
 from . import bagio
 from .urdf import urdf_text
 
@@ -132,7 +133,7 @@ def write_session(
     st_of = {r.name: storage if isinstance(storage, str) else storage[r.name] for r in recs}
     for p in [urdf, mp] + [folder / bag_name(r, st_of[r.name]) for r in recs]:
         if p.exists():
-            raise FileExistsError(f"{p} exists; not written over")
+            raise OutputExistsError(f"{p} exists; not written over", path=p)
     written = []
     for rec in recs:
         path = folder / bag_name(rec, st_of[rec.name])
@@ -140,4 +141,68 @@ def write_session(
         written.append((path.name, rec))
     urdf.write_text(urdf_text(ds.robot))
     mp.write_bytes(tomli_w.dumps(session_map(legs, ds.robot.mass_kg, ds.robot.g, written)).encode())
+    return mp
+
+
+# ----------------------------------------------------------------------------- section 5 (issue 22)
+
+IMU_TOPIC = "/imu/data"
+
+
+def write_free_session(res, folder: str | Path, storage: str = "mcap", *, imu: str = "orientation",
+                       R_B_imu: np.ndarray | None = None, epoch_ns: int = 1_700_000_000 * 10**9, joint_every: int = 2,
+                       joint_delay_ns: int = 3_000_000) -> Path:
+    """Bags of a free-load simulation (``sim.free.simulate_free`` result) with its robot files and an ingest map;
+    returns the map.
+
+    Topics: the transducer's ``WrenchStamped`` at the sample times; ``JointState`` of every ``q_{joint}`` at
+    ``1/joint_every`` of that rate, ``joint_delay_ns`` late (chords of the recorded angles); ``sensor_msgs/Imu``
+    at the sample times from the recorded orientation ``R_WB``: orientation ``R_W,imu = R_WB R_B,imu`` and the
+    specific force at rest ``a = R_W,imu^T [0, 0, g]`` (``R_B_imu`` default identity). The map asks for ``imu``
+    (``"orientation"`` or ``"acceleration"``), ``[joint_columns]`` when there are joints, one hanging recording
+    without ``gravity_body``.
+    """
+    import tomli_w
+
+    from ..geometry import quat_to_rotation, rotation_to_quat
+    from .freeload import IMU_TYPE, imu_message
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg, df = res.config, res.frame
+    X = cfg.transducer
+    R_B_imu = np.eye(3) if R_B_imu is None else np.asarray(R_B_imu, float)
+    t = df["t"].to_numpy()
+    clock = stamps_ns(t - t[0], epoch_ns)
+    ts = bagio.typestore_for(storage)
+    w = df[[f"{X}_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy()
+    series = [bagio.TopicSeries(f"/ft/{X}/wrench", bagio.WRENCH_TYPE, clock + 1_000_000,
+                                bagio.encode_messages(storage, bagio.WRENCH_TYPE, clock, f"ft_{X}", w))]
+    joints = [c[2:] for c in df.columns if c.startswith("q_")]
+    if joints:
+        js = clock[::joint_every] + int(joint_delay_ns)
+        js = js[js <= clock[-1]]
+        tj = (js - clock[0]) * 1e-9
+        pos = np.stack([np.interp(tj, t - t[0], df[f"q_{j}"].to_numpy()) for j in joints], axis=1)
+        series.append(bagio.TopicSeries(JOINT_TOPIC, bagio.JOINT_TYPE, js + 500_000,
+                                        bagio.encode_messages(storage, bagio.JOINT_TYPE, js, "", pos, joints)))
+    R_WB = quat_to_rotation(df[["qw", "qx", "qy", "qz"]].to_numpy())
+    R_Wi = R_WB @ R_B_imu
+    q_imu = rotation_to_quat(R_Wi)
+    acc = np.einsum("nji,j->ni", R_Wi, np.array([0.0, 0.0, cfg.g]))
+    msgs = [imu_message(ts, int(s), "imu", q, a) for s, q, a in zip(clock, q_imu, acc)]
+    series.append(bagio.TopicSeries(IMU_TOPIC, IMU_TYPE, clock + 2_000_000, msgs))
+    bag = folder / ("hang.bag" if storage == "ros1" else "hang")
+    bagio.write_bag(bag, series, storage=storage)
+    robot = dict(res.robot)
+    (folder / "robot.toml").write_bytes(tomli_w.dumps(robot).encode())
+    if res.urdf_text is not None:
+        (folder / robot["urdf"]).write_text(res.urdf_text)
+    m: dict = {"robot": "robot.toml", "wrench_topics": {X: f"/ft/{X}/wrench"},
+               "imu": {"topic": IMU_TOPIC, "use": imu, "rotation": [[float(x) for x in row] for row in R_B_imu]},
+               "recording": [{"bag": bag.name, "kind": "hanging", "name": cfg.recording}], "format": "csv"}
+    if joints:
+        m["joint_columns"] = {"topic": JOINT_TOPIC, "names": joints}
+    mp = folder / "map.toml"
+    mp.write_bytes(tomli_w.dumps(m).encode())
     return mp

@@ -5,17 +5,17 @@ truth, standing pose windows); ``write_simulation(res, folder)`` writes it like
 ``shared/sample``. Modules: ``config`` (settings), ``robot_model`` (true
 parameters, leg CoM and toe loop), ``statics`` (compliant-foot equilibrium on
 level ground or a tilted board),
-``recordings`` (hanging / standing / walking time series), ``effects`` (hook
-for effect injectors), ``injectors`` (the effect library's injectors, registered
-in ``effects.EFFECTS`` when this package is imported), ``simulate`` (sensors and
-assembly), ``writer`` (files); ``free`` the free-load simulator
-(a wrist payload or URDF links below a sensor, DATA_FORMAT.md section 5; ``simulate_to_folder``
+``recordings`` (hanging / standing / walking time series), ``effects`` (injectors
+by name: every effect unit's of :mod:`ftcal_nlp.effects`, where each effect's
+injector lives beside its other faces), ``variants`` (faults outside the effect
+library, for the validation sweep), ``simulate`` (sensors and assembly), ``writer``
+(files); ``free`` the free-load simulator (a wrist payload or URDF links below a sensor, DATA_FORMAT.md section 5; ``simulate_to_folder``
 takes a ``[simulate]`` table with ``kind``).
 """
 
 from .config import SimConfig
 from .effects import EFFECTS, InjectionContext, Injector, NoEffect, make_effects
-from .injectors import EffectInjector, Magnitude  # (importing it registers the library's injectors in EFFECTS)
+from ..effects.injection import EffectInjector, Magnitude
 from .variants import VARIANTS  # noqa: F401  (importing it registers the off-face injectors of issue 13 in EFFECTS)
 from .robot_model import LEGS, TrueRobot, draw_true_robot, nominal_robot
 from .simulate import SimResult, simulate

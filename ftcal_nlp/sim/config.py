@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
+from ..errors import ConfigError
+
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -102,30 +104,30 @@ class SimConfig:
                     "foot_stiffness_N_per_m", "toe_depth_m", "transient_decay_per_s", "transient_freq_hz", "toe_lift_m")
         for name in positive:
             if not getattr(self, name) > 0:
-                raise ValueError(f"SimConfig.{name} must be > 0, got {getattr(self, name)!r}")
+                raise ConfigError(f"SimConfig.{name} must be > 0, got {getattr(self, name)!r}", key=f"simulate.{name}")
         nonneg = ("noise_force_N", "noise_torque_Nm", "mocap_jitter_deg", "mocap_dropout_rate", "mocap_blip_rate_hz",
                   "walk_cycles", "gap_s", "move_s", "settle_s", "internal_force_N", "walk_internal_force_N",
                   "mounting_rot_deg", "mounting_trans_mm", "hanging_tilt_deg", "mocap_pose_error_deg",
                   "board_tilt_deg", "board_friction_mu", "toe_rise_spread_mm", "friction_mu", "ground_roughness_mm")
         for name in nonneg:
             if getattr(self, name) < 0:
-                raise ValueError(f"SimConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+                raise ConfigError(f"SimConfig.{name} must be >= 0, got {getattr(self, name)!r}", key=f"simulate.{name}")
         if not 0 < self.walk_duty < 1:
-            raise ValueError(f"SimConfig.walk_duty must be in (0, 1), got {self.walk_duty}")
+            raise ConfigError(f"SimConfig.walk_duty must be in (0, 1), got {self.walk_duty}")
         if self.move_s + self.settle_s >= self.pose_s:
-            raise ValueError(f"SimConfig: move_s + settle_s ({self.move_s + self.settle_s}) must be shorter than pose_s ({self.pose_s})")
+            raise ConfigError(f"SimConfig: move_s + settle_s ({self.move_s + self.settle_s}) must be shorter than pose_s ({self.pose_s})")
         if self.n_poses is not None and self.n_poses < 1:
-            raise ValueError(f"SimConfig.n_poses must be None or >= 1, got {self.n_poses}")
+            raise ConfigError(f"SimConfig.n_poses must be None or >= 1, got {self.n_poses}")
         if not self.pose_angles_deg:
-            raise ValueError("SimConfig.pose_angles_deg must hold at least one angle")
+            raise ConfigError("SimConfig.pose_angles_deg must hold at least one angle")
         if len(self.com_body_range_m) != 3 or len(self.mocap_blip_s) != 2:
-            raise ValueError("SimConfig.com_body_range_m needs 3 numbers and mocap_blip_s 2")
+            raise ConfigError("SimConfig.com_body_range_m needs 3 numbers and mocap_blip_s 2")
         if not 0 <= self.mocap_dropout_rate <= 1:
-            raise ValueError(f"SimConfig.mocap_dropout_rate is a probability, got {self.mocap_dropout_rate}")
+            raise ConfigError(f"SimConfig.mocap_dropout_rate is a probability, got {self.mocap_dropout_rate}")
         if not 0 <= self.board_pose_fraction <= 1:
-            raise ValueError(f"SimConfig.board_pose_fraction is a fraction in [0, 1], got {self.board_pose_fraction}")
+            raise ConfigError(f"SimConfig.board_pose_fraction is a fraction in [0, 1], got {self.board_pose_fraction}")
         if not self.board_tilt_deg < 80:
-            raise ValueError(f"SimConfig.board_tilt_deg must be below 80 deg, got {self.board_tilt_deg}")
+            raise ConfigError(f"SimConfig.board_tilt_deg must be below 80 deg, got {self.board_tilt_deg}")
 
     @property
     def dt(self) -> float:
@@ -139,32 +141,38 @@ class SimConfig:
         :data:`ftcal_nlp.sim.effects.EFFECTS` (or tables ``{name = ..., ...kwargs}``).
         """
         if d.get("kind", "hexapod") != "hexapod":  # payload / urdf_leg: ftcal_nlp.sim.free (sim.simulate_to_folder)
-            raise ValueError(f"{where}: kind = {d['kind']!r} is not the hexapod; simulate it with ftcal_nlp.sim.simulate_to_folder")
+            raise ConfigError(f"{where}: kind = {d['kind']!r} is not the hexapod; simulate it with ftcal_nlp.sim.simulate_to_folder")
         d = {k: v for k, v in d.items() if k != "kind"}
         known = {f.name: f for f in fields(cls)}
         unknown = sorted(set(d) - set(known))
         if unknown:
-            raise ValueError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(known)}")
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; known keys: {sorted(known)}", key=unknown[0])
         kw: dict[str, Any] = {}
         for key, value in d.items():
             typ = str(known[key].type)
             if key == "effects":
                 from .effects import make_effects
 
-                kw[key] = make_effects(value, where=f"{where}.effects")
+                try:
+                    kw[key] = make_effects(value, where=f"{where}.effects")
+                except ValueError as exc:  # the effect registry's own checks: a config error here
+                    raise ConfigError(str(exc), key="effects") from exc
             elif typ == "tuple":
                 if not isinstance(value, (list, tuple)) or not all(_is_number(v) for v in value):
-                    raise ValueError(f"{where}: key '{key}' should be a list of numbers, got {value!r}")
+                    raise ConfigError(f"{where}: key '{key}' should be a list of numbers, got {value!r}", key=key)
                 kw[key] = tuple(float(v) for v in value)
             elif typ.startswith("int"):
                 if not (isinstance(value, int) and not isinstance(value, bool)) and not (value is None and "None" in typ):
-                    raise ValueError(f"{where}: key '{key}' should be an integer, got {value!r}")
+                    raise ConfigError(f"{where}: key '{key}' should be an integer, got {value!r}", key=key)
                 kw[key] = value
             else:
                 if not _is_number(value):
-                    raise ValueError(f"{where}: key '{key}' should be a number, got {value!r}")
+                    raise ConfigError(f"{where}: key '{key}' should be a number, got {value!r}", key=key)
                 kw[key] = float(value)
-        return cls(**kw)
+        try:
+            return cls(**kw)
+        except ConfigError as exc:  # the ranges checked by __post_init__: name where they were set
+            raise ConfigError(f"{where}: {exc}", key=exc.key) from exc
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values (effects by name), e.g. for logging."""

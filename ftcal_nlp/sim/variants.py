@@ -1,30 +1,19 @@
-"""Off-face injectors (issue 13, item 5): effects whose shapes differ from the diagnosis' model faces.
+"""Faults outside the effect library (issue 13, item 5), and the off-face injectors by name.
 
-The library's injectors (:mod:`ftcal_nlp.sim.injectors`) follow the same formulas
-as the diagnosis' faces, so a validation on them alone can be passed by a
-diagnosis tuned to those formulas. These injectors add what real effects do
-instead: other drift shapes and time constants, other shaft-angle harmonics,
-wiring faults of one leg, a leg whose mass changed after hanging, and larger
-per-pose motion-capture noise. Each class declares what a correct diagnosis
-should say about it:
+The library's injectors follow the same formulas as the diagnosis' faces, so a
+validation on them alone can be passed by a diagnosis tuned to those formulas. The
+off-face injectors add what real effects do instead. Those that are another shape
+of a library effect (other drift shapes and time constants, other shaft-angle
+harmonics) are declared by that effect's unit (``Effect.shapes`` in
+``ftcal_nlp/effects/<name>.py``); this module adds the faults no library effect
+describes: wiring faults of one leg, a leg whose mass changed after hanging, and
+larger per-pose motion-capture noise. Each class declares what a correct diagnosis
+should say about it (``expect``: ``"unexplained"`` for an effect outside the
+library, then ``expect_legs`` names the leg(s) it lives on, or ``"none"`` for pure
+measurement noise).
 
-* ``expect``: the library effect it should be named as (a drift of another shape
-  is still ``offset_drift``), ``"unexplained"`` for an effect outside the library
-  (then ``expect_legs`` names the leg(s) it lives on), or ``"none"`` for pure
-  measurement noise;
-* ``expect_legs``: the affected legs (empty: not leg-specific).
+Injected on the noise-free reading ``w = w_a + w_o`` (report eq. 1), ``w_a = ctx.applied``:
 
-Injected on the noise-free reading ``w = w_a + w_o`` (report eq. 1), ``w_a = ctx.applied``,
-session time ``t`` (s), shaft angle ``phi``; ``d_k`` is ``offset_drift``'s per-leg drift
-vector (force ~``scale`` N, torque ``scale`` x 2 cm, drawn from the seed):
-
-* offset_drift_ramp      w_o(t) = w_o + d_k t / 1 h                       (linear, no saturation)
-* offset_drift_step      w_o(t) = w_o + d_k [t >= t_s]                    (``scale`` N at once; t_s: the middle
-                         of the standing recording unless ``t_step_s`` is given; hanging before, walking after)
-* offset_drift_fast      w_o(t) = w_o + d_k (1 - exp(-t/tau)) / (1 - exp(-1 h/tau)),  tau = 150 s
-                         (``offset_drift`` injects tau = 1200 s: this warm-up is mostly over when standing starts)
-* casing_load_harmonics  w[:2] += scale sum_h a_h M_hk (cos h phi, sin h phi),  h = (3, 5), a = (1, 0.6)
-                         (``casing_load`` injects the first harmonic only)
 * leg_axes_swapped       leg k's fx and fy channels exchanged in every recording (wiring):
                          w_k[:2] <- (1 - s) w_k[:2] + s (w_ky, w_kx),  s = ``scale`` (1: the fault)
 * leg_axis_flipped       leg k's channel j mis-signed in every recording: w_kj <- (1 - 2 s) w_kj
@@ -35,49 +24,32 @@ vector (force ~``scale`` N, torque ``scale`` x 2 cm, drawn from the seed):
 * mocap_pose_noise       standing only: motion capture reports ``R_meas exp([delta_p])``, ``delta_p`` ~
                          N(0, ``scale`` deg) per axis, held through pose p (the simulator's own is 0.05 deg)
 
-Every injector's random parameters come from its ``seed`` and its full name (so a
-variant never shares the draws of the library injector it resembles); the
-affected leg, axis and sign are drawn at construction, so a plan knows them
-before simulating. Importing :mod:`ftcal_nlp.sim` registers every class here in
+Every injector's random parameters come from its ``seed`` and its full name; the
+affected leg, axis and sign are drawn at construction, so a plan knows them before
+simulating. :data:`VARIANTS` is every off-face injector: the units' shapes (from the
+effect registry) then these; importing :mod:`ftcal_nlp.sim` registers them in
 :data:`ftcal_nlp.sim.effects.EFFECTS`; they are not in ``LIBRARY_EFFECTS``, so the
 diagnosis never fits them.
 """
 
 from __future__ import annotations
 
-import zlib
-from typing import ClassVar
-
 import numpy as np
 
 from ..data import WRENCH_COMPONENTS
 from ..geometry import rotvec_to_rotation
-from .effects import EFFECTS, LIBRARY_EFFECTS, InjectionContext
-from .injectors import HOUR_S, EffectInjector, Magnitude, OffsetDriftInjector, distribute_over_feet
+from ..effects.injection import (  # noqa: F401  (EXPECT_*, OffFaceInjector, variant_key: importable from here)
+    EXPECT_NONE,
+    EXPECT_UNEXPLAINED,
+    InjectionContext,
+    Magnitude,
+    OffFaceInjector,
+    distribute_over_feet,
+    variant_key,
+)
+from ..effects.registry import expectations, shape_classes
+from .effects import EFFECTS
 from .robot_model import LEGS
-
-EXPECT_NONE = "none"
-EXPECT_UNEXPLAINED = "unexplained"
-
-
-def variant_key(*parts: str) -> int:
-    """A process-independent 32-bit key of names (CRC-32; ``hash`` is salted per process)."""
-    return zlib.crc32("/".join(parts).encode())
-
-
-class OffFaceInjector(EffectInjector):
-    """Base of the off-face injectors: an :class:`EffectInjector` whose generator is seeded by
-    ``seed`` and the whole name, with what a correct diagnosis should say (``expect``, ``expect_legs``)."""
-
-    expect: ClassVar[str] = EXPECT_NONE
-
-    def __init__(self, scale: float | None = None, seed: int = 0, **kwargs):
-        super().__init__(scale, seed, **kwargs)
-        self.rng = np.random.default_rng(np.random.SeedSequence([self.seed, variant_key(self.name)]))
-
-    @property
-    def expect_legs(self) -> tuple[str, ...]:
-        return ()
 
 
 def _pick(value: str | None, choices: tuple[str, ...], rng: np.random.Generator, where: str) -> str:
@@ -100,101 +72,6 @@ def _fraction(scale: float, where: str) -> float:
     if not 0.0 <= scale <= 1.0:
         raise ValueError(f"{where}.scale: expected the fraction of the fault in [0, 1] (1 = the fault), got {scale!r}")
     return scale
-
-
-# ============================================================================= offset drift, other shapes
-
-
-class _DriftShape(OffFaceInjector, OffsetDriftInjector):
-    """Offset drift ``w_o + fraction(ctx) d_k`` with ``offset_drift``'s per-leg vectors ``d_k``."""
-
-    expect = "offset_drift"
-
-    def fraction(self, ctx: InjectionContext) -> np.ndarray:
-        raise NotImplementedError
-
-    def readings(self, ctx, w):
-        return w + self.fraction(ctx)[:, None, None] * self._drift(w.shape[1])[None]
-
-
-class OffsetDriftRampInjector(_DriftShape):
-    """Linear drift: ``d_k t / 1 h`` on the session clock (``scale`` N of force after one hour)."""
-
-    name = "offset_drift_ramp"
-    magnitude = Magnitude("N of force drift per leg after one hour (linear)", (1.0, 4.0), 3.0)
-
-    def fraction(self, ctx):
-        return np.asarray(ctx.t, float) / HOUR_S
-
-
-class OffsetDriftStepInjector(_DriftShape):
-    """A step of ``d_k`` (``scale`` N of force) at ``t_step_s`` on the session clock; None: the middle
-    of the standing recording (hanging recordings come before it, walking after)."""
-
-    name = "offset_drift_step"
-    magnitude = Magnitude("N of force step per leg", (0.5, 2.0), 2.0)
-
-    def __init__(self, scale: float | None = None, seed: int = 0, t_step_s: float | None = None):
-        super().__init__(scale, seed)
-        self.t_step_s = None if t_step_s is None else float(t_step_s)
-
-    def fraction(self, ctx):
-        t = np.asarray(ctx.t, float)
-        if self.t_step_s is not None:
-            return (t >= self.t_step_s).astype(float)
-        if ctx.kind == "standing":
-            return (t >= 0.5 * (t[0] + t[-1])).astype(float)
-        return np.full(len(t), 1.0 if ctx.kind == "walking" else 0.0)
-
-
-class OffsetDriftFastInjector(_DriftShape):
-    """Warm-up with time constant ``tau_s`` (default 150 s, far from ``offset_drift``'s 1200 s),
-    normalised as the library's: ``scale`` N of force after one hour."""
-
-    name = "offset_drift_fast"
-    magnitude = Magnitude("N of force drift per leg after one hour (tau 150 s)", (1.0, 4.0), 3.0)
-
-    def __init__(self, scale: float | None = None, seed: int = 0, tau_s: float = 150.0):
-        super().__init__(scale, seed, tau_s=tau_s)
-        if not self.tau_s > 0:
-            raise ValueError(f"{self.name}.tau_s: expected a positive time constant in s, got {tau_s!r}")
-
-    def fraction(self, ctx):
-        return (1 - np.exp(-np.asarray(ctx.t, float) / self.tau_s)) / (1 - np.exp(-HOUR_S / self.tau_s))
-
-
-# ============================================================================= casing load, higher harmonics
-
-
-class CasingLoadHarmonicsInjector(OffFaceInjector):
-    """Parasitic force in the ft xy plane, ``scale sum_h a_h M_hk (cos h phi, sin h phi)``; entries of
-    ``M_hk`` ~ N(0, 1/2) as ``casing_load``'s, harmonics ``h`` and weights ``a_h`` configurable."""
-
-    name = "casing_load_harmonics"
-    expect = "casing_load"
-    magnitude = Magnitude("N, amplitude of the shaft-angle dependent force (3rd + 5th harmonic)", (0.3, 1.5), 1.0)
-
-    def __init__(self, scale: float | None = None, seed: int = 0, harmonics: tuple = (3, 5), weights: tuple = (1.0, 0.6)):
-        super().__init__(scale, seed)
-        self.harmonics = tuple(int(h) for h in harmonics)
-        self.weights = np.asarray(weights, float)
-        if len(self.harmonics) != len(self.weights) or not self.harmonics:
-            raise ValueError(f"{self.name}: harmonics {harmonics!r} and weights {weights!r} need the same non-zero length")
-        self._M: np.ndarray | None = None
-
-    def matrices(self, K: int) -> np.ndarray:
-        """``scale a_h M_hk`` (H, K, 2, 2)."""
-        if self._M is None or self._M.shape[1] != K:
-            self._M = self.rng.normal(0.0, 1.0 / np.sqrt(2.0), (len(self.harmonics), K, 2, 2))
-        return self.scale * self.weights[:, None, None, None] * self._M
-
-    def readings(self, ctx, w):
-        M = self.matrices(w.shape[1])
-        hphi = np.asarray(self.harmonics, float)[:, None, None] * ctx.phi[None]      # (H, N, K)
-        cs = np.stack([np.cos(hphi), np.sin(hphi)], axis=-1)                        # (H, N, K, 2)
-        out = w.copy()
-        out[..., :2] += np.einsum("hkij,hnkj->nki", M, cs)
-        return out
 
 
 # ============================================================================= one leg's wiring
@@ -327,33 +204,30 @@ class MocapPoseNoiseInjector(OffFaceInjector):
 # ============================================================================= registry
 
 #: canonical name -> off-face injector class
-VARIANTS: dict[str, type[OffFaceInjector]] = {
-    c.name: c
-    for c in (
-        OffsetDriftRampInjector, OffsetDriftStepInjector, OffsetDriftFastInjector, CasingLoadHarmonicsInjector,
-        LegAxesSwappedInjector, LegAxisFlippedInjector, LegMassChangedInjector, MocapPoseNoiseInjector,
-    )
+OUTSIDE: dict[str, type[OffFaceInjector]] = {
+    c.name: c for c in (LegAxesSwappedInjector, LegAxisFlippedInjector, LegMassChangedInjector, MocapPoseNoiseInjector)
 }
 
-for _name, _cls in VARIANTS.items():
-    if _name in LIBRARY_EFFECTS or EFFECTS.get(_name, _cls) is not _cls:
+#: every off-face injector: the effect units' shapes, then the faults outside the library
+VARIANTS: dict[str, type[OffFaceInjector]] = {**shape_classes(), **OUTSIDE}
+
+for _name, _cls in OUTSIDE.items():
+    if EFFECTS.get(_name, _cls) is not _cls:
         raise RuntimeError(f"off-face injector name {_name!r} is taken by another effect")
-    if _cls.expect not in (EXPECT_NONE, EXPECT_UNEXPLAINED) + LIBRARY_EFFECTS:
+for _name, _cls in VARIANTS.items():
+    if _cls.expect not in expectations():
         raise RuntimeError(f"{_cls.__name__}.expect: {_cls.expect!r} is neither a library effect, 'none' nor 'unexplained'")
     EFFECTS[_name] = _cls
 
 __all__ = [
     "EXPECT_NONE",
     "EXPECT_UNEXPLAINED",
+    "OUTSIDE",
     "VARIANTS",
-    "CasingLoadHarmonicsInjector",
     "LegAxesSwappedInjector",
     "LegAxisFlippedInjector",
     "LegMassChangedInjector",
     "MocapPoseNoiseInjector",
     "OffFaceInjector",
-    "OffsetDriftFastInjector",
-    "OffsetDriftRampInjector",
-    "OffsetDriftStepInjector",
     "variant_key",
 ]

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 from ..data import recording_to_frame, write_robot
+from ..errors import OutputExistsError
 from .simulate import SimResult
 
 _FORMATS = ("csv", "parquet")
@@ -48,7 +49,7 @@ def write_simulation(
     folder = Path(folder)
     manifest = folder / "dataset.toml"
     if manifest.exists() and not overwrite:
-        raise FileExistsError(f"{manifest} exists; pass overwrite=True to replace it")
+        raise OutputExistsError(f"{manifest} exists; pass overwrite=True to replace it", path=manifest)
     folder.mkdir(parents=True, exist_ok=True)
     ds = res.dataset
     write_robot(ds.robot, folder / "robot.toml")

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..errors import ConfigError
 from ..geometry import cayley, skew
 from ..models import ErrorModel, ModelContext
 from .nlp import Solution, SolverError
@@ -72,7 +73,8 @@ def solve_baseline(model: ErrorModel, ctx: ModelContext, xi: np.ndarray, balance
                    settings: BaselineSettings = BaselineSettings()) -> tuple[np.ndarray, np.ndarray, np.ndarray, Solution]:
     """Alternating least squares of eq. 8; returns (R (K,3,3), p' (K,3), offsets (K,6), Solution)."""
     if model.baseline_rotations is None or model.baseline_translations is None:
-        raise NotImplementedError(f"the baseline solver supports the built-in models only, not {model.name!r}; use solver='ipopt'")
+        raise ConfigError(f"the baseline solver supports the built-in models only, not {model.name!r}; use solver='ipopt'",
+                          key="standing.solver")
     K, legs, prior = ctx.K, ctx.legs, ctx.prior
     P = len(xi)
     xi_all = xi

@@ -32,6 +32,7 @@ import pandas as pd
 from ..balance import weights
 from ..calibration import Calibration
 from ..data import WRENCH_COMPONENTS
+from ..errors import ConfigError, DataFormatError
 from ..models import ErrorModel, ModelContext, ModelSpec, OffsetsOnly, resolve
 from ..robot import Robot
 from ..settings import STANDING_SOLVERS as SOLVERS
@@ -64,12 +65,12 @@ def check_inputs(poses: Poses, prior: Calibration, robot: Robot) -> None:
         raise ValueError(f"poses legs {poses.legs} differ from the robot's {robot.legs}")
     missing = [k for k in robot.legs if k not in prior.legs]
     if missing:
-        raise ValueError(f"prior calibration has no leg(s) {missing}")
+        raise DataFormatError(f"prior calibration has no leg(s) {missing}")
     off, w, _, _ = prior.stacked(robot.legs)
     if not np.all(np.isfinite(off)) or not np.all(np.isfinite(w)):
-        raise ValueError("prior calibration: offsets and leg weights must be finite")
+        raise DataFormatError("prior calibration: offsets and leg weights must be finite")
     if poses.n == 0:
-        raise ValueError("no standing poses to fit")
+        raise DataFormatError("no standing poses to fit")
     if not (np.all(np.isfinite(poses.w_m)) and np.all(np.isfinite(poses.R_WB)) and np.all(np.isfinite(poses.phi))):
         raise ValueError("standing poses: readings, shaft angles and orientations must be finite")
 
@@ -95,11 +96,11 @@ def solve(problem: StandingProblem, xi: np.ndarray, solver: str, x0: np.ndarray 
         sol = problem.compiled.solve(moments(xi), x0, W)
         return sol.x, sol
     if W is not None:
-        raise ValueError(f"a weight W other than K needs solver 'ipopt', got {solver!r}")
+        raise ConfigError(f"a weight W other than K needs solver 'ipopt', got {solver!r}", key="standing.solver")
     if solver == "baseline":
         R, p, off, sol = solve_baseline(problem.model, problem.ctx, xi, problem.balance, baseline)
         return to_model_x(problem.spec, problem.model, problem.ctx, R, p, off), sol
-    raise ValueError(f"unknown solver {solver!r}; known: {list(SOLVERS)}")
+    raise ConfigError(f"unknown solver {solver!r}; known: {list(SOLVERS)}", key="standing.solver")
 
 
 def heldout_mse(problem: StandingProblem, x: np.ndarray, xi: np.ndarray) -> float:
@@ -219,8 +220,8 @@ def fit_standing(poses: Poses, prior: Calibration, robot: Robot, settings: Stand
     model, solver, balance, weighting = s.model, s.solver, s.balance, s.weighting
     covariance, rel_eig_tol = s.covariance, s.rel_eig_tol
     if model == "auto" and not fit_offsets:
-        raise ValueError("fit_standing fits one model: pass model='full' (or another name); "
-                         "'auto' is resolved by select_models or calibrate")
+        raise ConfigError("fit_standing fits one model: pass model='full' (or another name); "
+                          "'auto' is resolved by select_models or calibrate", key="standing.model")
     check_inputs(poses, prior, robot)
     t0 = time.perf_counter()
     problem = prepare(prior, robot, model, balance, fit_offsets=fit_offsets, verbose=verbose)

@@ -235,9 +235,9 @@ class StandingResult(ResultsMixin):
     unidentified: tuple[str, ...]
     solver_status: str
     solve_time_s: float
-    model: str = ""
-    balance: str = "exact"
-    solver: str = "ipopt"
+    model: str                           # what the fit used (StandingSettings or the caller), recorded
+    balance: str
+    solver: str
     legs: tuple[str, ...] = ()
     R_nominal: np.ndarray | None = None
     com_body_se_m: np.ndarray | None = None
@@ -249,7 +249,7 @@ class StandingResult(ResultsMixin):
     x: np.ndarray | None = field(default=None, repr=False)
     iterations: int = -1
     total_time_s: float = float("nan")   # compile + solve + uncertainty
-    weighting: str = "knorm"             # "knorm" (eq. 8's K) or "fgls" (W = residual covariance^-1)
+    weighting: str = field(kw_only=True)  # "knorm" (eq. 8's K) or "fgls" (W = residual covariance^-1)
     weight: np.ndarray | None = field(default=None, repr=False)  # the fgls W (6x6, B axes)
     param_labels: tuple[str, ...] = ()                           # physical labels of ``cov`` (``Physical.labels``)
     cov: np.ndarray | None = field(default=None, repr=False)      # covariance of those, conditional on the prior

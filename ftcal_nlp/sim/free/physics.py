@@ -44,7 +44,7 @@ from typing import Mapping
 import numpy as np
 
 from ...geometry import rotvec_to_rotation, unskew
-from .kinematics import KinematicTree
+from ...kinematics import KinematicTree
 
 G_DOWN = np.array([0.0, 0.0, -1.0])
 

@@ -8,6 +8,9 @@ frame (= the child frame):
     T_child^parent(q) = T_origin @ [exp(q [axis]x), 0; 0, 1]        (revolute)
     T_child^parent(q) = T_origin @ [I, q axis; 0, 1]                 (prismatic)
 
+Shared by the free-load simulator (``sim/free``) and the free-load estimator
+(``freeload``, ``loads``): one implementation, no copy.
+
 Poses of links relative to any other link of the tree follow by composing these
 along the tree path (``pose(ref, link, q)``: ``R`` (N, 3, 3) maps ``link``
 vectors to ``ref`` vectors, ``p`` (N, 3) m the origin of ``link`` in ``ref``).
@@ -23,7 +26,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ...geometry import rotvec_to_rotation
+from .errors import DataFormatError
+from .geometry import rotvec_to_rotation
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -138,15 +142,15 @@ def joint_transform(j: Joint, q: np.ndarray | None, n: int) -> tuple[np.ndarray,
 
 def load_tree(path: str | Path) -> KinematicTree:
     """Parse a URDF file into a :class:`KinematicTree` (no meshes, no scene graph)."""
-    from ...ros.urdf import load_urdf  # yourdfpy only when a URDF is used
+    from .ros.urdf import load_urdf  # yourdfpy only when a URDF is used
 
     u = load_urdf(path)
     joints = {}
     for j in u.robot.joints:
         if j.type not in MOVABLE + ("fixed",):
-            raise ValueError(f"{path}: joint '{j.name}' of type '{j.type}' is not supported")
+            raise DataFormatError(f"{path}: joint '{j.name}' of type '{j.type}' is not supported")
         if j.mimic is not None:
-            raise ValueError(f"{path}: joint '{j.name}' mimics another joint; mimic joints are not supported")
+            raise DataFormatError(f"{path}: joint '{j.name}' mimics another joint; mimic joints are not supported")
         axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
         lim = j.limit
         joints[j.child] = Joint(j.name, j.type, j.parent, j.child,
@@ -157,7 +161,7 @@ def load_tree(path: str | Path) -> KinematicTree:
     links = tuple(l.name for l in u.robot.links)
     roots = [l for l in links if l not in joints]
     if len(roots) != 1:
-        raise ValueError(f"{path}: a URDF tree has one root link, found {roots}")
+        raise DataFormatError(f"{path}: a URDF tree has one root link, found {roots}")
     bodies = {}
     for l in u.robot.links:
         if l.inertial is not None and l.inertial.mass is not None and l.inertial.mass > 0:

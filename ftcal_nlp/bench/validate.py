@@ -2,7 +2,7 @@
 with the diagnosis on, and score what it says against what a correct diagnosis should say.
 
 ``python -m ftcal_nlp.run problems/diagnose_validation.toml`` (any config with a
-``[validation]`` table; or ``python -m ftcal_nlp.diagnose.validate <config>``). Config::
+``[validation]`` table; or ``python -m ftcal_nlp.bench.validate <config>``). Config::
 
     [validation]
     design = "sweep"           # "sweep" (issue 13, below) or "random" (issue 7: n_datasets drawn at random);
@@ -10,7 +10,8 @@ with the diagnosis on, and score what it says against what a correct diagnosis s
     seed = 0                   # dataset i uses simulator (and injector) seed seed * 1000 + i
     n_clean = 6                # clean datasets (sweep)
     effects = [...]            # library effects to withhold (default: the whole library)
-    variants = [...]           # off-face injectors (ftcal_nlp.sim.variants; default: all of them; sweep)
+    variants = [...]           # off-face injectors (ftcal_nlp.sim.variants.VARIANTS: the effect units' shapes and the
+                               # faults outside the library; default: all of them; sweep)
     sizes = "realistic"        # sweep: "realistic" -> each effect's realistic low and high end;
                                #        "test" -> its test size and half of it
     tolerance = 1.5            # shrinkage goal: after / clean twin's floor <= this, every component
@@ -83,11 +84,12 @@ from joblib import Parallel, delayed
 from ..data import WRENCH_COMPONENTS
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
-from ..sim import EFFECTS, SimConfig, simulate
-from ..sim.variants import EXPECT_NONE, EXPECT_UNEXPLAINED, VARIANTS
-from .effects import LIBRARY
+from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED
+from ..sim import SimConfig, simulate
+from ..sim.effects import EFFECTS as INJECTORS
+from ..sim.variants import VARIANTS
 
-log = logging.getLogger("ftcal_nlp.diagnose.validate")
+log = logging.getLogger("ftcal_nlp.bench.validate")
 
 DEFAULTS = {"design": "sweep", "seed": 0, "n_clean": 6, "effects": None, "variants": None, "sizes": "realistic",
             "tolerance": 1.5, "model": "full", "folds": 5, "workers": 1, "backend": "loky",
@@ -108,7 +110,7 @@ COMPONENTS = tuple(WRENCH_COMPONENTS)
 def plan(cfg: dict) -> list[dict]:
     """The random design (issue 7): ``index``, ``seed``, ``effect`` (or "none"), ``scale``; datasets cycle
     through ``[none] + effects`` (clean ones as ``clean_share`` asks), shuffled by ``seed``."""
-    effects = _names(cfg.get("effects"), LIBRARY, "effects")
+    effects = _names(cfg.get("effects"), EFFECTS, "effects")
     n = int(cfg["n_datasets"])
     rng = np.random.default_rng(int(cfg["seed"]))
     n_clean = int(round(cfg["clean_share"] * n))
@@ -118,7 +120,7 @@ def plan(cfg: dict) -> list[dict]:
     for i, lab in enumerate(labels):
         scale = None
         if lab != "none":
-            mag = LIBRARY[lab].magnitude
+            mag = EFFECTS[lab].magnitude
             scale = float(mag.test) if cfg["magnitude"] == "test" else float(rng.uniform(*mag.realistic))
         out.append({"index": i, "seed": int(cfg["seed"]) * 1000 + i, "effect": lab, "scale": scale})
     return out
@@ -139,7 +141,7 @@ def _names(value, known: dict, key: str) -> list[str]:
 def effect_sizes(name: str, sizes: str) -> tuple[tuple[str, float], tuple[str, float]]:
     """Two ``(label, scale)`` of effect ``name``: its realistic low and high end, or half its test size and
     the test size; an all-or-nothing effect (realistic range one value) runs that value twice."""
-    mag = EFFECTS[name].magnitude
+    mag = INJECTORS[name].magnitude
     lo, hi = (float(v) for v in mag.realistic)
     if lo == hi:
         return ("lo", lo), ("hi", hi)
@@ -152,7 +154,7 @@ def expectation(name: str, scale: float, seed: int) -> tuple[str, tuple[str, ...
     """What a correct diagnosis says about effect ``name`` (injected with ``scale``, ``seed``): its label and legs."""
     if name == "none":
         return EXPECT_NONE, ()
-    if name in LIBRARY:
+    if name in EFFECTS:
         return name, ()
     inj = VARIANTS[name](scale=scale, seed=seed)
     return inj.expect, tuple(inj.expect_legs)
@@ -163,7 +165,7 @@ def sweep_plan(cfg: dict) -> list[dict]:
     own seed, then one clean twin (same seed, no effect) per dataset with an effect. Items: ``index``, ``seed``,
     ``role`` (clean | library | variant | twin), ``effect``, ``size``, ``scale``, ``expect``, ``expect_legs``,
     ``twin`` (the twin's index; twins: the index of their dataset)."""
-    effects = _names(cfg.get("effects"), LIBRARY, "effects")
+    effects = _names(cfg.get("effects"), EFFECTS, "effects")
     variants = _names(cfg.get("variants"), VARIANTS, "variants")
     base = int(cfg["seed"]) * 1000
     rows = [("clean", "none", "", None) for _ in range(int(cfg["n_clean"]))]
@@ -221,8 +223,10 @@ def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
     A failure is recorded in the row (``named`` "error"), never raised: it is a finding of the validation."""
     t0 = time.perf_counter()
     lab = item["effect"]
-    spec = [] if lab in ("none", "moving_com") else [{"name": lab, "scale": item["scale"], "seed": item["seed"]}]
-    balance = "report" if lab == "moving_com" else "exact"
+    # an effect whose gap exists only under the report's fixed-CoM balance (moving_com) is exact physics: no injector
+    report = lab in EFFECTS and EFFECTS[lab].needs_report_balance
+    spec = [] if lab == "none" or report else [{"name": lab, "scale": item["scale"], "seed": item["seed"]}]
+    balance = "report" if report else "exact"
     row = {**item, "balance": balance}
     try:
         sim = simulate(SimConfig.from_dict({**sim_over, "seed": item["seed"], "effects": spec}))
@@ -310,7 +314,7 @@ def score(rows: pd.DataFrame, tolerance: float = 1.5) -> pd.DataFrame:
             s.update({f"{name}_ratio_{c}": float(v) for c, v in zip(COMPONENTS, _vec(r, name) / f)})
         s.update({f"twin_floor_{c}": float(v) for c, v in zip(COMPONENTS, f)})
         after = _vec(r, "after") / f
-        lib = r["expect"] in LIBRARY
+        lib = r["expect"] in EFFECTS
         s["shrink_ok"] = bool(np.all(after <= tolerance)) if (lib and s["right"]) else np.nan
         s["worst_after_force"] = float(np.nanmax(after[:3])) if np.isfinite(after[:3]).any() else np.nan
         s["worst_after_torque"] = float(np.nanmax(after[3:])) if np.isfinite(after[3:]).any() else np.nan
@@ -325,7 +329,7 @@ def confusion(rows: pd.DataFrame, labels: list[str]) -> pd.DataFrame:
     M = pd.DataFrame(0, index=withheld, columns=cols)
     for _, r in rows.iterrows():
         M.loc[r["effect"], r["named"] if r["named"] in cols else "error"] += 1
-    M = M.loc[:, (M.sum(axis=0) > 0) | M.columns.isin(["none", EXPECT_UNEXPLAINED] + list(LIBRARY))]
+    M = M.loc[:, (M.sum(axis=0) > 0) | M.columns.isin(["none", EXPECT_UNEXPLAINED] + list(EFFECTS))]
     M.index.name = "withheld"
     return M
 
@@ -362,10 +366,10 @@ def sweep_summary(rows: pd.DataFrame, scores: pd.DataFrame, wall_s: float, toler
     """Counts of the sweep (issue 13's table): each ``[right, n]``, plus the misses that explain them."""
     sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "shrink_ok", "effect"])
     lib = sc[sc["role"] == "library"]
-    shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(LIBRARY))]
+    shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(EFFECTS))]
     outside = sc[sc["expect"] == EXPECT_UNEXPLAINED]
     noise = sc[(sc["role"] == "variant") & (sc["expect"] == EXPECT_NONE)]
-    named_right = sc[sc["expect"].isin(list(LIBRARY)) & (sc["right"] == True)]  # noqa: E712 (object column)
+    named_right = sc[sc["expect"].isin(list(EFFECTS)) & (sc["right"] == True)]  # noqa: E712 (object column)
     clean = rows[rows["role"] == "clean"]
     twins = rows[rows["role"] == "twin"]
     return {
@@ -448,9 +452,9 @@ def validation_table(rows: pd.DataFrame, scores: pd.DataFrame, summary: dict) ->
 
     if len(sc):
         lib = sc[sc["role"] == "library"]
-        shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(LIBRARY))]
+        shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(EFFECTS))]
         outside = sc[sc["expect"] == EXPECT_UNEXPLAINED]
-        named_right = sc[sc["expect"].isin(list(LIBRARY)) & sc["right"].astype(bool)]
+        named_right = sc[sc["expect"].isin(list(EFFECTS)) & sc["right"].astype(bool)]
     else:
         lib = shape = outside = named_right = sc
     s = summary
@@ -564,7 +568,7 @@ def run_items(items: list[dict], c: dict, sim_over: dict, out_dir: str | Path, b
     wall = time.perf_counter() - t0
     rows.to_csv(out / "datasets.csv", index=False)
     if c["design"] == "random":
-        labels = ["none"] + _names(c.get("effects"), LIBRARY, "effects")
+        labels = ["none"] + _names(c.get("effects"), EFFECTS, "effects")
         M = confusion(rows, labels)
         summary = summarise(rows, wall)
         M.to_csv(out / "confusion.csv")
@@ -612,7 +616,7 @@ def main(config_path: str | Path) -> int:
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.diagnose.validate", description="Withheld-effect validation of the diagnosis.")
+    ap = argparse.ArgumentParser(prog="python -m ftcal_nlp.bench.validate", description="Withheld-effect validation of the diagnosis.")
     ap.add_argument("config")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")

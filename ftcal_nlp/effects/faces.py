@@ -1,15 +1,7 @@
-"""What an effect of the library is: one plug-in with two faces (issue 7).
+"""The model face of an effect: the building blocks every unit's augmentation is made of.
 
-Face (a), the injector, adds the effect to simulated readings (the hook of
-``ftcal_nlp.sim.effects``: ``readings(ctx, w)``, ``orientation(ctx, R)``,
-``robot(robot)``); its ``scale`` is the effect's size in the unit of
-:class:`Magnitude`. The injectors, their base :class:`EffectInjector`, their
-formulas and their sizes live in the simulator, :mod:`ftcal_nlp.sim.injectors`
-(re-exported here); an :class:`Effect` names its injector class (``injector_cls``)
-and takes its ``magnitude`` from it.
-
-Face (b), the augmentation, adds a few parameters ``eta`` to the calibration
-model so that it can absorb the effect:
+An effect's model face adds a few parameters ``eta`` to the calibration model so that
+it can absorb the effect:
 
 * standing (report eq. 8 with the balance of physics.py (E) or eq. 9): the
   balance residual of pose p becomes
@@ -18,38 +10,33 @@ model so that it can absorb the effect:
 
   with corrected readings ``c_k``, a corrected up-vector ``z~`` and an extra
   wrench ``e_p`` (B axes, about the reference point); ``eta = 0`` gives back the
-  calibration model. :meth:`Effect.standing` returns ``(c_k, z~, e_p)`` as
-  CasADi expressions of ``eta`` and of one pose's data (:class:`PoseSym`).
+  calibration model. ``Effect.standing`` returns ``(c_k, z~, e_p)`` as CasADi
+  expressions of ``eta`` and of one pose's features (:class:`PoseSym`; numbers:
+  :meth:`StandingData.features`, symbols: :func:`pose_symbols`, column for column).
 * hanging (report eqs. 4-7) and walking swing (a foot in the air reads only its
   leg's weight): the effect is linear in ``eta`` to first order, so it enters
   as features ``X`` (N, 6, m) regressed on the residuals of the fitted model
-  (:meth:`Effect.hanging_features`, :meth:`Effect.swing_features`).
+  (``Effect.hanging_features``, ``Effect.swing_features``: a :class:`LinearFace`
+  over :class:`HangingLeg` samples).
+* design: with free transducer rotations a common tilt of all fitted frames
+  (:func:`design_check`) is how a motion-capture bias or a cable's horizontal pull shows.
 
-Sizes are in ``Magnitude``: a realistic range for an ATI Gamma on an 8 kg
-robot and a test size at which the effect is clearly detectable.
-
-This module holds face (b)'s building blocks: :class:`Effect`, the symbols and
-contexts of the faces (:class:`PoseSym`, :class:`AugContext`, :class:`ParamBlock`,
-:class:`HangingLeg`, :class:`LinearFace`) and :func:`per_leg_face`.
+This module holds those blocks (:class:`PoseSym`, :class:`AugContext`,
+:class:`ParamBlock`, :class:`HangingLeg`, :class:`LinearFace`, :func:`per_leg_face`,
+:class:`StandingData`, :func:`pose_symbols`, :func:`legendre_time`,
+:func:`design_check`); the diagnosis (``ftcal_nlp.diagnose``) fits them, the
+correction (``ftcal_nlp.effect_correction``) evaluates them.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
+import casadi as ca
 import numpy as np
 
-from ...sim.effects import NoEffect
-from ...sim.injectors import (  # noqa: F401  (re-exported: the injector face lives in the simulator)
-    HOUR_S,
-    REF_FORCE_N,
-    REF_TORQUE_NM,
-    EffectInjector,
-    Magnitude,
-    rotvec_rotate,
-    shaft_speed,
-)
+from ..geometry import rotation_to_rotvec
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 TIME_BASIS = 4      # smooth time basis of the standing features (flexible drift faces choose how many terms)
@@ -199,86 +186,6 @@ class HangingLeg:
         """The modelled applied wrench ``[f; r x f]`` (N, 6)."""
         return np.hstack([self.f, np.cross(self.r, self.f)])
 
-
-class Effect:
-    """One effect of the library: an injector class and the augmentation faces.
-
-    Subclasses set ``name`` (canonical, ``OUTPUT_FORMAT.md``), ``description``,
-    ``explains`` (the dependence localisation should find), ``injector_cls`` (from
-    :mod:`ftcal_nlp.sim.injectors`) and ``magnitude`` (``injector_cls.magnitude``);
-    they override the faces they have.
-    """
-
-    name: ClassVar[str] = ""
-    description: ClassVar[str] = ""
-    explains: ClassVar[str | None] = None
-    magnitude: ClassVar[Magnitude] = Magnitude("", (0.0, 0.0), 0.0)
-    injector_cls: ClassVar[type] = NoEffect
-    #: the calibration settings under which the standing face is meaningful
-    needs_report_balance: ClassVar[bool] = False
-    #: the effect acts while hanging, so the hanging offsets absorbed part of it: the standing
-    #: face gets a constant wrench in B (6 parameters) for the shifted offsets
-    shifts_offsets: ClassVar[bool] = False
-
-    def variants(self) -> tuple[Effect, ...]:
-        """The same effect with faces of different flexibility in its correlate (issue 13, item 4);
-        attribution scores each and keeps the one that predicts held-out data best. Default: itself."""
-        return (self,)
-
-    def joint_variant(self) -> Effect:
-        """The variant the joint refit uses (``diagnose/joint.py``); default: this one."""
-        return self
-
-    def joint_variants(self) -> tuple[Effect, ...]:
-        """Variants the joint refit chooses among by the hanging face's held-out residual (the hanging
-        legs sweep every shaft angle, so a flexible face is cheap there); default: ``joint_variant``."""
-        return (self.joint_variant(),)
-
-    @property
-    def variant(self) -> dict:
-        """The keyword arguments that rebuild this variant (``type(self)(**variant)``)."""
-        return {}
-
-    @property
-    def label(self) -> str:
-        """The effect's name with its variant, e.g. ``casing_load (harmonics=2)``."""
-        return self.name + (" (" + ", ".join(f"{k}={v}" for k, v in self.variant.items()) + ")" if self.variant else "")
-
-    def injector(self, scale: float | None = None, seed: int = 0) -> EffectInjector:
-        return self.injector_cls(scale=scale, seed=seed)
-
-    # ---- standing face (A)
-    def standing_params(self, ctx: AugContext) -> ParamBlock | None:
-        return None
-
-    def standing(self, eta, pose: PoseSym, ctx: AugContext):
-        """``(c, zmap, extra)``: corrected readings (K list of (6,)), a 3x3 map of the up
-        vector (``z~ = zmap z``; None: unchanged) and an extra wrench (6,) (or None),
-        all linear in the pose's feature symbols."""
-        return pose.w, None, None
-
-    def standing_from_hanging(self, hanging: dict, ctx: AugContext) -> dict:
-        """Standing-face parameters that mean the same as parameters of the hanging face
-        (index into ``standing_params`` -> value from ``hanging``, names as the hanging face's
-        ``LinearFace.names``). A joint refit holds them at the hanging estimates: the hanging legs
-        sweep every shaft angle and load direction, standing poses see only the sum in B."""
-        return {}
-
-    def standing_balance(self, balance: str) -> str:
-        """The balance the augmented standing problem uses (only ``moving_com`` changes it)."""
-        return balance
-
-    # ---- linear faces (hanging, walking swing): first-order effect on the residuals
-    def hanging_features(self, legs: list[HangingLeg]) -> LinearFace | None:
-        return None
-
-    def swing_features(self, legs: list[HangingLeg]) -> LinearFace | None:
-        return None
-
-    def __repr__(self) -> str:
-        return f"<effect {self.name}>"
-
-
 @dataclass(frozen=True)
 class LinearFace:
     """Features of a linear face: ``blocks[i]`` (N_i, 6, q) for ``legs[i]``; ``per_leg``: each
@@ -296,3 +203,126 @@ def per_leg_face(legs: list[HangingLeg], make, labels) -> LinearFace:
     for l in legs:
         names[l.k] = l.leg
     return LinearFace([make(l) for l in legs], tuple(f"{n or k}.{c}" for k, n in enumerate(names) for c in labels), True)
+
+
+@dataclass(frozen=True)
+class StandingData:
+    """Per-pose data of the standing poses (P poses, K legs), numpy.
+
+    ``w`` (P, K, 6) raw readings; ``z`` (P, 3) up in B; ``R_HB`` (P, 3, 3) orientation
+    without heading; ``t_h`` (P,) hours since the hanging reference time; ``prev``
+    (P, K, 6) previous pose's raw readings (= ``w`` where unknown); ``phi`` (P, K);
+    ``rcom`` (P, K, 3) leg CoMs at phi (hanging curves, ft_k, m); ``n_vert`` (K, 3)
+    the design-vertical ft axes; ``t_span`` (first, last) hours of the smooth time basis
+    (None: the range of ``t_h``; subsets keep their parent's); ``t_step`` hours, the change
+    point of the calibration's residual (``views.change_point``; the feature ``step`` is
+    ``t_h > t_step``; None: no step feature, zeros).
+    """
+
+    w: np.ndarray
+    z: np.ndarray
+    R_HB: np.ndarray
+    t_h: np.ndarray
+    prev: np.ndarray
+    phi: np.ndarray
+    rcom: np.ndarray
+    n_vert: np.ndarray
+    t_span: tuple[float, float] | None = None
+    t_step: float | None = None
+
+    def __post_init__(self):
+        if self.t_span is None:
+            t = np.asarray(self.t_h, float)
+            object.__setattr__(self, "t_span", (float(t.min()), float(t.max())) if len(t) else (0.0, 1.0))
+
+    def time_basis(self) -> np.ndarray:
+        """Legendre polynomials P_1..P_TIME_BASIS of the time scaled to [-1, 1] over ``t_span`` (P, TIME_BASIS)."""
+        return legendre_time(self.t_h, *self.t_span, range(1, TIME_BASIS + 1))
+
+    @property
+    def P(self) -> int:
+        return len(self.t_h)
+
+    @property
+    def K(self) -> int:
+        return self.w.shape[1]
+
+    def subset(self, idx) -> StandingData:
+        return StandingData(self.w[idx], self.z[idx], self.R_HB[idx], self.t_h[idx], self.prev[idx], self.phi[idx],
+                            self.rcom[idx], self.n_vert, self.t_span, self.t_step)
+
+    def features(self) -> np.ndarray:
+        """``phi_p`` (P, n_phi) in the order of :func:`pose_symbols`."""
+        P = self.P
+        nf = np.einsum("ki,pki->pk", self.n_vert, self.w[..., :3])
+        rz = self.rcom[:, :, :, None] * self.z[:, None, None, :]
+        return np.concatenate([
+            self.w.reshape(P, -1), self.z, self.R_HB.reshape(P, 9), self.t_h[:, None], self.t_h[:, None] ** 2,
+            self.prev.reshape(P, -1), np.cos(self.phi), np.sin(self.phi), (self.w**2).reshape(P, -1),
+            (nf[..., None] * self.w).reshape(P, -1), self.rcom.reshape(P, -1), rz.reshape(P, -1),
+            self.time_basis(), *[f(m * self.phi) for m in range(2, HARMONICS + 1) for f in (np.cos, np.sin)],
+            (self.t_h > self.t_step)[:, None].astype(float) if self.t_step is not None else np.zeros((P, 1)),
+        ], axis=1)
+
+
+def pose_symbols(K: int) -> tuple[ca.SX, PoseSym]:
+    """One pose's features as an SX vector and its named views (columns of :meth:`StandingData.features`)."""
+    n = 6 * K + 3 + 9 + 2 + 6 * K + 2 * K + 6 * K + 6 * K + 3 * K + 9 * K + TIME_BASIS + 2 * K * (HARMONICS - 1) + 1
+    d = ca.SX.sym("phi", n)
+    i = 0
+
+    def take(m):
+        nonlocal i
+        out = d[i : i + m]
+        i += m
+        return out
+
+    def legs6(v):
+        return [v[6 * k : 6 * k + 6] for k in range(K)]
+
+    w = take(6 * K)
+    z = take(3)
+    R = ca.reshape(take(9), 3, 3).T  # stored row by row
+    t_h = take(1)
+    t_h2 = take(1)
+    prev = take(6 * K)
+    cphi = take(K)
+    sphi = take(K)
+    w2 = take(6 * K)
+    nfw = take(6 * K)
+    rcom = take(3 * K)
+    rz = take(9 * K)
+    tb = take(TIME_BASIS)
+    harm = [(cphi, sphi)] + [(take(K), take(K)) for _ in range(2, HARMONICS + 1)]
+    step = take(1)
+    return d, PoseSym(
+        w=legs6(w), z=z, R_HB=R, t_h=t_h, t_h2=t_h2, prev=legs6(prev), cphi=cphi, sphi=sphi, w2=legs6(w2),
+        nfw=legs6(nfw), rcom=[rcom[3 * k : 3 * k + 3] for k in range(K)],
+        rz=[ca.reshape(rz[9 * k : 9 * k + 9], 3, 3).T for k in range(K)], tb=tb, harm=harm, step=step,
+    )
+
+
+def design_check(R_fitted: np.ndarray, R_nominal: np.ndarray) -> dict:
+    """Design face of mocap_bias: do the fitted transducer frames share a common tilt?
+
+    With free rotations the standing fit absorbs a mocap bias exactly (every
+    ``R_k`` turns by ``R_b^T``), so it shows only against the design: the mounting
+    errors ``delta_k = log(R_k R_nom,k^T)`` (B axes) are independent per leg, a
+    bias adds one common tilt. Likelihood ratio of "common tilt + scatter" against
+    "scatter" on the x, y components (heading components are not determined by
+    level poses): ``dBIC = n ln(SS_1/SS_0) + 2 ln n``, n = 2K.
+
+    Returns the mean tilt (deg), its se, ``delta_bic``, and ``n``.
+    """
+    d = np.degrees(rotation_to_rotvec(R_fitted @ np.swapaxes(R_nominal, 1, 2)))[:, :2]  # (K, 2)
+    K = len(d)
+    mean = d.mean(axis=0)
+    ss0 = float((d**2).sum())
+    ss1 = float(((d - mean) ** 2).sum())
+    n = 2 * K
+    sd = np.sqrt(ss1 / max(n - 2, 1))
+    dbic = n * np.log(max(ss1, 1e-300) / max(ss0, 1e-300)) + 2 * np.log(n)
+    return {"tilt_deg": mean, "tilt_se_deg": sd / np.sqrt(K), "delta_bic": float(dbic), "n": n,
+            "scatter_deg": float(sd), "rms_before": float(np.sqrt(ss0 / n)), "rms_after": float(np.sqrt(ss1 / n))}
+
+

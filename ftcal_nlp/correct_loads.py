@@ -1,0 +1,187 @@
+"""Contact wrench of a wrist transducer carrying a calibrated rigid payload (``DATA_FORMAT.md`` section 5, issue 22).
+
+``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv`` dispatches here when the calibration's
+transducers carry rigid payloads (``load_kind = "rigid_payload"`` in ``calibration.json``).
+
+Per sample, in the estimated (true) ft frame about its origin (``R_B,ft`` = ``rotation_to_body``, the nominal
+rotation times the estimated mounting rotation):
+
+    g_ft = R_B,ft^T g_B,        w_load = [m g_ft ; c x (m g_ft)],        w_contact = w_m - w_o - w_load
+
+``g_B`` gravity in B (m/s^2): ``R_WB^T [0, 0, -g]`` from ``qw..qz``, or ``g`` times the unit direction
+``gx..gz``. The contact wrench is what the environment adds to the tool's weight: zero (within noise) while the
+tool touches nothing.
+
+Standard error per sample and component (delta method, first order):
+
+    Var(w_contact) = J C J^T + diag(sigma^2),
+
+``J`` the derivative of ``w_o + w_load`` with respect to the parameters ``(w_o, m, c or h = m c, delta)``
+(``delta`` a rotation of ft in its own axes: ``d g_ft = [g_ft]x delta``, so ``d w_load / d delta =
+[m [g_ft]x ; [h]x [g_ft]x]``), ``C`` their covariance and ``sigma`` the readings' noise sd (``noise_sd`` of
+the calibration). In process (:func:`contact_from_fit`) ``C`` is the fit's full covariance; from
+``calibration.json`` only the standard errors are stored, so ``C`` is their diagonal (correlations between
+offsets and mass are then left out: said in the log). Rows without an orientation or with NaN readings are
+dropped and counted in the log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .data import GRAVITY_COLUMNS, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
+from .errors import ConfigError, DataFormatError
+from .geometry import quat_to_rotation, skew
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PayloadCalibration:
+    """One transducer's payload calibration: offsets ``offset`` (6,), ``mass_kg``, first moment ``h`` (3,) kg m
+    in ft, ``R_B_ft`` (3, 3) the estimated ft orientation in B, ``cov`` (13, 13) over ``(w_o, m, h, delta)``,
+    ``sigma`` (6,) the readings' noise sd, ``g`` m/s^2, ``full_cov`` whether ``cov`` holds the correlations."""
+
+    leg: str
+    offset: np.ndarray
+    mass_kg: float
+    h: np.ndarray
+    R_B_ft: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    g: float
+    full_cov: bool = True
+
+
+def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.json") -> PayloadCalibration:
+    """A :class:`PayloadCalibration` from a leg entry of ``calibration.json`` (diagonal covariance from the se;
+    the CoM's se turned into the first moment's: ``Var(h_i) = m^2 Var(c_i) + c_i^2 Var(m)``)."""
+    try:
+        if d.get("load_kind") != "rigid_payload":
+            raise DataFormatError(f"{where}: transducer {leg}: load_kind = {d.get('load_kind')!r}; the contact wrench is "
+                                  "computed for rigid payloads (a URDF load needs the URDF and the joint angles)", path=where)
+        m, c = float(d["load_mass_kg"]), np.asarray(d["load_com_m"], float)
+        m_se, c_se = float(d["load_mass_se_kg"]), np.asarray(d["load_com_se_m"], float)
+        var = np.concatenate([np.asarray(d["offset_se"], float) ** 2, [m_se**2], m**2 * c_se**2 + c**2 * m_se**2,
+                              np.asarray(d["mount_rotvec_se"], float) ** 2])
+        R = np.asarray(d["rotation_to_body"], float)
+        sigma = np.asarray(d.get("noise_sd", d.get("residual_rms")), float)
+        off = np.asarray(d["offset"], float)
+    except KeyError as exc:
+        raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a payload calibration", path=where,
+                              column=str(exc.args[0])) from None
+    return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False)
+
+
+def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration:
+    """A :class:`PayloadCalibration` from an in-process ``freeload.FreeLoadResult`` of a rigid payload (its full
+    covariance over ``(w_o, m, h, delta)``)."""
+    if fit.load.kind != "rigid_payload":
+        raise DataFormatError(f"transducer {fit.leg}: a {fit.load.kind} load; the contact wrench is computed for rigid payloads")
+    cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)
+    return PayloadCalibration(fit.leg, fit.offset.copy(), float(fit.theta[0]), fit.theta[1:4].copy(),
+                              np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True)
+
+
+def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
+    """Gravity in B (N, 3), m/s^2, from ``qw..qz`` (``R_WB^T [0, 0, -g]``) or ``gx..gz`` (normalised, times g);
+    NaN rows where the orientation is missing."""
+    cols = set(map(str, df.columns))
+    if set(QUAT_COLUMNS) <= cols:
+        q = df[list(QUAT_COLUMNS)].to_numpy(float)
+        ok = np.all(np.isfinite(q), axis=1)
+        out = np.full((len(q), 3), np.nan)
+        out[ok] = -g * quat_to_rotation(q[ok] / np.linalg.norm(q[ok], axis=1, keepdims=True))[:, 2, :]
+        return out
+    if set(GRAVITY_COLUMNS) <= cols:
+        v = df[list(GRAVITY_COLUMNS)].to_numpy(float)
+        return g * v / np.linalg.norm(v, axis=1, keepdims=True)
+    raise DataFormatError(f"{where}: the contact wrench needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz", path=where)
+
+
+def predicted_load(p: PayloadCalibration, g_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``w_o + w_load`` (N, 6) for gravity ``g_B`` (N, 3) and its derivative ``J`` (N, 6, 13) with respect to
+    ``(w_o, m, h, delta)`` (module docstring)."""
+    g = np.einsum("ji,nj->ni", p.R_B_ft, g_B)                     # R_B,ft^T g_B
+    model = np.concatenate([p.mass_kg * g, np.cross(p.h, g)], axis=1) + p.offset
+    G = skew(g)
+    J = np.zeros((len(g), 6, 13))
+    J[:, :, :6] = np.eye(6)
+    J[:, :3, 6] = g
+    J[:, 3:, 7:10] = -G                                            # d(h x g)/dh
+    J[:, :3, 10:13] = p.mass_kg * G                                # d g_ft / d delta = [g_ft]x
+    J[:, 3:, 10:13] = skew(p.h) @ G
+    return model, J
+
+
+def contact_wrench(p: PayloadCalibration, w_m: np.ndarray, g_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6) and gravity ``g_B``."""
+    model, J = predicted_load(p, g_B)
+    var = np.einsum("nij,jk,nik->ni", J, p.cov, J) + p.sigma**2
+    return w_m - model, np.sqrt(np.clip(var, 0.0, None))
+
+
+def contact_frame(cal_legs: dict[str, PayloadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
+    """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
+    ``{X}_fx_se..tz_se``; rows without gravity or with NaN readings dropped (counted in the log)."""
+    if "t" not in df.columns:
+        raise DataFormatError(f"{where}: missing column 't'", path=where, column="t")
+    legs = list(cal_legs)
+    cols = [f"{k}_{c}" for k in legs for c in WRENCH_COMPONENTS]
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise DataFormatError(f"{where}: missing column(s) {missing} of the calibrated transducer(s) {legs}", path=where,
+                              column=missing[0])
+    g_B = gravity_of_frame(df, next(iter(cal_legs.values())).g, where)
+    w = df[cols].to_numpy(float)
+    ok_g = np.all(np.isfinite(g_B), axis=1)
+    ok_w = np.all(np.isfinite(w), axis=1)
+    if (~ok_g).any():
+        log.warning("%s: %d of %d rows without an orientation dropped", where, int((~ok_g).sum()), len(df))
+    if (ok_g & ~ok_w).any():
+        log.warning("%s: %d of %d rows with NaN readings dropped", where, int((ok_g & ~ok_w).sum()), len(df))
+    keep = ok_g & ok_w
+    out: dict[str, np.ndarray] = {"t": df["t"].to_numpy(float)[keep]}
+    ses: dict[str, np.ndarray] = {}
+    for i, k in enumerate(legs):
+        wc, se = contact_wrench(cal_legs[k], w[keep, 6 * i: 6 * i + 6], g_B[keep])
+        for j, c in enumerate(WRENCH_COMPONENTS):
+            out[f"{k}_{c}"] = wc[:, j]
+            ses[f"{k}_{c}_se"] = se[:, j]
+    return pd.DataFrame({**out, **ses})
+
+
+def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration] | None:
+    """The payload calibrations of ``calibration.json``, or None when it is not a free-load calibration."""
+    try:
+        d = json.loads(Path(cal_path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None   # the hexapod path reports an unreadable file in its own words
+    legs = d.get("legs", {}) if isinstance(d, dict) else {}
+    if not legs or not all(isinstance(l, dict) and "load_kind" in l for l in legs.values()):
+        return None
+    out = {k: payload_from_json(l, k, float(d.get("g", 9.81)), str(cal_path)) for k, l in legs.items()}
+    log.info("%s: se from the stored standard errors (correlations between parameters not stored: left out)", cal_path)
+    return out
+
+
+def correct_free_load_file(cal: dict, args: argparse.Namespace, out: Path) -> int:
+    """The ``correct`` command (``correct.py`` parses the line) for a free-load calibration ``cal``
+    (:func:`payload_calibrations`): the contact wrench of each wrist transducer, written to ``out``."""
+    from .csvout import write_csv
+
+    for opt, name in ((args.bag, "--bag"), (args.track_offsets, "--track-offsets")):
+        if opt:
+            raise ConfigError(f"{name} applies to hexapod calibrations; {args.calibration} holds free loads", key=name)
+    df = contact_frame(cal, read_table(Path(args.recording)), str(args.recording))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_csv(df, out)  # t and every value to the last bit (csvout.py)
+    log.info("wrote %s (%d rows): contact wrench of %s in their ft frames", out, len(df), list(cal))
+    return 0

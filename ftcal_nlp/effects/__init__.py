@@ -1,0 +1,60 @@
+"""The effect library: one unit per effect, in one folder, in a registry that is a plain dict.
+
+An effect is one module here, named by its canonical name (``OUTPUT_FORMAT.md``), that
+declares together (:class:`~.unit.Effect`): its kind (sensor / body), its simulator
+injector (an :class:`~.injection.EffectInjector`), its model faces and their variants
+(the diagnosis' augmentations of the calibration model, built from :mod:`.faces`), its
+correction for ``correct`` (:meth:`Effect.correct`) and its off-face validation shapes.
+:data:`EFFECTS` (``registry.py``) maps each name of the contract's list
+``LIBRARY_EFFECTS`` to its unit; adding an effect touches its unit and that list only.
+
+Modules:
+
+* ``injection.py``: the simulator hook (:class:`InjectionContext`, :class:`Injector`,
+  :class:`NoEffect`, ``apply_*``) and the injectors' bases (:class:`EffectInjector`,
+  :class:`Magnitude`, :class:`OffFaceInjector`).
+* ``faces.py``: the model faces' building blocks (:class:`PoseSym`, :class:`StandingData`,
+  :func:`pose_symbols`, :class:`AugContext`, :class:`ParamBlock`, :class:`HangingLeg`,
+  :class:`LinearFace`, :func:`legendre_time`, :func:`design_check`).
+* ``unit.py``: :class:`Effect`, what a unit declares; ``correction.py``: a sensor
+  effect's correction (its standing face evaluated on samples).
+* ``registry.py``: ``LIBRARY_EFFECTS``, :data:`EFFECTS`, :func:`resolve_effects`,
+  :func:`with_units` (a copy with a toy effect added), :func:`injector_classes`.
+* the units: ``offset_drift``, ``gain_crosstalk``, ``casing_load``, ``mocap_bias``,
+  ``chassis_flex``, ``tether_force``, ``hysteresis``, ``leg_inertia``, ``robot_mass``,
+  ``sensor_nonlinearity``, ``moving_com``.
+
+Nothing here imports the diagnosis, the pipeline, ``correct`` or the simulator: they
+import this package (the simulator registers :func:`injector_classes` under its
+effect names; the diagnosis scores :data:`EFFECTS`; ``effect_correction`` calls
+:meth:`Effect.correct`).
+"""
+
+from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym, StandingData, design_check, pose_symbols
+from .injection import (
+    EXPECT_NONE,
+    EXPECT_UNEXPLAINED,
+    EffectInjector,
+    InjectionContext,
+    Injector,
+    Magnitude,
+    NoEffect,
+    OffFaceInjector,
+)
+from .registry import (
+    EFFECTS,
+    LIBRARY_EFFECTS,
+    check_unit,
+    injector_classes,
+    resolve_effects,
+    shape_classes,
+    with_units,
+)
+from .unit import KINDS, Effect
+
+__all__ = [
+    "EFFECTS", "EXPECT_NONE", "EXPECT_UNEXPLAINED", "KINDS", "LIBRARY_EFFECTS",
+    "AugContext", "Effect", "EffectInjector", "HangingLeg", "InjectionContext", "Injector", "LinearFace", "Magnitude",
+    "NoEffect", "OffFaceInjector", "ParamBlock", "PoseSym", "StandingData",
+    "check_unit", "design_check", "injector_classes", "pose_symbols", "resolve_effects", "shape_classes", "with_units",
+]

@@ -1,0 +1,85 @@
+"""An effect's correction for ``correct``: its standing face evaluated on recorded samples.
+
+A calibration written with the diagnosis' named effect carries in ``meta["effect"]``
+(the *block*) the effect's standing-face parameters ``eta`` (the scaled units of
+``Effect.standing_params``), their covariance ``eta_cov``, the hanging-face
+parameters, ``t_ref_s`` and the design rotations. A sensor effect corrects each
+sample by what its standing face does to one transducer's readings and to the
+measured orientation (eq. (A) of :mod:`.faces`):
+
+    c_k = c_k(w_k; eta)          corrected readings, per leg (the previous pose is the sample itself)
+    R_WB' = R_WB Z(eta)^T        so that the up vector R_WB'^T e_z = Z(eta) z
+
+with the covariance ``J_k Sigma_eta J_k^T``, ``J_k = d c_k / d eta`` (first order). The
+same CasADi expressions the diagnosis fitted are evaluated over all samples at once,
+in blocks of ``CHUNK`` samples (the standing features are a few hundred columns per
+sample). A unit whose correction is something else (an offset drift's rates, a body
+effect's "nothing per foot") overrides ``Effect.correct``.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..geometry import remove_yaw
+from .faces import AugContext, StandingData, pose_symbols
+
+CHUNK = 4096        # samples per block of the effect's correction
+
+
+def correct_by_face(effect, cal, block: dict, ctx: AugContext, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray,
+                    t_h: np.ndarray, *, with_cov: bool = True, source: str = "calibration"):
+    """``(w', R_WB', cov)``: readings (N, K, 6) and orientations (N, 3, 3) corrected by ``effect``'s standing face
+    with the block's ``eta``, and the covariance (N, K, 6, 6) of the corrected readings (None without ``eta_cov``
+    or ``with_cov``). ``t_h`` (N,) hours since ``t_ref_s``."""
+    K, N = ctx.K, len(t_h)
+    eta = face_eta(effect, ctx, block, source)
+    m = len(eta)
+    C = face_eta_cov(block, m, source) if with_cov else None
+    d, pose = pose_symbols(K)
+    e = ca.SX.sym("eta", m)
+    c, zmap, _ = effect.standing(e, pose, ctx)
+    Z = zmap if zmap is not None else ca.SX.eye(3)
+    outs = [ca.vertcat(*c), ca.reshape(Z, 9, 1)] + ([ca.jacobian(ca.vertcat(*c), e)] if C is not None else [])
+    fn = ca.Function("effect", [d, e], outs)
+    w_new, R_new = np.empty_like(w, dtype=float), np.empty_like(R_WB, dtype=float)
+    cov = np.zeros((N, K, 6, 6)) if C is not None else None
+    for a in range(0, N, CHUNK):
+        s = slice(a, min(N, a + CHUNK))
+        n = s.stop - s.start
+        res = fn(sample_features(cal, ctx, w[s], phi[s], R_WB[s], t_h[s]).T, eta)
+        w_new[s] = np.asarray(res[0], float).T.reshape(n, K, 6)
+        Zs = np.asarray(res[1], float).T.reshape(n, 3, 3).transpose(0, 2, 1)   # columns of Z were stacked (CasADi is column-major)
+        R_new[s] = np.einsum("nij,nkj->nik", R_WB[s], Zs)
+        if cov is not None:
+            J = np.asarray(res[2], float).reshape(6 * K, n, m).transpose(1, 0, 2).reshape(n, K, 6, m)   # samples side by side
+            cov[s] = np.einsum("nkam,mq,nkbq->nkab", J, C, J)
+    return w_new, R_new, cov
+
+
+def face_eta(effect, ctx: AugContext, block: dict, source: str) -> np.ndarray:
+    """The standing face's parameters from ``meta.effect.eta`` (as many as the face has)."""
+    block_p = effect.standing_params(ctx)
+    m = block_p.m if block_p is not None else 0
+    eta = np.asarray(block.get("eta", []), float)[:m]
+    if len(eta) != m:
+        raise ValueError(f"{source}: meta.effect.eta has {len(eta)} values, {effect.name} needs {m}")
+    return eta
+
+
+def face_eta_cov(block: dict, m: int, source: str) -> np.ndarray | None:
+    """The covariance of the face's ``m`` parameters from ``meta.effect.eta_cov`` (None: not stored)."""
+    if "eta_cov" not in block:
+        return None
+    C = np.asarray(block["eta_cov"], float)
+    if C.ndim != 2 or C.shape[0] != C.shape[1] or C.shape[0] < m:
+        raise ValueError(f"{source}: meta.effect.eta_cov must be square with at least {m} rows (the face's parameters first), got {C.shape}")
+    return C[:m, :m]      # the offset shift that follows the face's parameters is the calibration's, not the effect's
+
+
+def sample_features(cal, ctx: AugContext, w, phi, R_WB, t_h) -> np.ndarray:
+    """The standing features of every sample (``StandingData.features``; the previous pose is the sample itself)."""
+    rcom = np.stack([cal.legs[k].com(phi[:, i]) for i, k in enumerate(ctx.legs)], axis=1)
+    n_vert = np.einsum("kji,j->ki", ctx.R_nominal, np.array([0.0, 0.0, 1.0]))
+    return StandingData(w, R_WB[:, 2, :], remove_yaw(R_WB), t_h, w, phi, np.nan_to_num(rcom), n_vert).features()

@@ -1,0 +1,140 @@
+"""What an effect is: one unit that declares every face of one canonical effect.
+
+An effect unit (``ftcal_nlp/effects/<name>.py``, one per name of the contract's list
+``registry.LIBRARY_EFFECTS``) is a subclass of :class:`Effect` with, together:
+
+* ``name`` (canonical, ``OUTPUT_FORMAT.md``) and ``kind``: ``"sensor"`` (it acts on a
+  transducer's readings: corrected per reading) or ``"body"`` (it acts outside the
+  transducers: on the body, its weighed mass or its measured orientation);
+* the simulator face: ``injector_cls`` (an :class:`~.injection.EffectInjector`; its
+  ``magnitude`` is the unit's);
+* the model faces (:mod:`.faces`): ``standing_params``/``standing`` (eq. (A)),
+  ``hanging_features``, ``swing_features``, ``design_face`` (a common tilt of the fitted
+  frames) and their flexibility, ``variants`` (attribution) and ``joint_variants``
+  (the joint refit);
+* the correction for ``correct``: :meth:`Effect.correct` (default: a sensor effect's
+  standing face evaluated on the samples, :func:`.correction.correct_by_face`; a body
+  effect changes no per-foot wrench);
+* the off-face validation shapes: ``shapes``, :class:`~.injection.OffFaceInjector`
+  classes of the same effect with other shapes (what the validation sweep injects to
+  test that the diagnosis is not tuned to the face's own formula).
+
+The module's ``EFFECT`` (an instance, the default variant) is what the registry holds.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import ClassVar
+
+import numpy as np
+
+from .correction import correct_by_face
+from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym
+from .injection import EffectInjector, Magnitude, NoEffect
+
+log = logging.getLogger(__name__)
+
+KINDS = ("sensor", "body")
+
+
+class Effect:
+    """One effect: its name, kind, injector, model faces, correction and off-face shapes (module docstring).
+
+    Subclasses set ``name``, ``kind``, ``description``, ``explains`` (the dependence
+    localisation should find), ``injector_cls`` and ``shapes``, and override the faces
+    they have; ``magnitude`` is ``injector_cls.magnitude`` unless set.
+    """
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = "sensor"
+    description: ClassVar[str] = ""
+    explains: ClassVar[str | None] = None
+    magnitude: ClassVar[Magnitude] = Magnitude("", (0.0, 0.0), 0.0)
+    injector_cls: ClassVar[type] = NoEffect
+    #: off-face validation shapes: OffFaceInjector classes whose ``expect`` is this effect
+    shapes: ClassVar[tuple[type, ...]] = ()
+    #: the calibration settings under which the standing face is meaningful
+    needs_report_balance: ClassVar[bool] = False
+    #: the effect acts while hanging, so the hanging offsets absorbed part of it: the standing
+    #: face gets a constant wrench in B (6 parameters) for the shifted offsets
+    shifts_offsets: ClassVar[bool] = False
+    #: with free transducer rotations the effect shows as a common tilt of the fitted frames
+    #: (``faces.design_check``), which the diagnosis scores as the effect's design face
+    design_face: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "magnitude" not in cls.__dict__ and "injector_cls" in cls.__dict__:
+            cls.magnitude = getattr(cls.injector_cls, "magnitude", cls.magnitude)
+
+    def variants(self) -> tuple[Effect, ...]:
+        """The same effect with faces of different flexibility in its correlate (issue 13, item 4);
+        attribution scores each and keeps the one that predicts held-out data best. Default: itself."""
+        return (self,)
+
+    def joint_variant(self) -> Effect:
+        """The variant the joint refit uses (``diagnose/joint.py``); default: this one."""
+        return self
+
+    def joint_variants(self) -> tuple[Effect, ...]:
+        """Variants the joint refit chooses among by the hanging face's held-out residual (the hanging
+        legs sweep every shaft angle, so a flexible face is cheap there); default: ``joint_variant``."""
+        return (self.joint_variant(),)
+
+    @property
+    def variant(self) -> dict:
+        """The keyword arguments that rebuild this variant (``type(self)(**variant)``)."""
+        return {}
+
+    @property
+    def label(self) -> str:
+        """The effect's name with its variant, e.g. ``casing_load (harmonics=2)``."""
+        return self.name + (" (" + ", ".join(f"{k}={v}" for k, v in self.variant.items()) + ")" if self.variant else "")
+
+    def injector(self, scale: float | None = None, seed: int = 0) -> EffectInjector:
+        return self.injector_cls(scale=scale, seed=seed)
+
+    # ---- standing face (A)
+    def standing_params(self, ctx: AugContext) -> ParamBlock | None:
+        return None
+
+    def standing(self, eta, pose: PoseSym, ctx: AugContext):
+        """``(c, zmap, extra)``: corrected readings (K list of (6,)), a 3x3 map of the up
+        vector (``z~ = zmap z``; None: unchanged) and an extra wrench (6,) (or None),
+        all linear in the pose's feature symbols."""
+        return pose.w, None, None
+
+    def standing_from_hanging(self, hanging: dict, ctx: AugContext) -> dict:
+        """Standing-face parameters that mean the same as parameters of the hanging face
+        (index into ``standing_params`` -> value from ``hanging``, names as the hanging face's
+        ``LinearFace.names``). A joint refit holds them at the hanging estimates: the hanging legs
+        sweep every shaft angle and load direction, standing poses see only the sum in B."""
+        return {}
+
+    def standing_balance(self, balance: str) -> str:
+        """The balance the augmented standing problem uses (only ``moving_com`` changes it)."""
+        return balance
+
+    # ---- linear faces (hanging, walking swing): first-order effect on the residuals
+    def hanging_features(self, legs: list[HangingLeg]) -> LinearFace | None:
+        return None
+
+    def swing_features(self, legs: list[HangingLeg]) -> LinearFace | None:
+        return None
+
+    # ---- the correction for `correct`
+    def correct(self, cal, block: dict, ctx: AugContext, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t_h: np.ndarray,
+                *, with_cov: bool = True, source: str = "calibration"):
+        """``(w', R_WB', cov)``: readings (N, K, 6) and orientations (N, 3, 3) of samples at ``t_h`` hours since
+        the block's ``t_ref_s`` corrected for this effect with the parameters of ``block`` (``meta["effect"]``),
+        and the covariance (N, K, 6, 6) of the corrected readings (None: not propagated). A sensor effect: its
+        standing face (:func:`.correction.correct_by_face`); a body effect acts on the body as a whole, not on the
+        transducers' readings: per-foot wrenches are unchanged (logged)."""
+        if self.kind == "body":
+            log.info("%s: %s acts on the body, not on the transducers' readings: per-foot wrenches are unchanged", source, self.name)
+            return w, R_WB, None
+        return correct_by_face(self, cal, block, ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
+
+    def __repr__(self) -> str:
+        return f"<effect {self.name}>"

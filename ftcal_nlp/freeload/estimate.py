@@ -1,0 +1,303 @@
+"""The free-load fit itself (the steps of the package docstring): data assembly over recordings, start, NLP
+solves with re-weighting, information, identifiability, covariance, notes; and the Calibration it makes."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from ..calibration import Calibration
+from ..data import Dataset
+from ..errors import DataFormatError
+from ..geometry import project_to_so3, rotation_to_rotvec
+from ..loads import load_for
+from ..settings import FreeLoadSettings
+from ..solver import identifiability
+from .nlp import nlp_for
+from .problem import FreeLoadData, compress, difference_noise, n_lifted, predict, serial_inflation
+from .quasistatic import select_quasi_static
+from .result import WRENCH, FreeLoadResult, FreeLoadResults
+
+log = logging.getLogger(__name__)
+
+# a direction's components (unit vector, normalised units) above this fraction of its largest are named in its text
+FLAG_FRACTION = 0.05
+# ... and any component above this marks the parameter as undetermined (se = inf): the null space's eigenvectors are
+# accurate to ~eps / (eigenvalue gap) ~ 1e-11 at the identifiability threshold, so a larger component is real
+TOUCH_TOL = 1e-6
+# a joint whose angle spans less than this over the samples used never moved (its group is not separable)
+_STILL_JOINT_RAD = 1e-3
+
+
+def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> FreeLoadData:
+    """The quasi-static samples of ``leg``'s free load over every hanging recording in which it hangs free."""
+    s = settings
+    g = ds.robot.g
+    joints = tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ()))
+    ys, gs, qs, src, ts, idx, names, selection, masks = [], [], [], [], [], [], [], {}, {}
+    recs = [r for r in ds.hanging if r.hangs_free(leg)]
+    if not recs:
+        raise DataFormatError(f"{ds.manifest or 'dataset'}: transducer {leg}: no hanging recording in which its load hangs free "
+                              "(kind = \"hanging\"; free = [...] lists the transducers)")
+    for i, rec in enumerate(recs):
+        grav = rec.gravity_directions()
+        q = {j: rec.q[j] for j in joints if j in rec.q}
+        sel = select_quasi_static(rec.t, rec.wrench[leg][:, :3], rec.quat, rec.gravity, q, s, str(rec.path or rec.name))
+        selection[rec.name] = {**sel.counts, "thresholds": sel.thresholds}
+        log.info("%s, transducer %s: %d of %d samples quasi-static (%d dropped: moving, or orientation not tracked)",
+                 rec.path or rec.name, leg, sel.counts["kept"], sel.counts["samples"], sel.counts["dropped"])
+        m = sel.mask
+        masks[rec.name] = m
+        ys.append(rec.wrench[leg][m])
+        gs.append(g * grav[m])
+        qs.append({j: rec.q[j][m] if j in rec.q else np.zeros(int(m.sum())) for j in joints})
+        src.append(np.full(int(m.sum()), i))
+        ts.append(rec.t[m])
+        idx.append(np.flatnonzero(m))
+        names.append(rec.name)
+    n = sum(len(y) for y in ys)
+    n_unknown = 6 + len(load.param_names) + (3 if s.mount_rotation else 0)
+    min_samples = s.min_samples or int(np.ceil(2 * n_unknown / 6))
+    if n < min_samples:
+        counts = "; ".join(f"{k}: {v['kept']} of {v['samples']}" for k, v in selection.items())
+        raise DataFormatError(
+            f"{', '.join(str(r.path or r.name) for r in recs)}: transducer {leg}: {n} quasi-static sample(s) "
+            f"({counts}); expected at least "
+            f"{min_samples}: samples where the body turns slower than {s.rotation_rate_threshold_rad_s:g} rad/s, the joints "
+            f"slower than {s.joint_rate_threshold_rad_s:g} rad/s and the forces change slower than {s.deriv_threshold_N_s:g} N/s "
+            "(thresholds rise with the noise); is the load ever held still?")
+    y = np.concatenate(ys)
+    g_B = np.concatenate(gs)
+    q = {j: np.concatenate([qq[j] for qq in qs]) for j in joints}
+    R_nom = load.nominal_rotation(q, n)
+    b = np.einsum("nji,nj->ni", R_nom, g_B)
+    K = load.lever(q, n)
+    source = np.concatenate(src)
+    index = np.concatenate(idx)
+    noise0 = difference_noise(y, source, index)
+    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q, index)
+
+
+def _lin_map(p: int, mu: np.ndarray) -> np.ndarray:
+    """``z = L [w_o; theta]`` at ``E = I`` (d, 6 + p)."""
+    d = n_lifted(p)
+    L = np.zeros((d, 6 + p))
+    L[:6, :6] = np.eye(6)
+    eI = np.eye(3).ravel()
+    L[6:15, 6:] = np.outer(eI, mu)
+    for l in range(p):
+        L[15 + 9 * l: 24 + 9 * l, 6 + l] = eI
+    return L
+
+
+def _ridge(A: np.ndarray, weight: float) -> np.ndarray:
+    dg = np.clip(np.diag(A), 0.0, None)
+    fill = dg[dg > 0].mean() if np.any(dg > 0) else 1.0
+    return weight * np.where(dg > 0, dg, fill)
+
+
+def _null_penalty(A: np.ndarray, s: FreeLoadSettings) -> np.ndarray | None:
+    """``S N N^T S`` over the directions the information ``A`` (local coordinates) leaves undetermined (``nlp.py``)."""
+    keep = np.r_[np.ones(len(A) - 3, bool), np.full(3, s.mount_rotation)]
+    ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
+    if ident.determined.all():
+        return None
+    N = ident.vectors[:, ~ident.determined] * ident.scale[:, None]
+    P = np.zeros_like(A)
+    P[np.ix_(keep, keep)] = N @ N.T
+    return P
+
+
+def _describe(u: np.ndarray, names: list[str], ratio: float) -> str:
+    a = np.abs(u)
+    big = np.flatnonzero(a >= FLAG_FRACTION * a.max())
+    big = big[np.argsort(-a[big])][:8]
+    un = u / np.abs(u[big]).max()
+    return " ".join(f"{un[i]:+.2f} {names[i]}" for i in big) + f" [eigenvalue ratio {max(ratio, 0.0):.1e}]"
+
+
+def _rref(A: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Reduced row echelon form of the rows of ``A`` (the same row space): each row has a leading 1 and zeros in
+    the other rows' leading columns; entries below ``tol`` (relative) are set to 0."""
+    A = np.array(A, float)
+    rows, r = A.shape[0], 0
+    for col in range(A.shape[1]):
+        if r == rows:
+            break
+        piv = r + int(np.argmax(np.abs(A[r:, col])))
+        if abs(A[piv, col]) <= tol * max(np.abs(A).max(), 1e-300):
+            continue
+        A[[r, piv]] = A[[piv, r]]
+        A[r] /= A[r, col]
+        others = np.arange(rows) != r
+        A[others] -= np.outer(A[others, col], A[r])
+        r += 1
+    A = A[:r]
+    A[np.abs(A) < tol * max(np.abs(A).max(), 1e-300)] = 0.0
+    return A
+
+
+def _combo_text(a: np.ndarray, names: list[str]) -> str:
+    idx = np.flatnonzero(np.abs(a) > 1e-6)
+    return " ".join(f"{a[i]:+.3g} {names[i]}" for i in idx)
+
+
+def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = None) -> FreeLoadResult:
+    """Fit transducer ``leg``'s free load (module docstring). Raises :class:`DataFormatError` for data that
+    cannot (no quasi-static samples) and :class:`~ftcal_nlp.errors.SolverError` when IPOPT fails."""
+    s = FreeLoadSettings() if settings is None else settings
+    load = load_for(ds, leg, s.loads.get(leg))
+    data = free_load_data(ds, leg, s, load)
+    p = len(load.param_names)
+    mu = load.mass_row
+    mom = compress(data.y, data.b, data.K)
+    sig = data.noise0 if np.all(np.isfinite(data.noise0)) and np.all(data.noise0 > 0) else None
+    nlp = nlp_for(mu)
+    # start: linear least squares at E = I (a little ridge toward the prior pins what it cannot see)
+    L = _lin_map(p, mu)
+    prior = load.prior()
+    th0 = np.zeros(p) if prior is None else np.asarray(prior, float)
+    if sig is None:  # no consecutive samples: unit weights for the start, the residuals give the sd
+        sig = np.ones(6)
+    W = 1.0 / sig**2
+    Qw, vw, sw = mom.weighted(W)
+    A = L.T @ Qw @ L
+    r_lin = _ridge(A, s.prior_weight)
+    x_prior_lin = np.r_[np.zeros(6), th0]
+    x_lin = np.linalg.solve(A + np.diag(r_lin), L.T @ vw + r_lin * x_prior_lin)
+    if prior is None:
+        th0 = x_lin[6:]
+    E = np.eye(3)
+    x = np.r_[x_lin, E.ravel(order="F")]
+    x0 = np.r_[np.zeros(6), th0, np.eye(3).ravel(order="F")]
+    what = f"the free load of transducer {leg} ({load.kind}; recordings {list(data.names)})"
+    t0 = time.perf_counter()
+    iters = 0
+    for _ in range(2):  # noise weights, then residual-sd weights
+        Qw, vw, sw = mom.weighted(W)
+        Jl = nlp.jacobian(x[:6], x[6:6 + p], E)
+        Al = Jl.T @ Qw @ Jl
+        ridge = np.r_[_ridge(Al[:6 + p, :6 + p], s.prior_weight), np.full(9, _ridge(Al[6 + p:, 6 + p:], s.prior_weight).mean())]
+        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, what=what,
+                          null_penalty=_null_penalty(Al, s))
+        iters += int(st.get("iter_count", 0))
+        E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
+        rss = mom.rss(nlp.z(np.r_[x[:6 + p], E.ravel(order="F")]))
+        dof = (6 + p + (3 if s.mount_rotation else 0)) / 6.0
+        sig = np.sqrt(np.clip(rss, 1e-300, None) / max(mom.n - dof, 1.0))
+        W = 1.0 / sig**2
+    solve_time = time.perf_counter() - t0
+    w_o, theta = x[:6], x[6:6 + p]
+    # information in local coordinates [w_o, theta, delta]; serially correlated residuals (a model error that stays
+    # through a hold) carry less information than white noise: their weight shrinks by the AR(1) inflation
+    res = data.y - predict(data.b, data.K, theta, mu, E, w_o)
+    rho, inflation = serial_inflation(res, data.source, data.index)
+    Qw, _, _ = mom.weighted(W / inflation)
+    J = nlp.jacobian(w_o, theta, E)
+    info = J.T @ Qw @ J
+    keep = np.r_[np.ones(6 + p, bool), np.full(3, s.mount_rotation)]
+    names = [f"{leg}.offset.{c}" for c in WRENCH] + [f"{leg}.{n}" for n in load.param_names] + [f"{leg}.mount.r{c}" for c in "xyz"]
+    ident = identifiability(info[np.ix_(keep, keep)], s.rel_eig_tol)
+    n_all = len(names)
+    cov = np.zeros((n_all, n_all))
+    cov[np.ix_(keep, keep)] = ident.pinv()
+    se = np.full(n_all, np.nan)
+    se[keep] = np.sqrt(np.clip(np.diag(cov)[keep], 0.0, None))
+    kn = [n for n, k in zip(names, keep) if k]
+    undetermined, touched = [], np.zeros(int(keep.sum()), bool)
+    for j in np.flatnonzero(~ident.determined):
+        u = ident.vectors[:, j]
+        touched |= np.abs(u) >= TOUCH_TOL
+        undetermined.append(_describe(u, kn, float(ident.ratio[j])))
+    se_k = se[keep]
+    se_k[touched] = np.inf
+    se[keep] = se_k
+    determined = []
+    if touched.any():
+        Nn = ident.vectors[:, ~ident.determined][touched]          # null directions on the touched parameters (scaled)
+        U, sv, _ = np.linalg.svd(Nn, full_matrices=True)
+        rank = int((sv > 1e-8).sum())
+        comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
+        tn = [n for n, t in zip(kn, touched) if t]
+        xk = np.r_[w_o, theta, rotation_to_rotvec(E)][keep]
+        Ck = cov[np.ix_(keep, keep)]
+        for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
+            a = np.zeros(len(kn))
+            a[touched] = c
+            determined.append({"combination": _combo_text(a[touched], tn), "value": float(a @ xk),
+                               "se": float(np.sqrt(max(a @ Ck @ a, 0.0))),
+                               "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
+    null = np.zeros((n_all, int((~ident.determined).sum())))
+    null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
+    rms = np.sqrt((res**2).mean(axis=0))
+    notes = []
+    if undetermined:
+        log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
+    notes += _orientation_notes(data, leg)
+    for g in getattr(load, "groups", ()):
+        if g.joint is not None and np.ptp(data.q.get(g.joint, np.zeros(1))) < _STILL_JOINT_RAD:
+            notes.append(f"{leg}: joint '{g.joint}' never moves in the samples used (range "
+                         f"{np.ptp(data.q.get(g.joint, np.zeros(1))):.2g} rad): the links it carries ({', '.join(g.links)}) "
+                         "cannot be told apart from the group above them; their split is the URDF's")
+    if np.any(inflation > 2.0):
+        notes.append(f"{leg}: residuals correlated from sample to sample (lag-1 correlation {np.array2string(rho, precision=2)} "
+                     f"in fx..tz): se widened by {np.array2string(np.sqrt(inflation), precision=2)}; the model misses "
+                     "something that stays through a hold (the diagnosis looks for it)")
+    fixed = [r.name for r in ds.hanging if r.hangs_free(leg) and r.gravity is None]
+    if fixed:
+        notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
+                     "recording is estimated for a free load; a rig's tilt there biases the fit)")
+    for note in notes:
+        log.warning("%s", note)
+    log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,
+             float(mu @ theta), np.degrees(np.linalg.norm(np.r_[E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2),
+             np.array2string(rms, precision=3))
+    return FreeLoadResult(leg, load, w_o.copy(), theta.copy(), E, tuple(names), cov, se, sig, rms, mom.n, data.selection,
+                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null, data.masks)
+
+
+def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
+    """A note when the gravity directions in ft span fewer than three dimensions (all orientations about one
+    axis, or one orientation): the eigen-analysis names the parameters; this says why."""
+    u = data.b / np.linalg.norm(data.b, axis=1, keepdims=True)
+    sv = np.linalg.svd(u - u.mean(axis=0), compute_uv=False) / np.sqrt(len(u))
+    if sv[0] < 0.02:
+        return [f"{leg}: gravity stays within ~1 deg of one direction in ft over all quasi-static samples ({', '.join(data.names)}): "
+                "one orientation cannot separate the offsets from the load; hang it in several"]
+    if sv[1] < 0.02:
+        return [f"{leg}: the gravity directions in ft vary along one line only (a short arc: small turns about one axis, "
+                f"{', '.join(data.names)}): what they cannot separate is named as undetermined"]
+    return []
+
+
+def fit_free_loads(ds: Dataset, settings: FreeLoadSettings | None = None) -> FreeLoadResults:
+    """Every free-load transducer of ``ds`` (``Dataset.free_load_legs``), each on its own."""
+    legs = ds.free_load_legs
+    if not legs:
+        raise DataFormatError(f"{ds.manifest or 'dataset'}: no transducer carries a free load (every one has a {{leg}}_phi column)")
+    return FreeLoadResults({k: fit_free_load(ds, k, settings) for k in legs})
+
+
+def free_load_calibration(res: FreeLoadResults, robot) -> Calibration:
+    """The :class:`~ftcal_nlp.calibration.Calibration` of free loads: per transducer its offsets with se, the load's
+    weight, and the load's keys of ``OUTPUT_FORMAT.md`` (``load_mass_kg``, ``load_com_m``, URDF groups and links,
+    with se; what is undetermined and the determined combinations), written by ``calibration.json``."""
+    from ..calibration import LegCalibration
+
+    legs = {}
+    for k, r in res.legs.items():
+        rep = r.load_report()
+        R_nom = robot.transducers[k].rotation
+        com = np.asarray(rep.get("load_com_m", [np.nan] * 3), float)
+        if R_nom is not None:
+            rep["rotation_to_body"] = (R_nom @ r.rotation).tolist()
+        rep["mount_rotation"] = r.rotation.tolist()
+        legs[k] = LegCalibration(
+            offset=r.offset.copy(), leg_weight_N=rep["load_mass_kg"] * robot.g, com_phi=np.zeros(1), com_xyz=com[None],
+            rotation_to_body=R_nom @ r.rotation if R_nom is not None else r.rotation.copy(),
+            position_from_com_m=np.zeros(3) if robot.transducers[k].position_m is None else robot.transducers[k].position_m.copy(),
+            offset_se=r.se[:6].copy(), leg_weight_se_N=rep["load_mass_se_kg"] * robot.g, load=rep)
+    mass = np.nan if robot.mass_kg is None else robot.mass_kg
+    return Calibration(legs, mass, robot.g, model="free_load", meta={"free_load": {"identifiability": res.identifiability()}})

@@ -1,0 +1,155 @@
+"""Results of the free-load estimator, in the results protocol of ``results.py``.
+
+:class:`FreeLoadResult` (one transducer) has ``params`` (labelled: offsets
+``{leg}.offset.fx..tz`` N / N*m; the load's ``{leg}.<param>`` (kg, kg m); the
+mounting rotation vector ``{leg}.mount.rx..rz`` rad, ``R_true = R_nom expm(r)``),
+``bse`` (inf where undetermined), ``cov_params()``, ``conf_int()``,
+``summary()``, and :meth:`FreeLoadResult.identifiability`, the notes naming what
+the data leave undetermined and the combinations they do determine.
+:class:`FreeLoadResults` stacks the transducers (independent blocks).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..geometry import rotation_to_rotvec
+from ..results import ResultsMixin, StackedResults, Summary, fmt_pm
+from .problem import predict
+
+WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+@dataclass
+class FreeLoadResult(ResultsMixin):
+    """One transducer's free-load fit (module docstring).
+
+    ``load``: the :class:`~ftcal_nlp.loads.LinearLoad`; ``offset`` (6,), ``theta`` (p,), ``rotation`` ``E`` (3, 3)
+    the mounting rotation (true ft relative to nominal); ``sigma`` (6,) residual sd per channel (the weights);
+    ``rms`` (6,) residual RMS; ``n_used``; ``selection`` recording -> quasi-static counts and thresholds;
+    ``undetermined`` one description per undetermined direction; ``determined`` the determined combinations
+    of parameters that enter undetermined directions (``{"combination", "value", "se"}``); ``notes``."""
+
+    leg: str
+    load: Any
+    offset: np.ndarray
+    theta: np.ndarray
+    rotation: np.ndarray
+    names: tuple[str, ...]
+    cov: np.ndarray
+    se: np.ndarray
+    sigma: np.ndarray
+    rms: np.ndarray
+    n_used: int
+    selection: dict[str, dict]
+    undetermined: tuple[str, ...] = ()
+    determined: tuple[dict, ...] = ()
+    notes: list[str] = field(default_factory=list)
+    iterations: int = 0
+    solve_time_s: float = 0.0
+    eig_ratio: np.ndarray | None = None
+    null: np.ndarray | None = None       # (n_params, r) undetermined directions in the parameters' own units
+    used: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) samples the fit used
+
+    # ------------------------------------------------------------------ results protocol
+
+    @property
+    def params(self) -> pd.Series:
+        vals = np.concatenate([self.offset, self.theta, rotation_to_rotvec(self.rotation)])
+        return pd.Series(vals, index=list(self.names), name="params")
+
+    def _bse_array(self) -> np.ndarray:
+        return self.se
+
+    def _cov_array(self) -> np.ndarray:
+        return self.cov
+
+    @property
+    def mount_rotvec(self) -> np.ndarray:
+        return rotation_to_rotvec(self.rotation)
+
+    def _theta_blocks(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Covariance of ``theta`` on the determined subspace and the undetermined directions restricted to it."""
+        p = len(self.theta)
+        null = None if self.null is None or not self.null.size else self.null[6: 6 + p]
+        return self.cov[6: 6 + p, 6: 6 + p], null
+
+    def se_of(self, J: np.ndarray) -> np.ndarray:
+        """se of linear combinations ``J params`` (rows over ``params``): inf where a row changes along an
+        undetermined direction, finite otherwise (a determined combination of undetermined parameters)."""
+        from ..loads.base import se_of
+
+        return se_of(self.cov, J, self.null)
+
+    def load_report(self) -> dict:
+        """The load's ``calibration.json`` keys (``OUTPUT_FORMAT.md``) and the identifiability notes."""
+        out = self.load.report(self.theta, *self._theta_blocks())
+        out.update({"mount_rotvec": self.mount_rotvec.tolist(), "mount_rotvec_se": self.se[-3:].tolist(),
+                    "undetermined": list(self.undetermined), "determined_combinations": list(self.determined),
+                    "samples_used": int(self.n_used), "selection": self.selection,
+                    "residual_rms": self.rms.tolist(), "noise_sd": self.sigma.tolist()})
+        return out
+
+    def identifiability(self) -> list[str]:
+        """What the data leave undetermined (one line per direction, then the determined combinations), or
+        an empty list when they determine every parameter."""
+        out = [f"{self.leg}: not determined by the data: {d}" for d in self.undetermined]
+        out += [f"{self.leg}: determined: {c['combination']} = {fmt_pm(c['value'], c['se'])}" for c in self.determined]
+        return out + [n for n in self.notes if n not in out]
+
+    # ------------------------------------------------------------------ the model
+
+    def predict(self, gravity_B: np.ndarray, q: dict[str, np.ndarray]) -> np.ndarray:
+        """Model readings (N, 6) for gravity in B (N, 3, m/s^2) and joint angles ``q`` (joint -> (N,))."""
+        n = len(gravity_B)
+        R = self.load.nominal_rotation(q, n)
+        b = np.einsum("nji,nj->ni", R, gravity_B)
+        K = self.load.lever(q, n)
+        return predict(b, K, self.theta, self.load.mass_row, self.rotation, self.offset)
+
+    def predict_recording(self, rec, g: float) -> np.ndarray:
+        """Model readings (N, 6) of every sample of recording ``rec`` (NaN where its gravity is unknown)."""
+        return self.predict(g * rec.gravity_directions(), rec.q)
+
+    def summary(self) -> Summary:
+        p = self.params
+        facts = [("transducer", f"{self.leg} ({self.load.kind})"),
+                 ("samples", f"{self.n_used} quasi-static used; " + "; ".join(
+                     f"{k}: {v['kept']} kept, {v['dropped']} dropped" for k, v in self.selection.items())),
+                 ("residual RMS / sd", " ".join(f"{r:.3g}/{s:.3g}" for r, s in zip(self.rms, self.sigma))),
+                 ("IPOPT", f"{self.iterations} iterations, {self.solve_time_s:.2f} s")]
+        rows = [(n, fmt_pm(float(p[n]), float(s))) for n, s in zip(self.names, self.se)]
+        table = pd.DataFrame({"estimate": [r[1] for r in rows]}, index=pd.Index([r[0] for r in rows], name="parameter"))
+        rep = self.load.report(self.theta, *self._theta_blocks())
+        s = Summary(f"Free load of {self.leg}", facts, [("parameters (SI; mount: rotation vector, rad)", table)])
+        s.facts.insert(1, ("load mass", fmt_pm(rep["load_mass_kg"], rep["load_mass_se_kg"]) + " kg"))
+        if "load_com_m" in rep:
+            s.facts.insert(2, ("load CoM (ft)", ", ".join(fmt_pm(c, e) for c, e in zip(rep["load_com_m"], rep["load_com_se_m"])) + " m"))
+        s.notes += self.identifiability()
+        return s
+
+
+@dataclass
+class FreeLoadResults(StackedResults):
+    """Every free-load transducer's fit (independent blocks), by transducer name."""
+
+    legs: dict[str, FreeLoadResult]
+
+    def _parts(self) -> list:
+        return list(self.legs.values())
+
+    def identifiability(self) -> list[str]:
+        return [n for r in self.legs.values() for n in r.identifiability()]
+
+    def summary(self) -> Summary:
+        s = Summary("Free loads", [(k, f"{r.load.kind}, {r.n_used} samples") for k, r in self.legs.items()])
+        for r in self.legs.values():
+            sub = r.summary()
+            s.facts += sub.facts
+            s.tables += sub.tables
+            s.notes += sub.notes
+        return s

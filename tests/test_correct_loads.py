@@ -1,0 +1,103 @@
+"""``correct`` for a wrist sensor (correct_loads.py, issue 22 item 5): contact wrench = reading - offset - payload
+wrench, with se per sample; the Jacobian against finite differences, contacts recovered within their se on
+simulated data, the CLI dispatch and its errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ftcal_nlp import correct
+from ftcal_nlp.config import load_config
+from ftcal_nlp.correct_loads import PayloadCalibration, contact_frame, payload_from_fit, predicted_load
+from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.run import run
+
+
+def test_jacobian_matches_finite_differences() -> None:
+    rng = np.random.default_rng(0)
+    g_B = rng.normal(size=(20, 3))
+    g_B *= 9.81 / np.linalg.norm(g_B, axis=1, keepdims=True)
+    R = rotvec_to_rotation(np.array([0.2, -0.1, 1.3]))
+    p = PayloadCalibration("w", rng.normal(size=6), 1.3, np.array([0.01, -0.02, 0.1]), R, np.eye(13), np.ones(6), 9.81)
+    _, J = predicted_load(p, g_B)
+    eps = 1e-6
+    for k in range(13):
+        def model(s):
+            x = np.zeros(13)
+            x[k] = s
+            q = PayloadCalibration("w", p.offset + x[:6], p.mass_kg + x[6], p.h + x[7:10], R @ rotvec_to_rotation(x[10:]),
+                                   p.cov, p.sigma, p.g)
+            return predicted_load(q, g_B)[0]
+        np.testing.assert_allclose((model(eps) - model(-eps)) / (2 * eps), J[:, :, k], atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("wrist")
+    (tmp / "c.toml").write_text('[simulate]\nkind = "payload"\ndir = "data"\nseed = 5\nn_orientations = 8\nhold_s = 5.0\n'
+                                '[output]\ndir = "out"\n[diagnose]\nenabled = false\n')
+    res = run(load_config(tmp / "c.toml"))
+    return tmp, res
+
+
+def _with_contact(tmp, seed: int = 1):
+    """The recording again, fresh noise-free copy plus new noise, and a push of (3, -2, 5) N at (0, 0, 0.12) m
+    (in the true ft frame) on the second quarter of the samples."""
+    df = pd.read_csv(tmp / "data" / "wrist.csv")
+    n = len(df)
+    push = np.zeros((n, 6))
+    sl = slice(n // 4, n // 2)
+    f = np.array([3.0, -2.0, 5.0])
+    push[sl] = np.r_[f, np.cross([0.0, 0.0, 0.12], f)]
+    cols = [f"wrist_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]
+    df[cols] = df[cols].to_numpy() + push
+    return df, push
+
+
+def test_contact_recovered_within_its_se_in_process(calibrated) -> None:
+    tmp, res = calibrated
+    fit = res.free_loads.legs["wrist"]
+    p = payload_from_fit(fit, res.dataset.robot.transducers["wrist"].rotation, res.dataset.robot.g)
+    df, push = _with_contact(tmp)
+    out = contact_frame({"wrist": p}, df, "wrist.csv")
+    w = out[[f"wrist_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy()
+    se = out[[f"wrist_{c}_se" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]].to_numpy()
+    z = (w - push) / se
+    # the readings carry the simulator's noise: z ~ N(0, 1) per component (sd within 5 %), never beyond ~5
+    assert np.allclose(z.std(axis=0), 1.0, atol=0.05) and np.abs(z).max() < 5.5
+    assert np.allclose(z.mean(axis=0), 0.0, atol=4 / np.sqrt(len(z)) + 0.05)
+    # se: the noise plus the calibration's (full covariance) part, which is small here but positive
+    assert np.all(se > np.asarray(fit.sigma)) and p.full_cov
+
+
+def test_correct_cli_dispatches_to_the_payload_correction(calibrated, tmp_path, capsys) -> None:
+    tmp, _ = calibrated
+    df, push = _with_contact(tmp)
+    rec = tmp_path / "push.csv"
+    df.to_csv(rec, index=False)
+    out = tmp_path / "contact.csv"
+    cal = str(tmp / "out" / "calibration.json")
+    assert correct.main([cal, str(rec), "-o", str(out)]) == 0
+    got = pd.read_csv(out)
+    assert list(got.columns[:7]) == ["t", "wrist_fx", "wrist_fy", "wrist_fz", "wrist_tx", "wrist_ty", "wrist_tz"]
+    z = (got["wrist_fz"].to_numpy() - push[:, 2]) / got["wrist_fz_se"].to_numpy()
+    assert abs(z.std() - 1.0) < 0.1 and np.abs(z).max() < 5.5
+    assert correct.main([cal, str(rec), "-o", str(out)]) == 2                     # exists, no --force
+    assert "exists" in capsys.readouterr().err
+    assert correct.main([cal, str(rec), "-o", str(out), "--force", "--track-offsets"]) == 2
+    assert "--track-offsets applies to hexapod" in capsys.readouterr().err
+    df.drop(columns=["qw", "qx", "qy", "qz"]).to_csv(rec, index=False)
+    assert correct.main([cal, str(rec), "-o", str(out), "--force"]) == 2
+    assert "needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz" in capsys.readouterr().err
+
+
+def test_a_urdf_load_is_named_not_corrected(tmp_path, capsys) -> None:
+    import json
+
+    cal = tmp_path / "calibration.json"
+    cal.write_text(json.dumps({"model": "free_load", "g": 9.81, "legs": {"r_leg": {"load_kind": "urdf_subtree", "offset": [0] * 6}}}))
+    (tmp_path / "r.csv").write_text("t,r_leg_fx\n0,1\n")
+    assert correct.main([str(cal), str(tmp_path / "r.csv"), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "load_kind = 'urdf_subtree'" in capsys.readouterr().err and not (tmp_path / "o.csv").exists()
