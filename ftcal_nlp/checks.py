@@ -71,6 +71,21 @@ positions relative to theirs (the unknown CoM cancels) beyond
 ``TRANSLATION_BOUND_M`` are a warning only: the columns of two legs exchanged
 leave it, but so does one leg's wiring fault, through the balance, on every leg
 (the simulator's variants reach 180 mm).
+
+Issue 24 adds, for every recording: column ``t`` in seconds (median sampling interval at most
+``MAX_SAMPLE_INTERVAL_S``: a clock in ms at 500 Hz or slower leaves it); for standing recordings the
+readings' share of the body weight along the quaternion's up axis within ``LOAD_SHARE`` (legs that bear
+weight missing from robot.toml); for a calibration dataset, each recording listed once
+(:func:`check_distinct_recordings`) and no channel held (:func:`sensor_faults`: ``STUCK_RUN`` identical
+consecutive samples, which sensor noise never gives; dead = every channel of the leg at 0, saturated = held
+at the channel's extreme, else stuck; :func:`screen_sensor_faults` refuses a leg held in every calibration
+recording or a recording more than ``MAX_FAULT_SHARE`` held, and leaves the other held rows out);
+after the fit, a standing residual above ``RESIDUAL_NOISE_FACTOR`` times the per-sample noise of the summed
+readings is a warning (:func:`residual_note`). ``correct`` runs the checks that apply to a later recording
+against the calibration it applies (:func:`check_recording_to_correct`: clock, shaft rate, and on the
+ground the readings' sign and unit and the quaternion order with the calibration's offsets and rotations,
+:func:`check_on_ground`), validates that calibration (:func:`check_calibration`) and flags held channels
+rather than refusing them.
 """
 
 from __future__ import annotations
