@@ -19,10 +19,12 @@ Standard error per sample and component (delta method, first order):
 ``J`` the derivative of ``w_o + w_load`` with respect to the parameters ``(w_o, m, c or h = m c, delta)``
 (``delta`` a rotation of ft in its own axes: ``d g_ft = [g_ft]x delta``, so ``d w_load / d delta =
 [m [g_ft]x ; [h]x [g_ft]x]``), ``C`` their covariance and ``sigma`` the readings' noise sd (``noise_sd`` of
-the calibration). In process (:func:`contact_from_fit`) ``C`` is the fit's full covariance; from
-``calibration.json`` only the standard errors are stored, so ``C`` is their diagonal (correlations between
-offsets and mass are then left out: said in the log). Rows without an orientation or with NaN readings are
-dropped and counted in the log.
+the calibration). In process (:func:`payload_from_fit`) ``C`` is the fit's full covariance; from
+``calibration.json`` it is the full covariance of the run's covariance file (``meta.covariance_file``,
+``calibration_cov.npz`` beside it: parameters ``{X}.offset.*``, ``{X}.mass_kg``, ``{X}.h_*``, ``{X}.mount.r*``)
+when that file is there, else the diagonal of the stored standard errors (correlations between offsets and
+mass then left out: said in the log). A component that depends on an undetermined parameter (se inf) gets
+se inf. Rows without an orientation or with NaN readings are dropped and counted in the log.
 """
 
 from __future__ import annotations
@@ -47,7 +49,8 @@ log = logging.getLogger(__name__)
 class PayloadCalibration:
     """One transducer's payload calibration: offsets ``offset`` (6,), ``mass_kg``, first moment ``h`` (3,) kg m
     in ft, ``R_B_ft`` (3, 3) the estimated ft orientation in B, ``cov`` (13, 13) over ``(w_o, m, h, delta)``,
-    ``sigma`` (6,) the readings' noise sd, ``g`` m/s^2, ``full_cov`` whether ``cov`` holds the correlations."""
+    ``sigma`` (6,) the readings' noise sd, ``g`` m/s^2, ``full_cov`` whether ``cov`` holds the correlations,
+    ``undetermined`` (13,) the parameters the data leave undetermined (None: none)."""
 
     leg: str
     offset: np.ndarray
@@ -58,11 +61,20 @@ class PayloadCalibration:
     sigma: np.ndarray
     g: float
     full_cov: bool = True
+    undetermined: np.ndarray | None = None
 
 
-def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.json") -> PayloadCalibration:
-    """A :class:`PayloadCalibration` from a leg entry of ``calibration.json`` (diagonal covariance from the se;
-    the CoM's se turned into the first moment's: ``Var(h_i) = m^2 Var(c_i) + c_i^2 Var(m)``)."""
+def payload_param_names(leg: str) -> list[str]:
+    """The labels of ``(w_o, m, h, delta)`` in the results protocol and the covariance file."""
+    return ([f"{leg}.offset.{c}" for c in WRENCH_COMPONENTS] + [f"{leg}.mass_kg"] + [f"{leg}.h_{c}" for c in "xyz"]
+            + [f"{leg}.mount.r{c}" for c in "xyz"])
+
+
+def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.json",
+                      cov: tuple[np.ndarray, np.ndarray] | None = None) -> PayloadCalibration:
+    """A :class:`PayloadCalibration` from a leg entry of ``calibration.json``. ``cov``: ``(C, undetermined)`` over
+    :func:`payload_param_names` from the covariance file; None: the diagonal of the se (the CoM's se turned into
+    the first moment's: ``Var(h_i) = m^2 Var(c_i) + c_i^2 Var(m)``), parameters with se inf undetermined."""
     try:
         if d.get("load_kind") != "rigid_payload":
             raise DataFormatError(f"{where}: transducer {leg}: load_kind = {d.get('load_kind')!r}; the contact wrench is "
@@ -77,7 +89,12 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
     except KeyError as exc:
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a payload calibration", path=where,
                               column=str(exc.args[0])) from None
-    return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False)
+    if cov is not None:
+        C, und = cov
+        return PayloadCalibration(leg, off, m, m * c, R, np.where(np.isfinite(C), C, 0.0), sigma, g, full_cov=True,
+                                  undetermined=np.asarray(und, bool))
+    return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False,
+                              undetermined=np.isinf(var))
 
 
 def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration:
@@ -87,7 +104,8 @@ def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration
         raise DataFormatError(f"transducer {fit.leg}: a {fit.load.kind} load; the contact wrench is computed for rigid payloads")
     cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)
     return PayloadCalibration(fit.leg, fit.offset.copy(), float(fit.theta[0]), fit.theta[1:4].copy(),
-                              np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True)
+                              np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True,
+                              undetermined=np.isinf(np.asarray(fit.se, float)))
 
 
 def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
@@ -124,8 +142,17 @@ def predicted_load(p: PayloadCalibration, g_B: np.ndarray) -> tuple[np.ndarray, 
 def contact_wrench(p: PayloadCalibration, w_m: np.ndarray, g_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6) and gravity ``g_B``."""
     model, J = predicted_load(p, g_B)
-    var = np.einsum("nij,jk,nik->ni", J, p.cov, J) + p.sigma**2
+    var = calibration_variance(p, J) + p.sigma**2
     return w_m - model, np.sqrt(np.clip(var, 0.0, None))
+
+
+def calibration_variance(p: PayloadCalibration, J: np.ndarray) -> np.ndarray:
+    """``diag(J C J^T)`` (N, 6): the calibration's part of the variance; inf where ``J`` touches an undetermined
+    parameter."""
+    var = np.einsum("nij,jk,nik->ni", J, p.cov, J)
+    if p.undetermined is not None and p.undetermined.any():
+        var = np.where(np.abs(J[:, :, p.undetermined]).max(axis=-1) > 0, np.inf, var)
+    return var
 
 
 def contact_frame(cal_legs: dict[str, PayloadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
@@ -167,9 +194,32 @@ def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration] 
     legs = d.get("legs", {}) if isinstance(d, dict) else {}
     if not legs or not all(isinstance(l, dict) and "load_kind" in l for l in legs.values()):
         return None
-    out = {k: payload_from_json(l, k, float(d.get("g", 9.81)), str(cal_path)) for k, l in legs.items()}
-    log.info("%s: se from the stored standard errors (correlations between parameters not stored: left out)", cal_path)
+    cc = _covariance_file(Path(cal_path), d.get("meta", {}))
+    blocks = {k: None if cc is None else cc.block(payload_param_names(k)) for k in legs}
+    out = {k: payload_from_json(l, k, float(d.get("g", 9.81)), str(cal_path), blocks[k]) for k, l in legs.items()}
+    diag = [k for k, b in blocks.items() if b is None]
+    if diag:
+        log.info("%s: se of %s from the stored standard errors (correlations between parameters not stored: left out)",
+                 cal_path, diag)
+    if len(diag) < len(blocks):
+        log.info("%s: se of %s from the full covariance of %s", cal_path, [k for k in blocks if k not in diag],
+                 d["meta"]["covariance_file"])
     return out
+
+
+def _covariance_file(cal_path: Path, meta: dict):
+    """The run's covariance file named in ``meta.covariance_file`` (beside ``calibration.json``), or None when
+    the calibration names none or it is not there (then the stored se serve, logged by the caller)."""
+    from .uncertainty import CalibrationCovariance
+
+    name = meta.get("covariance_file") if isinstance(meta, dict) else None
+    if not name:
+        return None
+    path = cal_path.parent / str(name)
+    if not path.is_file():
+        log.warning("%s: meta.covariance_file = %r is not there (%s)", cal_path, name, path)
+        return None
+    return CalibrationCovariance.load(path)
 
 
 def correct_free_load_file(cal: dict, args: argparse.Namespace, out: Path) -> int:

@@ -34,6 +34,11 @@ covariance and ``J_theta`` the sensitivity to the motion-capture rotation error
 (``total``) takes the sums of the Jacobians, so the legs' covariances enter.
 Undetermined parameters (se inf) give an infinite se to every output that
 depends on them. Vectorised over samples in chunks (no per-sample Python loop).
+
+Free loads (``DATA_FORMAT.md`` section 5): :func:`free_load_covariance` is the same
+file's content for a free-load run, the estimator's covariance over each transducer's
+``{X}.offset.*``, load parameters and ``{X}.mount.r*`` (independent blocks), which
+``correct_loads`` reads back with :meth:`CalibrationCovariance.block`.
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ from .geometry import remove_yaw, rotvec_to_rotation, skew
 from .physics import ground_wrenches
 from .sensor_noise import SensorNoise
 
-__all__ = ["CalibrationCovariance", "WrenchUncertainty", "ground_wrench_jacobian", "ground_wrench_se", "NQ"]
+__all__ = ["CalibrationCovariance", "WrenchUncertainty", "free_load_covariance", "ground_wrench_jacobian", "ground_wrench_se", "NQ"]
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +102,14 @@ class CalibrationCovariance:
         """A compressed ``.npz`` (names, cov, undetermined); the noise lives in ``calibration.json``'s meta."""
         np.savez_compressed(path, names=np.array(self.names), cov=self.cov, undetermined=self.undetermined)
 
+    def block(self, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(cov, undetermined)`` of the parameters ``names`` in that order, or None when one is not in the file."""
+        pos = {n: i for i, n in enumerate(self.names)}
+        if any(n not in pos for n in names):
+            return None
+        idx = np.array([pos[n] for n in names], dtype=int)
+        return self.cov[np.ix_(idx, idx)].copy(), self.undetermined[idx].copy()
+
     @classmethod
     def load(cls, path: str | Path, noise: SensorNoise | None = None) -> "CalibrationCovariance":
         path = Path(path)
@@ -111,6 +124,12 @@ class CalibrationCovariance:
             raise DataFormatError(f"{path}: 'cov' must be {len(names)}x{len(names)} and 'undetermined' of length {len(names)}, "
                                   f"got {cov.shape} and {und.shape}", path=path)
         return cls(names, cov, und, noise)
+
+
+def free_load_covariance(free_loads) -> CalibrationCovariance | None:
+    """The covariance file's content for a free-load run (``freeload.FreeLoadResults``; None gives None): every
+    transducer's parameters with their full covariance (independent blocks), undetermined ones (se inf) marked."""
+    return None if free_loads is None else CalibrationCovariance.from_results(free_loads)
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,13 @@
 """``correct`` for a wrist sensor (correct_loads.py, issue 22 item 5): contact wrench = reading - offset - payload
 wrench, with se per sample; the Jacobian against finite differences, contacts recovered within their se on
-simulated data, the CLI dispatch and its errors."""
+simulated data, the se from the run's full covariance file against a Monte-Carlo of refits, the CLI dispatch and
+its errors."""
 
 from __future__ import annotations
+
+import json
+import logging
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -10,7 +15,8 @@ import pytest
 
 from ftcal_nlp import correct
 from ftcal_nlp.config import load_config
-from ftcal_nlp.correct_loads import PayloadCalibration, contact_frame, payload_from_fit, predicted_load
+from ftcal_nlp.correct_loads import (PayloadCalibration, calibration_variance, contact_frame, payload_calibrations,
+                                     payload_from_fit, payload_from_json, predicted_load)
 from ftcal_nlp.geometry import rotvec_to_rotation
 from ftcal_nlp.run import run
 
@@ -101,3 +107,62 @@ def test_a_urdf_load_is_named_not_corrected(tmp_path, capsys) -> None:
     (tmp_path / "r.csv").write_text("t,r_leg_fx\n0,1\n")
     assert correct.main([str(cal), str(tmp_path / "r.csv"), "-o", str(tmp_path / "o.csv")]) == 2
     assert "load_kind = 'urdf_subtree'" in capsys.readouterr().err and not (tmp_path / "o.csv").exists()
+
+
+def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
+    """The calibration part of the se per sample, from calibration.json and its covariance file (what ``correct``
+    uses), against the sd of the predicted load wrench over refits to fresh noise on the same motion (Monte-Carlo
+    error of an sd from K refits: 1/sqrt(2(K-1)) relative; 4 of those). The diagonal of the stored se (the
+    fallback) misses the offset-load correlations: it falls outside that band."""
+    from ftcal_nlp.freeload import fit_free_load
+    from ftcal_nlp.sim.free import PayloadConfig, simulate_payload
+
+    tmp, res = calibrated
+    cal = tmp / "out" / "calibration.json"
+    d = json.loads(cal.read_text())
+    assert d["meta"]["covariance_file"] == "calibration_cov.npz" and (tmp / "out" / "calibration_cov.npz").is_file()
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct_loads"):
+        p = payload_calibrations(cal)["wrist"]
+    assert p.full_cov and "from the full covariance of calibration_cov.npz" in caplog.text
+    p_diag = payload_from_json(d["legs"]["wrist"], "wrist", d["g"])
+    rng = np.random.default_rng(11)
+    g_B = rng.normal(size=(12, 3))
+    g_B *= 9.81 / np.linalg.norm(g_B, axis=1, keepdims=True)
+    _, J = predicted_load(p, g_B)
+    se_full, se_diag = np.sqrt(calibration_variance(p, J)), np.sqrt(calibration_variance(p_diag, J))
+    # the same motion and truth as the run's simulation (seed 5): fresh white noise of the simulator's sd per refit
+    sim = simulate_payload(PayloadConfig(seed=5, n_orientations=8, hold_s=5.0))
+    rec = res.dataset.hanging[0]
+    np.testing.assert_allclose(rec.wrench["wrist"], sim.frame[[f"wrist_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]])
+    sd = np.asarray(sim.truth["noise"])
+    K = 300
+    preds = []
+    logging.disable(logging.WARNING)
+    try:
+        for _ in range(K):
+            w = sim.clean + rng.normal(size=sim.clean.shape) * sd
+            fit = fit_free_load(replace(res.dataset, recordings=(replace(rec, wrench={"wrist": w}),)), "wrist")
+            preds.append(fit.predict(g_B, {}))
+    finally:
+        logging.disable(logging.NOTSET)
+    mc = np.std(preds, axis=0, ddof=1)
+    band = 4.0 / np.sqrt(2 * (K - 1))
+    assert np.abs(mc / se_full - 1).max() < band
+    assert np.abs(mc / se_diag - 1).max() > band          # the test can tell the two apart
+
+
+def test_fallback_without_the_covariance_file_and_undetermined_parameters(calibrated, tmp_path, caplog) -> None:
+    tmp, _ = calibrated
+    d = json.loads((tmp / "out" / "calibration.json").read_text())
+    cal = tmp_path / "calibration.json"
+    cal.write_text(json.dumps(d))                                  # names calibration_cov.npz, which is not beside it
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct_loads"):
+        p = payload_calibrations(cal)["wrist"]
+    assert not p.full_cov and "is not there" in caplog.text and "from the stored standard errors" in caplog.text
+    assert np.allclose(np.sqrt(np.diag(p.cov))[:6], d["legs"]["wrist"]["offset_se"])
+    # an undetermined mass: the forces (which carry m g) get se inf, the torques do not
+    d["legs"]["wrist"]["load_mass_se_kg"] = float("inf")
+    p = payload_from_json(d["legs"]["wrist"], "wrist", 9.81)
+    _, J = predicted_load(p, np.array([[0.0, 0.0, -9.81], [0.0, 9.81, 0.0]]))
+    var = calibration_variance(p, J)
+    assert np.isinf(var[:, :3]).all() and np.all(np.isinf(var[:, 3:]) == (np.abs(J[:, 3:, 7:10]).max(axis=-1) > 0))
