@@ -99,14 +99,108 @@ def test_correct_cli_dispatches_to_the_payload_correction(calibrated, tmp_path, 
     assert "needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz" in capsys.readouterr().err
 
 
-def test_a_urdf_load_is_named_not_corrected(tmp_path, capsys) -> None:
-    import json
-
+def test_a_urdf_calibration_without_its_urdf_is_named(tmp_path, capsys) -> None:
     cal = tmp_path / "calibration.json"
     cal.write_text(json.dumps({"model": "free_load", "g": 9.81, "legs": {"r_leg": {"load_kind": "urdf_subtree", "offset": [0] * 6}}}))
     (tmp_path / "r.csv").write_text("t,r_leg_fx\n0,1\n")
     assert correct.main([str(cal), str(tmp_path / "r.csv"), "-o", str(tmp_path / "o.csv")]) == 2
-    assert "load_kind = 'urdf_subtree'" in capsys.readouterr().err and not (tmp_path / "o.csv").exists()
+    err = capsys.readouterr().err
+    assert "transducer r_leg: missing key 'urdf' of a URDF-load calibration" in err and not (tmp_path / "o.csv").exists()
+
+
+# ----------------------------------------------------------------------------- URDF loads (a leg below its sensor)
+
+WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+@pytest.fixture(scope="module")
+def leg_calibrated(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("leg4")
+    (tmp / "c.toml").write_text('[simulate]\nkind = "urdf_leg"\ndir = "data"\nseed = 5\nn_orientations = 8\n'
+                                'poses_per_orientation = 3\nhold_s = 4.0\nmove_s = 2.0\n'
+                                '[output]\ndir = "out"\n[diagnose]\nenabled = false\n')
+    return tmp, run(load_config(tmp / "c.toml"))
+
+
+def _true_urdf_calibration(tmp, res):
+    """The calibration the data would give without noise: the simulator's truth in a UrdfLoadCalibration."""
+    from ftcal_nlp.correct_loads import UrdfLoadCalibration
+    from ftcal_nlp.loads import UrdfSubtree
+
+    truth = json.loads((tmp / "data" / "truth.json").read_text())
+    load = UrdfSubtree(res.dataset.robot.tree, truth["ft_link"])
+    th = []
+    for gr in load.groups:
+        M, H = 0.0, np.zeros(3)
+        for link in gr.links:
+            m, c = truth["bodies"][link]["mass_kg"], np.asarray(truth["bodies"][link]["com_m"])
+            R, p = load._link_in_group(gr, link)
+            M, H = M + m, H + m * (p + R @ c)
+        th += [M, *H]
+    n = 6 + len(th) + 3
+    return UrdfLoadCalibration("r_leg", load, np.asarray(truth["offset"], float), np.array(th),
+                               rotvec_to_rotation(np.asarray(truth["mount_rotvec"], float)), np.zeros((n, n)),
+                               np.zeros(6), 9.81)
+
+
+def test_urdf_load_model_is_the_simulators_and_its_jacobian_exact(leg_calibrated) -> None:
+    """With the true parameters, the predicted reading at each sample's joint angles and orientation is the
+    simulator's noise-free reading (the kinematics agree); the derivative matches central differences."""
+    from ftcal_nlp.correct_loads import gravity_of_frame, joint_angles
+    from ftcal_nlp.sim.free import UrdfLegConfig, simulate_urdf_leg
+
+    tmp, res = leg_calibrated
+    p = _true_urdf_calibration(tmp, res)
+    sim = simulate_urdf_leg(UrdfLegConfig(seed=5, n_orientations=8, poses_per_orientation=3, hold_s=4.0, move_s=2.0))
+    df = pd.read_csv(tmp / "data" / "leg.csv")
+    q = joint_angles(df, p.joints, p.load.tree, "leg.csv")
+    model, J = p.predict(gravity_of_frame(df, 9.81, "leg.csv"), q)
+    np.testing.assert_allclose(model, sim.clean, atol=1e-9 * np.abs(sim.clean).max())
+    sub = np.arange(0, len(df), 97)
+    g_B, qs = gravity_of_frame(df, 9.81, "leg.csv")[sub], {j: v[sub] for j, v in q.items()}
+    _, J = p.predict(g_B, qs)
+    eps, P = 1e-6, J.shape[-1]
+    for k in range(P):
+        def f(h):
+            x = np.zeros(P)
+            x[k] = h
+            pp = replace(p, offset=p.offset + x[:6], theta=p.theta + x[6:P - 3], E=p.E @ rotvec_to_rotation(x[P - 3:]))
+            return pp.predict(g_B, qs)[0]
+        np.testing.assert_allclose((f(eps) - f(-eps)) / (2 * eps), J[:, :, k], atol=1e-6)
+
+
+def test_urdf_contact_recovered_within_its_se(leg_calibrated, tmp_path, capsys, caplog) -> None:
+    """A push of (3, -2, 5) N at (0, 0, -0.3) m (the foot, in the true ft frame) on the second quarter of the leg's
+    recording, through ``python -m ftcal_nlp.correct``: the contact wrench is the push within its se, the se
+    finite although six directions of the links' split are undetermined (the wrench at any joint angles does
+    not depend on them), and the calibration's covariance file used."""
+    tmp, res = leg_calibrated
+    df = pd.read_csv(tmp / "data" / "leg.csv")
+    n = len(df)
+    push = np.zeros((n, 6))
+    f = np.array([3.0, -2.0, 5.0])
+    push[n // 4: n // 2] = np.r_[f, np.cross([0.0, 0.0, -0.3], f)]
+    cols = [f"r_leg_{c}" for c in WRENCH]
+    df[cols] = df[cols].to_numpy() + push
+    rec, out = tmp_path / "push.csv", tmp_path / "contact.csv"
+    df.to_csv(rec, index=False)
+    cal = tmp / "out" / "calibration.json"
+    assert len(json.loads(cal.read_text())["legs"]["r_leg"]["undetermined"]) > 0
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct_loads"):
+        assert correct.main([str(cal), str(rec), "-o", str(out)]) == 0
+    assert "from the full covariance of calibration_cov.npz" in caplog.text
+    got = pd.read_csv(out)
+    assert len(got) == n
+    w, se = got[cols].to_numpy(), got[[c + "_se" for c in cols]].to_numpy()
+    assert np.all(np.isfinite(se))
+    z = (w - push) / se
+    assert np.allclose(z.std(axis=0), 1.0, atol=0.05) and np.abs(z).max() < 5.5
+    assert np.allclose(z.mean(axis=0), 0.0, atol=4 / np.sqrt(n) + 0.05)
+    # joint angles in degrees: an error naming the column, nothing written
+    df["q_r_knee"] = np.degrees(df["q_r_knee"])
+    df.to_csv(rec, index=False)
+    assert correct.main([str(cal), str(rec), "-o", str(tmp_path / "deg.csv")]) == 2
+    assert "column 'q_r_knee' reaches" in capsys.readouterr().err and not (tmp_path / "deg.csv").exists()
 
 
 def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
