@@ -180,8 +180,8 @@ def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration
 
 def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> UrdfLoadCalibration:
     """A :class:`UrdfLoadCalibration` from a leg entry of ``calibration.json`` (keys ``urdf``, ``link``,
-    ``urdf_groups``): the URDF parsed again (a path relative to ``calibration.json``'s folder, or absolute), its
-    groups checked against the stored ones. ``cc``: the run's :class:`~ftcal_nlp.uncertainty.CalibrationCovariance`
+    ``urdf_groups``): the URDF parsed again (a path relative to ``calibration.json``'s folder, or absolute; a file
+    of its name beside ``calibration.json`` when that path is gone), its groups checked against the stored ones. ``cc``: the run's :class:`~ftcal_nlp.uncertainty.CalibrationCovariance`
     (its block of this transducer); None, or the transducer not in it: the diagonal of the stored se."""
     from .data import read_urdf_tree
     from .loads import UrdfSubtree
@@ -199,6 +199,9 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
                               "contact wrench needs the URDF, the sensor link and the groups' parameters)", path=where,
                               column=str(exc.args[0])) from None
     path = Path(urdf) if Path(urdf).is_absolute() else cal_path.parent / urdf
+    if not path.is_file() and (cal_path.parent / path.name).is_file():   # a calibration moved with its URDF beside it
+        log.info("%s: legs.%s.urdf = %s is not there; using %s beside the calibration", where, leg, urdf, path.name)
+        path = cal_path.parent / path.name
     tree = read_urdf_tree(path, f"{where} legs.{leg}.urdf")
     try:
         load = UrdfSubtree(tree, link)

@@ -260,3 +260,19 @@ def test_fallback_without_the_covariance_file_and_undetermined_parameters(calibr
     _, J = predicted_load(p, np.array([[0.0, 0.0, -9.81], [0.0, 9.81, 0.0]]))
     var = calibration_variance(p, J)
     assert np.isinf(var[:, :3]).all() and np.all(np.isinf(var[:, 3:]) == (np.abs(J[:, 3:, 7:10]).max(axis=-1) > 0))
+
+
+def test_a_urdf_calibration_moved_away_from_its_urdf(leg_calibrated, tmp_path, capsys) -> None:
+    """calibration.json names its URDF by absolute path: moved elsewhere with the URDF beside it, it is found
+    there; without it, one error line naming the key legs.r_leg.urdf and the file."""
+    tmp, _ = leg_calibrated
+    d = json.loads((tmp / "out" / "calibration.json").read_text())
+    d["legs"]["r_leg"]["urdf"] = str(tmp_path / "gone" / "robot.urdf")
+    cal = tmp_path / "calibration.json"
+    cal.write_text(json.dumps(d))
+    rec = tmp / "data" / "leg.csv"
+    assert correct.main([str(cal), str(rec), "-o", str(tmp_path / "a.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "legs.r_leg.urdf: URDF file" in err and "gone/robot.urdf not found" in err and not (tmp_path / "a.csv").exists()
+    (tmp_path / "robot.urdf").write_text((tmp / "data" / "robot.urdf").read_text())
+    assert correct.main([str(cal), str(rec), "-o", str(tmp_path / "a.csv")]) == 0
