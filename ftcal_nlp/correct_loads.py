@@ -147,8 +147,8 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
     into the first moment's: ``Var(h_i) = m^2 Var(c_i) + c_i^2 Var(m)``), parameters with se inf undetermined."""
     try:
         if d.get("load_kind") != "rigid_payload":
-            raise DataFormatError(f"{where}: transducer {leg}: load_kind = {d.get('load_kind')!r}; expected 'rigid_payload'",
-                                  path=where)
+            raise DataFormatError(f"{where}: transducer {leg}: load_kind = {d.get('load_kind')!r}; the contact wrench is "
+                                  "computed for 'rigid_payload' and 'urdf_subtree' loads", path=where)
         m, c = float(d["load_mass_kg"]), np.asarray(d["load_com_m"], float)
         m_se, c_se = float(d["load_mass_se_kg"]), np.asarray(d["load_com_se_m"], float)
         var = np.concatenate([np.asarray(d["offset_se"], float) ** 2, [m_se**2], m**2 * c_se**2 + c**2 * m_se**2,
