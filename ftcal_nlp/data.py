@@ -665,14 +665,24 @@ def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tupl
 
 
 def recording_to_frame(rec: Recording, legs: Iterable[str]) -> pd.DataFrame:
+    """The table of ``rec`` in the interchange format, readable back into the same recording: ``t``, per leg
+    ``{leg}_phi`` (where it has one: section 5 loads have none) and ``{leg}_fx..tz``; ``q_{joint}`` columns;
+    ``qw..qz`` when the recording keeps its orientation, else ``gx..gz`` when it has gravity per sample (a
+    hanging recording with both ``gravity_body`` and orientation columns keeps only the gravity they give)."""
     cols: dict[str, np.ndarray] = {"t": rec.t}
     for k in legs:
-        cols[f"{k}_phi"] = rec.phi[k]
+        if k in rec.phi:
+            cols[f"{k}_phi"] = rec.phi[k]
         for j, c in enumerate(WRENCH_COMPONENTS):
             cols[f"{k}_{c}"] = rec.wrench[k][:, j]
+    for jn, v in rec.q.items():
+        cols[f"{JOINT_PREFIX}{jn}"] = v
     if rec.quat is not None:
         for j, c in enumerate(QUAT_COLUMNS):
             cols[c] = rec.quat[:, j]
+    elif rec.gravity is not None:
+        for j, c in enumerate(GRAVITY_COLUMNS):
+            cols[c] = rec.gravity[:, j]
     return pd.DataFrame(cols)
 
 
@@ -711,7 +721,9 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
     """Write ``ds`` in the interchange format; returns the manifest path.
 
     ``fmt`` is ``csv`` or ``parquet``. An existing manifest is not overwritten
-    unless ``overwrite`` is true.
+    unless ``overwrite`` is true. Section 5: the robot's URDF is copied beside
+    ``robot.toml``, recordings keep their ``q_{joint}`` and orientation or gravity
+    columns (:func:`recording_to_frame`), hanging entries their ``free`` list.
     """
     import tomli_w
 
@@ -721,6 +733,12 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
     if manifest.exists() and not overwrite:
         raise OutputExistsError(f"{manifest} exists; pass overwrite=True to replace it", path=manifest)
     write_robot(ds.robot, folder / "robot.toml")
+    if ds.robot.urdf is not None:  # robot.toml names it by file name, beside itself
+        import shutil
+
+        target = folder / Path(ds.robot.urdf).name
+        if not target.exists() or not target.samefile(ds.robot.urdf):
+            shutil.copyfile(ds.robot.urdf, target)
     entries = []
     for rec in ds.recordings:
         fname = f"{rec.name}.{fmt}"
@@ -736,6 +754,8 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
         e: dict = {"file": fname, "kind": rec.kind}
         if rec.gravity_body is not None:
             e["gravity_body"] = [float(x) for x in rec.gravity_body]
+        if rec.free is not None:
+            e["free"] = list(rec.free)
         entries.append(e)
     manifest.write_bytes(tomli_w.dumps({"robot": "robot.toml", "recording": entries}).encode())
     return manifest

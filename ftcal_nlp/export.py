@@ -16,6 +16,9 @@ with ``R_HB = Rz(-yaw) R_WB`` the heading frame (``OUTPUT_FORMAT.md``) and
 (as :meth:`ftcal_nlp.calibration.LegCalibration.com`). The symbolic twin is
 checked against the numpy path to 1e-12 in the tests; ``compile_shared`` and
 ``load_compiled`` build and call the generated C from Python.
+
+A calibration of free loads (``DATA_FORMAT.md`` section 5: a wrist payload, URDF links
+below a sensor) exports its contact-wrench correction instead (:mod:`ftcal_nlp.export_loads`).
 """
 
 from __future__ import annotations
@@ -266,6 +269,15 @@ def _main(args) -> int:
     existing = [p for p in (out / f"{args.name}.c", out / f"{args.name}.h", out / "USAGE.md") if p.exists()]
     if existing and not args.force:
         raise OutputError(f"{existing[0]} exists; pass --force to overwrite", path=existing[0])
+    from .correct_loads import payload_calibrations
+
+    free = payload_calibrations(args.calibration)
+    if free is not None:  # free loads: the contact wrench (export_loads.py)
+        from . import export_loads
+
+        files = export_loads.write_c(free, out, args.name, source=Path(args.calibration).name)
+        print(f"wrote {files.source}, {files.header}, {files.usage}")
+        return 0
     cal = Calibration.load(args.calibration)
     files = write_c(cal, out, args.name, source=Path(args.calibration).name)
     print(f"wrote {files.source}, {files.header}, {files.usage}")
