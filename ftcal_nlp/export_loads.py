@@ -24,6 +24,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from .codegen import ExportedFiles, write_generated
 from .errors import DataFormatError
 from .geometry import quat_to_rotation
 
@@ -190,25 +191,11 @@ cc -O2 -fPIC -shared {name}.c -o lib{name}.so -lm
 """
 
 
-def write_c(cals: dict, out_dir: str | Path, name: str, source: str):
-    """Write ``{name}.c``, ``{name}.h`` and ``USAGE.md`` into ``out_dir`` (``export.ExportedFiles``)."""
-    from .export import ExportedFiles
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+def write_c(cals: dict, out_dir: str | Path, name: str, source: str) -> ExportedFiles:
+    """Write ``{name}.c``, ``{name}.h`` and ``USAGE.md`` into ``out_dir``."""
     f = correction_function(cals, name)
-    gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
-    gen.add(f)
-    gen.generate(str(out_dir) + "/")
-    src, hdr = _wrapper_source(f, name, len(cals), len(joint_order(cals)))
-    c_path, h_path = out_dir / f"{name}.c", out_dir / f"{name}.h"
-    with c_path.open("a") as fh:
-        fh.write(src)
-    with h_path.open("a") as fh:
-        fh.write(hdr)
-    usage = out_dir / "USAGE.md"
-    usage.write_text(usage_note(cals, name, source))
-    return ExportedFiles(c_path, h_path, usage)
+    return write_generated(f, name, Path(out_dir), _wrapper_source(f, name, len(cals), len(joint_order(cals))),
+                           usage_note(cals, name, source))
 
 
 def load_compiled(lib: str | Path, n_transducers: int, n_joints: int, name: str):
