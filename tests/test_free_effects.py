@@ -111,15 +111,15 @@ def test_clock_offset_face_recovers_the_delay_and_the_correction_removes_it():
     sim = simulate(effects=(EFFECTS["clock_offset"].injector(scale=d),))
     ctx = context(sim)
     unit = EFFECTS["clock_offset"]
-    assert {"channels": "all"} in unit.free_shapes(ctx)
-    face = unit.free_face(ctx, {"channels": "all"})
+    assert {"channels": "all", "order": 1} in unit.free_shapes(ctx)
+    face = unit.free_face(ctx, {"channels": "all", "order": 1})
     beta, se, after, off = fit(ctx, face)
     assert abs(beta[0] - d) < 4 * se[0], (beta, se)
     d_gn, se_gn = refine_delay(ctx.t, ctx.rec, ctx.y, ctx.pred, beta[0], ctx.sigma)
     assert abs(d_gn - d) < 4 * se_gn and se_gn < 0.1 * d, (d_gn, se_gn)
     before = rms(ctx.y - ctx.pred - (ctx.y - ctx.pred).mean(axis=0))
     assert np.all(after < 1.1 * ctx.sigma) and before[0] > 2 * ctx.sigma[0]
-    corr = unit.free_correct(ctx, {"channels": "all"}, [d_gn])
+    corr = unit.free_correct(ctx, {"channels": "all", "order": 1}, [d_gn])
     inner = slice(10, -10)
     assert np.all(rms((corr - ctx.pred)[inner]) < 1.1 * np.sqrt(2) * ctx.sigma)  # the noise, re-sampled
     # the drift and jitter shapes still show as a delay of about their mean
@@ -127,8 +127,14 @@ def test_clock_offset_face_recovers_the_delay_and_the_correction_removes_it():
         cls = next(s for s in unit.shapes if s.name == shape)
         sim2 = simulate(effects=(cls(scale=d, seed=1),))
         c2 = context(sim2)
-        b2, s2, a2, _ = fit(c2, unit.free_face(c2, {"channels": "all"}))
+        b2, s2, a2, _ = fit(c2, unit.free_face(c2, {"channels": "all", "order": 1}))
         assert 0.5 * d < b2[0] < 1.5 * d, (shape, b2, s2)
+    # several samples (8): the third-order face keeps the delay within 4 se where the first order is biased
+    d8 = 0.08
+    c8 = context(simulate(effects=(EFFECTS["clock_offset"].injector(scale=d8),)))
+    b8, s8, a8, _ = fit(c8, unit.free_face(c8, {"channels": "all", "order": 3}))
+    assert abs(b8[0] - d8) < 4 * s8[0] and abs(b8[1] - d8**2) < 4 * s8[1], (b8, s8)
+    assert np.all(a8 < 1.05 * c8.sigma)
 
 
 def heldout(ctx, face, folds: int = 5) -> float:
