@@ -44,7 +44,7 @@ class JointLimitContactInjector(EffectInjector):
     """``scale`` N of force (and a 5 cm lever's torque) at a joint's limit, ramping from ``onset`` of its half-range."""
 
     name = "joint_limit_contact"
-    magnitude = Magnitude("N of contact force at the joint's limit", (0.5, 3.0), 2.0)
+    magnitude = Magnitude("N of contact force at the joint's limit", (1.0, 4.0), 2.0)
 
     def __init__(self, scale: float | None = None, seed: int = 0, joint: str | None = None, side: int | None = None,
                  onset: float = 0.5):
@@ -86,7 +86,7 @@ class JointLimitContactSmoothInjector(OffFaceInjector, JointLimitContactInjector
 
     name = "joint_limit_contact_smooth"
     expect = "joint_limit_contact"
-    magnitude = Magnitude("N of contact force when saturated (sigmoid)", (0.5, 3.0), 2.0)
+    magnitude = Magnitude("N of contact force when saturated (sigmoid)", (1.0, 4.0), 2.0)
 
     def contact(self, ctx):
         j, side, lo, hi = self.where(ctx)
@@ -100,7 +100,7 @@ class JointLimitContactHysteresisInjector(OffFaceInjector, JointLimitContactInje
 
     name = "joint_limit_contact_hysteresis"
     expect = "joint_limit_contact"
-    magnitude = Magnitude("N of contact force at the joint's limit (hysteretic)", (0.5, 3.0), 2.0)
+    magnitude = Magnitude("N of contact force at the joint's limit (hysteretic)", (1.0, 4.0), 2.0)
     BACK = 0.15
 
     def contact(self, ctx):

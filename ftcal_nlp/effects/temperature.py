@@ -51,7 +51,7 @@ class TemperatureInjector(EffectInjector):
     """Offsets that move ``scale`` N per degC (force; torque: a 2 cm lever) with the transducer's temperature."""
 
     name = "temperature"
-    magnitude = Magnitude("N of force offset per degC", (0.02, 0.1), 0.05)
+    magnitude = Magnitude("N of force offset per degC", (0.04, 0.15), 0.08)   # a Gamma: ~0.1 % of 130 N per degC
 
     def __init__(self, scale: float | None = None, seed: int = 0, quadratic: float = 0.0):
         super().__init__(scale, seed)
@@ -88,7 +88,7 @@ class TemperatureLagInjector(OffFaceInjector, TemperatureInjector):
 
     name = "temperature_lag"
     expect = "temperature"
-    magnitude = Magnitude("N of force offset per degC (thermal lag 30 s)", (0.02, 0.1), 0.05)
+    magnitude = Magnitude("N of force offset per degC (thermal lag 30 s)", (0.04, 0.15), 0.08)
 
     def __init__(self, scale: float | None = None, seed: int = 0, lag_s: float = 30.0):
         super().__init__(scale, seed)
