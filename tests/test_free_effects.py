@@ -190,7 +190,8 @@ def test_creep_face_recovers_its_gains_and_the_heldout_residual_picks_tau():
     assert np.all(np.abs(beta[0::2] - g) < 4 * se[0::2]), (beta, g, se)
     assert np.all(np.abs(beta[1::2]) < 4 * se[1::2])              # on the grid point: no shift of ln tau
     assert np.all(after < 1.05 * ctx.sigma)
-    assert best_shape(unit, ctx).shape == {"tau_s": 4.0}
+    best = best_shape(unit, ctx).shape
+    assert 4.0 in (best["tau_s"], best.get("tau2_s")), best     # the true tau alone, or beside a second one
     corr = unit.free_correct(ctx, {"tau_s": 4.0}, beta)
     assert np.all(rms(corr - ctx.pred - (corr - ctx.pred).mean(axis=0)) < 1.05 * ctx.sigma)
     # off the grid (3 s): a neighbouring grid point and its ln-tau derivative follow it (gains within 4 se, gap closed)
