@@ -75,11 +75,15 @@ def _step(fr, res):
     ("urdf", 5, ({"name": "clock_offset", "scale": 0.02},), None, "clock_offset"),
     ("payload", 6, ({"name": "creep"},), None, "creep"),
     ("urdf", 6, ({"name": "creep"},), None, "creep"),
+    ("payload", 9, ({"name": "temperature"},), None, "temperature"),              # a temperature column: its correlate
+    ("urdf", 9, ({"name": "inertial_load"},), None, "inertial_load"),
 ])
 def test_one_effect_is_named_alone(kind, seed, effects, add, expect, tmp_path):
     d, _ = _diagnose(_sim(kind, seed, effects, add), tmp_path)
     assert d.verdict == "effect" and d.effect == expect, d.statement
     assert _names(d) == [expect], d.statement
+    assert d.where["explains"] == {"offset_drift": "time", "clock_offset": "motion", "inertial_load": "motion",
+                                   "temperature": "temperature"}.get(expect, d.where["explains"])
     e = d.effects[0]
     assert all(p["se"] is None or p["se"] > 0 for p in e["parameters"].values())
     leg = next(iter(d.free.values()))
@@ -128,6 +132,12 @@ def test_delay_and_its_se_recover_truth(tmp_path):
     assert vals, pars
     for v, se in vals:
         assert se is not None and abs(v - true) < 4 * se + 1e-3 * true, (v, se)
+    # the free-load parameters refit with it: the offsets are determined (finite se) and the truth within 4 se
+    jr = d.to_json_dict()["free_loads"]["wrist"]["joint_refit"]
+    truth = json.loads(json.dumps(_sim("payload", 7, ({"name": "clock_offset", "scale": true},)).truth))
+    for c, t in zip(WRENCH, truth["offset"]):
+        p = jr[f"wrist.offset.{c}"]
+        assert p["se"] is not None and abs(p["value"] - t) < 4 * p["se"], (c, p, t)
 
 
 def test_a_gap_along_a_joint_is_unexplained_and_placed(tmp_path):
@@ -170,3 +180,35 @@ def test_run_writes_the_chain_and_its_report(tmp_path):
     assert "wrist" in d["free_loads"] and d["free_loads"]["wrist"]["chain"]
     rep = (tmp_path / "out" / "report.md").read_text()
     assert "in the order added" in rep and "1. clock_offset" in rep and "2. offset_drift" in rep
+
+
+def _pose_list(res, drift_N: float, n_keep: int | None = None):
+    """The simulated recording as a list of poses: one row per hold (its mean), a synthetic clock of 1 s per row,
+    and an fz drift of ``drift_N`` over the list (linear)."""
+    fr = res.frame[res.held].copy()
+    fr["hold"] = res.hold_index[res.held]
+    rows = fr.groupby("hold").mean().reset_index(drop=True)
+    if n_keep is not None:
+        rows = rows.iloc[:n_keep]
+    rows["t"] = 1000.0 + np.arange(len(rows))
+    rows[f"{res.config.transducer}_fz"] += drift_N * np.linspace(-0.5, 0.5, len(rows))
+    return dataclasses.replace(res, frame=rows, held=np.ones(len(rows), bool), hold_index=np.arange(len(rows)))
+
+
+def test_a_list_of_poses_has_no_floor_but_its_drift_is_named(tmp_path):
+    res = simulate_payload(PayloadConfig(seed=11, n_orientations=60, hold_s=1.0, move_s=0.5, noise_force_N=0.05))
+    d, _ = _diagnose(_pose_list(res, 1.5), tmp_path)
+    leg = d.free["wrist"]
+    assert not leg.floor_known and any("no noise floor is known" in n for n in d.notes)
+    assert _names(d) == ["offset_drift"] and "fz" in d.where["components"], d.statement
+    p1 = d.effects[0]["parameters"]["fz.P1 [N]"]
+    assert abs(p1["value"] - 0.75) < 4 * p1["se"], p1          # P1 over [-1, 1]: half the drift
+    clean, _ = _diagnose(_pose_list(res, 0.0), tmp_path, "clean")
+    assert clean.verdict == "none" and clean.effects == []
+
+
+def test_too_few_poses_are_not_diagnosed_and_no_error(tmp_path):
+    res = simulate_payload(PayloadConfig(seed=12, n_orientations=8, hold_s=1.0, move_s=0.5))
+    d, _ = _diagnose(_pose_list(res, 0.0, n_keep=7), tmp_path)
+    assert d.verdict == "none" and d.effects == [] and any("not diagnosed" in n for n in d.notes)
+    json.dumps(d.to_json_dict())

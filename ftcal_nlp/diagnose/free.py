@@ -22,6 +22,7 @@ else ``none`` (a gap without structure is reported as noise the floor underrates
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Mapping
@@ -65,12 +66,16 @@ class FreeLegDiagnosis:
     blocks: int
     notes: list[str] = field(default_factory=list)
     plot: dict = field(default_factory=dict)
+    floor_known: bool = True              # False: no still stretch; ``floor`` is the fit's residual sd
+    param_names: tuple = ()               # the free-load fit's parameters (the Jacobian's columns)
+    fit_params: tuple = ()                # ... and their values at the fit
 
     def to_json_dict(self) -> dict:
         """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
         lst = lambda a: [float(x) for x in a]  # noqa: E731
         return {"verdict": self.verdict, "samples": self.n, "quasi_static": self.n_still, "cv_blocks": self.blocks,
                 "noise_floor": lst(self.floor), "floor_samples": self.floor_samples,
+                "noise_floor_source": "held, still stretches" if self.floor_known else "none (no still stretch): the fit's residual sd",
                 "heldout_rms_before": lst(self.before), "heldout_rms_after": lst(self.after),
                 "chain": [{"step": i + 1, "candidates": [{"effect": c.effect.name, "shape": c.shape, "status": c.status,
                                                            "paired_z": None if c.cv is None else float(c.z),
@@ -80,7 +85,15 @@ class FreeLegDiagnosis:
                 "stop": self.chain.stop,
                 "correlates": [{"correlate": c.name, "explained": float(c.explained), "heldout_rms_after": lst(c.heldout_rms)}
                                for c in self.correlates],
-                "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes)}
+                "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes),
+                **({"joint_refit": self.joint_refit_json()} if self.joint is not None else {})}
+
+    def joint_refit_json(self) -> dict:
+        """The free-load parameters refit with the named effects (linearised: the fit's value plus the change), with
+        se (null: undetermined by these data)."""
+        x0 = np.asarray(self.fit_params, float)
+        return {n: {"value": float(v + dv), "change": float(dv), "se": float(e) if np.isfinite(e) else None}
+                for n, v, dv, e in zip(self.param_names, x0, self.joint.dx, self.joint.dx_se)}
 
     def effects_json(self) -> list[dict]:
         out = []
@@ -106,23 +119,29 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     """Steps 1-5 of the module docstring for transducer ``leg``."""
     ctx, notes = context_for(ds, leg, fit)
     floor, n_floor = hold_floor(ctx)
-    if not np.all(np.isfinite(floor) & (floor > 0)):
-        # no still stretch: the readings' scatter from first differences (white noise: sd of a difference / sqrt 2)
-        d = np.diff(ctx.y, axis=0)[np.diff(ctx.rec) == 0]
-        floor = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
-        floor = np.where(floor > 0, floor, 1e-9)
-        notes.append(f"{leg}: no held, still stretch of {FLOOR_TEXT}: the floor is the scatter of successive differences")
+    floor_known = bool(np.all(np.isfinite(floor) & (floor > 0)))
+    if not floor_known:
+        # no still stretch (a list of single-row poses): no floor; the fit's residual sd balances the channels
+        floor = np.asarray(fit.sigma, float).copy()
+        notes.append(f"{leg}: the readings hold no held, still stretch (consecutive samples of one pose): no noise floor is "
+                     "known; the channels are weighted by the free-load fit's residual sd, effects are named by held-out "
+                     "significance alone and no gap size can be stated")
+    ctx = dataclasses.replace(ctx, sigma=floor)   # what a face's refinement weighs channels by
     Jx, names = model_jacobian(ctx, fit)
     J = FreeFace(Jx, names)
     block = cv_blocks(ctx.hold, ctx.rec, s.folds)
+    if int(block.max()) + 1 < s.folds:
+        notes.append(f"{leg}: {ctx.n} samples make {int(block.max()) + 1} cross-validation block(s), fewer than the {s.folds} "
+                     "folds: not diagnosed")
+        return _undiagnosed(leg, ctx, floor, n_floor, notes)
     fold = fold_of_blocks(block, s.folds, s.seed)
     design = Design(ctx.y - ctx.pred, 1.0 / floor, block, fold)
-    ch = run_chain(design, J, ctx, effects, floor)
+    ch = run_chain(design, J, ctx, effects, floor, floor_known)
     base, cur = ch.base, ch.current
     jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
     ratio_after = excess_ratio(cur, floor)
-    gap_after = bool(np.max(ratio_after) > 1.0 + GAP_REL)
-    gap_before = bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
+    gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
+    gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
     extra = [st.face for st in ch.steps]
     # where: the gap as found (before any effect) when an effect explains it; what remains otherwise
     ref = cur if (gap_after and not ch.steps) or not ch.steps else base
@@ -166,10 +185,17 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
         plot = {"x": show.x, "y": res[:, c], "xlabel": show.xlabel, "component": WRENCH[c], "floor": float(floor[c]),
                 "correlate": show.name, "leg": leg}
     return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
-                            int(ctx.still.sum()), int(block.max()) + 1, notes, plot)
+                            int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known, tuple(names),
+                            tuple(float(v) for v in fit.params))
 
 
-FLOOR_TEXT = "at least a few samples"
+def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
+    nan = np.full(6, np.nan)
+    where = {"recordings": [], "legs": [], "components": [], "explains": None}
+    return FreeLegDiagnosis(leg, "none", floor, n_floor, nan, nan, Chain(None, stop="not diagnosed: too few samples"), None, [],
+                            where, ctx.n, int(ctx.still.sum()), 0, notes, {}, False)
+
+
 #: a channel lies in the gap when the fitted wrench of what explains it has an RMS of at least this share of its floor
 COMPONENT_SHARE = 0.5
 
@@ -192,7 +218,7 @@ def diagnose_free(dataset: Dataset, free_loads, settings: DiagnoseSettings | Non
         legs[leg] = diagnose_leg(dataset, leg, fit, effects, s)
         log.info("diagnosis of %s: %s; effects %s", leg, legs[leg].verdict, [st.effect.name for st in legs[leg].chain.steps])
     order = sorted(legs.values(), key=lambda d: ({"effect": 0, "unexplained": 1, "none": 2}[d.verdict],
-                                                  -float(np.max(d.before / d.floor))))
+                                                  -float(np.nan_to_num(np.max(d.before / d.floor)))))
     main = order[0]
     effects_json = [e for d in legs.values() for e in d.effects_json()]
     verdict = main.verdict
@@ -223,7 +249,12 @@ def _statement(main: FreeLegDiagnosis, legs: dict) -> list[str]:
     out = []
     for d in legs.values():
         head = f"Transducer {d.leg} ({d.n} samples, {d.n_still} quasi-static, {d.blocks} cross-validation blocks): "
-        if d.verdict == "none":
+        if d.blocks == 0:
+            out.append(head + "not diagnosed (too few samples for a blocked cross-validation).")
+        elif d.verdict == "none" and not d.floor_known:
+            out.append(head + "no noise floor is known (no held, still stretch in the readings) and no library effect passes "
+                       "the held-out test (held-out RMS " + _fmt(d.before) + ").")
+        elif d.verdict == "none":
             out.append(head + "no gap above the noise floor (held-out RMS " + _fmt(d.before) + " vs floor " + _fmt(d.floor) + ").")
         elif d.verdict == "effect":
             names = [st.effect.name for st in d.chain.steps]

@@ -10,7 +10,9 @@ noise floor from held, still stretches of the readings.
 * :func:`hold_floor`: the readings' noise sd per channel from held, still stretches: within every window of
   ``FLOOR_WINDOW_S`` (at least ``FLOOR_MIN_SAMPLES`` samples) of a quasi-static hold, the scatter about the
   window's own mean and slope (what no model of a free load can explain: a creep or drift is smooth over the
-  window), pooled with its degrees of freedom. It comes from the readings, not from any fit's residual.
+  window), pooled with its degrees of freedom; windows across which gravity's direction or a joint moves by
+  ``STILL_RAD`` or more are not still (a list of single-row poses has no still window: no floor is known). It
+  comes from the readings, not from any fit's residual.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from ..geometry import rotvec_to_rotation
 FLOOR_WINDOW_S = 0.5
 FLOOR_MIN_SAMPLES = 6
 _ROT_STEP = 1e-6
+#: a floor window is still when gravity's direction in ft and every joint move less than this (rad) across it
+STILL_RAD = 3e-3
 
 
 def _limits(load) -> dict[str, tuple[float, float]]:
@@ -113,6 +117,14 @@ def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:
         if nw == 0:
             continue
         idx = i[: nw * m].reshape(nw, m)
+        # a window is still when gravity in ft and the joints stay put across it (a list of single-row poses has none)
+        still = np.ptp(ctx.g_ft[idx] / np.linalg.norm(ctx.g_ft[idx], axis=2, keepdims=True), axis=1).max(axis=1) < STILL_RAD
+        for q in ctx.q.values():
+            still &= np.ptp(q[idx], axis=1) < STILL_RAD
+        idx = idx[still]
+        nw = len(idx)
+        if nw == 0:
+            continue
         y = ctx.y[idx]                                   # (nw, m, 6)
         tt = ctx.t[idx] - ctx.t[idx].mean(axis=1, keepdims=True)
         yc = y - y.mean(axis=1, keepdims=True)

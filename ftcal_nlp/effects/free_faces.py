@@ -26,6 +26,11 @@ not a candidate on free-load data):
 * ``free_correct(ctx, shape, beta) -> (N, 6)``: the readings corrected for the effect with the fitted
   parameters (what ``correct`` applies). Default: ``y - X beta``. Override when the correction is not
   the subtraction of the face (e.g. a clock offset: re-sample the readings ``delay_s`` later).
+* ``free_refine(ctx, shape, resid) -> dict | None`` (optional; define it only when useful): after the grid, the
+  diagnosis hands the unit its best grid shape and the current model's residual ``resid`` (N, 6) on all samples
+  (the free-load model and the effects named so far refit; channels weighted by ``1 / ctx.sigma``, the floor);
+  the unit may return a refined shape (e.g. the exact delay by Gauss-Newton, a time constant by a 1-D search),
+  which is scored like any grid shape and kept when its held-out residual is smaller.
 * ``free_explains`` (class attribute, default the unit's ``explains``): the correlate a residual of this
   effect lies along (``"time"``, ``"motion"``, ``"load"``, ``"joint:<name>"`` via ``"joint"``,
   ``"temperature"``, ``"pose_history"``) - what ``where.explains`` should say when it is named.

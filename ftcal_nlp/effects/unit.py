@@ -143,6 +143,10 @@ class Effect:
         None where it does not apply to these data."""
         return None
 
+    def free_refine(self, ctx, shape: dict, resid: np.ndarray) -> dict | None:
+        """A refined shape from the grid's best ``shape`` and the current residual (N, 6); None: none (the default)."""
+        return None
+
     def free_correct(self, ctx, shape: dict, beta: np.ndarray) -> np.ndarray:
         """Readings (N, 6) of ``ctx`` corrected for the effect with parameters ``beta``: ``y - X beta``."""
         face = self.free_face(ctx, shape)
