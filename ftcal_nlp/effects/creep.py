@@ -23,7 +23,9 @@ recording apart; ``pred`` the model readings: the offsets relax nothing), parame
 ``c.creep_dlntau`` [1] (``g_c d ln tau``: the channel's time constant is ``tau exp(dlntau / creep)``
 to first order); or, shapes ``(tau, tau2)`` (``PAIRS_S``), two relaxations at once (``c.creep``,
 ``c.creep2`` [1]: a fast and a slow creep, which a single tau leaves as a delay-like rest). The shape is
-``tau`` on a grid (``TAUS_S``, factor 2 apart) or a pair, chosen by held-out residual.
+``tau`` on a grid (``TAUS_S``, factor 2 apart) or a pair, chosen by held-out residual; ``free_refine``
+then searches ``ln tau`` within a factor 2 of the best single tau (the residual on each channel's
+relaxation, weighted by the floor), kept when it predicts held-out data better.
 
 Correction: ``y - X beta`` (the creep the face predicts, removed); on a hexapod recording (no hexapod
 face fits it) the block's ``<c>.creep [1]`` gains and ``tau_s`` applied to the readings themselves
@@ -35,6 +37,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from .free_faces import WRENCH, FreeFace
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
@@ -134,6 +137,27 @@ class Creep(Effect):
             X[:, np.arange(6), 2 * np.arange(6) + 1] = relax[1]
             names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep2 [1]"))
         return FreeFace(X, names, dict(shape))
+
+    def free_refine(self, ctx, shape, resid):
+        # The time constant by a 1-D search: ln tau within a factor 2 of the grid's best, each channel's residual
+        # regressed on its relaxation (weighted by the floor); a pair of taus is not refined
+        if "tau2_s" in shape:
+            return None
+        w = 1.0 / ctx.sigma if ctx.sigma is not None else np.ones(6)
+        r = np.asarray(resid, float) * w
+
+        def sse(ln_tau: float) -> float:
+            x = np.zeros_like(ctx.pred)
+            for k in np.unique(ctx.rec):
+                i = ctx.rec == k
+                x[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (float(np.exp(ln_tau)),))
+            x = x * w
+            xx = np.sum(x * x, axis=0)
+            return float(np.sum(r * r) - np.sum(np.where(xx > 0, np.sum(x * r, axis=0) ** 2 / np.where(xx > 0, xx, 1.0), 0.0)))
+
+        lt = np.log(float(shape["tau_s"]))
+        best = minimize_scalar(sse, bounds=(lt - np.log(2.0), lt + np.log(2.0)), method="bounded", options={"xatol": 0.01})
+        return {"tau_s": float(np.round(np.exp(best.x), 3))} if best.success else None
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         par = block.get("parameters", {})
