@@ -40,6 +40,9 @@ WRENCH_COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
 QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
 GRAVITY_COLUMNS = ("gx", "gy", "gz")
 JOINT_PREFIX = "q_"
+TEMP_SUFFIX = "_temp_C"       # optional ``{leg}_temp_C``: that transducer's temperature, degC (docs/proposals/temperature.md)
+TEMP_COMMON = "temp_C"        # optional ``temp_C``: one temperature for the transducers without their own
+TEMP_RANGE_C = (-60.0, 150.0)  # a plausible transducer temperature in degC (outside: kelvin or degF?)
 KINDS = ("hanging", "standing", "walking")
 
 # A torque column in N*mm or a force column in mN is ~1000x too large. Forces on a
@@ -72,7 +75,8 @@ class Recording:
     from the ``q_{joint}`` columns; ``gravity`` (N, 3) unit gravity direction
     (pointing down) in B per sample of a hanging recording, from ``gx..gz`` or
     ``qw..qz`` (NaN where not tracked), or None; ``free`` the transducers whose
-    loads hang free (None: all).
+    loads hang free (None: all). ``temperature[leg]`` (N,) degC from the optional
+    ``{leg}_temp_C`` column (or ``temp_C`` for every leg without its own; empty without either).
     """
 
     name: str
@@ -88,6 +92,7 @@ class Recording:
     q: dict[str, np.ndarray] = field(default_factory=dict)
     gravity: np.ndarray | None = None
     free: tuple[str, ...] | None = None
+    temperature: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -379,7 +384,8 @@ def recording_from_frame(
         if c[len(JOINT_PREFIX):] not in urdf_joints:
             raise DataFormatError(f"{where}: column '{c}': the URDF {robot.urdf} has no joint '{c[len(JOINT_PREFIX):]}' "
                                   f"(joints: {urdf_joints})", path=path, column=c)
-    known = set(expected) | set(QUAT_COLUMNS) | set(g_cols) | set(joint_cols)
+    temp_cols = [c for c in [f"{k}{TEMP_SUFFIX}" for k in robot.legs] + [TEMP_COMMON] if c in cols_in]
+    known = set(expected) | set(QUAT_COLUMNS) | set(g_cols) | set(joint_cols) | set(temp_cols)
     extra = [c for c in df.columns if c not in known]
     if extra:
         log.warning("%s: extra column(s) ignored: %s", where, extra)
@@ -401,6 +407,7 @@ def recording_from_frame(
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})", path=path, column="t")
+    temps = _temperatures(df, temp_cols, ~bad, t, robot.legs, where, path)
     phi, wrench = {}, {}
     j = 1
     for k in robot.legs:
@@ -444,7 +451,39 @@ def recording_from_frame(
         bad_free = [k for k in free_t if k not in robot.legs]
         if bad_free:
             raise DataFormatError(f"{where}: free = {list(free_t)} names {bad_free}, not transducers of the robot (legs: {list(robot.legs)})")
-    return Recording(name, kind, t, phi, wrench, quat, gravity_body, path, n_bad, q=q, gravity=gravity, free=free_t)
+    return Recording(name, kind, t, phi, wrench, quat, gravity_body, path, n_bad, q=q, gravity=gravity, free=free_t,
+                     temperature=temps)
+
+
+def _temperatures(df: pd.DataFrame, cols: list[str], keep: np.ndarray, t: np.ndarray, legs, where: str,
+                  path: Path | None) -> dict[str, np.ndarray]:
+    """``{leg: (N,) degC}`` from the optional temperature columns ``cols`` (rows ``keep``): ``{leg}_temp_C``, else
+    ``temp_C``. A temperature sampled slower than the readings (NaN between its samples) is interpolated
+    linearly in ``t`` (a warning counts the rows); a column without any number, or values outside
+    ``TEMP_RANGE_C``, is an error naming it."""
+    if not cols:
+        return {}
+    vals = _numeric(df, cols, where)[keep]
+    by_col = {}
+    for j, c in enumerate(cols):
+        v = vals[:, j]
+        ok = np.isfinite(v)
+        if not ok.any():
+            raise DataFormatError(f"{where}: column '{c}' holds no temperature; expected degC", path=path, column=c)
+        lo, hi = TEMP_RANGE_C
+        if np.any((v[ok] < lo) | (v[ok] > hi)):
+            raise DataFormatError(f"{where}: column '{c}' ranges {v[ok].min():.4g}..{v[ok].max():.4g}; expected degC "
+                                  f"within {lo:g}..{hi:g}", path=path, column=c)
+        if not ok.all():
+            log.warning("%s: column '%s': %d of %d rows without a temperature, interpolated in t", where, c, int((~ok).sum()), len(v))
+            v = np.interp(t, t[ok], v[ok])
+        by_col[c] = v
+    out = {}
+    for k in legs:
+        c = f"{k}{TEMP_SUFFIX}"
+        if c in by_col or TEMP_COMMON in by_col:
+            out[k] = by_col.get(c, by_col.get(TEMP_COMMON)).copy()
+    return out
 
 
 def _complete_group(columns: list[str], group: tuple[str, ...], where: str) -> list[str]:
@@ -683,6 +722,8 @@ def recording_to_frame(rec: Recording, legs: Iterable[str]) -> pd.DataFrame:
     elif rec.gravity is not None:
         for j, c in enumerate(GRAVITY_COLUMNS):
             cols[c] = rec.gravity[:, j]
+    for k, v in rec.temperature.items():
+        cols[f"{k}{TEMP_SUFFIX}"] = v
     return pd.DataFrame(cols)
 
 

@@ -175,12 +175,14 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
     with stage("free loads", timings, cpu):
         res = fit_free_loads(ds, s.free_load)
     notes += res.identifiability()
-    if s.diagnose.enabled:
-        msg = "the sim-to-real gap diagnosis was skipped: it does not cover free loads yet (issue 23)"
-        log.info("%s", msg)
-        notes.append(msg)
     cal = free_load_calibration(res, ds.robot)
-    return CalibrationRun(s, ds, cal, timings=timings, cpu_timings=cpu, notes=tuple(notes), free_loads=res)
+    diagnosis = None
+    if s.diagnose.enabled:
+        from .diagnose.free import diagnose_free
+
+        with stage("diagnosis", timings, cpu):
+            diagnosis = optional("the sim-to-real gap diagnosis", notes, lambda: diagnose_free(ds, res, s.diagnose))
+    return CalibrationRun(s, ds, cal, diagnosis=diagnosis, timings=timings, cpu_timings=cpu, notes=tuple(notes), free_loads=res)
 
 
 def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,

@@ -26,7 +26,7 @@ from ftcal_nlp.bench.validate import (
 )
 from ftcal_nlp.geometry import quat_to_rotation, rotation_to_rotvec
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
-from ftcal_nlp.effects import EFFECTS as LIBRARY, LIBRARY_EFFECTS
+from ftcal_nlp.effects import EFFECTS as LIBRARY, LIBRARY_EFFECTS, applies_to
 from ftcal_nlp.effects.injection import HOUR_S
 from ftcal_nlp.sim.variants import VARIANTS, OffFaceInjector
 
@@ -76,7 +76,7 @@ def test_registry_and_expectations():
     assert expect["leg_axes_swapped"] == expect["leg_axis_flipped"] == expect["leg_mass_changed"] == "unexplained"
 
 
-@pytest.mark.parametrize("name", sorted(VARIANTS))
+@pytest.mark.parametrize("name", sorted(n for n in VARIANTS if "hexapod" in applies_to(n)))   # the hexapod simulator's
 def test_variant_leaves_the_truth_alone(name):
     sim, _ = session(name)
     clean = session()[0]
@@ -208,7 +208,13 @@ def test_sweep_plan_is_deterministic_and_complete():
     assert [x["index"] for x in a] == list(range(len(a)))
     clean = [x for x in a if x["role"] == "clean"]
     assert len(clean) >= 6
-    for role, names in (("library", LIBRARY), ("variant", VARIANTS)):
+    from ftcal_nlp.bench.validate import HEXAPOD_EFFECTS, HEXAPOD_VARIANTS
+
+    # the hexapod sweep: the effects with hexapod faces and the shapes a hexapod takes (free-load ones apart)
+    assert set(HEXAPOD_EFFECTS) == {n for n, u in LIBRARY.items() if "hexapod" in u.diagnosed_on} and "offset_drift" in HEXAPOD_EFFECTS
+    assert "clock_offset" not in HEXAPOD_EFFECTS and "clock_offset_drift" not in HEXAPOD_VARIANTS
+    assert {x["effect"] for x in a if x["role"] in ("library", "variant")} == set(HEXAPOD_EFFECTS) | set(HEXAPOD_VARIANTS)
+    for role, names in (("library", HEXAPOD_EFFECTS), ("variant", HEXAPOD_VARIANTS)):
         for name in names:
             got = [x for x in a if x["role"] == role and x["effect"] == name]
             assert sorted(x["size"] for x in got) == ["hi", "lo"], name

@@ -84,7 +84,7 @@ from joblib import Parallel, delayed
 from ..data import WRENCH_COMPONENTS
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
-from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED
+from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, applies_to
 from ..sim import SimConfig, simulate
 from ..sim.effects import EFFECTS as INJECTORS
 from ..sim.variants import VARIANTS
@@ -110,7 +110,7 @@ COMPONENTS = tuple(WRENCH_COMPONENTS)
 def plan(cfg: dict) -> list[dict]:
     """The random design (issue 7): ``index``, ``seed``, ``effect`` (or "none"), ``scale``; datasets cycle
     through ``[none] + effects`` (clean ones as ``clean_share`` asks), shuffled by ``seed``."""
-    effects = _names(cfg.get("effects"), EFFECTS, "effects")
+    effects = _names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
     n = int(cfg["n_datasets"])
     rng = np.random.default_rng(int(cfg["seed"]))
     n_clean = int(round(cfg["clean_share"] * n))
@@ -126,10 +126,17 @@ def plan(cfg: dict) -> list[dict]:
     return out
 
 
-def _names(value, known: dict, key: str) -> list[str]:
-    """The names of ``[validation].<key>`` (None: every name of ``known``), checked."""
+#: the hexapod sweep's defaults: the effects with hexapod faces, the shapes a hexapod simulation takes whose
+#: expectation a hexapod diagnosis can meet (the free-load effects of issue 23 have their own sweep)
+HEXAPOD_EFFECTS = tuple(n for n, u in EFFECTS.items() if "hexapod" in u.diagnosed_on)
+HEXAPOD_VARIANTS = tuple(n for n, c in VARIANTS.items() if "hexapod" in applies_to(n)
+                         and (c.expect not in EFFECTS or c.expect in HEXAPOD_EFFECTS))
+
+
+def _names(value, known: dict, key: str, default=None) -> list[str]:
+    """The names of ``[validation].<key>`` (None: ``default``, or every name of ``known``), checked."""
     if value is None:
-        return list(known)
+        return list(known if default is None else default)
     if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
         raise ValueError(f"[validation].{key}: expected a list of effect names, got {value!r}")
     unknown = [v for v in value if v not in known]
@@ -165,8 +172,8 @@ def sweep_plan(cfg: dict) -> list[dict]:
     own seed, then one clean twin (same seed, no effect) per dataset with an effect. Items: ``index``, ``seed``,
     ``role`` (clean | library | variant | twin), ``effect``, ``size``, ``scale``, ``expect``, ``expect_legs``,
     ``twin`` (the twin's index; twins: the index of their dataset)."""
-    effects = _names(cfg.get("effects"), EFFECTS, "effects")
-    variants = _names(cfg.get("variants"), VARIANTS, "variants")
+    effects = _names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
+    variants = _names(cfg.get("variants"), VARIANTS, "variants", HEXAPOD_VARIANTS)
     base = int(cfg["seed"]) * 1000
     rows = [("clean", "none", "", None) for _ in range(int(cfg["n_clean"]))]
     for role, names in (("library", effects), ("variant", variants)):

@@ -51,6 +51,8 @@ class DiagnosisResult:
     perleg: Any = None      # the library-free per-leg checks (perleg.PerLegFindings) or None
     noise_model: dict | None = None  # the standing noise floor's parts (floor.py): readings, motion capture, fit
     joint: Any = None       # the joint refit with the named effect (joint.JointRefit) or None
+    effects: list | None = None  # the chain of named effects (free loads, ``chain.py``); None: the single named effect
+    free: dict | None = None     # free loads: transducer -> free.FreeLegDiagnosis
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:
@@ -91,6 +93,9 @@ class DiagnosisResult:
             "model": self.model,
             "balance": self.balance,
         }
+        out["effects"] = self.effects_list()
+        if self.free is not None:
+            out["free_loads"] = {k: d.to_json_dict() for k, d in self.free.items()}
         if self.design is not None:
             d = self.design
             out["design_check"] = {"common_tilt_deg": _lst(d["tilt_deg"]), "tilt_se_deg": float(d["tilt_se_deg"]),
@@ -109,6 +114,21 @@ class DiagnosisResult:
         if self.notes:
             out["notes"] = list(self.notes)
         return out
+
+    def effects_list(self) -> list[dict]:
+        """``effects`` of ``diagnosis.json``: the chain in the order the effects were added, each with its parameters
+        (value, se) and the held-out RMS after it. Hexapod datasets name one effect (the single-effect diagnosis):
+        its entry carries the standing face's parameters (or the joint refit's) and the shrinkage's held-out RMS."""
+        if self.effects is not None:
+            return list(self.effects)
+        if self.effect is None:
+            return []
+        pars = {}
+        if self.effect_fit is not None:
+            p, se = self.effect_fit.effect_params, self.effect_fit.effect_bse
+            pars = {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, v, e in zip(p.index, p, se)}
+        return [{"name": self.effect, "parameters": pars, "heldout_rms_after": _lst(self.shrinkage["heldout_rms_after"]),
+                 "explains": self.where.get("explains")}]
 
     def summary(self) -> str:
         """A short terminal summary."""

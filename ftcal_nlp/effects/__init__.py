@@ -18,11 +18,15 @@ Modules:
   :class:`LinearFace`, :func:`legendre_time`, :func:`design_check`).
 * ``unit.py``: :class:`Effect`, what a unit declares; ``correction.py``: a sensor
   effect's correction (its standing face evaluated on samples).
+* ``free_faces.py``: the free-load face protocol (issue 23): :class:`FreeLoadContext`,
+  :class:`FreeFace`, :func:`make_context`; units declare ``free_shapes``/``free_face``/``free_correct``.
 * ``registry.py``: ``LIBRARY_EFFECTS``, :data:`EFFECTS`, :func:`resolve_effects`,
   :func:`with_units` (a copy with a toy effect added), :func:`injector_classes`.
 * the units: ``offset_drift``, ``gain_crosstalk``, ``casing_load``, ``mocap_bias``,
   ``chassis_flex``, ``tether_force``, ``hysteresis``, ``leg_inertia``, ``robot_mass``,
-  ``sensor_nonlinearity``, ``moving_com``.
+  ``sensor_nonlinearity``, ``moving_com``, ``clock_offset``, ``creep``, ``inertial_load``,
+  ``joint_limit_contact``, ``temperature``; ``signals.py``: the time-series helpers their
+  injectors and faces share (resampling with a delay, first-order lags).
 
 Nothing here imports the diagnosis, the pipeline, ``correct`` or the simulator: they
 import this package (the simulator registers :func:`injector_classes` under its
@@ -44,6 +48,7 @@ from .injection import (
 from .registry import (
     EFFECTS,
     LIBRARY_EFFECTS,
+    applies_to,
     check_unit,
     injector_classes,
     resolve_effects,
@@ -55,6 +60,6 @@ from .unit import KINDS, Effect
 __all__ = [
     "EFFECTS", "EXPECT_NONE", "EXPECT_UNEXPLAINED", "KINDS", "LIBRARY_EFFECTS",
     "AugContext", "Effect", "EffectInjector", "HangingLeg", "InjectionContext", "Injector", "LinearFace", "Magnitude",
-    "NoEffect", "OffFaceInjector", "ParamBlock", "PoseSym", "StandingData",
+    "NoEffect", "OffFaceInjector", "ParamBlock", "PoseSym", "StandingData", "applies_to",
     "check_unit", "design_check", "injector_classes", "pose_symbols", "resolve_effects", "shape_classes", "with_units",
 ]

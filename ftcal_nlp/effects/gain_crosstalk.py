@@ -44,6 +44,7 @@ class GainCrosstalk(Effect):
     explains = "load"
     kind = "sensor"
     injector_cls = GainCrosstalkInjector
+    applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
     shifts_offsets = True
 
     def __init__(self, full: bool = False):

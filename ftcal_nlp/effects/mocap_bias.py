@@ -47,6 +47,7 @@ class MocapBias(Effect):
     explains = "body_tilt"
     kind = "body"
     injector_cls = MocapBiasInjector
+    applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
     design_face = True
 
     def standing_params(self, ctx):

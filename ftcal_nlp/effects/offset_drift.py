@@ -20,6 +20,9 @@ Model faces (``t_h`` hours since hanging):
 * hanging    a rate per leg, plus P_2, P_3 of the hanging time or a warm-up exp(-t/tau)
              on a grid of tau (the joint refit keeps the best held-out); walking swing: the rate
 
+Free loads (``free_faces.py``): ``P_1..P_d`` of the session time per channel over the free-load
+recordings, ``d`` in 1, 2, 3, 5, 8 or ``P_1`` plus a step at the change point of the hold medians (the shape, chosen by held-out residual); corrected as ``y - X beta``.
+
 Correction: the offsets follow the joint fit's per-leg rates, ``w_o,k(t) = w_o,k + D_k (t - t_ref) / 1 h``
 (a straight line: it holds only near the session; ``--track-offsets`` follows drift), with
 variance ``(t - t_ref)^2 / 1 h^2 se(D_k)^2`` per component (the rates' correlations are not stored).
@@ -31,6 +34,7 @@ import logging
 
 import numpy as np
 
+from .free_faces import FreeFace, session_time_basis
 from .faces import TIME_BASIS, WRENCH, HangingLeg, ParamBlock, PoseSym, legendre_time, per_leg_face
 from .injection import HOUR_S, EffectInjector, InjectionContext, Magnitude, OffFaceInjector
 from .unit import Effect
@@ -129,6 +133,7 @@ class OffsetDrift(Effect):
     explains = "time"
     kind = "sensor"
     injector_cls = OffsetDriftInjector
+    applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
     shapes = (OffsetDriftRampInjector, OffsetDriftStepInjector, OffsetDriftFastInjector)
     shifts_offsets = True
     DEGREES = (1, 2, 4)   # the smooth time bases tried (attribution keeps the best held-out)
@@ -202,6 +207,28 @@ class OffsetDrift(Effect):
         # the walk comes after the hanging recordings: only the rate is carried over (a straight line)
         return OffsetDrift(self.degree).hanging_features(legs)
 
+    # ---- free loads (``free_faces.py``): a Legendre polynomial of the session time per channel
+    FREE_DEGREES = (1, 2, 3, 5, 8)
+
+    def free_shapes(self, ctx):
+        # the degree is the shape: a line, a bend, an S, flexible curves (held-out evidence picks one); and a line
+        # plus a step at the change point of the readings' hold medians (a knock, a re-seated connector)
+        return tuple({"degree": d} for d in self.FREE_DEGREES) + ({"degree": 1, "step": True},)
+
+    def free_face(self, ctx, shape):
+        # P_1..P_d of the session time over the free-load recordings (the constant is the offsets' own)
+        d = int(shape["degree"])
+        if np.ptp(ctx.t) <= 0:
+            return None
+        basis, labels = session_time_basis(ctx, d), [f"P{j}" for j in range(1, d + 1)]
+        if shape.get("step"):
+            t_s = change_point(ctx)
+            if t_s is None:
+                return None
+            basis = np.concatenate([basis, (ctx.t >= t_s).astype(float)[:, None]], axis=1)
+            labels.append(f"step@{t_s:.6g}s")
+        return FreeFace.per_channel(basis, tuple(labels), shape=shape)
+
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         # The offsets follow the per-leg rates of the joint hanging fit (a straight line in time)
         log.info("%s: offset_drift: offsets follow the per-leg drift rates of the joint fit (a straight line in time)", source)
@@ -210,6 +237,30 @@ class OffsetDrift(Effect):
             cov = np.zeros((len(t_h), ctx.K, 6, 6))
             cov[..., np.arange(6), np.arange(6)] = (t_h[:, None, None] * drift_rates(block, ctx.legs, "se")[None]) ** 2
         return w - t_h[:, None, None] * drift_rates(block, ctx.legs, "value")[None], R_WB, cov
+
+
+def change_point(ctx) -> float | None:
+    """The session time of the boundary between quasi-static holds across which the readings' residual (hold medians of
+    ``y - pred``, each channel scaled by the scatter of its hold medians) changes most (the best split into two constant
+    levels); None with fewer than 4 holds."""
+    hs = np.unique(ctx.hold[ctx.hold >= 0])
+    if len(hs) < 4:
+        return None
+    r = ctx.y - ctx.pred
+    med = np.stack([np.median(r[ctx.hold == h], axis=0) for h in hs])
+    t0 = np.array([ctx.t[ctx.hold == h].min() for h in hs])
+    order = np.argsort(t0)
+    med, t0 = med[order], t0[order]
+    scale = 1.4826 * np.median(np.abs(np.diff(med, axis=0)), axis=0) + 1e-12
+    z = (med - med.mean(axis=0)) / scale
+    n = len(z)
+    best, k_best = -1.0, None
+    cs = np.cumsum(z, axis=0)
+    for k in range(2, n - 1):   # at least two holds on each side
+        gain = (cs[k - 1] ** 2 / k + (cs[-1] - cs[k - 1]) ** 2 / (n - k)).sum()
+        if gain > best:
+            best, k_best = gain, k
+    return None if k_best is None else float(t0[k_best])
 
 
 def drift_rates(block: dict, legs, key: str) -> np.ndarray:

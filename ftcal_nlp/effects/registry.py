@@ -23,6 +23,7 @@ from .unit import KINDS, Effect
 LIBRARY_EFFECTS = (
     "offset_drift", "gain_crosstalk", "casing_load", "mocap_bias", "chassis_flex", "tether_force",
     "hysteresis", "leg_inertia", "robot_mass", "sensor_nonlinearity", "moving_com",
+    "clock_offset", "creep", "inertial_load", "joint_limit_contact", "temperature",
 )
 
 
@@ -86,6 +87,20 @@ def injector_classes(registry: Mapping[str, Effect] | None = None) -> dict[str, 
     """``{name: injector class}`` of every unit and every off-face shape (what a simulator config may name)."""
     reg = EFFECTS if registry is None else registry
     return {**{n: u.injector_cls for n, u in reg.items()}, **shape_classes(reg)}
+
+
+def applies_to(name: str, registry: Mapping[str, Effect] | None = None) -> frozenset:
+    """The simulators (``Effect.applies_to``) the injector ``name`` works in: its unit's, or for an off-face
+    shape its own ``applies_to`` if it declares one, else its effect's; a name outside the registry
+    (a fault of ``sim/variants.py``): the hexapod's."""
+    reg = EFFECTS if registry is None else registry
+    if name in reg:
+        return frozenset(reg[name].applies_to)
+    for u in reg.values():
+        for s in u.shapes:
+            if s.name == name:
+                return frozenset(getattr(s, "applies_to", u.applies_to))
+    return frozenset({"hexapod"})
 
 
 def expectations(registry: Mapping[str, Effect] | None = None) -> tuple[str, ...]:

@@ -46,6 +46,7 @@ class SensorNonlinearity(Effect):
     explains = "load"
     kind = "sensor"
     injector_cls = SensorNonlinearityInjector
+    applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
     shifts_offsets = True
 
     def standing_params(self, ctx):

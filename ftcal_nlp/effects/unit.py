@@ -15,6 +15,7 @@ An effect unit (``ftcal_nlp/effects/<name>.py``, one per name of the contract's 
 * the correction for ``correct``: :meth:`Effect.correct` (default: a sensor effect's
   standing face evaluated on the samples, :func:`.correction.correct_by_face`; a body
   effect changes no per-foot wrench);
+* the free-load face (``free_faces.py``): ``free_shapes``, ``free_face``, ``free_correct``, ``free_explains``;
 * the off-face validation shapes: ``shapes``, :class:`~.injection.OffFaceInjector`
   classes of the same effect with other shapes (what the validation sweep injects to
   test that the diagnosis is not tuned to the face's own formula).
@@ -62,6 +63,12 @@ class Effect:
     #: with free transducer rotations the effect shows as a common tilt of the fitted frames
     #: (``faces.design_check``), which the diagnosis scores as the effect's design face
     design_face: ClassVar[bool] = False
+    #: the simulators its injector and shapes work in: "hexapod" (``ftcal_nlp.sim``), "free" (``ftcal_nlp.sim.free``,
+    #: a transducer with a free load: it needs nothing of a hexapod)
+    applies_to: ClassVar[frozenset] = frozenset({"hexapod"})
+    #: the datasets the diagnosis has model faces for: "hexapod" (standing / hanging / swing faces above),
+    #: "free" (free-load faces)
+    diagnosed_on: ClassVar[frozenset] = frozenset({"hexapod"})
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -123,6 +130,28 @@ class Effect:
     def swing_features(self, legs: list[HangingLeg]) -> LinearFace | None:
         return None
 
+    # ---- the free-load face (``free_faces.py``: the contract); no free face by default
+    #: the correlate its free-load residual lies along (None: ``explains``); "joint" means "joint:<name>"
+    free_explains: ClassVar[str | None] = None
+
+    def free_shapes(self, ctx) -> tuple[dict, ...]:
+        """The grid of nonlinear shape parameters of the free face (``free_faces.py``); ``()``: none."""
+        return ()
+
+    def free_face(self, ctx, shape: dict):
+        """A :class:`~.free_faces.FreeFace` (design columns linear in the effect's parameters) for ``shape``, or
+        None where it does not apply to these data."""
+        return None
+
+    def free_refine(self, ctx, shape: dict, resid: np.ndarray) -> dict | None:
+        """A refined shape from the grid's best ``shape`` and the current residual (N, 6); None: none (the default)."""
+        return None
+
+    def free_correct(self, ctx, shape: dict, beta: np.ndarray) -> np.ndarray:
+        """Readings (N, 6) of ``ctx`` corrected for the effect with parameters ``beta``: ``y - X beta``."""
+        face = self.free_face(ctx, shape)
+        return ctx.y if face is None else ctx.y - face.wrench(beta)
+
     # ---- the correction for `correct`
     def correct(self, cal, block: dict, ctx: AugContext, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t_h: np.ndarray,
                 *, with_cov: bool = True, source: str = "calibration"):
@@ -133,6 +162,9 @@ class Effect:
         transducers' readings: per-foot wrenches are unchanged (logged)."""
         if self.kind == "body":
             log.info("%s: %s acts on the body, not on the transducers' readings: per-foot wrenches are unchanged", source, self.name)
+            return w, R_WB, None
+        if "hexapod" not in self.diagnosed_on:   # no standing face to evaluate (a free-load effect: ``free_correct``)
+            log.info("%s: %s has no hexapod face: readings unchanged", source, self.name)
             return w, R_WB, None
         return correct_by_face(self, cal, block, ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
 

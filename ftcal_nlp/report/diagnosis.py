@@ -22,7 +22,8 @@ from .render import Figure, Section, Table, Text
 if TYPE_CHECKING:
     from ..diagnose import DiagnosisResult
 
-__all__ = ["diagnosis_section", "fig_shrinkage", "fig_dependence", "shrinkage_table", "ranking_view", "kinds_view"]
+__all__ = ["diagnosis_section", "fig_shrinkage", "fig_dependence", "shrinkage_table", "ranking_view", "kinds_view",
+           "chain_view", "correlates_view", "fig_free_residual", "free_diagnosis_section"]
 
 
 def _unit(component: str) -> str:
@@ -38,7 +39,8 @@ def shrinkage_table(d: "DiagnosisResult") -> pd.DataFrame:
     sh = d.shrinkage
     rows = {"held-out RMS, calibrated model": sh["heldout_rms_before"]}
     if d.effect:
-        rows[f"held-out RMS with {d.effect}"] = sh["heldout_rms_after"]
+        names = [e["name"] for e in d.effects] if d.free is not None and d.effects else [d.effect]
+        rows[f"held-out RMS with {' + '.join(names)}"] = sh["heldout_rms_after"]
     rows["noise floor"] = sh["noise_floor"]
     cols = [f"{c} [{_unit(c)}]" for c in WRENCH_COMPONENTS]
     df = pd.DataFrame({k: [_g(v) for v in np.asarray(r, float)] for k, r in rows.items()}, index=cols).T
@@ -88,10 +90,115 @@ def kinds_view(d: "DiagnosisResult") -> pd.DataFrame:
     return out
 
 
+def chain_view(d: "DiagnosisResult") -> pd.DataFrame | None:
+    """The effects named in order (free loads): transducer, shape, paired block z, share of the excess then left
+    that it removes, held-out RMS after it (forces, torques), and its parameters with se."""
+    if not d.effects:
+        return None
+    rows = {}
+    for i, e in enumerate(d.effects):
+        pars = "; ".join(f"{k} = {v['value']:.4g}" + (f" {PM} {v['se']:.2g}" if v.get("se") is not None else "")
+                         for k, v in list(e.get("parameters", {}).items())[:8])
+        more = len(e.get("parameters", {})) - 8
+        r = np.asarray(e["heldout_rms_after"], float)
+        rows[f"{i + 1}. {e['name']}"] = {
+            "transducer": e.get("transducer", ""), "shape": ", ".join(f"{k} {v}" for k, v in (e.get("shape") or {}).items()) or "-",
+            "paired z": f"{e['paired_z']:.1f}" if "paired_z" in e else "-",
+            "explains [%]": f"{100 * e['explained']:.0f}" if "explained" in e else "-",
+            "held-out RMS fx fy fz [N]": " ".join(_g(v) for v in r[:3]), "held-out RMS tx ty tz [N*m]": " ".join(_g(v) for v in r[3:]),
+            "parameters": pars + (f"; ... ({more} more in diagnosis.json)" if more > 0 else "")}
+    out = pd.DataFrame(rows).T
+    out.index.name = "effect (in the order added)"
+    return out
+
+
+def correlates_view(d: "DiagnosisResult") -> pd.DataFrame | None:
+    """Free loads: per transducer, the share of the held-out excess over the floor each correlate explains."""
+    if not d.free:
+        return None
+    rows = {}
+    for leg, f in d.free.items():
+        for c in f.correlates:
+            rows[f"{leg}: {c.name}"] = {"explains [%]": f"{100 * c.explained:.0f}",
+                                        "held-out RMS fx fy fz [N]": " ".join(_g(v) for v in c.heldout_rms[:3]),
+                                        "held-out RMS tx ty tz [N*m]": " ".join(_g(v) for v in c.heldout_rms[3:])}
+    if not rows:
+        return None
+    out = pd.DataFrame(rows).T
+    out.index.name = "transducer: correlate"
+    return out
+
+
+def fig_free_residual(d: "DiagnosisResult", path: Path) -> Path | None:
+    """Free loads: the held-out residual of the channel with the largest gap against the correlate it follows best
+    (binned median, the floor as a band): where a gap lies, whatever it is."""
+    f = next((x for x in (d.free or {}).values() if x.plot), None)
+    if f is None:
+        return None
+    p = f.plot
+    x, y = np.asarray(p["x"], float), np.asarray(p["y"], float)
+    n = len(x)
+    idx = np.random.default_rng(0).choice(n, 6000, replace=False) if n > 6000 else np.arange(n)
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    fl = float(p["floor"])
+    ax.axhspan(-fl, fl, color="0.8", alpha=0.6, label=f"{PM} noise floor", zorder=0)
+    ax.plot(x[idx], y[idx], ".", ms=2.5, alpha=0.5, color="tab:blue", label="held-out residual")
+    if np.ptp(x) > 0 and n >= 20:
+        edges = np.unique(np.quantile(x, np.linspace(0, 1, 21)))
+        mid = 0.5 * (edges[:-1] + edges[1:])
+        which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(mid) - 1)
+        med = [np.median(y[which == i]) if np.any(which == i) else np.nan for i in range(len(mid))]
+        ax.plot(mid, med, "-", color="tab:red", lw=2, label="binned median")
+    unit = _unit(p["component"])
+    ax.set_xlabel(p["xlabel"])
+    ax.set_ylabel(f"residual {p['component']} ({p['leg']}) [{unit}]")
+    ax.set_title(f"{p['leg']}: the residual against {p['correlate']} (verdict {f.verdict})", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def free_diagnosis_section(d: "DiagnosisResult", folder: Path) -> Section:
+    """The diagnosis section of a free-load dataset (``diagnose/free.py``): verdict, the chain of effects, the held-out
+    RMS per component beside the floor, where the gap lies (correlates) and its figure."""
+    sec = Section("Sim-to-real gap diagnosis")
+    sec.add(Text(f"**Verdict: {d.verdict}**" + (f" (first effect **{d.effect}**)." if d.effect else ".")))
+    for line in d.statement:
+        sec.add(Text(line))
+    sec.add(Text("Free loads: the free-load model, linearised around its fit, is scored on every sample (moving ones "
+                 "included) by blocked cross-validation (each quasi-static hold with the move after it is a block). The "
+                 "noise floor is the readings' scatter within short windows of held, still stretches (no fit enters it). "
+                 "Effects are added one at a time, the strongest by held-out evidence first, and refit jointly; the chain "
+                 "stops when the next adds nothing significant (paired block-wise z of the log held-out sums of squares "
+                 "below 3, or a saving under 1 % of the floor's variance or 25 % of the remaining excess)."))
+    sec.add(Table("Held-out RMS per component and the noise floor", shrinkage_table(d)))
+    sec.add(Figure("diagnosis_shrinkage.png", fig_shrinkage(d, folder / "diagnosis_shrinkage.png"),
+                   "Held-out RMS of the free-load model" + (", after the named effects," if d.effect else "")
+                   + " and the noise floor, per component (log scale)."))
+    cv = chain_view(d)
+    if cv is not None:
+        sec.add(Table("The effects named, in the order added (each refit jointly with those before it)", cv))
+    co = correlates_view(d)
+    if co is not None:
+        sec.add(Table("Where the gap lies: the share of the held-out excess each correlate explains", co))
+    fig = fig_free_residual(d, folder / "diagnosis_residual.png")
+    if fig is not None:
+        sec.add(Figure("diagnosis_residual.png", fig, "The held-out residual of the component with the largest gap against "
+                       f"the correlate it follows best; the grey band is {PM} the noise floor."))
+    if d.ranking:
+        sec.add(Table("Candidate effects of the first step, best first", ranking_view(d)))
+    return sec
+
+
 def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
     """The report's diagnosis section; draws its figures into ``folder``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    if d.free is not None:
+        return free_diagnosis_section(d, folder)
     sec = Section("Sim-to-real gap diagnosis")
     verdict = {"none": "no gap above the noise floor", "effect": f"the gap is explained by **{d.effect}**",
                "unexplained": "a gap that no candidate effect explains"}[d.verdict]

@@ -185,6 +185,10 @@ def load_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
                     f"mounting rotation {np.degrees(np.linalg.norm(fit.mount_rotvec)):.3g} deg, "
                     f"{fit.n_used} quasi-static samples used"
                     + (f"; {len(fit.undetermined)} direction(s) not determined by the data" if fit.undetermined else "") + ".")
+    if res.diagnosis is not None:
+        d = res.diagnosis
+        summ.append(f"Sim-to-real gap diagnosis: verdict `{d.verdict}`"
+                    + (" (effects " + ", ".join(f"`{e['name']}`" for e in d.effects) + ")." if d.effects else "."))
     if res.truth is not None:
         summ.append("The dataset carries its truth (`truth.json`): it is shown beside the estimates.")
     secs = [Section("Summary", [Text(" ".join(summ))])]
@@ -219,6 +223,10 @@ def load_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
     secs.append(Section("Residuals", [Text("A residual at the noise sd on the quasi-static samples is a model that "
                                             "explains the readings; larger on the moves is what a static model leaves out "
                                             "(accelerations, lags)."), Table(cap, rt)]))
+    if res.diagnosis is not None:   # the free-load diagnosis (diagnose/free.py): the chain of effects, where the gap lies
+        from .diagnosis import diagnosis_section
+
+        secs.append(diagnosis_section(res.diagnosis, folder))
     tim = stage_times(res)
     write_table(tim, folder, "stage_times", "Stage times")
     secs.append(Section("Stage times", [Table("Time per stage", tim)]))

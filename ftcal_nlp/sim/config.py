@@ -100,6 +100,11 @@ class SimConfig:
             from .effects import make_effects
 
             object.__setattr__(self, "effects", make_effects(tuple(self.effects), where="SimConfig.effects"))
+        from ..effects import applies_to
+
+        bad = [e.name for e in self.effects if "hexapod" not in applies_to(getattr(e, "name", ""))]
+        if bad:  # e.g. a joint-limit contact or a free load's inertia: the hexapod simulator has neither
+            raise ConfigError(f"SimConfig.effects: {bad} act on a free load, not on a hexapod", key="simulate.effects")
         positive = ("rate_hz", "hanging_cycles", "hanging_cycle_s", "pose_s", "walk_freq_hz", "mass_kg", "g",
                     "foot_stiffness_N_per_m", "toe_depth_m", "transient_decay_per_s", "transient_freq_hz", "toe_lift_m")
         for name in positive:

@@ -94,13 +94,27 @@ def _sensor_readings(ser: TrueSeries, truth: TrueRobot, cfg: SimConfig, rng: np.
     return w_m, quat
 
 
-def _recording(ser: TrueSeries, legs: tuple[str, ...], w_m: np.ndarray, quat: np.ndarray | None) -> Recording:
+def _recording(ser: TrueSeries, legs: tuple[str, ...], w_m: np.ndarray, quat: np.ndarray | None,
+               temperature: np.ndarray | None = None) -> Recording:
     return Recording(
         name=ser.name, kind=ser.kind, t=ser.t,
         phi={k: ser.phi[:, i].copy() for i, k in enumerate(legs)},
         wrench={k: np.ascontiguousarray(w_m[:, i]) for i, k in enumerate(legs)},
         quat=quat, gravity_body=ser.gravity_body,
+        temperature={} if temperature is None else {k: temperature[:, i].copy() for i, k in enumerate(legs)},
     )
+
+
+def _temperature(ser: TrueSeries, truth: TrueRobot, cfg: SimConfig) -> np.ndarray | None:
+    """The transducers' temperatures (N, K) degC of an injector that has them (``temperature(ctx)``), else None."""
+    from ..effects import InjectionContext
+
+    for e in cfg.effects:
+        if hasattr(e, "temperature"):
+            return e.temperature(InjectionContext(kind=ser.kind, name=ser.name, t=ser.t, phi=ser.phi, R_WB=ser.R_WB,
+                                                  applied=ser.applied, pose_index=ser.pose_index, truth=truth,
+                                                  rng=np.random.default_rng(0)))
+    return None
 
 
 def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
@@ -130,7 +144,7 @@ def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
     for ser, es in zip(series, effect_seeds):
         effect_rngs = [np.random.default_rng(s) for s in es.spawn(len(cfg.effects))]
         w_m, quat = _sensor_readings(ser, truth, cfg, rng_sensor, effect_rngs, pose_error if ser.kind == "standing" else None)
-        recs.append(_recording(ser, legs, w_m, quat))
+        recs.append(_recording(ser, legs, w_m, quat, _temperature(ser, truth, cfg)))
     ds = Dataset(apply_robot(cfg.effects, truth.robot), tuple(recs))
     wt = ground_wrench_frame(walk.t, ground, legs) if walk is not None else ground_wrench_frame(np.zeros(0), np.zeros((0, len(legs), 6)), legs)
     return SimResult(

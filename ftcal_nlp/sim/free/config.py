@@ -19,8 +19,7 @@ from typing import Any, ClassVar
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 LEG4_URDF = ASSETS / "leg4.urdf"
 
-#: library effects that act at a transducer alone (they need nothing of a hexapod) or on the orientation stream
-FREE_LOAD_EFFECTS = ("offset_drift", "gain_crosstalk", "sensor_nonlinearity", "mocap_bias")
+FREE = "free"   # what an effect unit's ``applies_to`` names when its injector works on a free load
 
 
 @dataclass(frozen=True)
@@ -45,7 +44,7 @@ class _Common:
     # orientation stream
     orientation: str = "quat"            # "quat": qw..qz columns; "gravity": gx..gz (gravity direction in B)
     mocap_jitter_deg: float = 0.0        # white, per axis, on the recorded orientation (the samples have none)
-    effects: tuple = ()                  # names or {name = ..., ...} tables of FREE_LOAD_EFFECTS
+    effects: tuple = ()                  # names or {name = ..., ...} tables of effects whose unit applies_to "free"
     inertial_load: float = 0.0           # x the load's inertial wrench during moves (1 = physical; 0 = quasi-static, as the samples)
     recording: str = "hang"              # recording (file) name
 
@@ -67,10 +66,12 @@ class _Common:
             from ..effects import make_effects
 
             object.__setattr__(self, "effects", make_effects(tuple(self.effects), where=f"{type(self).__name__}.effects"))
-        bad = [e.name for e in self.effects if e.name not in FREE_LOAD_EFFECTS]
+        from ...effects import EFFECTS, applies_to
+
+        bad = [e.name for e in self.effects if FREE not in applies_to(e.name)]
         if bad:
             raise ValueError(f"{type(self).__name__}.effects: {bad} need a hexapod (shaft angles, feet, a body on legs); "
-                             f"a free load takes {list(FREE_LOAD_EFFECTS)}")
+                             f"a free load takes {[n for n, u in EFFECTS.items() if FREE in u.applies_to]}")
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,11 @@ Readings (frames and equations in ``physics.py``):
     w_m = inject(w_load + w_o) + n,    n ~ N(0, diag(s_f^2 I3, s_t^2 I3))
 
 ``inject`` is the library's reading injectors that need no hexapod
-(``config.FREE_LOAD_EFFECTS``: drift, gain crosstalk, nonlinearity) through
-``effects.apply_readings``; the recorded orientation is ``R_WB exp([delta]x)``
+(units whose ``applies_to`` names "free": drift, gain crosstalk, nonlinearity, clock
+offset, creep, the load's inertia, joint-limit contact, temperature) through
+``effects.apply_readings``; they see ``FreeLoadTruth`` (joint angles and limits, the
+load's inertial wrench when one asks for it) and may add recording columns
+(a temperature ``{X}_temp_C`` from an injector's ``temperature(ctx)``); the recorded orientation is ``R_WB exp([delta]x)``
 (``delta`` white, ``mocap_jitter_deg``) through ``effects.apply_orientation``
 (mocap bias). Randomness: one ``np.random.SeedSequence(seed)`` split into
 truth, motion, sensor, mocap and effect streams, so a seed fixes every array.
@@ -42,11 +45,19 @@ MOUNT_CONVENTION = "R_B,ft(true) = R_B,ft(nominal) @ expm(skew(mount_rotvec)); m
 
 @dataclass(frozen=True)
 class FreeLoadTruth:
-    """What an injector's context carries as ``truth`` (the library's drift/gain/nonlinearity use none of it)."""
+    """What an injector's context carries as ``truth`` (the library's drift/gain/nonlinearity use none of it).
+
+    ``q``: joint angles (N,) per URDF joint (empty for a payload); ``limits``: ``(lower, upper)`` of each
+    movable joint with limits; ``inertial``: the load's physical inertial wrench (N, 6) in the true ft
+    frame (``physics.inertial_wrench``; zero on held samples), or None when no injector asks for it
+    (``needs_inertial``)."""
 
     legs: tuple[str, ...]
     offsets: np.ndarray          # (1, 6)
     g: float
+    q: dict = field(default_factory=dict)
+    limits: dict = field(default_factory=dict)
+    inertial: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -140,13 +151,36 @@ def _draw_offset_mount(cfg, rng: np.random.Generator) -> tuple[np.ndarray, np.nd
     return off, rv
 
 
+def _needs_inertial(cfg) -> bool:
+    """Whether an injector reads the load's inertial wrench (``needs_inertial``; ``truth.inertial``)."""
+    return any(getattr(e, "needs_inertial", False) for e in cfg.effects)
+
+
+def _context(cfg, name: str, t: np.ndarray, R_WB: np.ndarray, hold_index: np.ndarray, clean: np.ndarray,
+             offset: np.ndarray, q: dict | None = None, limits: dict | None = None, inertial: np.ndarray | None = None) -> dict:
+    """The injectors' context (``effects.InjectionContext`` without its generator)."""
+    truth = FreeLoadTruth((cfg.transducer,), offset[None], cfg.g, dict(q or {}), dict(limits or {}), inertial)
+    return dict(kind="hanging", name=name, t=t, phi=np.zeros((len(t), 1)), R_WB=R_WB, applied=(clean - offset)[:, None, :],
+                pose_index=hold_index, truth=truth)
+
+
+def _effect_columns(cfg, ctx: dict) -> dict[str, np.ndarray]:
+    """Recording columns the injectors add: a transducer temperature ``{X}_temp_C`` (an injector's
+    ``temperature(ctx)`` (N, K) degC; ``DATA_FORMAT.md`` proposal ``docs/proposals/temperature.md``)."""
+    from ...effects import InjectionContext
+
+    out: dict[str, np.ndarray] = {}
+    for e in cfg.effects:
+        if hasattr(e, "temperature"):
+            out[f"{cfg.transducer}_temp_C"] = e.temperature(InjectionContext(rng=np.random.default_rng(0), **ctx))[:, 0]
+    return out
+
+
 def _sense(cfg, name: str, t: np.ndarray, R_WB: np.ndarray, hold_index: np.ndarray, clean: np.ndarray,
-           offset: np.ndarray, streams) -> tuple[np.ndarray, np.ndarray]:
+           offset: np.ndarray, streams, ctx: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Readings (N, 6) and recorded orientation (N, 3, 3) through the injectors and the noise."""
     _, _, s_sensor, s_mocap, s_effect = streams
-    truth = FreeLoadTruth((cfg.transducer,), offset[None], cfg.g)
-    ctx = dict(kind="hanging", name=name, t=t, phi=np.zeros((len(t), 1)), R_WB=R_WB, applied=(clean - offset)[:, None, :],
-               pose_index=hold_index, truth=truth)
+    ctx = _context(cfg, name, t, R_WB, hold_index, clean, offset) if ctx is None else ctx
     rngs = [np.random.default_rng(s) for s in s_effect.spawn(len(cfg.effects))]
     w = apply_readings(cfg.effects, ctx, clean[:, None, :].copy(), rngs)[:, 0, :]
     sigma = np.array([cfg.noise_force_N] * 3 + [cfg.noise_torque_Nm] * 3)
@@ -156,7 +190,7 @@ def _sense(cfg, name: str, t: np.ndarray, R_WB: np.ndarray, hold_index: np.ndarr
     return w, R_meas
 
 
-def _frame(cfg, t: np.ndarray, w: np.ndarray, q: dict, R_meas: np.ndarray) -> pd.DataFrame:
+def _frame(cfg, t: np.ndarray, w: np.ndarray, q: dict, R_meas: np.ndarray, extra: dict | None = None) -> pd.DataFrame:
     cols: dict[str, np.ndarray] = {"t": t}
     for i, c in enumerate(WRENCH):
         cols[f"{cfg.transducer}_{c}"] = w[:, i]
@@ -170,6 +204,7 @@ def _frame(cfg, t: np.ndarray, w: np.ndarray, q: dict, R_meas: np.ndarray) -> pd
         gd = gravity_in_body(R_meas, 1.0)
         for i, c in enumerate(("gx", "gy", "gz")):
             cols[c] = gd[:, i]
+    cols.update(extra or {})
     return pd.DataFrame(cols)
 
 
@@ -213,12 +248,15 @@ def simulate_payload(cfg: PayloadConfig = PayloadConfig()) -> FreeLoadResult:
     R_nom = rpy_to_rotation(cfg.rotation_rpy)
     R_ft = true_rotation(R_nom, rotvec)
     clean = payload_readings(gravity_in_ft(R_WB, R_ft, cfg.g), cfg.mass_kg, np.asarray(cfg.com_m), offset)
-    if cfg.inertial_load > 0:
+    inertial = None
+    if cfg.inertial_load > 0 or _needs_inertial(cfg):
         p_ft = np.asarray(cfg.position_m, dtype=float)
         tool = (cfg.mass_kg, np.broadcast_to(p_ft + R_ft @ np.asarray(cfg.com_m), (len(t), 3)),
                 np.broadcast_to(R_ft, (len(t), 3, 3)), cfg.mass_kg * cfg.gyration_radius_m**2 * np.eye(3))
-        clean = clean + cfg.inertial_load * (hold_index < 0)[:, None] * inertial_wrench(t, R_WB, p_ft, R_ft, [tool])  # held: at rest
-    w, R_meas = _sense(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, streams)
+        inertial = (hold_index < 0)[:, None] * inertial_wrench(t, R_WB, p_ft, R_ft, [tool])  # held: at rest
+        clean = clean + cfg.inertial_load * inertial
+    ctx = _context(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, inertial=inertial)
+    w, R_meas = _sense(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, streams, ctx)
     held = hold_index >= 0
     truth = {"mass_kg": float(cfg.mass_kg), "com_m": [float(x) for x in cfg.com_m],
              **_common_truth(cfg, offset, rotvec, len(t), held),
@@ -226,7 +264,7 @@ def simulate_payload(cfg: PayloadConfig = PayloadConfig()) -> FreeLoadResult:
     robot = {"name": "arm_with_tool", "g": float(cfg.g), "legs": [cfg.transducer],
              "transducers": {cfg.transducer: {"position_m": [float(x) for x in cfg.position_m],
                                               "rotation": [[float(x) for x in row] for row in R_nom]}}}
-    return FreeLoadResult(cfg, _frame(cfg, t, w, {}, R_meas), held, hold_index, clean, R_WB, truth, robot, _manifest(cfg))
+    return FreeLoadResult(cfg, _frame(cfg, t, w, {}, R_meas, _effect_columns(cfg, ctx)), held, hold_index, clean, R_WB, truth, robot, _manifest(cfg))
 
 
 # ----------------------------------------------------------------------------- URDF leg
@@ -241,6 +279,16 @@ def joint_poses(tree: KinematicTree, n: int, frac: float, rng: np.random.Generat
         lo, hi = (j.lower, j.upper) if j.lower is not None and j.upper is not None and j.upper > j.lower else (-np.pi, np.pi)
         mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo) * frac
         out[name] = rng.uniform(mid - half, mid + half, n)
+    return out
+
+
+def joint_limits(tree: KinematicTree) -> dict[str, tuple[float, float]]:
+    """``(lower, upper)`` of every movable joint with limits (``lower < upper``)."""
+    out = {}
+    for name in tree.movable:
+        j = tree.joint(name)
+        if j.lower is not None and j.upper is not None and j.upper > j.lower:
+            out[name] = (float(j.lower), float(j.upper))
     return out
 
 
@@ -291,9 +339,12 @@ def simulate_urdf_leg(cfg: UrdfLegConfig = UrdfLegConfig()) -> FreeLoadResult:
     R_WB = interpolate_rotations(R_holds, a, b, s)
     q = {j: v[a] + s * (v[b] - v[a]) for j, v in q_holds.items()}
     clean = urdf_load_readings(tree, cfg.ft_link, q, gravity_in_body(R_WB, cfg.g), bodies, offset, rotvec)
-    if cfg.inertial_load > 0:
-        clean = clean + cfg.inertial_load * (hold_index < 0)[:, None] * _leg_inertial(tree, cfg.ft_link, q, t, R_WB, bodies, rotvec)
-    w, R_meas = _sense(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, streams)
+    inertial = None
+    if cfg.inertial_load > 0 or _needs_inertial(cfg):
+        inertial = (hold_index < 0)[:, None] * _leg_inertial(tree, cfg.ft_link, q, t, R_WB, bodies, rotvec)
+        clean = clean + cfg.inertial_load * inertial
+    ctx = _context(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, q, joint_limits(tree), inertial)
+    w, R_meas = _sense(cfg, cfg.recording, t, R_WB, hold_index, clean, offset, streams, ctx)
     held = hold_index >= 0
     truth = {**_common_truth(cfg, offset, rotvec, len(t), held),
              "ft_link": cfg.ft_link,
@@ -303,7 +354,7 @@ def simulate_urdf_leg(cfg: UrdfLegConfig = UrdfLegConfig()) -> FreeLoadResult:
              "com_frame": "each body's own link frame"}
     robot = {"name": tree.name, "g": float(cfg.g), "legs": [cfg.transducer], "urdf": "robot.urdf",
              "transducers": {cfg.transducer: {"link": cfg.ft_link}}}
-    return FreeLoadResult(cfg, _frame(cfg, t, w, q, R_meas), held, hold_index, clean, R_WB, truth, robot, _manifest(cfg),
+    return FreeLoadResult(cfg, _frame(cfg, t, w, q, R_meas, _effect_columns(cfg, ctx)), held, hold_index, clean, R_WB, truth, robot, _manifest(cfg),
                           urdf_text=cfg.urdf_path.read_text(), q=q)
 
 

@@ -1,0 +1,216 @@
+"""Several effects at once (issue 23, item 2): name the strongest by held-out evidence, refit jointly with it,
+look again, stop when the next adds nothing significant on held-out data. Free loads (``free.py``).
+
+A step scores every candidate effect not yet named: each shape of its free face (``free_shapes``) is added to
+the design ``[J, X_1 .. X_m]`` of the free-load Jacobian and the faces named so far, and cross-validated
+(``free_cv.py``: the same blocks and folds for every design); an effect's score is its best shape's. The best
+candidate is added when all of these hold (the stated test):
+
+* a gap remains: some channel's held-out RMS exceeds the noise floor by more than ``GAP_REL`` (relative);
+* the paired block-wise comparison favours it: the log ratio of the held-out sums of squares without and with
+  it, block by block (``d_b``), has ``mean(d) / se(d) >= Z_MIN`` over the blocks;
+* the saving is material against the floor: at least ``MIN_FLOOR_SHARE`` of the floor's sum of squares
+  (``6 N`` in units of the noise variance: a saving smaller than 1 % of the noise is not an effect worth
+  naming however significant), and at least ``MIN_EXCESS_SHARE`` of the held-out excess still over the floor.
+
+Without a floor (the data hold no still stretch, e.g. a list of single-row poses: ``floor_known`` false) the
+weights are the free-load fit's residual sd, there is no gap to test and no excess: a candidate is added when
+its paired z passes and it saves at least ``MIN_GAIN_NO_FLOOR`` of the current held-out sum of squares.
+
+The chain ends after ``MAX_EFFECTS`` effects. :func:`joint_fit` refits the named effects together on every
+sample (linearised around the free-load fit) and gives their parameters with se: ``cov = s^2 (A^T A)^+``,
+``s^2`` the weighted residual variance times the AR(1) inflation of serially correlated residuals
+(``freeload.problem.serial_inflation``: what a model error that stays through a hold does to the se).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..effects import Effect
+from ..effects.free_faces import FreeFace, FreeLoadContext
+from ..freeload.problem import serial_inflation
+from .free_cv import CVFit, Design, paired_gain, pinv
+
+GAP_REL = 0.15
+Z_MIN = 3.0
+MIN_FLOOR_SHARE = 0.01
+MIN_EXCESS_SHARE = 0.25
+MAX_EFFECTS = 4
+MIN_GAIN_NO_FLOOR = 0.05
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect's best shape at one step: its face, the cross-validated fit with it, the saving and its z."""
+
+    effect: Effect
+    shape: dict
+    face: FreeFace | None
+    cv: CVFit | None
+    gain: float = 0.0          # held-out SSE saved, share of the current one
+    z: float = 0.0             # paired block-wise z of the saving
+    excess_share: float = 0.0  # share of the current held-out excess over the floor it removes
+    delta_bic: float = float("nan")
+    status: str = "ok"
+    note: str = ""
+    shapes_tried: int = 0
+
+
+@dataclass
+class Chain:
+    """The base fit, the named effects in order (``steps``), every step's candidates, the stop reason."""
+
+    base: CVFit
+    steps: list[Candidate] = field(default_factory=list)
+    rounds: list[list[Candidate]] = field(default_factory=list)
+    stop: str = ""
+
+    @property
+    def current(self) -> CVFit:
+        return self.steps[-1].cv if self.steps else self.base
+
+
+def excess_ratio(cv: CVFit, floor: np.ndarray) -> np.ndarray:
+    """Held-out RMS over the floor per channel (6,)."""
+    return cv.rms() / floor
+
+
+def _bic(design: Design, cv: CVFit, ref: CVFit) -> float:
+    """BIC of ``cv``'s full-sample fit relative to ``ref``'s (weighted Gaussian)."""
+    m = design.n * 6
+    rss = float(((cv.resid * design.w) ** 2).sum())
+    rss0 = float(((ref.resid * design.w) ** 2).sum())
+    return m * np.log(max(rss, 1e-300) / max(rss0, 1e-300)) + (cv.k - ref.k) * np.log(m)
+
+
+def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Effect, memo: dict | None = None,
+          floor_known: bool = True) -> Candidate:
+    """``effect``'s best shape added to the parts ``X0`` (module docstring), against the current fit ``cur``; ``memo``
+    keeps each (effect, shape)'s face across rounds (its cached blocks stay valid)."""
+    memo = {} if memo is None else memo
+    shapes = tuple(effect.free_shapes(ctx))
+    if not shapes:
+        return Candidate(effect, {}, None, None, status="not applicable", note="no free-load face")
+    best = None
+    tried = 0
+    for shape in shapes:
+        key = (effect.name, repr(sorted(shape.items())))
+        if key not in memo:
+            memo[key] = effect.free_face(ctx, shape)
+        face = memo[key]
+        if face is None or not np.any(face.X if face.dense else face.basis):
+            continue
+        tried += 1
+        cv = design.fit(X0 + [face])
+        if best is None or cv.sse < best[2].sse:
+            best = (shape, face, cv)
+    if best is None:
+        return Candidate(effect, {}, None, None, status="not applicable", note="its face does not apply to these data")
+    refine = getattr(effect, "free_refine", None)
+    if refine is not None:   # the unit may refine its grid's best shape on the current residual (free_faces.py)
+        shape2 = refine(ctx, dict(best[0]), cur.resid)
+        if shape2 is not None and shape2 != best[0]:
+            key = (effect.name, repr(sorted(shape2.items())))
+            if key not in memo:
+                memo[key] = effect.free_face(ctx, shape2)
+            face2 = memo[key]
+            if face2 is not None:
+                cv2 = design.fit(X0 + [face2])
+                tried += 1
+                if cv2.sse < best[2].sse:
+                    best = (shape2, face2, cv2)
+    shape, face, cv = best
+    gain, z = paired_gain(cur, cv)
+    floor_sse = 6.0 * design.n
+    share = (cur.sse - cv.sse) / max(cur.sse - floor_sse, 1e-300) if floor_known else gain
+    return Candidate(effect, dict(shape), face, cv, gain, z, float(share), _bic(design, cv, cur), shapes_tried=tried)
+
+
+def accepted(c: Candidate, cur: CVFit, design: Design, floor_known: bool = True) -> tuple[bool, str]:
+    """Whether candidate ``c`` passes the stated test (module docstring) and why not."""
+    if c.cv is None:
+        return False, c.note
+    saved = cur.sse - c.cv.sse
+    if c.z < Z_MIN:
+        return False, f"paired block-wise z {c.z:.1f} < {Z_MIN:g}"
+    if not floor_known:
+        if c.gain < MIN_GAIN_NO_FLOOR:
+            return False, f"saves {100 * c.gain:.1f} % of the held-out sum of squares (< {100 * MIN_GAIN_NO_FLOOR:g} %; no floor known)"
+        return True, ""
+    if saved < MIN_FLOOR_SHARE * 6.0 * design.n:
+        return False, f"saves {100 * saved / (6.0 * design.n):.2f} % of the floor's variance (< {100 * MIN_FLOOR_SHARE:g} %)"
+    if c.excess_share < MIN_EXCESS_SHARE:
+        return False, f"removes {100 * c.excess_share:.0f} % of the remaining excess (< {100 * MIN_EXCESS_SHARE:g} %)"
+    return True, ""
+
+
+def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray,
+              floor_known: bool = True) -> Chain:
+    """The chain of the module docstring (``J`` the free-load model's Jacobian as a face)."""
+    ch = Chain(design.fit([J]))
+    memo: dict = {}
+    while True:
+        cur = ch.current
+        if floor_known and np.max(excess_ratio(cur, floor)) <= 1.0 + GAP_REL:
+            ch.stop = "no gap above the floor remains" if ch.steps else "no gap above the floor"
+            break
+        if len(ch.steps) >= MAX_EFFECTS:
+            ch.stop = f"{MAX_EFFECTS} effects named (the most the chain adds)"
+            break
+        X0 = [J] + [s.face for s in ch.steps]
+        named = {s.effect.name for s in ch.steps}
+        cands = [score(design, X0, cur, ctx, e, memo, floor_known) for e in effects if e.name not in named]
+        cands.sort(key=lambda c: (c.cv is None, c.cv.sse if c.cv is not None else 0.0))
+        ch.rounds.append(cands)
+        ok = [c for c in cands if c.cv is not None]
+        if not ok:
+            ch.stop = "no candidate effect has a face for these data"
+            break
+        good, why = accepted(ok[0], cur, design, floor_known)
+        if not good:
+            ch.stop = f"the next candidate, {ok[0].effect.name}, adds nothing significant on held-out data ({why})"
+            break
+        ch.steps.append(ok[0])
+    return ch
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """The named effects refit together with the free-load model (linearised) on every sample: per effect its
+    parameters ``{name: (value, se)}``; ``dx`` the change of the free-load parameters; ``s2`` the variance factor."""
+
+    params: list[dict]
+    dx: np.ndarray
+    dx_se: np.ndarray
+    s2: float
+    resid: np.ndarray
+    betas: tuple = ()          # per effect its parameter vector (face column order)
+
+    def wrench(self, steps: list[Candidate], i: int = 0) -> np.ndarray:
+        """The fitted wrench (N, 6) of the ``i``-th named effect."""
+        return steps[i].face.wrench(self.betas[i])
+
+
+def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:
+    """The joint refit (module docstring)."""
+    cv = design.fit([J] + [s.face for s in steps])
+    G, beta = cv.G, cv.beta
+    rw = cv.resid * design.w
+    m, k = rw.size, cv.k
+    s2 = float((rw**2).sum() / max(m - k, 1))
+    _, infl = serial_inflation(rw, ctx.rec, ctx.index)
+    s2 *= float(np.mean(infl))
+    C = pinv(G) * s2
+    se = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    # a direction the data leave undetermined has no se (pinv left it at zero)
+    se = np.where(np.diag(G) > 0, se, np.inf)
+    out, betas, c0 = [], [], J.k
+    for s in steps:
+        sl = slice(c0, c0 + s.face.k)
+        out.append({n: (float(v), float(e)) for n, v, e in zip(s.face.names, beta[sl], se[sl])})
+        betas.append(beta[sl])
+        c0 += s.face.k
+    return JointFit(out, beta[:J.k], se[:J.k], s2, cv.resid, tuple(betas))

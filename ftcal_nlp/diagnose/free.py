@@ -1,0 +1,270 @@
+"""The diagnosis of free loads (``DATA_FORMAT.md`` section 5; issue 23): payloads and URDF loads.
+
+Per transducer with a free load (``freeload``'s fit ``x* = [w_o, theta, r]``):
+
+1. every sample of every recording in which the load hangs free, moving ones included
+   (``free_model.context_for``): the residual ``r_n = y_n - h(x*; s_n)``;
+2. the noise floor from held, still stretches of the readings (``free_model.hold_floor``), not from a fit;
+3. blocked cross-validation (``free_cv.py``: blocks are holds with the move after them, or time blocks;
+   ``folds``/``seed`` of :class:`~ftcal_nlp.settings.DiagnoseSettings`) of the model linearised around
+   ``x*``, ``r ~ J dx``: the held-out RMS before any effect;
+4. the chain (``chain.py``): the strongest effect of the library by held-out evidence (every unit with a
+   free face, ``effects/free_faces.py``), refit jointly with it, look again, stop when the next adds nothing
+   significant; the named effects refit together on every sample (parameters with se);
+5. where the gap lies (``correlates.py``): the residual against time, each joint angle, the rates
+   ("motion"), the load's history ("load", "pose_history") and temperature; the components above the floor.
+
+Verdict (per transducer, then the dataset's: the first transducer with an effect, else with a gap):
+``effect`` when the chain named one; else ``unexplained`` when a gap remains that a correlate follows
+(``correlates.EXPLAINED_MIN``) or that is far above the floor (``FAR``: held-out RMS ``FAR`` x the floor);
+else ``none`` (a gap without structure is reported as noise the floor underrates, with its size).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..data import Dataset
+from ..effects import Effect, resolve_effects
+from ..effects.free_faces import FreeFace
+from ..settings import DiagnoseSettings
+from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
+from .correlates import EXPLAINED_MIN, CorrelateScore, score_correlates
+from .free_cv import Design, cv_blocks, fold_of_blocks
+from .free_model import context_for, hold_floor, model_jacobian
+from .result import DiagnosisResult
+
+log = logging.getLogger(__name__)
+
+WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+#: a gap this many times the floor (held-out RMS) is "far above" it: unexplained even without a correlate
+FAR = 2.0
+
+
+@dataclass
+class FreeLegDiagnosis:
+    """One transducer's free-load diagnosis (module docstring)."""
+
+    leg: str
+    verdict: str
+    floor: np.ndarray
+    floor_samples: int
+    before: np.ndarray                    # held-out RMS of the free-load model (6,)
+    after: np.ndarray                     # held-out RMS after the chain (6,)
+    chain: Chain
+    joint: JointFit | None
+    correlates: list[CorrelateScore]
+    where: dict
+    n: int
+    n_still: int
+    blocks: int
+    notes: list[str] = field(default_factory=list)
+    plot: dict = field(default_factory=dict)
+    floor_known: bool = True              # False: no still stretch; ``floor`` is the fit's residual sd
+
+    def to_json_dict(self) -> dict:
+        """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
+        lst = lambda a: [float(x) for x in a]  # noqa: E731
+        return {"verdict": self.verdict, "samples": self.n, "quasi_static": self.n_still, "cv_blocks": self.blocks,
+                "noise_floor": lst(self.floor), "floor_samples": self.floor_samples,
+                "noise_floor_source": "held, still stretches" if self.floor_known else "none (no still stretch): the fit's residual sd",
+                "heldout_rms_before": lst(self.before), "heldout_rms_after": lst(self.after),
+                "chain": [{"step": i + 1, "candidates": [{"effect": c.effect.name, "shape": c.shape, "status": c.status,
+                                                           "paired_z": None if c.cv is None else float(c.z),
+                                                           "explained": None if c.cv is None else float(c.excess_share),
+                                                           "heldout_rms_after": None if c.cv is None else lst(c.cv.rms())}
+                                                          for c in rd]} for i, rd in enumerate(self.chain.rounds)],
+                "stop": self.chain.stop,
+                "correlates": [{"correlate": c.name, "explained": float(c.explained), "heldout_rms_after": lst(c.heldout_rms)}
+                               for c in self.correlates],
+                "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes)}
+
+    def effects_json(self) -> list[dict]:
+        out = []
+        for i, s in enumerate(self.chain.steps):
+            pars = self.joint.params[i] if self.joint is not None else {}
+            out.append({"name": s.effect.name, "transducer": self.leg, "shape": s.shape,
+                        "parameters": {k: {"value": v, "se": e if np.isfinite(e) else None} for k, (v, e) in pars.items()},
+                        "heldout_rms_after": [float(x) for x in s.cv.rms()],
+                        "paired_z": float(s.z), "explained": float(s.excess_share),
+                        "explains": _explains(s.effect, s)})
+        return out
+
+
+def _explains(effect: Effect, cand=None) -> str | None:
+    e = getattr(effect, "free_explains", None) or effect.explains
+    if e == "joint":
+        j = (cand.shape or {}).get("joint") if cand is not None else None
+        return f"joint:{j}" if j else None
+    return e
+
+
+def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseSettings) -> FreeLegDiagnosis:
+    """Steps 1-5 of the module docstring for transducer ``leg``."""
+    ctx, notes = context_for(ds, leg, fit)
+    floor, n_floor = hold_floor(ctx)
+    floor_known = bool(np.all(np.isfinite(floor) & (floor > 0)))
+    if not floor_known:
+        # no still stretch (a list of single-row poses): no floor; the fit's residual sd balances the channels
+        floor = np.asarray(fit.sigma, float).copy()
+        notes.append(f"{leg}: the readings hold no held, still stretch (consecutive samples of one pose): no noise floor is "
+                     "known; the channels are weighted by the free-load fit's residual sd, effects are named by held-out "
+                     "significance alone and no gap size can be stated")
+    ctx = dataclasses.replace(ctx, sigma=floor)   # what a face's refinement weighs channels by
+    Jx, names = model_jacobian(ctx, fit)
+    J = FreeFace(Jx, names)
+    block = cv_blocks(ctx.hold, ctx.rec, s.folds)
+    if int(block.max()) + 1 < s.folds:
+        notes.append(f"{leg}: {ctx.n} samples make {int(block.max()) + 1} cross-validation block(s), fewer than the {s.folds} "
+                     "folds: not diagnosed")
+        return _undiagnosed(leg, ctx, floor, n_floor, notes)
+    fold = fold_of_blocks(block, s.folds, s.seed)
+    design = Design(ctx.y - ctx.pred, 1.0 / floor, block, fold)
+    ch = run_chain(design, J, ctx, effects, floor, floor_known)
+    base, cur = ch.base, ch.current
+    jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
+    ratio_after = excess_ratio(cur, floor)
+    gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
+    gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
+    extra = [st.face for st in ch.steps]
+    # where: the gap as found (before any effect) when an effect explains it; what remains otherwise
+    ref = cur if (gap_after and not ch.steps) or not ch.steps else base
+    corr = score_correlates(design, J, ref, ctx, None) if (gap_before or gap_after) else []
+    if ch.steps and gap_after:  # what the named effects leave: where it lies
+        rest = score_correlates(design, J, cur, ctx, extra)
+    else:
+        rest = []
+    top = corr[0] if corr and corr[0].explained >= EXPLAINED_MIN else None
+    if ch.steps:
+        verdict = "effect"
+    elif gap_before and (top is not None or np.max(excess_ratio(base, floor)) > FAR):
+        verdict = "unexplained"
+    else:
+        verdict = "none"
+        if gap_before:
+            notes.append(f"{leg}: the held-out residual exceeds the floor by up to "
+                         f"{100 * (np.max(excess_ratio(base, floor)) - 1):.0f} % without following any correlate: "
+                         "reported as noise the floor underrates, not as a gap")
+    comps = []
+    if verdict == "effect":    # where the named effects' fitted wrench stands out of the noise
+        comps = _components(jf.wrench(ch.steps), floor)
+    elif verdict == "unexplained":
+        comps = [c for c, r in zip(WRENCH, excess_ratio(base, floor)) if r > 1.0 + GAP_REL]
+        if top is not None:   # where the correlate's fit stands out (a shared refit leaks a gap into other channels)
+            comps = _components(top.wrench, floor) or comps
+    first_explains = _explains(ch.steps[0].effect, ch.steps[0]) if ch.steps else None
+    explains = first_explains or (top.name if top is not None else None)
+    where = {"recordings": list(ctx.names) if verdict != "none" else [], "legs": [leg] if verdict != "none" else [],
+             "components": comps, "explains": explains if verdict != "none" else None}
+    rest_top = rest[0] if rest and rest[0].explained >= EXPLAINED_MIN else None
+    if ch.steps and gap_after:
+        where["remaining"] = {"components": [c for c, r in zip(WRENCH, ratio_after) if r > 1.0 + GAP_REL],
+                              "explains": rest_top.name if rest_top is not None else None,
+                              "heldout_rms_over_floor": [float(x) for x in ratio_after]}
+    plot = {}
+    show = top if verdict == "unexplained" else (rest_top if rest_top is not None else top)
+    if show is not None:
+        res = (cur if verdict == "unexplained" or rest_top is not None else base).heldout
+        c = int(np.argmax(res.std(axis=0) / floor))
+        plot = {"x": show.x, "y": res[:, c], "xlabel": show.xlabel, "component": WRENCH[c], "floor": float(floor[c]),
+                "correlate": show.name, "leg": leg}
+    return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
+                            int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known)
+
+
+def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
+    nan = np.full(6, np.nan)
+    where = {"recordings": [], "legs": [], "components": [], "explains": None}
+    return FreeLegDiagnosis(leg, "none", floor, n_floor, nan, nan, Chain(None, stop="not diagnosed: too few samples"), None, [],
+                            where, ctx.n, int(ctx.still.sum()), 0, notes, {}, False)
+
+
+FLOOR_TEXT = "at least a few samples"
+#: a channel lies in the gap when the fitted wrench of what explains it has an RMS of at least this share of its floor
+COMPONENT_SHARE = 0.5
+
+
+def _components(w: np.ndarray, floor: np.ndarray) -> list[str]:
+    rel = np.sqrt(np.mean(w**2, axis=0)) / floor
+    return [c for c, r in zip(WRENCH, rel) if r >= COMPONENT_SHARE * rel.max() or r >= COMPONENT_SHARE]
+
+
+def diagnose_free(dataset: Dataset, free_loads, settings: DiagnoseSettings | None = None, *,
+                  registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
+    """The diagnosis of a free-load dataset (module docstring): ``free_loads`` the
+    :class:`~ftcal_nlp.freeload.FreeLoadResults`; candidates from ``registry`` (None: the library), those with a
+    free face (``free_shapes``), as picked by ``settings.effects``."""
+    t0 = time.perf_counter()
+    s = DiagnoseSettings() if settings is None else settings
+    effects = resolve_effects(s.effects, registry)
+    legs = {}
+    for leg, fit in free_loads.legs.items():
+        legs[leg] = diagnose_leg(dataset, leg, fit, effects, s)
+        log.info("diagnosis of %s: %s; effects %s", leg, legs[leg].verdict, [st.effect.name for st in legs[leg].chain.steps])
+    order = sorted(legs.values(), key=lambda d: ({"effect": 0, "unexplained": 1, "none": 2}[d.verdict],
+                                                  -float(np.nan_to_num(np.max(d.before / d.floor)))))
+    main = order[0]
+    effects_json = [e for d in legs.values() for e in d.effects_json()]
+    verdict = main.verdict
+    effect = main.chain.steps[0].effect.name if verdict == "effect" else None
+    shrink = {"heldout_rms_before": main.before, "heldout_rms_after": main.after, "noise_floor": main.floor, "kind": "hanging",
+              "kind_key": "free load"}
+    ranking = []
+    first = main.chain.rounds[0] if main.chain.rounds else []
+    for c in first:
+        ranking.append({"effect": c.effect.name, "delta_bic": c.delta_bic,
+                        "heldout_rms_after": c.cv.rms() if c.cv is not None else main.before,
+                        "explained": max(c.excess_share, 0.0), "status": c.status, "note": c.note, "variant": dict(c.shape)})
+    statement = _statement(main, legs)
+    notes = tuple(n for d in legs.values() for n in d.notes)
+    kinds = {f"free load {d.leg}": {"excess": float(np.max(d.before / d.floor) - 1.0), "threshold": GAP_REL, "n": d.n,
+                                    "heldout_rms": [float(x) for x in d.before], "noise_floor": [float(x) for x in d.floor]}
+             for d in legs.values()}
+    gaps = {f"free load {d.leg}": float(np.max(d.before / d.floor) - 1.0) for d in legs.values() if d.verdict != "none"}
+    return DiagnosisResult(verdict, effect, main.where, shrink, ranking, {}, tuple(statement), None, gaps, kinds,
+                           "free_load", "n/a", time.perf_counter() - t0, notes, effects=effects_json, free=legs)
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{x:.3g}" for x in v)
+
+
+def _statement(main: FreeLegDiagnosis, legs: dict) -> list[str]:
+    out = []
+    for d in legs.values():
+        head = f"Transducer {d.leg} ({d.n} samples, {d.n_still} quasi-static, {d.blocks} cross-validation blocks): "
+        if d.blocks == 0:
+            out.append(head + "not diagnosed (too few samples for a blocked cross-validation).")
+        elif d.verdict == "none" and not d.floor_known:
+            out.append(head + "no noise floor is known (no held, still stretch in the readings) and no library effect passes "
+                       "the held-out test (held-out RMS " + _fmt(d.before) + ").")
+        elif d.verdict == "none":
+            out.append(head + "no gap above the noise floor (held-out RMS " + _fmt(d.before) + " vs floor " + _fmt(d.floor) + ").")
+        elif d.verdict == "effect":
+            names = [st.effect.name for st in d.chain.steps]
+            out.append(head + "the gap is explained by " + " then ".join(names) + "; held-out RMS " + _fmt(d.before)
+                       + " -> " + _fmt(d.after) + " (floor " + _fmt(d.floor) + ").")
+        else:
+            w = d.where
+            out.append(head + "a gap that no library effect explains: held-out RMS " + _fmt(d.before) + " vs floor " + _fmt(d.floor)
+                       + f"; it lies in {', '.join(w['components']) or 'every component'}"
+                       + (f" and follows {w['explains']}" if w.get("explains") else "") + ".")
+        for i, st in enumerate(d.chain.steps):
+            out.append(f"  {i + 1}. {st.effect.name} {st.shape or ''}: held-out RMS after " + _fmt(st.cv.rms())
+                       + f" (paired block z {st.z:.1f}; removes {100 * st.excess_share:.0f} % of the excess then left).")
+        if d.chain.stop:
+            out.append(f"  The chain stopped: {d.chain.stop}.")
+        rem = d.where.get("remaining")
+        if rem:
+            out.append(f"  Left after the named effects: {', '.join(rem['components'])} above the floor"
+                       + (f", following {rem['explains']}" if rem.get("explains") else "") + ".")
+        if d.correlates:
+            out.append("  Correlates (share of the held-out excess each explains): "
+                       + ", ".join(f"{c.name} {100 * c.explained:.0f} %" for c in d.correlates[:5]) + ".")
+    return out

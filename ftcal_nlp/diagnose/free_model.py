@@ -1,0 +1,138 @@
+"""What the free-load diagnosis looks at: every sample of a free load, the fit's model there, its Jacobian and the
+noise floor from held, still stretches of the readings.
+
+* :func:`context_for`: a :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` of one transducer over every
+  ``hanging`` recording in which its load hangs free, ALL samples (moving ones included; samples whose gravity
+  direction is unknown, orientation not tracked, are left out and counted);
+* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), r (3)]`` with
+  ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``):
+  offsets the identity, ``theta`` exact (the model is linear in it), ``r`` by central differences;
+* :func:`hold_floor`: the readings' noise sd per channel from held, still stretches: within every window of
+  ``FLOOR_WINDOW_S`` (at least ``FLOOR_MIN_SAMPLES`` samples) of a quasi-static hold, the scatter about the
+  window's own mean and slope (what no model of a free load can explain: a creep or drift is smooth over the
+  window), pooled with its degrees of freedom; windows across which gravity's direction or a joint moves by
+  ``STILL_RAD`` or more are not still (a list of single-row poses has no still window: no floor is known). It
+  comes from the readings, not from any fit's residual.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..data import Dataset
+from ..effects.free_faces import FreeLoadContext, make_context
+from ..freeload.problem import predict
+from ..geometry import rotvec_to_rotation
+
+#: the windows over which the floor's scatter is taken (s) and their least number of samples
+FLOOR_WINDOW_S = 0.5
+FLOOR_MIN_SAMPLES = 6
+_ROT_STEP = 1e-6
+#: a floor window is still when gravity's direction in ft and every joint move less than this (rad) across it
+STILL_RAD = 3e-3
+
+
+def _limits(load) -> dict[str, tuple[float, float]]:
+    tree = getattr(load, "tree", None)
+    out = {}
+    for j in tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ())):
+        jt = tree.joint(j) if tree is not None else None
+        if jt is not None and jt.lower is not None and jt.upper is not None and jt.upper > jt.lower:
+            out[j] = (float(jt.lower), float(jt.upper))
+    return out
+
+
+def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]:
+    """``(context, notes)``: transducer ``leg``'s free-load samples over every recording in which it hangs free,
+    with the fit's predictions (``fit``: its :class:`~ftcal_nlp.freeload.FreeLoadResult`), module docstring."""
+    load = fit.load
+    joints = tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ()))
+    g = ds.robot.g
+    parts, notes = [], []
+    recs = [r for r in ds.hanging if r.hangs_free(leg)]
+    for i, rec in enumerate(recs):
+        grav = rec.gravity_directions()
+        ok = np.all(np.isfinite(grav), axis=1)
+        if not ok.all():
+            notes.append(f"{rec.path or rec.name}: {int((~ok).sum())} of {rec.n} samples without a gravity direction "
+                         "(orientation not tracked) are left out of the diagnosis")
+        q = {j: (rec.q[j] if j in rec.q else np.zeros(rec.n))[ok] for j in joints}
+        used = fit.used.get(rec.name)
+        still = used[ok] if used is not None and len(used) == rec.n else None
+        temp = rec.temperature.get(leg)   # the optional {leg}_temp_C / temp_C column (docs/proposals/temperature.md)
+        parts.append(dict(t=rec.t[ok], y=rec.wrench[leg][ok], gB=g * grav[ok], q=q, still=still, index=np.flatnonzero(ok),
+                          rec=np.full(int(ok.sum()), i), quat=None if rec.quat is None else rec.quat[ok],
+                          temp=None if temp is None else np.asarray(temp, float)[ok]))
+    cat = lambda k: np.concatenate([p[k] for p in parts])  # noqa: E731
+    n = sum(len(p["t"]) for p in parts)
+    q = {j: np.concatenate([p["q"][j] for p in parts]) for j in joints}
+    g_B = cat("gB")
+    R_nom = load.nominal_rotation(q, n)
+    b = np.einsum("nji,nj->ni", R_nom, g_B)
+    K = load.lever(q, n)
+    pred = predict(b, K, fit.theta, load.mass_row, fit.rotation, fit.offset)
+    still = None if any(p["still"] is None for p in parts) else cat("still")
+    quat = None if any(p["quat"] is None for p in parts) else cat("quat")
+    temp = None if any(p["temp"] is None for p in parts) else cat("temp")
+    # joints that never move carry no information on where a gap lies
+    moving_q = {j: v for j, v in q.items() if np.ptp(v) > 1e-6}
+    ctx = make_context(leg, cat("t"), cat("y"), pred, b @ fit.rotation, rec=cat("rec"), names=tuple(r.name for r in recs),
+                       still=still, g_B=g_B, q=moving_q, joint_limits=_limits(load), quat=quat, temperature=temp,
+                       index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation)
+    pos = ds.robot.transducers[leg].position_m
+    ctx.extra.update(b=b, K=K, **({} if pos is None else {"position_m": np.asarray(pos, float)}))  # inertial_load's O in B
+    return ctx, notes
+
+
+def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``."""
+    b, K = ctx.extra["b"], ctx.extra["K"]
+    load, E = fit.load, fit.rotation
+    mu = load.mass_row
+    p = len(fit.theta)
+    n = ctx.n
+    J = np.zeros((n, 6, 6 + p + 3))
+    J[:, np.arange(6), np.arange(6)] = 1.0
+    z = np.zeros(6)
+    for l in range(p):
+        J[:, :, 6 + l] = predict(b, K, np.eye(p)[l], mu, E, z)
+    for a in range(3):
+        d = np.zeros(3)
+        d[a] = _ROT_STEP
+        up = predict(b, K, fit.theta, mu, E @ rotvec_to_rotation(d), z)
+        dn = predict(b, K, fit.theta, mu, E @ rotvec_to_rotation(-d), z)
+        J[:, :, 6 + p + a] = (up - dn) / (2 * _ROT_STEP)
+    return J, tuple(fit.names)
+
+
+def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:
+    """``(floor (6,), samples)``: the noise sd per channel from held, still stretches (module docstring); NaN when
+    the data hold no still stretch of ``FLOOR_MIN_SAMPLES`` samples."""
+    dt = ctx.dt
+    m = max(FLOOR_MIN_SAMPLES, int(round(FLOOR_WINDOW_S / max(dt, 1e-9))))
+    ss, dof, used = np.zeros(6), 0, 0
+    for h in np.unique(ctx.hold[ctx.hold >= 0]):
+        i = np.flatnonzero(ctx.hold == h)
+        nw = len(i) // m
+        if nw == 0:
+            continue
+        idx = i[: nw * m].reshape(nw, m)
+        # a window is still when gravity in ft and the joints stay put across it (a list of single-row poses has none)
+        still = np.ptp(ctx.g_ft[idx] / np.linalg.norm(ctx.g_ft[idx], axis=2, keepdims=True), axis=1).max(axis=1) < STILL_RAD
+        for q in ctx.q.values():
+            still &= np.ptp(q[idx], axis=1) < STILL_RAD
+        idx = idx[still]
+        nw = len(idx)
+        if nw == 0:
+            continue
+        y = ctx.y[idx]                                   # (nw, m, 6)
+        tt = ctx.t[idx] - ctx.t[idx].mean(axis=1, keepdims=True)
+        yc = y - y.mean(axis=1, keepdims=True)
+        slope = (tt[..., None] * yc).sum(axis=1, keepdims=True) / np.clip((tt**2).sum(axis=1), 1e-300, None)[:, None, None]
+        e = yc - slope * tt[..., None]
+        ss += (e**2).sum(axis=(0, 1))
+        dof += nw * (m - 2)
+        used += nw * m
+    if dof == 0:
+        return np.full(6, np.nan), 0
+    return np.sqrt(ss / dof), used

@@ -1,0 +1,175 @@
+"""clock_offset: the readings lag (or lead) the orientation / joint stream by ``delay_s``.
+
+Two clocks that are not in step: the transducer's readings are stamped ``delay_s`` late, so the
+reading stamped ``t`` is the wrench of ``t - delay_s`` (negative: the readings lead):
+
+    w_m(t) = w(t - d)                                             (injected, ``ClockOffsetInjector``)
+
+``d`` from a fraction of a sample to several samples; the injector re-samples the noise-free
+readings with a cubic spline (``signals.delayed``), held at the end values beyond the recording.
+It needs nothing of a hexapod: the hexapod simulator and the free-load one both take it.
+
+Off-face shapes (the validation sweep; a correct diagnosis still says ``clock_offset``):
+
+* clock_offset_drift    d(t) = scale (0.5 + (t - t_0) / (t_1 - t_0))    (the clocks drift apart over the
+                        recording: half the delay at its start, 1.5x at its end)
+* clock_offset_jitter   d_n = scale + e_n,  e_n ~ N(0, (0.5 scale)^2) white per sample (stamps with jitter)
+
+Free face (``free_faces.py``): to first order in ``d`` the gap is the model readings' rate times
+the delay,
+
+    y(t) - pred(t) = pred(t - d) - pred(t) ~ -d pred'(t)
+
+one column ``-pred'(t)`` with parameter ``delay_s`` [s] (shape ``"all"``), or the forces' and the
+torques' delays apart (``"force"``). The neglected ``d^2 pred''/2`` is far below the noise for
+delays of a few samples (a load moves over seconds); :func:`refine_delay` gives the exact
+least-squares delay by Gauss-Newton on the re-sampled model readings (an offset per channel
+refit alongside), se ``1 / sqrt(sum_n,c pred'_nc^2 / sigma_c^2)``.
+
+Correction: the readings re-sampled ``delay_s`` later, ``y'(t) = y(t + d)`` (a free load: the fitted
+parameter; a hexapod recording: the effect block's ``delay_s [s]`` parameter, if any).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .free_faces import WRENCH, FreeFace
+from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
+from .signals import delayed
+from .unit import Effect
+
+log = logging.getLogger(__name__)
+
+
+class ClockOffsetInjector(EffectInjector):
+    """Readings stamped ``scale`` s late (negative: early): ``w_m(t) = w(t - scale)``."""
+
+    name = "clock_offset"
+    magnitude = Magnitude("s the readings lag the orientation / joint stream", (0.005, 0.04), 0.03)
+
+    def delay(self, ctx) -> np.ndarray | float:
+        return self.scale
+
+    def readings(self, ctx, w):
+        return delayed(ctx.t, w, self.delay(ctx))
+
+
+class ClockOffsetDriftInjector(OffFaceInjector, ClockOffsetInjector):
+    """A delay that grows over the recording: ``scale (0.5 + (t - t_0) / (t_1 - t_0))`` s (clock drift)."""
+
+    name = "clock_offset_drift"
+    expect = "clock_offset"
+    magnitude = Magnitude("s the readings lag on average (growing from 0.5x to 1.5x)", (0.005, 0.04), 0.03)
+
+    def delay(self, ctx):
+        t = np.asarray(ctx.t, float)
+        return self.scale * (0.5 + (t - t[0]) / max(float(t[-1] - t[0]), 1e-12))
+
+
+class ClockOffsetJitterInjector(OffFaceInjector, ClockOffsetInjector):
+    """A delay ``scale`` s with white jitter of sd ``0.5 scale`` per sample (stamps that jitter)."""
+
+    name = "clock_offset_jitter"
+    expect = "clock_offset"
+    magnitude = Magnitude("s the readings lag on average (jitter sd half of it)", (0.005, 0.04), 0.03)
+
+    def delay(self, ctx):
+        return self.scale + ctx.rng.normal(0.0, 0.5 * abs(self.scale), len(ctx.t))
+
+
+def delay_columns(pred_rate: np.ndarray, shape: str) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``X`` (N, 6, k) of a delay face from ``d pred / dt`` (N, 6): ``-pred'`` on every channel (``shape`` "all")
+    or on the forces and the torques apart ("force")."""
+    n = len(pred_rate)
+    if shape == "all":
+        return -pred_rate[:, :, None], ("delay_s [s]",)
+    X = np.zeros((n, 6, 2))
+    X[:, :3, 0] = -pred_rate[:, :3]
+    X[:, 3:, 1] = -pred_rate[:, 3:]
+    return X, ("delay_s [s]", "torque.delay_s [s]")
+
+
+def refine_delay(t: np.ndarray, rec: np.ndarray, y: np.ndarray, pred: np.ndarray, d0: float,
+                 sigma: np.ndarray | None = None, iters: int = 8) -> tuple[float, float]:
+    """``(delay_s, se)``: Gauss-Newton on ``y(t) = pred(t - d) + w_o`` (an offset per channel refit alongside),
+    the model readings re-sampled exactly within each recording, from ``d0``; ``sigma`` (6,) the noise sd
+    (None: the residual's)."""
+    t, y, pred = (np.asarray(a, float) for a in (t, y, pred))
+    rec = np.asarray(rec)
+    d = float(d0)
+    for _ in range(iters):
+        shifted = np.empty_like(pred)
+        slope = np.empty_like(pred)
+        for r in np.unique(rec):
+            i = rec == r
+            shifted[i] = delayed(t[i], pred[i], d)
+            slope[i] = np.gradient(shifted[i], t[i], axis=0)
+        res = y - shifted
+        res = res - res.mean(axis=0)
+        g = slope - slope.mean(axis=0)          # d res / d d = +pred'(t - d); offsets projected out
+        s2 = (np.var(res, axis=0) if sigma is None else np.asarray(sigma, float) ** 2)
+        s2 = np.where(s2 > 0, s2, 1.0)
+        info = float(np.sum(g**2 / s2))
+        if info <= 0:
+            return d, float("inf")
+        step = -float(np.sum(g * res / s2)) / info
+        d += step
+        if abs(step) < 1e-9:
+            break
+    return d, 1.0 / np.sqrt(info)
+
+
+class ClockOffset(Effect):
+    name = "clock_offset"
+    description = "the readings lag or lead the orientation / joint stream by delay_s"
+    explains = "motion"
+    kind = "sensor"
+    injector_cls = ClockOffsetInjector
+    shapes = (ClockOffsetDriftInjector, ClockOffsetJitterInjector)
+    applies_to = frozenset({"hexapod", "free"})
+    diagnosed_on = frozenset({"free"})
+    free_explains = "motion"
+    FREE_SHAPES = ("all", "force")
+
+    def free_shapes(self, ctx):
+        return tuple({"channels": c} for c in self.FREE_SHAPES)
+
+    def free_face(self, ctx, shape):
+        # A delay shows where the load's wrench changes: d times its rate (first order; refine_delay is exact)
+        if not np.any(np.abs(ctx.pred_rate) > 0):
+            return None
+        X, names = delay_columns(ctx.pred_rate, shape["channels"])
+        return FreeFace(X, names, dict(shape))
+
+    def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
+        # A hexapod's readings (no hexapod face fits a delay): re-sampled by the block's delay_s when it has one
+        d = delay_of(block)
+        if d is None or len(t_h) < 4:
+            log.info("%s: clock_offset: no delay_s in the calibration's effect block; readings unchanged", source)
+            return w, R_WB, None
+        log.info("%s: clock_offset: readings re-sampled %.4g s later", source, d)
+        return delayed(np.asarray(t_h, float) * HOUR_S, w, -d), R_WB, None
+
+    def free_correct(self, ctx, shape, beta):
+        # Re-sample the readings delay_s later (each recording apart); a torque delay of its own on the torques
+        beta = np.asarray(beta, float)
+        out = np.empty_like(ctx.y)
+        for r in np.unique(ctx.rec):
+            i = ctx.rec == r
+            out[i, :3] = delayed(ctx.t[i], ctx.y[i, :3], -beta[0])
+            out[i, 3:] = delayed(ctx.t[i], ctx.y[i, 3:], -beta[-1])
+        return out
+
+
+def delay_of(block: dict) -> float | None:
+    """The delay (s) of an effect block: its parameter ``delay_s [s]`` (a value or ``{"value": ...}``), else None."""
+    v = block.get("parameters", {}).get("delay_s [s]", block.get("delay_s"))
+    v = v.get("value") if isinstance(v, dict) else v
+    return None if v is None else float(v)
+
+
+EFFECT = ClockOffset()
+__all__ = ["EFFECT", "WRENCH", "ClockOffset", "ClockOffsetInjector", "refine_delay", "delay_columns"]

@@ -1,0 +1,134 @@
+"""creep: a reading that relaxes after each change of load (the strain gauges' anelastic creep).
+
+After a change ``dL`` of the load on channel ``c`` the reading first moves by ``(1 - g_c) dL`` and then
+relaxes to ``dL`` with time constant ``tau``; for any load history ``L(t)`` (a superposition of steps):
+
+    w_m,c(t) = L_c(t) - g_c [L_c - lowpass_tau(L_c)](t)         (injected, ``CreepInjector``)
+
+``lowpass_tau`` the first-order lag ``tau y' + y = L`` (``signals.lowpass``; at rest when the
+recording starts), so the creep term ``-g_c dL exp(-s / tau)`` a time ``s`` after a step and zero at
+rest: a constant load (and the offsets) creep nothing. ``g_c`` per channel: ``scale`` x U(0.6, 1.4)
+(positive: the reading lags the load), ``tau`` 3 s by default. It needs nothing of a hexapod (the load
+is the true applied wrench of each transducer): the hexapod and the free-load simulators take it.
+
+Off-face shapes (the validation sweep; a correct diagnosis still says ``creep``):
+
+* creep_two_tau   two relaxations, half the gain each, tau 1 s and 12 s
+* creep_log       logarithmic creep: eight relaxations of equal gain, tau log-spaced 0.3 .. 100 s
+                  (a Prony series of ``log(1 + s / s_0)``), total gain ``g_c``
+
+Free face (``free_faces.py``): per channel the column ``-[pred_c - lowpass_tau(pred_c)]`` (each
+recording apart; ``pred`` the model readings: the offsets relax nothing), parameter ``c.creep`` [1]
+(the fraction ``g_c`` of a load change that relaxes); the shape is ``tau`` on a grid
+(``TAUS_S``, factor 2 apart) chosen by held-out residual.
+
+Correction: ``y - X beta`` (the creep the face predicts, removed); on a hexapod recording (no hexapod
+face fits it) the block's ``<c>.creep [1]`` gains and ``tau_s`` applied to the readings themselves
+(``y + g [y - lowpass(y)]``, first order in ``g``), if it has them.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .free_faces import WRENCH, FreeFace
+from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
+from .signals import relaxation
+from .unit import Effect
+
+log = logging.getLogger(__name__)
+
+
+def creep_term(t: np.ndarray, load: np.ndarray, gains: np.ndarray, taus, weights=(1.0,)) -> np.ndarray:
+    """``-gains sum_i weights_i [load - lowpass_tau_i(load)]`` (same shape as ``load``, time along axis 0;
+    ``gains`` broadcast against one sample of ``load``)."""
+    out = np.zeros_like(np.asarray(load, float))
+    for tau, wgt in zip(taus, weights):
+        out -= wgt * relaxation(t, load, tau)
+    return out * gains
+
+
+class CreepInjector(EffectInjector):
+    """Creep of ``scale`` x U(0.6, 1.4) of each load change per channel, relaxing with ``tau_s`` (default 3 s)."""
+
+    name = "creep"
+    magnitude = Magnitude("fraction of a load change that relaxes (per channel, on average)", (0.003, 0.02), 0.01)
+    taus: tuple = (3.0,)
+    weights: tuple = (1.0,)
+
+    def __init__(self, scale: float | None = None, seed: int = 0, tau_s: float | None = None):
+        super().__init__(scale, seed)
+        if tau_s is not None:
+            if not tau_s > 0:
+                raise ValueError(f"{self.name}.tau_s: expected a positive time constant in s, got {tau_s!r}")
+            self.taus = (float(tau_s),)
+
+    def gains(self, K: int) -> np.ndarray:
+        return self.scale * self.drawn("_g", K, lambda K: self.rng.uniform(0.6, 1.4, (K, 6)))
+
+    def readings(self, ctx, w):
+        return w + creep_term(ctx.t, ctx.applied, self.gains(w.shape[1])[None], self.taus, self.weights)
+
+
+class CreepTwoTauInjector(OffFaceInjector, CreepInjector):
+    """Two relaxations of half the gain each, tau 1 s and 12 s."""
+
+    name = "creep_two_tau"
+    expect = "creep"
+    magnitude = Magnitude("fraction of a load change that relaxes (two time constants)", (0.003, 0.02), 0.01)
+    taus = (1.0, 12.0)
+    weights = (0.5, 0.5)
+
+
+class CreepLogInjector(OffFaceInjector, CreepInjector):
+    """Logarithmic creep: eight relaxations of equal gain with tau log-spaced over 0.3 .. 100 s."""
+
+    name = "creep_log"
+    expect = "creep"
+    magnitude = Magnitude("fraction of a load change that relaxes (logarithmic creep)", (0.003, 0.02), 0.01)
+    taus = tuple(np.geomspace(0.3, 100.0, 8))
+    weights = (1.0 / 8,) * 8
+
+
+class Creep(Effect):
+    name = "creep"
+    description = "a reading that relaxes after each change of load"
+    explains = "pose_history"
+    kind = "sensor"
+    injector_cls = CreepInjector
+    shapes = (CreepTwoTauInjector, CreepLogInjector)
+    applies_to = frozenset({"hexapod", "free"})
+    diagnosed_on = frozenset({"free"})
+    free_explains = "pose_history"
+    TAUS_S = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+
+    def free_shapes(self, ctx):
+        return tuple({"tau_s": tau} for tau in self.TAUS_S)
+
+    def free_face(self, ctx, shape):
+        # per channel the part of each change of the model readings that has not yet relaxed (each recording apart)
+        tau = float(shape["tau_s"])
+        basis = np.zeros_like(ctx.pred)
+        for r in np.unique(ctx.rec):
+            i = ctx.rec == r
+            basis[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (tau,))
+        if not np.any(np.abs(basis) > 0):
+            return None
+        X = np.zeros((ctx.n, 6, 6))
+        X[:, np.arange(6), np.arange(6)] = basis
+        return FreeFace(X, tuple(f"{c}.creep [1]" for c in WRENCH), dict(shape))
+
+    def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
+        par = block.get("parameters", {})
+        g = [par.get(f"{c}.creep [1]") for c in WRENCH]
+        tau = block.get("shape", {}).get("tau_s")
+        if tau is None or any(v is None for v in g):
+            log.info("%s: creep: no creep gains / tau_s in the calibration's effect block; readings unchanged", source)
+            return w, R_WB, None
+        g = np.array([v["value"] if isinstance(v, dict) else v for v in g], float)
+        return w - creep_term(np.asarray(t_h, float) * HOUR_S, w, g, (float(tau),)), R_WB, None
+
+
+EFFECT = Creep()
