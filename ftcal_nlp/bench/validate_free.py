@@ -24,7 +24,10 @@ and scored against what a correct diagnosis says.
 
 The plan, per kind: ``n_clean`` clean datasets; every effect at two sizes (its own injector, the face's
 shape); every off-face shape (``Effect.shapes``: another shape of the same effect, injected at its test
-size); every pair, both at their test sizes. An effect (or shape) whose injector cannot work on a kind
+size; ``offset_drift_step``, whose default step is in the middle of a hexapod's standing recording, steps in the
+middle of the recording); every pair, both at their test sizes. Each dataset is simulated beside its clean twin (same
+seed, no effect; the simulator's random streams are apart), and ``injected_noise`` states what was injected beyond a
+constant (worst component's sd over the noise sd): a miss of a signal the noise hides says so. An effect (or shape) whose injector cannot work on a kind
 (``joint_limit_contact`` on a payload: no joints) is left out of that kind, and the summary lists it.
 
 What a correct diagnosis says and how it is scored (``scores.csv``):
@@ -72,6 +75,9 @@ GOAL_SHRINKAGE = 0.8   # the hexapod sweep's: >= 80 % of those named within the 
 GOAL_PAIRS = 0.8       # issue 23: two effects both named in >= 80 %
 GOAL_FALSE = 0.1       # issue 23: a false second in at most 1 case in 10
 COMPONENTS = ("fx", "fy", "fz", "tx", "ty", "tz")
+#: shapes whose default timing is a hexapod session's (a step in the middle of the standing recording: none in a
+#: free-load recording): the sweep puts that keyword in the middle of the recording (written in ``injectors``)
+AT_MIDDLE = {"offset_drift_step": "t_step_s"}
 
 
 def free_effects() -> list[str]:
@@ -242,9 +248,20 @@ def run_one(item: dict, c: dict, over: dict) -> dict:
     t0 = time.perf_counter()
     row = dict(item)
     try:
-        cfg = config_from_dict({"kind": item["kind"], **over[item["kind"]], "seed": int(item["seed"]),
-                                "effects": json.loads(item["injectors"])})
+        table = {"kind": item["kind"], **over[item["kind"]], "seed": int(item["seed"])}
+        # the clean twin: the same seed without the effects (the simulator's streams are apart: the same motion and
+        # noise), for the injected signal's size and the recording's clock
+        twin = simulate_free(config_from_dict({**table, "effects": []}))
+        injectors = json.loads(item["injectors"])
+        for inj in injectors:
+            if inj["name"] in AT_MIDDLE and AT_MIDDLE[inj["name"]] not in inj:
+                t = twin.frame["t"].to_numpy()
+                inj[AT_MIDDLE[inj["name"]]] = float(0.5 * (t[0] + t[-1]))
+        row["injectors"] = json.dumps(injectors)
+        cfg = config_from_dict({**table, "effects": injectors})
         res = simulate_free(cfg)
+        wcols = [f"{cfg.transducer}_{k}" for k in COMPONENTS]
+        diff = res.frame[wcols].to_numpy() - twin.frame[wcols].to_numpy()
         with tempfile.TemporaryDirectory(prefix="ftcal_vfree_") as tmp:
             ds = read_dataset(write_free_load(res, Path(tmp) / "data"))
         t1 = time.perf_counter()
@@ -263,6 +280,8 @@ def run_one(item: dict, c: dict, over: dict) -> dict:
         for name, v in (("before", leg.before), ("after", leg.after), ("floor", leg.floor), ("noise", noise)):
             row.update({f"{name}_{k}": float(x) for k, x in zip(COMPONENTS, v)})
         row["worst_after_noise"] = float(np.max(np.asarray(leg.after) / noise))
+        # what was injected, beyond a constant (the offsets absorb that): worst component's sd x the noise sd
+        row["injected_noise"] = float(np.max(np.std(diff, axis=0) / noise))
         row["worst_before_noise"] = float(np.max(np.asarray(leg.before) / noise))
     except Exception as exc:  # one failed dataset is a finding of the validation, not a reason to stop it
         log.exception("dataset %s (%s %s) failed", item["index"], item["kind"], item["label"])
@@ -304,6 +323,7 @@ def score(rows: pd.DataFrame, tolerance: float) -> pd.DataFrame:
                     "first_right": bool(single and not err and r["first"] in expect),
                     "false_second": bool(single and not err and len(named) > 1),
                     "extra": " ".join(n for n in named if n not in expect),
+                    "injected_noise": r.get("injected_noise", np.nan),
                     "worst_before_noise": r.get("worst_before_noise", np.nan), "worst_after_noise": worst,
                     "shrunk": bool(single and right and np.isfinite(worst) and worst <= tolerance),
                     "time_s": r["time_s"]})
@@ -361,7 +381,8 @@ def _misses(df: pd.DataFrame, col: str = "right", limit: int = 8) -> str:
         got = "error" if r["verdict"] == "error" else (f"`{r['named'].replace(' ', ', ')}`" if r["named"] else f"`{r['verdict']}`")
         size = f" {r['size']}" if r["role"] == "effect" else ""
         # the gap's size before any effect (worst component, x the simulated noise): a miss at ~1x had nothing to see
-        gap = f" (gap {r['worst_before_noise']:.2g}x)" if np.isfinite(r.get("worst_before_noise", np.nan)) else ""
+        gap = (f" (injected sd {r['injected_noise']:.2g}x the noise, gap {r['worst_before_noise']:.2g}x)"
+               if np.isfinite(r.get("worst_before_noise", np.nan)) else "")
         keys.append(f"{r['label']}{size}: {got}{gap}")
     counts = pd.Series(keys).value_counts()
     parts = [k + (f" x{v}" if v > 1 else "") for k, v in counts.items()]
