@@ -75,11 +75,15 @@ def _step(fr, res):
     ("urdf", 5, ({"name": "clock_offset", "scale": 0.02},), None, "clock_offset"),
     ("payload", 6, ({"name": "creep"},), None, "creep"),
     ("urdf", 6, ({"name": "creep"},), None, "creep"),
+    ("payload", 9, ({"name": "temperature"},), None, "temperature"),              # a temperature column: its correlate
+    ("urdf", 9, ({"name": "inertial_load"},), None, "inertial_load"),
 ])
 def test_one_effect_is_named_alone(kind, seed, effects, add, expect, tmp_path):
     d, _ = _diagnose(_sim(kind, seed, effects, add), tmp_path)
     assert d.verdict == "effect" and d.effect == expect, d.statement
     assert _names(d) == [expect], d.statement
+    assert d.where["explains"] == {"offset_drift": "time", "clock_offset": "motion", "inertial_load": "motion",
+                                   "temperature": "temperature"}.get(expect, d.where["explains"])
     e = d.effects[0]
     assert all(p["se"] is None or p["se"] > 0 for p in e["parameters"].values())
     leg = next(iter(d.free.values()))
@@ -128,6 +132,12 @@ def test_delay_and_its_se_recover_truth(tmp_path):
     assert vals, pars
     for v, se in vals:
         assert se is not None and abs(v - true) < 4 * se + 1e-3 * true, (v, se)
+    # the free-load parameters refit with it: the offsets are determined (finite se) and the truth within 4 se
+    jr = d.to_json_dict()["free_loads"]["wrist"]["joint_refit"]
+    truth = json.loads(json.dumps(_sim("payload", 7, ({"name": "clock_offset", "scale": true},)).truth))
+    for c, t in zip(WRENCH, truth["offset"]):
+        p = jr[f"wrist.offset.{c}"]
+        assert p["se"] is not None and abs(p["value"] - t) < 4 * p["se"], (c, p, t)
 
 
 def test_a_gap_along_a_joint_is_unexplained_and_placed(tmp_path):

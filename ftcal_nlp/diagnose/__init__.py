@@ -18,6 +18,21 @@ Map of the package (``diagnose(...)``, ``diagnose_run(run)`` in ``core.py`` run 
 * ``result.py``: :class:`DiagnosisResult` (``diagnosis.json`` content, summary); ``report/`` renders it.
 * ``core.py``: ``diagnose`` and ``diagnose_run``: views -> attribution -> localisation -> result.
 
+Free loads (``DATA_FORMAT.md`` section 5: payloads, URDF loads; issue 23), ``diagnose_free(dataset, free_loads)``
+in ``free.py``, which the pipeline runs for them:
+
+* ``free_model.py``: every sample of the free load (moving ones included), the fit's model and its Jacobian,
+  the noise floor from held, still stretches of the readings;
+* ``free_cv.py``: blocked cross-validation (holds or time blocks) of the model linearised around the fit plus
+  effect faces (``effects/free_faces.py``), cached per-fold normal equations;
+* ``chain.py``: several effects: the strongest by held-out evidence, refit jointly, look again, stop by a stated
+  paired block-wise test; the joint refit's parameters with se;
+* ``correlates.py``: where the gap lies: time, each joint angle, motion, the load's history, temperature.
+
+Hexapod datasets keep the single-effect diagnosis above (``effects`` in ``diagnosis.json`` lists that one effect):
+its attribution scores each candidate by an augmented IPOPT problem per recording kind, and a chain there would
+change today's single-effect results.
+
 The candidate effects are not here: each is one unit of :mod:`ftcal_nlp.effects` (its
 injector, model faces and their variants, correction and off-face shapes), read from
 the registry ``ftcal_nlp.effects.EFFECTS`` (or a ``registry`` argument). The

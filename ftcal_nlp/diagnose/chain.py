@@ -11,7 +11,9 @@ candidate is added when all of these hold (the stated test):
   it, block by block (``d_b``), has ``mean(d) / se(d) >= Z_MIN`` over the blocks;
 * the saving is material against the floor: at least ``MIN_FLOOR_SHARE`` of the floor's sum of squares
   (``6 N`` in units of the noise variance: a saving smaller than 1 % of the noise is not an effect worth
-  naming however significant), and at least ``MIN_EXCESS_SHARE`` of the held-out excess still over the floor.
+  naming however significant), and at least ``MIN_EXCESS_SHARE`` of the held-out excess still over the floor
+  or ``MIN_CHANNEL_SHARE`` of one component's (an effect confined to the forces, beside a remainder in the
+  torques that no candidate explains).
 
 Without a floor (the data hold no still stretch, e.g. a list of single-row poses: ``floor_known`` false) the
 weights are the free-load fit's residual sd, there is no gap to test and no excess: a candidate is added when
@@ -38,6 +40,7 @@ GAP_REL = 0.15
 Z_MIN = 3.0
 MIN_FLOOR_SHARE = 0.01
 MIN_EXCESS_SHARE = 0.25
+MIN_CHANNEL_SHARE = 0.6
 MAX_EFFECTS = 4
 MIN_GAIN_NO_FLOOR = 0.05
 
@@ -81,8 +84,7 @@ def excess_ratio(cv: CVFit, floor: np.ndarray) -> np.ndarray:
 def _bic(design: Design, cv: CVFit, ref: CVFit) -> float:
     """BIC of ``cv``'s full-sample fit relative to ``ref``'s (weighted Gaussian)."""
     m = design.n * 6
-    rss = float(((cv.resid * design.w) ** 2).sum())
-    rss0 = float(((ref.resid * design.w) ** 2).sum())
+    rss, rss0 = cv.rss, ref.rss
     return m * np.log(max(rss, 1e-300) / max(rss0, 1e-300)) + (cv.k - ref.k) * np.log(m)
 
 
@@ -129,7 +131,8 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
     return Candidate(effect, dict(shape), face, cv, gain, z, float(share), _bic(design, cv, cur), shapes_tried=tried)
 
 
-def accepted(c: Candidate, cur: CVFit, design: Design, floor_known: bool = True) -> tuple[bool, str]:
+def accepted(c: Candidate, cur: CVFit, design: Design, floor_known: bool = True,
+             floor: np.ndarray | None = None) -> tuple[bool, str]:
     """Whether candidate ``c`` passes the stated test (module docstring) and why not."""
     if c.cv is None:
         return False, c.note
@@ -142,9 +145,22 @@ def accepted(c: Candidate, cur: CVFit, design: Design, floor_known: bool = True)
         return True, ""
     if saved < MIN_FLOOR_SHARE * 6.0 * design.n:
         return False, f"saves {100 * saved / (6.0 * design.n):.2f} % of the floor's variance (< {100 * MIN_FLOOR_SHARE:g} %)"
-    if c.excess_share < MIN_EXCESS_SHARE:
-        return False, f"removes {100 * c.excess_share:.0f} % of the remaining excess (< {100 * MIN_EXCESS_SHARE:g} %)"
+    ch = channel_share(cur, c.cv, floor)
+    if c.excess_share < MIN_EXCESS_SHARE and ch < MIN_CHANNEL_SHARE:
+        return False, (f"removes {100 * c.excess_share:.0f} % of the remaining excess (< {100 * MIN_EXCESS_SHARE:g} %) and at most "
+                       f"{100 * ch:.0f} % of one component's (< {100 * MIN_CHANNEL_SHARE:g} %)")
     return True, ""
+
+
+def channel_share(cur: CVFit, new: CVFit, floor: np.ndarray) -> float:
+    """The largest share of one component's held-out excess over the floor that ``new`` removes, over the components
+    whose held-out RMS is above the floor by more than ``GAP_REL``."""
+    e0 = cur.rms() ** 2 - floor**2
+    e1 = new.rms() ** 2 - floor**2
+    gap = cur.rms() / floor > 1.0 + GAP_REL
+    if not gap.any():
+        return 0.0
+    return float(np.max(((e0 - np.maximum(e1, 0.0)) / e0)[gap]))
 
 
 def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray,
@@ -169,7 +185,7 @@ def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[E
         if not ok:
             ch.stop = "no candidate effect has a face for these data"
             break
-        good, why = accepted(ok[0], cur, design, floor_known)
+        good, why = accepted(ok[0], cur, design, floor_known, floor)
         if not good:
             ch.stop = f"the next candidate, {ok[0].effect.name}, adds nothing significant on held-out data ({why})"
             break
@@ -203,10 +219,10 @@ def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoad
     s2 = float((rw**2).sum() / max(m - k, 1))
     _, infl = serial_inflation(rw, ctx.rec, ctx.index)
     s2 *= float(np.mean(infl))
-    C = pinv(G) * s2
-    se = np.sqrt(np.clip(np.diag(C), 0.0, None))
-    # a direction the data leave undetermined has no se (pinv left it at zero)
-    se = np.where(np.diag(G) > 0, se, np.inf)
+    Gi, undetermined = pinv(G)
+    se = np.sqrt(np.clip(np.diag(Gi * s2), 0.0, None))
+    # a parameter along a direction the data leave undetermined has no se (pinv left it at zero)
+    se = np.where(undetermined, np.inf, se)
     out, betas, c0 = [], [], J.k
     for s in steps:
         sl = slice(c0, c0 + s.face.k)

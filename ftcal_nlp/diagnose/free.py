@@ -67,6 +67,8 @@ class FreeLegDiagnosis:
     notes: list[str] = field(default_factory=list)
     plot: dict = field(default_factory=dict)
     floor_known: bool = True              # False: no still stretch; ``floor`` is the fit's residual sd
+    param_names: tuple = ()               # the free-load fit's parameters (the Jacobian's columns)
+    fit_params: tuple = ()                # ... and their values at the fit
 
     def to_json_dict(self) -> dict:
         """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
@@ -83,7 +85,15 @@ class FreeLegDiagnosis:
                 "stop": self.chain.stop,
                 "correlates": [{"correlate": c.name, "explained": float(c.explained), "heldout_rms_after": lst(c.heldout_rms)}
                                for c in self.correlates],
-                "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes)}
+                "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes),
+                **({"joint_refit": self.joint_refit_json()} if self.joint is not None else {})}
+
+    def joint_refit_json(self) -> dict:
+        """The free-load parameters refit with the named effects (linearised: the fit's value plus the change), with
+        se (null: undetermined by these data)."""
+        x0 = np.asarray(self.fit_params, float)
+        return {n: {"value": float(v + dv), "change": float(dv), "se": float(e) if np.isfinite(e) else None}
+                for n, v, dv, e in zip(self.param_names, x0, self.joint.dx, self.joint.dx_se)}
 
     def effects_json(self) -> list[dict]:
         out = []
@@ -175,7 +185,8 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
         plot = {"x": show.x, "y": res[:, c], "xlabel": show.xlabel, "component": WRENCH[c], "floor": float(floor[c]),
                 "correlate": show.name, "leg": leg}
     return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
-                            int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known)
+                            int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known, tuple(names),
+                            tuple(float(v) for v in fit.params))
 
 
 def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
@@ -185,7 +196,6 @@ def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
                             where, ctx.n, int(ctx.still.sum()), 0, notes, {}, False)
 
 
-FLOOR_TEXT = "at least a few samples"
 #: a channel lies in the gap when the fitted wrench of what explains it has an RMS of at least this share of its floor
 COMPONENT_SHARE = 0.5
 

@@ -20,12 +20,12 @@ from one fit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 #: eigenvalues of the scaled normal matrix below this fraction of the largest are undetermined directions
 REL_EIG = 1e-10
+#: a parameter whose component along an undetermined direction (unit vector, scaled) exceeds this is undetermined
+TOUCH = 1e-6
 #: blocks per fold at least (fewer holds: time blocks instead)
 MIN_BLOCKS_PER_FOLD = 2
 
@@ -71,56 +71,84 @@ def solve(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (U[:, keep] @ ((U[:, keep].T @ (v / d)) / lam[keep])) / d
 
 
-def pinv(G: np.ndarray) -> np.ndarray:
-    """``G^+`` on the determined subspace; undetermined directions give 0 (their se is reported as inf by the caller)."""
+def pinv(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(G^+, undetermined)``: the inverse on the determined subspace and, per parameter, whether it has a component
+    (above ``TOUCH``) along a direction the data leave undetermined (its se is then infinite, not the 0 of ``G^+``)."""
     d = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    zero = d == 0
     d = np.where(d > 0, d, 1.0)
     lam, U = np.linalg.eigh(G / np.outer(d, d))
     keep = lam > REL_EIG * max(lam.max(), 1e-300)
-    return (U[:, keep] / lam[keep]) @ U[:, keep].T / np.outer(d, d)
+    touched = zero | (np.abs(U[:, ~keep]) > TOUCH).any(axis=1)
+    return (U[:, keep] / lam[keep]) @ U[:, keep].T / np.outer(d, d), touched
 
 
-@dataclass(frozen=True)
 class CVFit:
-    """One design's blocked cross-validation: ``heldout`` (N, 6) held-out residual in the readings' units;
-    ``block_sse`` (B,) weighted held-out sum of squares per block; ``beta`` (k,) the fit on all samples,
-    ``resid`` (N, 6) its residual (readings' units), ``G`` the weighted normal matrix (all samples)."""
+    """One design's blocked cross-validation, from the cached normal equations alone (no pass over the samples):
 
-    heldout: np.ndarray
-    block_sse: np.ndarray
-    beta: np.ndarray
-    resid: np.ndarray
-    G: np.ndarray
-    k: int
+    ``block_sse`` (B,) weighted held-out sum of squares per block; ``chan_sse`` (6,) held-out sum of squares per
+    channel in the readings' units; ``beta`` (k,) the fit on all samples; ``G`` its weighted normal matrix;
+    ``rss`` the weighted residual sum of squares of that fit. ``heldout`` and ``resid`` ((N, 6), the readings'
+    units) are formed on demand (one pass over the samples each)."""
+
+    def __init__(self, design: "Design", parts: list, off: np.ndarray, fold_beta: np.ndarray, beta: np.ndarray,
+                 G: np.ndarray, block_sse: np.ndarray, chan_sse: np.ndarray, rss: float):
+        self._design, self._parts, self._off, self._fold_beta = design, parts, off, fold_beta
+        self.beta, self.G, self.block_sse, self.chan_sse, self.rss = beta, G, block_sse, chan_sse, float(rss)
+        self.k = int(off[-1])
+        self._heldout = self._resid = None
 
     @property
     def sse(self) -> float:
         return float(self.block_sse.sum())
 
     def rms(self) -> np.ndarray:
-        return np.sqrt(np.mean(self.heldout**2, axis=0))
+        return np.sqrt(self.chan_sse / self._design.n)
+
+    @property
+    def heldout(self) -> np.ndarray:
+        if self._heldout is None:
+            self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta)
+        return self._heldout
+
+    @property
+    def resid(self) -> np.ndarray:
+        if self._resid is None:
+            self._resid = self._design.r - self._design.model(self._parts, self._off, self.beta)
+        return self._resid
 
 
 class Design:
-    """The weighted residual and fold structure shared by every design of one transducer's diagnosis.
+    """The weighted residual and block structure shared by every design of one transducer's diagnosis.
 
     A design is a list of parts (:class:`~ftcal_nlp.effects.free_faces.FreeFace`: the Jacobian, the faces named
-    so far, a candidate). Per fold, the weighted normal matrix's block of every pair of parts and the weighted
-    right-hand side of every part are computed once and cached (a part keeps its identity across designs); a
-    per-channel face meets only its channels' rows, so its blocks cost ``N m`` per channel, not ``6 N k``."""
+    so far, a candidate). Per block and channel, the weighted normal matrix's block of every pair of parts and the
+    weighted right-hand side of every part are computed once and cached (a part keeps its identity across
+    designs); a per-channel face meets only its channels' rows. A fold's fit and every held-out sum of squares
+    then follow from these sums alone: with ``beta_f`` fitted without fold ``f``, block ``b`` of ``f`` and channel
+    ``c`` have ``SSE_bc = s_bc - 2 beta_f' v_bc + beta_f' G_bc beta_f``."""
 
     def __init__(self, r: np.ndarray, weight: np.ndarray, block: np.ndarray, fold: np.ndarray):
         self.r = np.asarray(r, float)
         self.w = np.asarray(weight, float)
         self.w2 = self.w**2
-        self.block = block
-        self.fold = fold
+        self.block = np.asarray(block)
+        self.fold = np.asarray(fold)
         self.folds = int(fold.max()) + 1
         self.nb = int(block.max()) + 1
         self.rw = (self.r * self.w).reshape(-1)
-        self._rows = [np.flatnonzero(fold == f) for f in range(self.folds)]
+        # samples sorted by block: a block is a slice, every part's rows a view (one copy of each part)
+        self._order = np.argsort(self.block, kind="stable")
+        edges = np.r_[0, np.cumsum(np.bincount(self.block, minlength=self.nb))]
+        self._sl = [slice(int(edges[b]), int(edges[b + 1])) for b in range(self.nb)]
+        self.block_fold = np.zeros(self.nb, int)
+        self.block_fold[self.block] = self.fold
+        self._rp = self.r[self._order]
+        rr = self._rp**2 * self.w2
+        self._s = np.stack([rr[sl].sum(axis=0) for sl in self._sl])          # (B, 6)
         self._gram: dict = {}
         self._vec: dict = {}
+        self._perm: dict = {}   # part id -> its rows in block order (X or basis)
         self._keep: dict = {}   # parts by id, so that an id is not reused while its blocks are cached
 
     @property
@@ -131,63 +159,95 @@ class Design:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
         return (X * self.w[None, :, None]).reshape(-1, X.shape[2])
 
-    # ---- per-fold blocks
-    def _pair(self, a, b, rows) -> np.ndarray:
+    def _P(self, a) -> np.ndarray:
+        """Part ``a``'s X (dense) or basis (per channel), rows in block order (cached)."""
+        if id(a) not in self._perm:
+            self._keep[id(a)] = a
+            self._perm[id(a)] = (a.X if a.dense else a.basis)[self._order]
+        return self._perm[id(a)]
+
+    # ---- per-block, per-channel sums
+    def _pair(self, a, b) -> np.ndarray:
+        """(B, 6, ka, kb): sum over the block's samples of channel c's weighted column products."""
+        out = np.zeros((self.nb, 6, a.k, b.k))
         w2 = self.w2
+        Pa, Pb = self._P(a), self._P(b)
         if a.dense and b.dense:
-            Xa = a.X[rows] * w2[None, :, None]
-            return Xa.reshape(-1, a.k).T @ b.X[rows].reshape(-1, b.k)
+            for i, sl in enumerate(self._sl):
+                out[i] = np.einsum("nca,ncb->cab", Pa[sl], Pb[sl], optimize=True) * w2[:, None, None]
+            return out
         if not a.dense and not b.dense:
-            Ba, Bb = a.basis[rows], b.basis[rows]
-            ma, mb = Ba.shape[1], Bb.shape[1]
-            BtB = Ba.T @ Bb
-            out = np.zeros((a.k, b.k))
-            for i, c in enumerate(a.channels):
-                if c in b.channels:
-                    j = b.channels.index(c)
-                    out[i * ma:(i + 1) * ma, j * mb:(j + 1) * mb] = w2[c] * BtB
+            ma, mb = Pa.shape[1], Pb.shape[1]
+            for i, sl in enumerate(self._sl):
+                BtB = Pa[sl].T @ Pb[sl]
+                for ia, c in enumerate(a.channels):
+                    if c in b.channels:
+                        jb = b.channels.index(c)
+                        out[i, c, ia * ma:(ia + 1) * ma, jb * mb:(jb + 1) * mb] = w2[c] * BtB
             return out
         if a.dense:
-            return self._pair(b, a, rows).T
-        Ba, Xb = a.basis[rows], b.X[rows]
-        m = Ba.shape[1]
-        out = np.zeros((a.k, b.k))
-        for i, c in enumerate(a.channels):
-            out[i * m:(i + 1) * m] = w2[c] * (Ba.T @ Xb[:, c, :])
+            return self._pair(b, a).transpose(0, 1, 3, 2)
+        m = Pa.shape[1]
+        for i, sl in enumerate(self._sl):
+            BtX = np.einsum("nm,nck->cmk", Pa[sl], Pb[sl], optimize=True)      # (6, m, kb)
+            for ia, c in enumerate(a.channels):
+                out[i, c, ia * m:(ia + 1) * m] = w2[c] * BtX[c]
         return out
 
-    def _rhs(self, a, rows) -> np.ndarray:
-        rr = self.r[rows] * self.w2
-        if a.dense:
-            return a.X[rows].reshape(-1, a.k).T @ rr.reshape(-1)
-        B = a.basis[rows]
-        return np.concatenate([B.T @ rr[:, c] for c in a.channels])
+    def _rhs(self, a) -> np.ndarray:
+        """(B, 6, ka): sum over the block's samples of channel c's weighted column times residual."""
+        out = np.zeros((self.nb, 6, a.k))
+        rr = self._rp * self.w2
+        P = self._P(a)
+        for i, sl in enumerate(self._sl):
+            if a.dense:
+                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])
+            else:
+                Bt = P[sl].T @ rr[sl]                                           # (m, 6)
+                m = P.shape[1]
+                for ia, c in enumerate(a.channels):
+                    out[i, c, ia * m:(ia + 1) * m] = Bt[:, c]
+        return out
 
     def _blocks(self, a, b) -> np.ndarray:
         key = (id(a), id(b))
         if key not in self._gram:
             if (id(b), id(a)) in self._gram:
-                return self._gram[(id(b), id(a))].transpose(0, 2, 1)
+                return self._gram[(id(b), id(a))].transpose(0, 1, 3, 2)
             self._keep[id(a)], self._keep[id(b)] = a, b
-            self._gram[key] = np.stack([self._pair(a, b, rows) for rows in self._rows])
+            self._gram[key] = self._pair(a, b)
         return self._gram[key]
 
     def _vecs(self, a) -> np.ndarray:
         if id(a) not in self._vec:
             self._keep[id(a)] = a
-            self._vec[id(a)] = np.stack([self._rhs(a, rows) for rows in self._rows])
+            self._vec[id(a)] = self._rhs(a)
         return self._vec[id(a)]
 
     def forget(self, part) -> None:
-        """Drop the cached blocks of ``part`` (a candidate that was not kept)."""
+        """Drop the cached sums of ``part`` (a candidate that was not kept)."""
         i = id(part)
         for key in [k for k in self._gram if i in k]:
             del self._gram[key]
         self._vec.pop(i, None)
+        self._perm.pop(i, None)
         self._keep.pop(i, None)
 
+    # ---- predictions (on demand)
+    def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
+        return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))
+
+    def heldout(self, parts, off, fold_beta) -> np.ndarray:
+        """(N, 6) held-out residual: each sample predicted by its fold's fit."""
+        out = np.empty((self.n, 6))
+        for f in range(self.folds):
+            rows = np.flatnonzero(self.fold == f)
+            if len(rows):
+                out[rows] = self.r[rows] - self.model(parts, off, fold_beta[f], rows)
+        return out
+
     def fit(self, parts) -> CVFit:
-        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (module docstring)."""
+        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
         from ..effects.free_faces import FreeFace
 
         if isinstance(parts, np.ndarray):
@@ -196,29 +256,30 @@ class Design:
         ks = [p.k for p in parts]
         off = np.r_[0, np.cumsum(ks)]
         k = int(off[-1])
-        Gf = np.zeros((self.folds, k, k))
-        vf = np.zeros((self.folds, k))
+        Gbc = np.zeros((self.nb, 6, k, k))
+        vbc = np.zeros((self.nb, 6, k))
         for i, a in enumerate(parts):
-            vf[:, off[i]:off[i + 1]] = self._vecs(a)
+            vbc[:, :, off[i]:off[i + 1]] = self._vecs(a)
             for j in range(i, len(parts)):
                 blk = self._blocks(a, parts[j])
-                Gf[:, off[i]:off[i + 1], off[j]:off[j + 1]] = blk
+                Gbc[:, :, off[i]:off[i + 1], off[j]:off[j + 1]] = blk
                 if j != i:
-                    Gf[:, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 2, 1)
-        G, v = Gf.sum(axis=0), vf.sum(axis=0)
-
-        def model(beta, rows):
-            return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))
-
-        ho = np.empty((self.n, 6))
-        for f, rows in enumerate(self._rows):
-            if len(rows):
-                b = solve(G - Gf[f], v - vf[f])
-                ho[rows] = self.r[rows] - model(b, rows)
+                    Gbc[:, :, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 1, 3, 2)
+        Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)                  # (B, k, k), (B, k)
+        G, v = Gb.sum(axis=0), vb.sum(axis=0)
+        fold_beta = np.zeros((self.folds, k))
+        sse_bc = np.zeros((self.nb, 6))
+        for f in range(self.folds):
+            bs = np.flatnonzero(self.block_fold == f)
+            if not len(bs):
+                continue
+            b = solve(G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0))
+            fold_beta[f] = b
+            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + np.einsum("bcij,i,j->bc", Gbc[bs], b, b)
         beta = solve(G, v)
-        resid = self.r - model(beta, slice(None))
-        bs = np.bincount(self.block, weights=(ho**2 * self.w2).sum(axis=1), minlength=self.nb)
-        return CVFit(ho, bs, beta, resid, G, k)
+        rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
+        sse_bc = np.clip(sse_bc, 0.0, None)
+        return CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
 
 
 def paired_gain(before: CVFit, after: CVFit) -> tuple[float, float]:
