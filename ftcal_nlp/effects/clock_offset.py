@@ -15,16 +15,17 @@ Off-face shapes (the validation sweep; a correct diagnosis still says ``clock_of
                         recording: half the delay at its start, 1.5x at its end)
 * clock_offset_jitter   d_n = scale + e_n,  e_n ~ N(0, (0.5 scale)^2) white per sample (stamps with jitter)
 
-Free face (``free_faces.py``): to first order in ``d`` the gap is the model readings' rate times
-the delay,
+Free face (``free_faces.py``): the Taylor series of the re-sampling in ``d``,
 
-    y(t) - pred(t) = pred(t - d) - pred(t) ~ -d pred'(t)
+    y(t) - pred(t) = pred(t - d) - pred(t) = -d pred'(t) + (d^2 / 2) pred''(t) - (d^3 / 6) pred'''(t) ...
 
-one column ``-pred'(t)`` with parameter ``delay_s`` [s] (shape ``"all"``), or the forces' and the
-torques' delays apart (``"force"``). The neglected ``d^2 pred''/2`` is far below the noise for
-delays of a few samples (a load moves over seconds); :func:`refine_delay` gives the exact
-least-squares delay by Gauss-Newton on the re-sampled model readings (an offset per channel
-refit alongside), se ``1 / sqrt(sum_n,c pred'_nc^2 / sigma_c^2)``.
+columns ``-pred'`` (parameter ``delay_s`` [s]) and, with ``order`` 3, ``pred''/2`` and ``-pred'''/6``
+(parameters ``delay_s^2`` [s^2], ``delay_s^3`` [s^3], free: they take up what a delay of several
+samples leaves over fast moves, so ``delay_s`` stays unbiased); ``channels`` "all" (one delay) or
+"force" (the forces' and the torques' delays apart). Shapes: (all, 1), (all, 3), (force, 1), chosen
+by held-out residual. :func:`refine_delay` gives the exact least-squares delay by Gauss-Newton on
+the re-sampled model readings (an offset per channel refit alongside), se
+``1 / sqrt(sum_n,c pred'_nc^2 / sigma_c^2)``.
 
 Correction: the readings re-sampled ``delay_s`` later, ``y'(t) = y(t + d)`` (a free load: the fitted
 parameter; a hexapod recording: the effect block's ``delay_s [s]`` parameter, if any).
@@ -36,7 +37,7 @@ import logging
 
 import numpy as np
 
-from .free_faces import WRENCH, FreeFace
+from .free_faces import WRENCH, FreeFace, rate
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
 from .signals import delayed
 from .unit import Effect
@@ -80,12 +81,15 @@ class ClockOffsetJitterInjector(OffFaceInjector, ClockOffsetInjector):
         return self.scale + ctx.rng.normal(0.0, 0.5 * abs(self.scale), len(ctx.t))
 
 
-def delay_columns(pred_rate: np.ndarray, shape: str) -> tuple[np.ndarray, tuple[str, ...]]:
-    """``X`` (N, 6, k) of a delay face from ``d pred / dt`` (N, 6): ``-pred'`` on every channel (``shape`` "all")
+def delay_columns(pred_rate: np.ndarray, shape: str, higher: tuple = ()) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``X`` (N, 6, k) of a delay face from ``d pred / dt`` (N, 6): ``-pred'`` on every channel (``shape`` "all";
+    with ``higher`` = the 2nd, 3rd .. derivatives of ``pred`` also their Taylor terms ``(-1)^j pred^(j) / j!``)
     or on the forces and the torques apart ("force")."""
     n = len(pred_rate)
     if shape == "all":
-        return -pred_rate[:, :, None], ("delay_s [s]",)
+        cols = [-pred_rate] + [(-1) ** j * h / float(np.prod(np.arange(1, j + 1))) for j, h in enumerate(higher, start=2)]
+        names = ("delay_s [s]",) + tuple(f"delay_s^{j} [s^{j}]" for j in range(2, len(higher) + 2))
+        return np.stack(cols, axis=2), names
     X = np.zeros((n, 6, 2))
     X[:, :3, 0] = -pred_rate[:, :3]
     X[:, 3:, 1] = -pred_rate[:, 3:]
@@ -132,16 +136,20 @@ class ClockOffset(Effect):
     applies_to = frozenset({"hexapod", "free"})
     diagnosed_on = frozenset({"free"})
     free_explains = "motion"
-    FREE_SHAPES = ("all", "force")
+    FREE_SHAPES = (("all", 1), ("all", 3), ("force", 1))
 
     def free_shapes(self, ctx):
-        return tuple({"channels": c} for c in self.FREE_SHAPES)
+        return tuple({"channels": c, "order": o} for c, o in self.FREE_SHAPES)
 
     def free_face(self, ctx, shape):
-        # A delay shows where the load's wrench changes: d times its rate (first order; refine_delay is exact)
+        # A delay shows where the load's wrench changes: d times its rate, plus d^2/2 its curvature (refine_delay is exact)
         if not np.any(np.abs(ctx.pred_rate) > 0):
             return None
-        X, names = delay_columns(ctx.pred_rate, shape["channels"])
+        higher, d = [], ctx.pred_rate
+        for _ in range(int(shape.get("order", 1)) - 1):
+            d = rate(d, ctx.t, ctx.rec)
+            higher.append(d)
+        X, names = delay_columns(ctx.pred_rate, shape["channels"], tuple(higher))
         return FreeFace(X, names, dict(shape))
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
@@ -160,7 +168,7 @@ class ClockOffset(Effect):
         for r in np.unique(ctx.rec):
             i = ctx.rec == r
             out[i, :3] = delayed(ctx.t[i], ctx.y[i, :3], -beta[0])
-            out[i, 3:] = delayed(ctx.t[i], ctx.y[i, 3:], -beta[-1])
+            out[i, 3:] = delayed(ctx.t[i], ctx.y[i, 3:], -beta[-1 if shape["channels"] == "force" else 0])
         return out
 
 

@@ -19,8 +19,11 @@ Off-face shapes (the validation sweep; a correct diagnosis still says ``creep``)
 
 Free face (``free_faces.py``): per channel the column ``-[pred_c - lowpass_tau(pred_c)]`` (each
 recording apart; ``pred`` the model readings: the offsets relax nothing), parameter ``c.creep`` [1]
-(the fraction ``g_c`` of a load change that relaxes); the shape is ``tau`` on a grid
-(``TAUS_S``, factor 2 apart) chosen by held-out residual.
+(the fraction ``g_c`` of a load change that relaxes), and its derivative in ``ln tau``, parameter
+``c.creep_dlntau`` [1] (``g_c d ln tau``: the channel's time constant is ``tau exp(dlntau / creep)``
+to first order); or, shapes ``(tau, tau2)`` (``PAIRS_S``), two relaxations at once (``c.creep``,
+``c.creep2`` [1]: a fast and a slow creep, which a single tau leaves as a delay-like rest). The shape is
+``tau`` on a grid (``TAUS_S``, factor 2 apart) or a pair, chosen by held-out residual.
 
 Correction: ``y - X beta`` (the creep the face predicts, removed); on a hexapod recording (no hexapod
 face fits it) the block's ``<c>.creep [1]`` gains and ``tau_s`` applied to the readings themselves
@@ -103,22 +106,34 @@ class Creep(Effect):
     diagnosed_on = frozenset({"free"})
     free_explains = "pose_history"
     TAUS_S = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+    PAIRS_S = ((0.5, 4.0), (1.0, 8.0), (2.0, 16.0), (4.0, 32.0))   # a fast and a slow relaxation at once
+    DLN = 0.05     # the step of ln tau for the derivative column (central difference)
 
     def free_shapes(self, ctx):
-        return tuple({"tau_s": tau} for tau in self.TAUS_S)
+        return tuple({"tau_s": tau} for tau in self.TAUS_S) + tuple({"tau_s": a, "tau2_s": b} for a, b in self.PAIRS_S)
 
     def free_face(self, ctx, shape):
-        # per channel the part of each change of the model readings that has not yet relaxed (each recording apart)
+        # per channel the part of each change of the model readings that has not yet relaxed (each recording apart),
+        # and either its derivative in ln tau (a tau between grid points, to first order) or a second, slower relaxation
         tau = float(shape["tau_s"])
-        basis = np.zeros_like(ctx.pred)
+        tau2 = shape.get("tau2_s")
+        taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
+        relax = np.zeros((len(taus),) + ctx.pred.shape)
         for r in np.unique(ctx.rec):
             i = ctx.rec == r
-            basis[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (tau,))
-        if not np.any(np.abs(basis) > 0):
+            for k, tk in enumerate(taus):
+                relax[k, i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (tk,))
+        if not np.any(np.abs(relax[0]) > 0):
             return None
-        X = np.zeros((ctx.n, 6, 6))
-        X[:, np.arange(6), np.arange(6)] = basis
-        return FreeFace(X, tuple(f"{c}.creep [1]" for c in WRENCH), dict(shape))
+        X = np.zeros((ctx.n, 6, 12))
+        X[:, np.arange(6), 2 * np.arange(6)] = relax[0]
+        if tau2 is None:
+            X[:, np.arange(6), 2 * np.arange(6) + 1] = (relax[2] - relax[1]) / (2 * self.DLN)
+            names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep_dlntau [1]"))
+        else:
+            X[:, np.arange(6), 2 * np.arange(6) + 1] = relax[1]
+            names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep2 [1]"))
+        return FreeFace(X, names, dict(shape))
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         par = block.get("parameters", {})

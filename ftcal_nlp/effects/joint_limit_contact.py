@@ -9,7 +9,7 @@ the joint's limits and ``side`` = +1 (upper) or -1 (lower):
     w_m = w + W r(q_j),   W = scale [u, 0.05 m v]                        (injected)
 
 ``u``, ``v`` random unit vectors (force ``scale`` N at the limit, torque as on a 5 cm lever); the joint
-(among the moving ones with limits) and the side drawn from the seed, ``onset`` 0.7 (free-load
+(among the moving ones with limits) and the side drawn from the seed, ``onset`` 0.5 (free-load
 simulator only: a hexapod's shafts turn without end stops).
 
 Off-face shapes (the validation sweep; a correct diagnosis still says ``joint_limit_contact``):
@@ -44,10 +44,10 @@ class JointLimitContactInjector(EffectInjector):
     """``scale`` N of force (and a 5 cm lever's torque) at a joint's limit, ramping from ``onset`` of its half-range."""
 
     name = "joint_limit_contact"
-    magnitude = Magnitude("N of contact force at the joint's limit", (0.5, 3.0), 2.0)
+    magnitude = Magnitude("N of contact force at the joint's limit", (1.0, 4.0), 2.0)
 
     def __init__(self, scale: float | None = None, seed: int = 0, joint: str | None = None, side: int | None = None,
-                 onset: float = 0.7):
+                 onset: float = 0.5):
         super().__init__(scale, seed)
         if side not in (None, -1, 1) or not 0.0 <= onset < 1.0:
             raise ValueError(f"{self.name}: side must be -1, 1 or None and 0 <= onset < 1, got side={side!r}, onset={onset!r}")
@@ -86,7 +86,7 @@ class JointLimitContactSmoothInjector(OffFaceInjector, JointLimitContactInjector
 
     name = "joint_limit_contact_smooth"
     expect = "joint_limit_contact"
-    magnitude = Magnitude("N of contact force when saturated (sigmoid)", (0.5, 3.0), 2.0)
+    magnitude = Magnitude("N of contact force when saturated (sigmoid)", (1.0, 4.0), 2.0)
 
     def contact(self, ctx):
         j, side, lo, hi = self.where(ctx)
@@ -100,7 +100,7 @@ class JointLimitContactHysteresisInjector(OffFaceInjector, JointLimitContactInje
 
     name = "joint_limit_contact_hysteresis"
     expect = "joint_limit_contact"
-    magnitude = Magnitude("N of contact force at the joint's limit (hysteretic)", (0.5, 3.0), 2.0)
+    magnitude = Magnitude("N of contact force at the joint's limit (hysteretic)", (1.0, 4.0), 2.0)
     BACK = 0.15
 
     def contact(self, ctx):

@@ -10,20 +10,20 @@ Injected (``TemperatureInjector``; ``dT = T - 25 degC``):
 ``u_k``, ``v_k`` random unit vectors, ``s_k`` ~ U(0.7, 1.3) (``scale`` N per degC of force, a 2 cm
 lever for the torques), and the injector's temperature (written as ``{leg}_temp_C``; both simulators)
 
-    T_k(t) = 25 + 3 (1 - exp(-t / 600 s)) + 2 sin(2 pi t / 97 s + p_k)    degC, t the session clock
+    T_k(t) = 25 + 3 (1 - exp(-t / 600 s)) + 2 sin(2 pi t / 45 s + p_k)    degC, t the session clock
 
-(a warm-up and a swing of +-2 degC every 97 s, e.g. a fan cycling: not a smooth function of time,
-so the face does not confuse it with an offset drift).
+(a warm-up and a swing of +-2 degC every 45 s, e.g. a fan cycling: over a recording of a few minutes
+not a smooth function of time, so the face does not confuse it with an offset drift).
 
 Off-face shape (the validation sweep; a correct diagnosis still says ``temperature``):
 
 * temperature_lag   the gauges follow the measured temperature with a thermal time constant of
-                    ``lag_s`` (60 s): ``w_m = w + a_k (lowpass_60s(T_k) - 25)``
+                    ``lag_s`` (30 s, between the face's grid points): ``w_m = w + a_k (lowpass_30s(T_k) - 25)``
 
 Free face (``free_faces.py``): per channel ``(T_lag - Tbar)`` (and ``(T_lag - Tbar)^2``) with
 ``T_lag = lowpass_lag(T)`` (each recording apart), ``Tbar`` the mean over the samples; parameters
 ``<c>.dT [N/degC]`` (and ``<c>.dT2 [N/degC^2]``; torques N*m); shapes: the degree (1, 2) and the
-thermal lag (0, 30, 90 s), chosen by held-out residual. None without a temperature.
+thermal lag (0, 20, 60 s), chosen by held-out residual. None without a temperature.
 
 Correction: ``y - X beta`` (the free face on the recording's own temperature). A hexapod's
 ``correct`` has no temperature to read: readings unchanged (logged; ``Effect.correct``).
@@ -44,14 +44,14 @@ T_REF_C = 25.0
 def temperature_profile(t: np.ndarray, phase: np.ndarray) -> np.ndarray:
     """``T`` (N, K) degC of the injector (module docstring) at session times ``t`` (N,) for phases ``phase`` (K,)."""
     t = np.asarray(t, float)[:, None]
-    return T_REF_C + 3.0 * (1.0 - np.exp(-t / 600.0)) + 2.0 * np.sin(2.0 * np.pi * t / 97.0 + np.asarray(phase)[None, :])
+    return T_REF_C + 3.0 * (1.0 - np.exp(-t / 600.0)) + 2.0 * np.sin(2.0 * np.pi * t / 45.0 + np.asarray(phase)[None, :])
 
 
 class TemperatureInjector(EffectInjector):
     """Offsets that move ``scale`` N per degC (force; torque: a 2 cm lever) with the transducer's temperature."""
 
     name = "temperature"
-    magnitude = Magnitude("N of force offset per degC", (0.02, 0.1), 0.05)
+    magnitude = Magnitude("N of force offset per degC", (0.04, 0.15), 0.08)   # a Gamma: ~0.1 % of 130 N per degC
 
     def __init__(self, scale: float | None = None, seed: int = 0, quadratic: float = 0.0):
         super().__init__(scale, seed)
@@ -84,13 +84,13 @@ class TemperatureInjector(EffectInjector):
 
 
 class TemperatureLagInjector(OffFaceInjector, TemperatureInjector):
-    """The gauges follow the measured temperature with a thermal time constant ``lag_s`` (default 60 s)."""
+    """The gauges follow the measured temperature with a thermal time constant ``lag_s`` (default 30 s)."""
 
     name = "temperature_lag"
     expect = "temperature"
-    magnitude = Magnitude("N of force offset per degC (thermal lag 60 s)", (0.02, 0.1), 0.05)
+    magnitude = Magnitude("N of force offset per degC (thermal lag 30 s)", (0.04, 0.15), 0.08)
 
-    def __init__(self, scale: float | None = None, seed: int = 0, lag_s: float = 60.0):
+    def __init__(self, scale: float | None = None, seed: int = 0, lag_s: float = 30.0):
         super().__init__(scale, seed)
         self.lag_s = float(lag_s)
 
@@ -109,7 +109,7 @@ class Temperature(Effect):
     diagnosed_on = frozenset({"free"})
     free_explains = "temperature"
     DEGREES = (1, 2)
-    LAGS_S = (0.0, 30.0, 90.0)
+    LAGS_S = (0.0, 20.0, 60.0)
 
     def free_shapes(self, ctx):
         if ctx.temperature is None:
