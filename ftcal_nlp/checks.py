@@ -71,6 +71,21 @@ positions relative to theirs (the unknown CoM cancels) beyond
 ``TRANSLATION_BOUND_M`` are a warning only: the columns of two legs exchanged
 leave it, but so does one leg's wiring fault, through the balance, on every leg
 (the simulator's variants reach 180 mm).
+
+Issue 24 adds, for every recording: column ``t`` in seconds (median sampling interval at most
+``MAX_SAMPLE_INTERVAL_S``: a clock in ms at 500 Hz or slower leaves it); for standing recordings the
+readings' share of the body weight along the quaternion's up axis within ``LOAD_SHARE`` (legs that bear
+weight missing from robot.toml); for a calibration dataset, each recording listed once
+(:func:`check_distinct_recordings`) and no channel held (:func:`sensor_faults`: ``STUCK_RUN`` identical
+consecutive samples, which sensor noise never gives; dead = every channel of the leg at 0, saturated = held
+at the channel's extreme, else stuck; :func:`screen_sensor_faults` refuses a leg held in every calibration
+recording or a recording more than ``MAX_FAULT_SHARE`` held, and leaves the other held rows out);
+after the fit, a standing residual above ``RESIDUAL_NOISE_FACTOR`` times the per-sample noise of the summed
+readings is a warning (:func:`residual_note`). ``correct`` runs the checks that apply to a later recording
+against the calibration it applies (:func:`check_recording_to_correct`: clock, shaft rate, and on the
+ground the readings' sign and unit and the quaternion order with the calibration's offsets and rotations,
+:func:`check_on_ground`), validates that calibration (:func:`check_calibration`) and flags held channels
+rather than refusing them.
 """
 
 from __future__ import annotations
@@ -78,11 +93,10 @@ from __future__ import annotations
 import itertools
 import logging
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
-from .data import Dataset, DataFormatError, Recording, hanging_pairs
+from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs
 from .geometry import quat_to_rotation, rotation_to_rotvec, skew
 from .robot import Robot
 
@@ -725,24 +739,6 @@ def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[Sensor
 
 
 # ----------------------------------------------------------------------------- a calibration dataset's sensors and files
-
-
-def check_distinct_recordings(ds: Dataset) -> None:
-    """No recording listed twice (the same file, or the same samples under another name): each would count twice
-    and shrink every standard error by sqrt 2."""
-    seen: dict[tuple, Recording] = {}
-    for rec in ds.recordings:
-        key = (rec.n, float(rec.t[0]) if rec.n else 0.0, float(rec.t[-1]) if rec.n else 0.0)
-        other = seen.get(key)
-        same_file = other is not None and other.path is not None and rec.path is not None and Path(other.path).resolve() == Path(rec.path).resolve()
-        if other is not None and (same_file or (np.array_equal(other.t, rec.t) and all(
-                np.array_equal(other.wrench[k], rec.wrench[k], equal_nan=True) for k in rec.wrench))):
-            raise DataFormatError(
-                f"{ds.manifest or 'dataset'}: recordings {_src(other)} and {_src(rec)} are the same "
-                f"{'file' if same_file else 'samples'} listed twice; expected each recording once (twice, it would count "
-                "twice and every standard error would shrink by sqrt 2)"
-            )
-        seen[key] = rec
 
 
 #: a calibration recording with more of its rows held than this is refused rather than fitted on the rest

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .errors import ConfigError, FtcalError
+from .errors import ConfigError, FtcalError, OutputError
 
 log = logging.getLogger("ftcal_nlp.cli")
 
@@ -42,6 +42,7 @@ log = logging.getLogger("ftcal_nlp.cli")
 USER_ERRORS: tuple[type[BaseException], ...] = (FtcalError, FileNotFoundError, FileExistsError, IsADirectoryError,
                                                 NotADirectoryError, PermissionError)
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+_UNDO: list[Callable[[], None]] = []   # what setup() changed, undone by guarded() when the command ends
 
 
 @dataclass(frozen=True)
@@ -129,23 +130,35 @@ def disable_progress() -> None:
     import tqdm
     import tqdm.auto
 
+    env = os.environ.get("TQDM_DISABLE")
     os.environ["TQDM_DISABLE"] = "1"
+    _UNDO.append(lambda: os.environ.pop("TQDM_DISABLE", None) if env is None else os.environ.__setitem__("TQDM_DISABLE", env))
     for cls in {tqdm.tqdm, tqdm.auto.tqdm}:
-        if not getattr(cls, "_ftcal_disabled", False):
-            orig = cls.__init__
+        if "__init__" in vars(cls) and getattr(cls.__init__, "_ftcal", False):
+            continue
+        had = "__init__" in vars(cls)
+        orig = cls.__init__
 
-            def init(self, *a, _orig=orig, **k):
-                k["disable"] = True  # over the caller's disable=None (shown on a terminal)
-                _orig(self, *a, **k)
+        def init(self, *a, _orig=orig, **k):
+            k["disable"] = True  # over the caller's disable=None (shown on a terminal)
+            _orig(self, *a, **k)
 
-            cls.__init__ = init
-            cls._ftcal_disabled = True
+        init._ftcal = True
+        cls.__init__ = init
+        _UNDO.append(lambda cls=cls, orig=orig, had=had: setattr(cls, "__init__", orig) if had else delattr(cls, "__init__"))
 
 
 def route_warnings() -> None:
     """Every Python warning (numpy's included) goes to the log at DEBUG, once per place."""
+    shown, filters = warnings.showwarning, list(warnings.filters)
     warnings.showwarning = _log_warning
     warnings.simplefilter("default")
+
+    def undo() -> None:
+        warnings.showwarning = shown
+        warnings.filters[:] = filters
+
+    _UNDO.append(undo)
 
 
 def guarded(fn: Callable[[], int | None], *, extra: tuple[type[BaseException], ...] = ()) -> int:
@@ -159,7 +172,16 @@ def guarded(fn: Callable[[], int | None], *, extra: tuple[type[BaseException], .
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    finally:
+        restore()
     return 0 if rc is None else int(rc)
+
+
+def restore() -> None:
+    """Undo what :func:`setup` changed beyond logging (progress bars, warning display): a ``main`` called from
+    Python (a test, a notebook) leaves the process as it found it."""
+    while _UNDO:
+        _UNDO.pop()()
 
 
 def error_text(exc: BaseException) -> str:
@@ -189,16 +211,10 @@ def simulate_main(argv: Sequence[str] | None = None, prog: str | None = None) ->
 
 
 def _simulate(path: Path, output: str | None, force: bool) -> int:
-    import tomllib
-
+    from .config import read_toml
     from .sim import simulate_to_folder
 
-    if not path.is_file():
-        raise ConfigError(f"{path}: config file not found", path=path)
-    try:
-        d = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})", path=path) from exc
+    d = read_toml(path)
     table = dict(d["simulate"]) if isinstance(d.get("simulate"), dict) else d
     where = table.pop("dir", None)
     folder = Path(output) if output else (path.parent / where if isinstance(where, str) else None)
@@ -206,6 +222,8 @@ def _simulate(path: Path, output: str | None, force: bool) -> int:
         raise ConfigError(f"{path}: no output folder; pass -o DIR or set [simulate] dir", path=path, key="simulate.dir")
     try:
         manifest = simulate_to_folder(table, folder, overwrite=force)
+    except FileExistsError as exc:
+        raise OutputError(f"{folder / 'dataset.toml'} exists; pass --force to replace the dataset", path=folder) from exc
     except (TypeError, ValueError) as exc:  # the simulator's own key checks: named with the config file
         if isinstance(exc, FtcalError) and str(path) in str(exc):
             raise

@@ -138,15 +138,20 @@ def _norm(p: Path) -> Path:
     return Path(os.path.normpath(p))
 
 
-def load_config(path: str | Path) -> RunConfig:
-    """Read and validate a run config; paths in it are relative to the config file."""
-    path = Path(path)
+def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML table of a config file; a missing file or invalid TOML is a :class:`ConfigError` naming it."""
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found", path=path)
     try:
-        d = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})", path=path) from exc
+
+
+def load_config(path: str | Path) -> RunConfig:
+    """Read and validate a run config; paths in it are relative to the config file."""
+    path = Path(path)
+    d = read_toml(path)
     base = path.parent
     settings_tables = [f.name for f in fields(CalibrationSettings)]
     allowed = set(_RUN_TABLES) | set(settings_tables)

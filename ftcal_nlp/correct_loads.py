@@ -1,7 +1,8 @@
-"""Contact wrench of a wrist transducer carrying a calibrated rigid payload (``DATA_FORMAT.md`` section 5, issue 22).
+"""Contact wrench of a transducer carrying a calibrated free load (``DATA_FORMAT.md`` section 5, issue 22): a
+rigid payload on a wrist, or the URDF links below a sensor.
 
 ``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv`` dispatches here when the calibration's
-transducers carry rigid payloads (``load_kind = "rigid_payload"`` in ``calibration.json``).
+transducers carry free loads (``load_kind`` ``"rigid_payload"`` or ``"urdf_subtree"`` in ``calibration.json``).
 
 Per sample, in the estimated (true) ft frame about its origin (``R_B,ft`` = ``rotation_to_body``, the nominal
 rotation times the estimated mounting rotation):
@@ -19,10 +20,26 @@ Standard error per sample and component (delta method, first order):
 ``J`` the derivative of ``w_o + w_load`` with respect to the parameters ``(w_o, m, c or h = m c, delta)``
 (``delta`` a rotation of ft in its own axes: ``d g_ft = [g_ft]x delta``, so ``d w_load / d delta =
 [m [g_ft]x ; [h]x [g_ft]x]``), ``C`` their covariance and ``sigma`` the readings' noise sd (``noise_sd`` of
-the calibration). In process (:func:`contact_from_fit`) ``C`` is the fit's full covariance; from
-``calibration.json`` only the standard errors are stored, so ``C`` is their diagonal (correlations between
-offsets and mass are then left out: said in the log). Rows without an orientation or with NaN readings are
-dropped and counted in the log.
+the calibration). In process (:func:`payload_from_fit`) ``C`` is the fit's full covariance; from
+``calibration.json`` it is the full covariance of the run's covariance file (``meta.covariance_file``,
+``calibration_cov.npz`` beside it: parameters ``{X}.offset.*``, ``{X}.mass_kg``, ``{X}.h_*``, ``{X}.mount.r*``)
+when that file is there, else the diagonal of the stored standard errors (correlations between offsets and
+mass then left out: said in the log). A component that depends on an undetermined parameter (se inf) gets
+se inf. Rows without an orientation or with NaN readings are dropped and counted in the log.
+
+URDF loads (``load_kind = "urdf_subtree"``; the leg entry names the ``urdf`` file and the sensor ``link``): the
+same with the load's first moment about the ft origin moving with the joints (``loads.urdf_subtree``), per sample
+
+    R_B,ft = R_nom(q) E,   g_ft = R_B,ft^T g_B,   s(q) = K(q) theta,   w_load = [(mu . theta) g_ft ; s(q) x g_ft]
+
+(``R_nom(q)`` the URDF's sensor pose for the joints above it, ``K(q)`` the groups' poses below it, both from the
+vectorised kinematics of ``kinematics.py``; ``q`` from the ``q_{joint}`` columns, a joint without a column held
+at 0 and named in a warning). Its derivative with respect to ``(w_o, theta, delta)``:
+``[I | g_ft mu^T ; 0 | -[g_ft]x K(q) | ...]``, ``d w_load / d delta = [(mu . theta) [g_ft]x ; [s]x [g_ft]x]``.
+The parameters ``theta = [M_G, H_G]`` per group come from ``urdf_groups`` (mass, first moment in the group frame).
+With the covariance file, an output is undetermined (se inf) only where its derivative has a component along an
+undetermined direction (``null``): a joint that never moved at calibration leaves the split of the links it
+carries undetermined, but not the wrench at the angles it held.
 """
 
 from __future__ import annotations
@@ -36,7 +53,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .data import GRAVITY_COLUMNS, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
+from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
 from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
 
@@ -47,7 +64,8 @@ log = logging.getLogger(__name__)
 class PayloadCalibration:
     """One transducer's payload calibration: offsets ``offset`` (6,), ``mass_kg``, first moment ``h`` (3,) kg m
     in ft, ``R_B_ft`` (3, 3) the estimated ft orientation in B, ``cov`` (13, 13) over ``(w_o, m, h, delta)``,
-    ``sigma`` (6,) the readings' noise sd, ``g`` m/s^2, ``full_cov`` whether ``cov`` holds the correlations."""
+    ``sigma`` (6,) the readings' noise sd, ``g`` m/s^2, ``full_cov`` whether ``cov`` holds the correlations,
+    ``undetermined`` (13,) the parameters the data leave undetermined (None: none)."""
 
     leg: str
     offset: np.ndarray
@@ -58,15 +76,79 @@ class PayloadCalibration:
     sigma: np.ndarray
     g: float
     full_cov: bool = True
+    undetermined: np.ndarray | None = None
+    null: np.ndarray | None = None
+
+    joints: tuple[str, ...] = ()
+
+    def predict(self, g_B: np.ndarray, q: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """``w_o + w_load`` (N, 6) and its derivative (N, 6, 13) (:func:`predicted_load`; ``q`` unused)."""
+        return predicted_load(self, g_B)
 
 
-def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.json") -> PayloadCalibration:
-    """A :class:`PayloadCalibration` from a leg entry of ``calibration.json`` (diagonal covariance from the se;
-    the CoM's se turned into the first moment's: ``Var(h_i) = m^2 Var(c_i) + c_i^2 Var(m)``)."""
+@dataclass(frozen=True)
+class UrdfLoadCalibration:
+    """One transducer's calibrated URDF load: ``load`` the :class:`~ftcal_nlp.loads.UrdfSubtree` (from the URDF),
+    ``offset`` (6,), ``theta`` (p,) ``[M_G, H_G]`` per group, ``E`` (3, 3) the mounting rotation (true ft relative
+    to the URDF's), ``cov`` (6 + p + 3)^2 over ``(w_o, theta, delta)``, ``sigma``, ``g``, ``full_cov``,
+    ``undetermined``, ``null`` as :class:`PayloadCalibration`."""
+
+    leg: str
+    load: object
+    offset: np.ndarray
+    theta: np.ndarray
+    E: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    g: float
+    full_cov: bool = True
+    undetermined: np.ndarray | None = None
+    null: np.ndarray | None = None
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return tuple(self.load.base_joints) + tuple(self.load.load_joints)
+
+    def predict(self, g_B: np.ndarray, q: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """``w_o + w_load`` (N, 6) and its derivative (N, 6, 6 + p + 3) (module docstring), vectorised over samples."""
+        n, p = len(g_B), len(self.theta)
+        R = self.load.nominal_rotation(q, n) @ self.E
+        g = np.einsum("nji,nj->ni", R, g_B)
+        K = self.load.lever(q, n)
+        s = np.einsum("nij,j->ni", K, self.theta)
+        mu = self.load.mass_row
+        M = float(mu @ self.theta)
+        model = np.concatenate([M * g, np.cross(s, g)], axis=1) + self.offset
+        G = skew(g)
+        J = np.zeros((n, 6, 6 + p + 3))
+        J[:, :, :6] = np.eye(6)
+        J[:, :3, 6: 6 + p] = g[:, :, None] * mu[None, None, :]
+        J[:, 3:, 6: 6 + p] = -G @ K                                 # d(s x g)/d theta = -[g]x K
+        J[:, :3, 6 + p:] = M * G
+        J[:, 3:, 6 + p:] = skew(s) @ G
+        return model, J
+
+
+def param_names(leg: str, load_params: tuple[str, ...] | list[str] = ("mass_kg", "h_x", "h_y", "h_z")) -> list[str]:
+    """The labels of ``(w_o, theta, delta)`` in the results protocol and the covariance file."""
+    return ([f"{leg}.offset.{c}" for c in WRENCH_COMPONENTS] + [f"{leg}.{n}" for n in load_params]
+            + [f"{leg}.mount.r{c}" for c in "xyz"])
+
+
+def payload_param_names(leg: str) -> list[str]:
+    """The labels of ``(w_o, m, h, delta)`` of a payload."""
+    return param_names(leg)
+
+
+def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.json",
+                      cov: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None) -> PayloadCalibration:
+    """A :class:`PayloadCalibration` from a leg entry of ``calibration.json``. ``cov``: ``(C, undetermined, null)``
+    over :func:`payload_param_names` from the covariance file; None: the diagonal of the se (the CoM's se turned
+    into the first moment's: ``Var(h_i) = m^2 Var(c_i) + c_i^2 Var(m)``), parameters with se inf undetermined."""
     try:
         if d.get("load_kind") != "rigid_payload":
             raise DataFormatError(f"{where}: transducer {leg}: load_kind = {d.get('load_kind')!r}; the contact wrench is "
-                                  "computed for rigid payloads (a URDF load needs the URDF and the joint angles)", path=where)
+                                  "computed for 'rigid_payload' and 'urdf_subtree' loads", path=where)
         m, c = float(d["load_mass_kg"]), np.asarray(d["load_com_m"], float)
         m_se, c_se = float(d["load_mass_se_kg"]), np.asarray(d["load_com_se_m"], float)
         var = np.concatenate([np.asarray(d["offset_se"], float) ** 2, [m_se**2], m**2 * c_se**2 + c**2 * m_se**2,
@@ -77,7 +159,12 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
     except KeyError as exc:
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a payload calibration", path=where,
                               column=str(exc.args[0])) from None
-    return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False)
+    if cov is not None:
+        C, und, null = cov
+        return PayloadCalibration(leg, off, m, m * c, R, np.where(np.isfinite(C), C, 0.0), sigma, g, full_cov=True,
+                                  undetermined=np.asarray(und, bool), null=null)
+    return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False,
+                              undetermined=np.isinf(var))
 
 
 def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration:
@@ -87,7 +174,53 @@ def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration
         raise DataFormatError(f"transducer {fit.leg}: a {fit.load.kind} load; the contact wrench is computed for rigid payloads")
     cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)
     return PayloadCalibration(fit.leg, fit.offset.copy(), float(fit.theta[0]), fit.theta[1:4].copy(),
-                              np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True)
+                              np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True,
+                              undetermined=np.isinf(np.asarray(fit.se, float)), null=fit.null)
+
+
+def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> UrdfLoadCalibration:
+    """A :class:`UrdfLoadCalibration` from a leg entry of ``calibration.json`` (keys ``urdf``, ``link``,
+    ``urdf_groups``): the URDF parsed again (a path relative to ``calibration.json``'s folder, or absolute; a file
+    of its name beside ``calibration.json`` when that path is gone), its groups checked against the stored ones. ``cc``: the run's :class:`~ftcal_nlp.uncertainty.CalibrationCovariance`
+    (its block of this transducer); None, or the transducer not in it: the diagonal of the stored se."""
+    from .data import read_urdf_tree
+    from .loads import UrdfSubtree
+
+    where = str(cal_path)
+    try:
+        urdf, link, groups = str(d["urdf"]), str(d["link"]), d["urdf_groups"]
+        off = np.asarray(d["offset"], float)
+        E = np.asarray(d.get("mount_rotation", np.eye(3)), float)
+        sigma = np.asarray(d.get("noise_sd", d.get("residual_rms")), float)
+        var_tail = np.asarray(d["mount_rotvec_se"], float) ** 2
+        var_off = np.asarray(d["offset_se"], float) ** 2
+    except KeyError as exc:
+        raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a URDF-load calibration (the "
+                              "contact wrench needs the URDF, the sensor link and the groups' parameters)", path=where,
+                              column=str(exc.args[0])) from None
+    path = Path(urdf) if Path(urdf).is_absolute() else cal_path.parent / urdf
+    if not path.is_file() and (cal_path.parent / path.name).is_file():   # a calibration moved with its URDF beside it
+        log.info("%s: legs.%s.urdf = %s is not there; using %s beside the calibration", where, leg, urdf, path.name)
+        path = cal_path.parent / path.name
+    tree = read_urdf_tree(path, f"{where} legs.{leg}.urdf")
+    try:
+        load = UrdfSubtree(tree, link)
+    except (KeyError, ValueError) as exc:
+        raise DataFormatError(f"{where}: transducer {leg}: link {link!r} of {path}: {exc}", path=where, column="link") from None
+    names = [gr.name for gr in load.groups]
+    if sorted(names) != sorted(groups):
+        raise DataFormatError(f"{where}: transducer {leg}: the URDF {path} below '{link}' has groups {names}, the calibration "
+                              f"{sorted(groups)}; expected the URDF the calibration was made with", path=where)
+    theta = np.concatenate([[groups[n]["mass_kg"], *groups[n]["first_moment_kgm"]] for n in names]).astype(float)
+    cov = None if cc is None else cc.block(param_names(leg, load.param_names))
+    if cov is not None:
+        C, und, null = cov
+        return UrdfLoadCalibration(leg, load, off, theta, E, np.where(np.isfinite(C), C, 0.0), sigma, g, True,
+                                   np.asarray(und, bool), null)
+    var_th = np.concatenate([[groups[n]["mass_se_kg"], *groups[n]["first_moment_se_kgm"]] for n in names]).astype(float) ** 2
+    var = np.concatenate([var_off, var_th, var_tail])
+    return UrdfLoadCalibration(leg, load, off, theta, E, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, False,
+                               np.isinf(var), None)
 
 
 def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
@@ -121,14 +254,46 @@ def predicted_load(p: PayloadCalibration, g_B: np.ndarray) -> tuple[np.ndarray, 
     return model, J
 
 
-def contact_wrench(p: PayloadCalibration, w_m: np.ndarray, g_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6) and gravity ``g_B``."""
-    model, J = predicted_load(p, g_B)
-    var = np.einsum("nij,jk,nik->ni", J, p.cov, J) + p.sigma**2
+def contact_wrench(p: PayloadCalibration | UrdfLoadCalibration, w_m: np.ndarray, g_B: np.ndarray,
+                   q: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6), gravity ``g_B`` and
+    joint angles ``q`` (joint -> (N,); URDF loads)."""
+    model, J = p.predict(g_B, {} if q is None else q)
+    var = calibration_variance(p, J) + p.sigma**2
     return w_m - model, np.sqrt(np.clip(var, 0.0, None))
 
 
-def contact_frame(cal_legs: dict[str, PayloadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
+def calibration_variance(p: PayloadCalibration | UrdfLoadCalibration, J: np.ndarray, tol: float = 1e-3) -> np.ndarray:
+    """``diag(J C J^T)`` (N, 6): the calibration's part of the variance. Inf where ``J`` has a component along an
+    undetermined direction (``p.null``, relative size over ``tol``, as ``loads.base.se_of``) or, without the
+    directions, where it touches an undetermined parameter at all."""
+    var = np.einsum("nij,jk,nik->ni", J, p.cov, J)
+    if p.null is not None and p.null.size:
+        nn = p.null / np.linalg.norm(p.null, axis=0, keepdims=True)
+        along = np.abs(J @ nn).max(axis=-1)
+        var = np.where(along > tol * np.linalg.norm(J, axis=-1), np.inf, var)
+    elif p.undetermined is not None and p.undetermined.any():
+        var = np.where(np.abs(J[:, :, p.undetermined]).max(axis=-1) > 0, np.inf, var)
+    return var
+
+
+def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) -> dict[str, np.ndarray]:
+    """``q_{joint}`` columns of ``df`` for ``joints`` (rad; checked against the URDF limits: degrees are an error),
+    a joint without a column held at 0 and named in a warning."""
+    from types import SimpleNamespace
+
+    from .data import _check_joint_units
+
+    missing = [j for j in joints if f"{JOINT_PREFIX}{j}" not in df.columns]
+    if missing:
+        log.warning("%s: joints %s have no column (%s): held at 0", where, missing, [f"{JOINT_PREFIX}{j}" for j in missing])
+    q = {j: pd.to_numeric(df[f"{JOINT_PREFIX}{j}"], errors="coerce").to_numpy(float) for j in joints if j not in missing}
+    fin = {j: v[np.isfinite(v)] for j, v in q.items()}
+    _check_joint_units({j: v for j, v in fin.items() if v.size}, SimpleNamespace(tree=tree), where)
+    return q
+
+
+def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
     """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
     ``{X}_fx_se..tz_se``; rows without gravity or with NaN readings dropped (counted in the log)."""
     if "t" not in df.columns:
@@ -141,25 +306,34 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration], df: pd.DataFrame, whe
                               column=missing[0])
     g_B = gravity_of_frame(df, next(iter(cal_legs.values())).g, where)
     w = df[cols].to_numpy(float)
+    q: dict[str, np.ndarray] = {}
+    for c in cal_legs.values():
+        if isinstance(c, UrdfLoadCalibration):
+            q.update(joint_angles(df, c.joints, c.load.tree, where))
     ok_g = np.all(np.isfinite(g_B), axis=1)
     ok_w = np.all(np.isfinite(w), axis=1)
+    ok_q = np.all([np.isfinite(v) for v in q.values()], axis=0) if q else np.ones(len(df), bool)
     if (~ok_g).any():
         log.warning("%s: %d of %d rows without an orientation dropped", where, int((~ok_g).sum()), len(df))
     if (ok_g & ~ok_w).any():
         log.warning("%s: %d of %d rows with NaN readings dropped", where, int((ok_g & ~ok_w).sum()), len(df))
-    keep = ok_g & ok_w
+    if (ok_g & ok_w & ~ok_q).any():
+        log.warning("%s: %d of %d rows with NaN joint angles dropped", where, int((ok_g & ok_w & ~ok_q).sum()), len(df))
+    keep = ok_g & ok_w & ok_q
+    qk = {j: v[keep] for j, v in q.items()}
     out: dict[str, np.ndarray] = {"t": df["t"].to_numpy(float)[keep]}
     ses: dict[str, np.ndarray] = {}
     for i, k in enumerate(legs):
-        wc, se = contact_wrench(cal_legs[k], w[keep, 6 * i: 6 * i + 6], g_B[keep])
+        wc, se = contact_wrench(cal_legs[k], w[keep, 6 * i: 6 * i + 6], g_B[keep], qk)
         for j, c in enumerate(WRENCH_COMPONENTS):
             out[f"{k}_{c}"] = wc[:, j]
             ses[f"{k}_{c}_se"] = se[:, j]
     return pd.DataFrame({**out, **ses})
 
 
-def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration] | None:
-    """The payload calibrations of ``calibration.json``, or None when it is not a free-load calibration."""
+def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration | UrdfLoadCalibration] | None:
+    """The free-load calibrations of ``calibration.json`` (payloads and URDF loads), or None when it is not a
+    free-load calibration."""
     try:
         d = json.loads(Path(cal_path).read_text())
     except (OSError, json.JSONDecodeError):
@@ -167,9 +341,39 @@ def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration] 
     legs = d.get("legs", {}) if isinstance(d, dict) else {}
     if not legs or not all(isinstance(l, dict) and "load_kind" in l for l in legs.values()):
         return None
-    out = {k: payload_from_json(l, k, float(d.get("g", 9.81)), str(cal_path)) for k, l in legs.items()}
-    log.info("%s: se from the stored standard errors (correlations between parameters not stored: left out)", cal_path)
+    cal_path = Path(cal_path)
+    cc = _covariance_file(cal_path, d.get("meta", {}))
+    g = float(d.get("g", 9.81))
+    out: dict[str, PayloadCalibration | UrdfLoadCalibration] = {}
+    for k, l in legs.items():
+        if l.get("load_kind") == "urdf_subtree":
+            out[k] = urdf_from_json(l, k, g, cal_path, cc)
+        else:
+            block = None if cc is None else cc.block(payload_param_names(k))
+            out[k] = payload_from_json(l, k, g, str(cal_path), block)
+    diag = [k for k, c in out.items() if not c.full_cov]
+    if diag:
+        log.info("%s: se of %s from the stored standard errors (correlations between parameters not stored: left out)",
+                 cal_path, diag)
+    if len(diag) < len(out):
+        log.info("%s: se of %s from the full covariance of %s", cal_path, [k for k in out if k not in diag],
+                 d["meta"]["covariance_file"])
     return out
+
+
+def _covariance_file(cal_path: Path, meta: dict):
+    """The run's covariance file named in ``meta.covariance_file`` (beside ``calibration.json``), or None when
+    the calibration names none or it is not there (then the stored se serve, logged by the caller)."""
+    from .uncertainty import CalibrationCovariance
+
+    name = meta.get("covariance_file") if isinstance(meta, dict) else None
+    if not name:
+        return None
+    path = cal_path.parent / str(name)
+    if not path.is_file():
+        log.warning("%s: meta.covariance_file = %r is not there (%s)", cal_path, name, path)
+        return None
+    return CalibrationCovariance.load(path)
 
 
 def correct_free_load_file(cal: dict, args: argparse.Namespace, out: Path) -> int:

@@ -627,8 +627,6 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
     ds = Dataset(robot, tuple(recs), manifest.parent, manifest, robot_path)
     if payload:
         log.info("%s: transducer(s) %s have no {leg}_phi column: rigid payloads (DATA_FORMAT.md section 5)", where, list(payload))
-    from .checks import check_distinct_recordings  # (checks imports this module)
-
     check_distinct_recordings(ds)  # before pairing: a file listed twice is named as such
     if any(ds.load_kind(k) == "leg_com_curve" for k in robot.legs) and ds.hanging:
         ds = _nominal_gravity_body(ds)
@@ -653,6 +651,25 @@ def _nominal_gravity_body(ds: Dataset) -> Dataset:
             r = replace(r, gravity_body=gb)
         recs.append(r)
     return replace(ds, recordings=tuple(recs))
+
+
+def check_distinct_recordings(ds: Dataset) -> None:
+    """No recording listed twice (the same file, or the same samples under another name): each would count twice
+    and shrink every standard error by sqrt 2."""
+    seen: dict[tuple, Recording] = {}
+    for rec in ds.recordings:
+        key = (rec.n, float(rec.t[0]) if rec.n else 0.0, float(rec.t[-1]) if rec.n else 0.0)
+        other = seen.get(key)
+        same_file = other is not None and other.path is not None and rec.path is not None and Path(other.path).resolve() == Path(rec.path).resolve()
+        if other is not None and (same_file or (np.array_equal(other.t, rec.t) and all(
+                np.array_equal(other.wrench[k], rec.wrench[k], equal_nan=True) for k in rec.wrench))):
+            raise DataFormatError(
+                f"{ds.manifest or 'dataset'}: recordings {str(other.path or other.name)} and {str(rec.path or rec.name)} are the same "
+                f"{'file' if same_file else 'samples'} listed twice; expected each recording once (twice, it would count "
+                "twice and every standard error would shrink by sqrt 2)"
+            )
+        seen[key] = rec
+
 
 
 def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tuple[Recording, Recording]]:
@@ -687,14 +704,24 @@ def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tupl
 
 
 def recording_to_frame(rec: Recording, legs: Iterable[str]) -> pd.DataFrame:
+    """The table of ``rec`` in the interchange format, readable back into the same recording: ``t``, per leg
+    ``{leg}_phi`` (where it has one: section 5 loads have none) and ``{leg}_fx..tz``; ``q_{joint}`` columns;
+    ``qw..qz`` when the recording keeps its orientation, else ``gx..gz`` when it has gravity per sample (a
+    hanging recording with both ``gravity_body`` and orientation columns keeps only the gravity they give)."""
     cols: dict[str, np.ndarray] = {"t": rec.t}
     for k in legs:
-        cols[f"{k}_phi"] = rec.phi[k]
+        if k in rec.phi:
+            cols[f"{k}_phi"] = rec.phi[k]
         for j, c in enumerate(WRENCH_COMPONENTS):
             cols[f"{k}_{c}"] = rec.wrench[k][:, j]
+    for jn, v in rec.q.items():
+        cols[f"{JOINT_PREFIX}{jn}"] = v
     if rec.quat is not None:
         for j, c in enumerate(QUAT_COLUMNS):
             cols[c] = rec.quat[:, j]
+    elif rec.gravity is not None:
+        for j, c in enumerate(GRAVITY_COLUMNS):
+            cols[c] = rec.gravity[:, j]
     for k, v in rec.temperature.items():
         cols[f"{k}{TEMP_SUFFIX}"] = v
     return pd.DataFrame(cols)
@@ -735,7 +762,9 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
     """Write ``ds`` in the interchange format; returns the manifest path.
 
     ``fmt`` is ``csv`` or ``parquet``. An existing manifest is not overwritten
-    unless ``overwrite`` is true.
+    unless ``overwrite`` is true. Section 5: the robot's URDF is copied beside
+    ``robot.toml``, recordings keep their ``q_{joint}`` and orientation or gravity
+    columns (:func:`recording_to_frame`), hanging entries their ``free`` list.
     """
     import tomli_w
 
@@ -745,6 +774,12 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
     if manifest.exists() and not overwrite:
         raise OutputExistsError(f"{manifest} exists; pass overwrite=True to replace it", path=manifest)
     write_robot(ds.robot, folder / "robot.toml")
+    if ds.robot.urdf is not None:  # robot.toml names it by file name, beside itself
+        import shutil
+
+        target = folder / Path(ds.robot.urdf).name
+        if not target.exists() or not target.samefile(ds.robot.urdf):
+            shutil.copyfile(ds.robot.urdf, target)
     entries = []
     for rec in ds.recordings:
         fname = f"{rec.name}.{fmt}"
@@ -760,6 +795,8 @@ def write_dataset(ds: Dataset, folder: str | Path, *, fmt: str = "csv", overwrit
         e: dict = {"file": fname, "kind": rec.kind}
         if rec.gravity_body is not None:
             e["gravity_body"] = [float(x) for x in rec.gravity_body]
+        if rec.free is not None:
+            e["free"] = list(rec.free)
         entries.append(e)
     manifest.write_bytes(tomli_w.dumps({"robot": "robot.toml", "recording": entries}).encode())
     return manifest

@@ -16,6 +16,9 @@ with ``R_HB = Rz(-yaw) R_WB`` the heading frame (``OUTPUT_FORMAT.md``) and
 (as :meth:`ftcal_nlp.calibration.LegCalibration.com`). The symbolic twin is
 checked against the numpy path to 1e-12 in the tests; ``compile_shared`` and
 ``load_compiled`` build and call the generated C from Python.
+
+A calibration of free loads (``DATA_FORMAT.md`` section 5: a wrist payload, URDF links
+below a sensor) exports its contact-wrench correction instead (:mod:`ftcal_nlp.export_loads`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,6 @@ import ctypes
 import logging
 import shutil
 import subprocess
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -33,19 +35,13 @@ import casadi as ca
 import numpy as np
 
 from .calibration import Calibration, LegCalibration
+from .codegen import ExportedFiles, write_generated
 from .errors import ConfigError, DataFormatError, OutputError
 from .geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
 
 log = logging.getLogger(__name__)
 
 DEFAULT_NAME = "ftcal_correct"
-
-
-@dataclass(frozen=True)
-class ExportedFiles:
-    source: Path
-    header: Path
-    usage: Path
 
 
 def _com_interpolant(leg: LegCalibration, name: str) -> Callable[[ca.MX], ca.MX]:
@@ -193,20 +189,8 @@ and give a numpy function `(wrench (N, K, 6), phi (N, K), quat (N, 4)) -> (N, K,
 def write_c(cal: Calibration, out_dir: str | Path, name: str = DEFAULT_NAME, source: str = "calibration.json") -> ExportedFiles:
     """Write ``{name}.c``, ``{name}.h`` and ``USAGE.md`` into ``out_dir``."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     f = correction_function(cal, name)
-    gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
-    gen.add(f)
-    gen.generate(str(out_dir) + "/")
-    src, hdr = _wrapper_source(f, name, len(cal.leg_names))
-    c_path, h_path = out_dir / f"{name}.c", out_dir / f"{name}.h"
-    with c_path.open("a") as fh:
-        fh.write(src)
-    with h_path.open("a") as fh:
-        fh.write(hdr)
-    usage = out_dir / "USAGE.md"
-    usage.write_text(usage_note(cal, name, source))
-    return ExportedFiles(c_path, h_path, usage)
+    return write_generated(f, name, out_dir, _wrapper_source(f, name, len(cal.leg_names)), usage_note(cal, name, source))
 
 
 def compile_shared(files: ExportedFiles, cc: str | None = None, flags: tuple[str, ...] = ("-O2",)) -> Path:
@@ -266,6 +250,15 @@ def _main(args) -> int:
     existing = [p for p in (out / f"{args.name}.c", out / f"{args.name}.h", out / "USAGE.md") if p.exists()]
     if existing and not args.force:
         raise OutputError(f"{existing[0]} exists; pass --force to overwrite", path=existing[0])
+    from .correct_loads import payload_calibrations
+
+    free = payload_calibrations(args.calibration)
+    if free is not None:  # free loads: the contact wrench (export_loads.py)
+        from . import export_loads
+
+        files = export_loads.write_c(free, out, args.name, source=Path(args.calibration).name)
+        print(f"wrote {files.source}, {files.header}, {files.usage}")
+        return 0
     cal = Calibration.load(args.calibration)
     files = write_c(cal, out, args.name, source=Path(args.calibration).name)
     print(f"wrote {files.source}, {files.header}, {files.usage}")

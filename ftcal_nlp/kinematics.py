@@ -140,9 +140,21 @@ def joint_transform(j: Joint, q: np.ndarray | None, n: int) -> tuple[np.ndarray,
     raise ValueError(f"joint '{j.name}': type '{j.type}' is not supported (fixed, revolute, continuous, prismatic)")
 
 
+def load_urdf(path: str | Path):
+    """Parse a URDF without building scene graphs or loading meshes."""
+    import yourdfpy
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(f"{path}: URDF file not found")
+    try:
+        return yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False, build_collision_scene_graph=False)
+    except Exception as exc:  # lxml and yourdfpy raise many types for a broken file
+        raise DataFormatError(f"{path}: cannot parse as URDF ({type(exc).__name__}: {exc})") from exc
+
+
 def load_tree(path: str | Path) -> KinematicTree:
     """Parse a URDF file into a :class:`KinematicTree` (no meshes, no scene graph)."""
-    from .ros.urdf import load_urdf  # yourdfpy only when a URDF is used
 
     u = load_urdf(path)
     joints = {}

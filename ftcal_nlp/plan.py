@@ -47,6 +47,11 @@ mounting rotations and positions are bounded on the pilot's own poses with its
 calibration as the truth, scaled by ``sqrt(pilot poses / planned poses)``; the
 hanging groups and the total CoM use the simulator's BigAnt-like geometry with
 the pilot's mass and noise.
+
+Free loads (``DATA_FORMAT.md`` section 5: a section-5 dataset, or a protocol TOML whose ``[protocol]`` has
+``kind = "payload"`` or ``"urdf"``): :mod:`ftcal_nlp.plan_loads` predicts the se of the load parameters
+from ``crb_loads`` and names what the orientations leave undetermined; ``--search`` and the detection sizes
+are the hexapod's (an error with a free load, saying so).
 """
 
 from __future__ import annotations
@@ -408,10 +413,45 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     return guarded(lambda: _main(args), extra=(ValueError,))
 
 
+def free_load_input(path: str | Path | None):
+    """``("dataset", Dataset)`` for a section-5 dataset with free loads, ``("protocol", table)`` for a protocol
+    whose ``[protocol]`` has a free-load ``kind``, else None (a hexapod plan)."""
+    if path is None:
+        return None
+    path = Path(path)
+    d = _read_toml(path)
+    if "recording" in d or "recordings" in d:
+        from .data import read_dataset
+
+        ds = read_dataset(path)
+        return ("dataset", ds) if ds.free_load_legs else None
+    table = d.get("protocol", d)
+    return ("protocol", table) if isinstance(table, dict) and "kind" in table else None
+
+
+def _free_load_main(args, out: Path, what) -> int:
+    from .plan_loads import plan_from_dataset, plan_from_protocol
+
+    for opt, name in ((args.search, "--search"), (args.detect, "--detect"), (args.protocol, "--protocol")):
+        if opt:
+            raise PlanError(f"{name} plans a hexapod session (hanging turns and standing poses, the hexapod diagnosis' "
+                            f"detection sizes); {args.input} is a free load: it takes no {name}", key=name)
+    kind, obj = what
+    plan = plan_from_dataset(obj) if kind == "dataset" else plan_from_protocol(obj, Path(args.input))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(plan.to_json_dict(), indent=1, default=float))
+    print(plan.text())
+    print(f"wrote {out}")
+    return 0
+
+
 def _main(args) -> int:
     out = Path(args.output)
     if out.exists() and not args.force:
         raise OutputError(f"{out} exists; pass --force to overwrite", path=out)
+    what = free_load_input(args.input)
+    if what is not None:
+        return _free_load_main(args, out, what)
     protocol, pilot = load_input(args.input, args.protocol)
     detection = False if args.no_detection else (tuple(args.detect) if args.detect else True)
     if args.search:

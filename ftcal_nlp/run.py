@@ -39,6 +39,7 @@ from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
 from .tracking import log_changes
+from .uncertainty import free_load_covariance
 
 COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
 
@@ -137,7 +138,9 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     if cfg.offsets_only.calibration is not None:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
     res = calibrate(ds, cfg.settings, offsets_only=prior)
-    cov_meta = {"covariance_file": COVARIANCE_FILE} if res.uncertainty is not None else {}
+    # a free-load run's covariance file holds the estimator's (correct_loads reads it back)
+    covariance = res.uncertainty if res.uncertainty is not None else free_load_covariance(res.free_loads)
+    cov_meta = {"covariance_file": COVARIANCE_FILE} if covariance is not None else {}
     origin = data_origin(cfg, truth)
     cov_meta["data"] = {"simulated": origin is not None, **({"origin": origin} if origin else {})}
     # a new frozen run with what only the command line knows: the truth, the load time, the config, the notes
@@ -146,8 +149,8 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     res = replace(res, notes=_issue_notes(res, origin))
     with stage("write calibration", res.timings):
         res.calibration.save(folder / "calibration.json")
-        if res.uncertainty is not None:
-            res.uncertainty.save(folder / COVARIANCE_FILE)
+        if covariance is not None:
+            covariance.save(folder / COVARIANCE_FILE)
     with stage("write corrected", res.timings):
         write_corrected(res, folder)
     if res.diagnosis is not None:

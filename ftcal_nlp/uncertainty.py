@@ -34,6 +34,15 @@ covariance and ``J_theta`` the sensitivity to the motion-capture rotation error
 (``total``) takes the sums of the Jacobians, so the legs' covariances enter.
 Undetermined parameters (se inf) give an infinite se to every output that
 depends on them. Vectorised over samples in chunks (no per-sample Python loop).
+
+Free loads (``DATA_FORMAT.md`` section 5): :func:`free_load_covariance` is the same
+file's content for a free-load run, the estimator's covariance over each transducer's
+``{X}.offset.*``, load parameters and ``{X}.mount.r*`` (independent blocks), which
+``correct_loads`` reads back with :meth:`CalibrationCovariance.block`. There ``cov`` is
+the covariance on the determined subspace (the rows of parameters that enter an
+undetermined direction are kept: a determined combination of them has a finite se) and
+``null`` (P, r) holds the undetermined directions: an output whose derivative has a
+component along one of them is undetermined (``loads.base.se_of``).
 """
 
 from __future__ import annotations
@@ -52,7 +61,7 @@ from .geometry import remove_yaw, rotvec_to_rotation, skew
 from .physics import ground_wrenches
 from .sensor_noise import SensorNoise
 
-__all__ = ["CalibrationCovariance", "WrenchUncertainty", "ground_wrench_jacobian", "ground_wrench_se", "NQ"]
+__all__ = ["CalibrationCovariance", "WrenchUncertainty", "free_load_covariance", "ground_wrench_jacobian", "ground_wrench_se", "NQ"]
 
 log = logging.getLogger(__name__)
 
@@ -67,12 +76,14 @@ ORIENTATION_STEP_RAD = 1e-6     # forward-difference step of the motion-capture 
 class CalibrationCovariance:
     """The joint covariance of a calibration's parameters (results protocol labels, SI units) and the
     sensor noise estimated at calibration. ``cov`` (P, P) is finite: rows of undetermined parameters
-    are zero and ``undetermined`` (P,) marks them."""
+    are zero and ``undetermined`` (P,) marks them. ``null`` (P, r): free loads only (module docstring):
+    the undetermined directions, ``cov`` then the covariance on the determined subspace."""
 
     names: tuple[str, ...]
     cov: np.ndarray
     undetermined: np.ndarray
     noise: SensorNoise | None = None
+    null: np.ndarray | None = None
 
     @classmethod
     def from_results(cls, results, noise: SensorNoise | None = None) -> "CalibrationCovariance":
@@ -95,7 +106,22 @@ class CalibrationCovariance:
 
     def save(self, path: str | Path) -> None:
         """A compressed ``.npz`` (names, cov, undetermined); the noise lives in ``calibration.json``'s meta."""
-        np.savez_compressed(path, names=np.array(self.names), cov=self.cov, undetermined=self.undetermined)
+        extra = {} if self.null is None else {"null": self.null}
+        np.savez_compressed(path, names=np.array(self.names), cov=self.cov, undetermined=self.undetermined, **extra)
+
+    def block(self, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """``(cov, undetermined, null)`` of the parameters ``names`` in that order (``null``: the undetermined
+        directions that touch them, restricted to them; None when the file has none), or None when one of
+        ``names`` is not in the file."""
+        pos = {n: i for i, n in enumerate(self.names)}
+        if any(n not in pos for n in names):
+            return None
+        idx = np.array([pos[n] for n in names], dtype=int)
+        null = None
+        if self.null is not None:
+            N = self.null[idx]
+            null = N[:, np.abs(N).max(axis=0) > 0] if N.size else N
+        return self.cov[np.ix_(idx, idx)].copy(), self.undetermined[idx].copy(), null
 
     @classmethod
     def load(cls, path: str | Path, noise: SensorNoise | None = None) -> "CalibrationCovariance":
@@ -105,12 +131,37 @@ class CalibrationCovariance:
         try:
             with np.load(path, allow_pickle=False) as z:
                 names, cov, und = tuple(str(n) for n in z["names"]), np.array(z["cov"], float), np.array(z["undetermined"], bool)
+                null = np.array(z["null"], float) if "null" in z.files else None
         except (KeyError, ValueError, OSError) as exc:
             raise DataFormatError(f"{path}: expected an .npz with arrays 'names', 'cov', 'undetermined' ({exc})", path=path) from exc
         if cov.shape != (len(names), len(names)) or und.shape != (len(names),):
             raise DataFormatError(f"{path}: 'cov' must be {len(names)}x{len(names)} and 'undetermined' of length {len(names)}, "
                                   f"got {cov.shape} and {und.shape}", path=path)
-        return cls(names, cov, und, noise)
+        if null is not None and (null.ndim != 2 or null.shape[0] != len(names)):
+            raise DataFormatError(f"{path}: 'null' must have {len(names)} rows, got shape {null.shape}", path=path)
+        return cls(names, cov, und, noise, null)
+
+
+def free_load_covariance(free_loads) -> CalibrationCovariance | None:
+    """The covariance file's content for a free-load run (``freeload.FreeLoadResults``; None gives None): every
+    transducer's parameters with their covariance on the determined subspace (independent blocks), the
+    undetermined ones (se inf) marked and the undetermined directions in ``null`` (module docstring)."""
+    if free_loads is None:
+        return None
+    parts = list(free_loads.legs.values())
+    sizes = [len(r.names) for r in parts]
+    P = sum(sizes)
+    cov = np.zeros((P, P))
+    nulls = [np.zeros((n, 0)) if r.null is None else np.asarray(r.null, float) for r, n in zip(parts, sizes)]
+    null = np.zeros((P, sum(N.shape[1] for N in nulls)))
+    i = j = 0
+    for r, n, N in zip(parts, sizes, nulls):
+        cov[i: i + n, i: i + n] = np.where(np.isfinite(r.cov), r.cov, 0.0)
+        null[i: i + n, j: j + N.shape[1]] = N
+        i, j = i + n, j + N.shape[1]
+    names = tuple(n for r in parts for n in r.names)
+    und = np.concatenate([np.isinf(np.asarray(r.se, float)) for r in parts]) if parts else np.zeros(0, bool)
+    return CalibrationCovariance(names, cov, und, None, null)
 
 
 @dataclass(frozen=True)

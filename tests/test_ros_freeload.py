@@ -27,10 +27,10 @@ def payload():
 
 
 def _frame(result):
-    from ftcal_nlp.ros.freeload import recording_frame
+    from ftcal_nlp.data import recording_to_frame
 
     rec = result.dataset.recordings[0]
-    return recording_frame(rec, result.dataset.robot.legs)
+    return recording_to_frame(rec, result.dataset.robot.legs)
 
 
 @pytest.mark.parametrize("storage", ["mcap", "ros1"])

@@ -42,7 +42,6 @@ from ..geometry import rotation_to_rotvec
 from ..physics import total_com_from_body_com
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
-from .. import crb
 from ..crb import DatasetBounds, dataset_bounds
 
 GROUPS = ("offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com")

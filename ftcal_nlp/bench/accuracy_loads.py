@@ -107,7 +107,7 @@ def _nlp_fit(res, workdir: Path) -> LoadEstimate:
     """The free-load NLP on the dataset as written (its reader, its quasi-static selection)."""
     from .free_load_nlp import nlp_estimate  # the adapter to issue22a's estimator
 
-    return nlp_estimate(res, workdir)
+    return LoadEstimate(*nlp_estimate(res, workdir))
 
 
 ESTIMATORS: dict[str, Callable] = {"nlp": _nlp_fit, "ft_calib": _peer(ft_calib), "calib_force": _peer(calib_force)}

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 
 
-def nlp_estimate(res, workdir: Path):
-    """``LoadEstimate`` of the NLP on the simulation ``res`` (written into ``workdir``)."""
+def nlp_estimate(res, workdir: Path) -> tuple[np.ndarray, float, int]:
+    """``(theta, wall s, samples used)`` of the NLP on the simulation ``res`` (written into ``workdir``), the
+    fields of ``accuracy_loads.LoadEstimate``."""
     from ..data import read_dataset
     from ..freeload import fit_free_load
     from ..sim.free import write_free_load
-    from .accuracy_loads import LoadEstimate
 
     ds = read_dataset(write_free_load(res, Path(workdir), overwrite=True))
     leg = res.config.transducer
@@ -29,7 +29,7 @@ def nlp_estimate(res, workdir: Path):
         wall = time.perf_counter() - t0
     finally:
         quiet.setLevel(level)
-    return LoadEstimate(estimate_theta(fit), wall, int(fit.n_used))
+    return estimate_theta(fit), wall, int(fit.n_used)
 
 
 def estimate_theta(fit) -> np.ndarray:

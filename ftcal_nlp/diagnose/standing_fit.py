@@ -53,7 +53,7 @@ from ..models import ModelContext, resolve
 from ..robot import Robot
 from ..balance import K_DIAG, check_balance, to_world
 from ..results import ResultsMixin, Summary, fmt_pm
-from ..solver import REL_EIG_TOL, SolverError, identifiability, ipopt, solve_checked
+from ..solver import REL_EIG_TOL, identifiability, ipopt, solve_checked
 from ..effects.faces import AugContext, ParamBlock, StandingData, pose_symbols  # noqa: F401  (StandingData: importable from here)
 from ..effects.unit import Effect
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping
 
+from ..errors import ConfigError
 from .injection import EXPECT_NONE, EXPECT_UNEXPLAINED, EffectInjector, OffFaceInjector
 from .unit import KINDS, Effect
 
@@ -72,7 +73,7 @@ def resolve_effects(names, registry: Mapping[str, Effect] | None = None) -> list
     out = []
     for n in names:
         if n not in reg:
-            raise ValueError(f"unknown effect {n!r}; known effects: {sorted(reg)}")
+            raise ConfigError(f"unknown effect {n!r}; known effects: {sorted(reg)}", key="diagnose.effects")
         out.append(reg[n])
     return out
 

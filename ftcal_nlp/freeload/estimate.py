@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -294,6 +295,8 @@ def free_load_calibration(res: FreeLoadResults, robot) -> Calibration:
         if R_nom is not None:
             rep["rotation_to_body"] = (R_nom @ r.rotation).tolist()
         rep["mount_rotation"] = r.rotation.tolist()
+        if robot.transducers[k].link is not None and robot.urdf is not None:  # what `correct` needs to rebuild the load
+            rep.update(urdf=str(Path(robot.urdf).resolve()), link=robot.transducers[k].link)
         legs[k] = LegCalibration(
             offset=r.offset.copy(), leg_weight_N=rep["load_mass_kg"] * robot.g, com_phi=np.zeros(1), com_xyz=com[None],
             rotation_to_body=R_nom @ r.rotation if R_nom is not None else r.rotation.copy(),

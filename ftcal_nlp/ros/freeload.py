@@ -255,27 +255,3 @@ def free_columns(keys: FreeKeys, joints: Mapping[str, Stream], imu: Stream | Non
             n_drop = int(bad.sum())
             keep &= ~bad
     return FreeColumns(cols, keep, dropped, n_drop, n_nan)
-
-
-def recording_frame(rec, legs: Sequence[str]):
-    """The table of a recording with every section-5 column it has (``{leg}_phi`` only where the leg has one,
-    ``q_{joint}``, ``qw..qz``, ``gx..gz``): what :func:`ftcal_nlp.ros.ingest.write_ingested` writes."""
-    import pandas as pd
-
-    from ..data import WRENCH_COMPONENTS
-
-    cols: dict[str, np.ndarray] = {"t": rec.t}
-    for k in legs:
-        if k in rec.phi:
-            cols[f"{k}_phi"] = rec.phi[k]
-        for j, c in enumerate(WRENCH_COMPONENTS):
-            cols[f"{k}_{c}"] = rec.wrench[k][:, j]
-    for name, v in getattr(rec, "q", {}).items():
-        cols[JOINT_PREFIX + name] = v
-    if rec.quat is not None:
-        for j, c in enumerate(QUAT_COLUMNS):
-            cols[c] = rec.quat[:, j]
-    elif getattr(rec, "gravity", None) is not None:
-        for j, c in enumerate(GRAVITY_COLUMNS):
-            cols[c] = rec.gravity[:, j]
-    return pd.DataFrame(cols)

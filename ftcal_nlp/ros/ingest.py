@@ -51,13 +51,13 @@ from ..data import (
     Recording,
     hanging_pairs,
     recording_from_frame,
+    recording_to_frame,
     write_robot,
 )
 from ..csvout import write_csv
 from ..errors import ConfigError, OutputExistsError
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
-from .freeload import recording_frame
 from .mapfile import IngestMap, RecordingSpec, read_map
 
 log = logging.getLogger(__name__)
@@ -415,7 +415,7 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
     entries = []
     for rec, c in zip(ds.recordings, result.counts):
         fname = f"{rec.name}.{fmt}"
-        df = recording_frame(rec, ds.robot.legs)   # section-5 columns too (ros/freeload.py)
+        df = recording_to_frame(rec, ds.robot.legs)   # section-5 columns too
         if fmt == "parquet":
             df.to_parquet(folder / fname, index=False)
         else:

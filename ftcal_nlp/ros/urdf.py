@@ -21,22 +21,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..data import DataFormatError
+from ..errors import DataFormatError
+from ..kinematics import load_urdf  # noqa: F401  (the one URDF parser; re-exported for the ROS modules)
 from ..geometry import is_rotation
 from ..robot import Robot, Transducer
-
-
-def load_urdf(path: str | Path):
-    """Parse a URDF without building scene graphs or loading meshes."""
-    import yourdfpy
-
-    path = Path(path)
-    if not path.is_file():
-        raise DataFormatError(f"{path}: URDF file not found")
-    try:
-        return yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False, build_collision_scene_graph=False)
-    except Exception as exc:  # lxml and yourdfpy raise many types for a broken file
-        raise DataFormatError(f"{path}: cannot parse as URDF ({type(exc).__name__}: {exc})") from exc
 
 
 def _parent_joints(urdf) -> dict[str, object]:

@@ -23,6 +23,7 @@ from ..effects.injection import (  # noqa: F401  (the hook, re-exported for the 
     apply_robot,
 )
 from ..effects.registry import LIBRARY_EFFECTS, injector_classes
+from ..errors import ConfigError
 
 # Name -> factory(**kwargs) -> Injector: the registry's injectors and shapes; sim/variants.py adds the faults
 # outside the library.
@@ -35,7 +36,7 @@ def make_effects(spec: Any, *, where: str = "effects", injectors: Mapping[str, C
     names are looked up in ``injectors`` (default :data:`EFFECTS`)."""
     known = EFFECTS if injectors is None else injectors
     if not isinstance(spec, (list, tuple)):
-        raise ValueError(f"{where}: expected a list of effect names or tables, got {type(spec).__name__}")
+        raise ConfigError(f"{where}: expected a list of effect names or tables, got {type(spec).__name__}")
     out = []
     for i, item in enumerate(spec):
         if isinstance(item, str):
@@ -47,9 +48,9 @@ def make_effects(spec: Any, *, where: str = "effects", injectors: Mapping[str, C
             out.append(item)
             continue
         else:
-            raise ValueError(f"{where}[{i}]: expected an effect name or a table with key 'name', got {item!r}")
+            raise ConfigError(f"{where}[{i}]: expected an effect name or a table with key 'name', got {item!r}")
         if name not in known:
-            raise ValueError(f"{where}[{i}]: unknown effect '{name}'; known effects: {sorted(known) or '(none registered)'}")
+            raise ConfigError(f"{where}[{i}]: unknown effect '{name}'; known effects: {sorted(known) or '(none registered)'}")
         out.append(known[name](**kw))
     return tuple(out)
 

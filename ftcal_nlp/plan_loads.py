@@ -1,0 +1,292 @@
+"""Plan a free-load calibration (``DATA_FORMAT.md`` section 5): the standard error each load parameter will have.
+
+``python -m ftcal_nlp plan DATASET.toml`` (a section-5 dataset) or ``plan PROTOCOL.toml`` (a protocol of held
+orientations, ``[protocol] kind = "payload"`` or ``"urdf"``) dispatches here from ``plan.py``.
+
+The prediction is the Cramer-Rao bound of :mod:`ftcal_nlp.crb_loads` (its own reading model, independent of
+the estimator): per quasi-static sample ``i`` the readings' derivative ``J_i`` with respect to the offsets, the
+load's parameters and the mounting rotation, and
+
+    F = sum_i J_i^T Sigma^-1 J_i,     se >= sqrt(diag F^+)   (on the directions F determines),
+
+``Sigma = diag(s_f^2 I3, s_t^2 I3)`` (plus the orientation jitter's errors in variables, ``crb_loads``). The
+samples of a hold are independent (white noise), so a hold of ``n`` samples counts ``n`` times and the se fall
+as ``1/sqrt(hold_s * rate_hz)``. Directions of ``F`` below ``solver.REL_EIG_TOL`` of the largest are not
+determined: their parameters get se ``null`` in ``plan.json`` and one line each names what cannot be separated
+from what (``crb_loads.describe_dropped``), e.g. a CoM component along an axis gravity never turns about, a
+link group whose joint never moves.
+
+Inputs:
+
+* a section-5 dataset (a manifest with recordings; transducers without ``{X}_phi``): each free load is
+  calibrated first (the pilot) and the bound is evaluated at its estimate (a payload's mass and CoM; a URDF
+  load at the URDF's nominal bodies), on the quasi-static samples that fit used, with the noise it measured
+  (residual sd per channel): what a session of the same motions will give.
+* a protocol TOML, ``[protocol]`` with ``kind = "payload"``: ``orientations`` (a list of ``[qw, qx, qy, qz]``
+  of B in W, each a hold) or ``n_orientations`` (drawn uniformly on SO(3) with ``seed``), ``hold_s``,
+  ``rate_hz``, ``noise_force_N``, ``noise_torque_Nm``, ``mocap_jitter_deg``, ``mass_kg``, ``com_m`` (the
+  tool's expected mass and CoM in ft: where the bound is evaluated), ``rotation_rpy`` (nominal ft in B,
+  rad), ``mount`` (estimate the mounting rotation, default true). ``kind = "urdf"``: ``robot`` (a robot.toml
+  with ``urdf`` and the transducer's ``link``, relative to the protocol file), ``transducer``, and
+  ``holds = [{quat = [qw, qx, qy, qz], q = {joint = rad, ...}}, ...]`` (joints not named held at 0), the
+  noise and hold keys as above; the URDF's bodies are the expected load.
+
+``--search`` and ``--detect`` plan hexapod sessions (the detection sizes of the hexapod diagnosis); with a
+free load they are an error naming why.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import crb_loads
+from .errors import ConfigError
+from .geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
+
+log = logging.getLogger(__name__)
+
+PROTOCOL_KINDS = ("payload", "urdf")
+
+
+class FreeLoadPlanError(ConfigError):
+    """A free-load protocol that cannot be planned; the message names the key."""
+
+
+@dataclass(frozen=True)
+class LoadPlan:
+    """One transducer's predicted se: ``bound`` (``crb_loads.LoadBound``), ``kind``, ``n_samples``, ``n_holds``
+    (None for a dataset), ``noise`` (6,), ``undetermined`` (names of parameters in a dropped direction)."""
+
+    transducer: str
+    kind: str
+    bound: crb_loads.LoadBound
+    n_samples: int
+    noise: np.ndarray
+    n_holds: int | None = None
+    undetermined: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+
+    def se(self) -> dict[str, float | None]:
+        """Predicted se per parameter (SI; mount: rad), None where undetermined."""
+        return {n: (None if n in self.undetermined else float(s)) for n, s in self.bound.se.items()}
+
+    def sd_of(self, weights: dict[str, float], tol: float = 1e-3) -> float | None:
+        """Predicted se of ``sum_n weights[n] theta_n`` (a URDF load's total mass), None when it changes along a
+        direction the protocol does not determine."""
+        a = np.zeros(len(self.bound.names))
+        for n, w in weights.items():
+            a[self.bound.names.index(n)] = w
+        N = crb_loads._dropped_directions(self.bound.bound)
+        if N.shape[1]:
+            a_s = a / self.bound.bound.scale                      # d(a . theta) along a scaled direction u: a_s . u
+            if np.abs(a_s @ N).max() > tol * np.linalg.norm(a_s):
+                return None
+        return self.bound.sd_of(weights)
+
+    def groups(self) -> dict[str, tuple[float | None, str]]:
+        """RMS over a group's parameters of the predicted se, in the group's unit (None: undetermined in it)."""
+        se = self.se()
+
+        def rms(names, factor=1.0):
+            v = [se[n] for n in names if n in se]
+            return None if not v or any(x is None for x in v) else float(factor * np.sqrt(np.mean(np.square(v))))
+
+        out = {"offsets_force": (rms(crb_loads.OFFSET_NAMES[:3]), "N"), "offsets_torque": (rms(crb_loads.OFFSET_NAMES[3:]), "N*m")}
+        mass_names = [n for n in self.bound.names if n.endswith("mass_kg")]
+        total = None if not mass_names else self.sd_of({n: 1.0 for n in mass_names})
+        out["load_mass"] = (total, "kg")
+        if self.kind == "rigid_payload":
+            out["load_com"] = (rms(("com_x", "com_y", "com_z"), 1e3), "mm")
+        else:
+            for n in mass_names:
+                grp = n[: -len(".mass_kg")]
+                out[f"{grp}.mass"] = (rms((n,)), "kg")
+                out[f"{grp}.first_moment"] = (rms(tuple(f"{grp}.moment_{c}" for c in "xyz"), 1e3), "kg*mm")
+        if "mount_rx" in self.bound.names:
+            out["mount_rotation"] = (rms(crb_loads.ROT_NAMES, float(np.degrees(1.0))), "deg")
+        return out
+
+    def to_json_dict(self) -> dict:
+        return {"load_kind": self.kind, "samples": self.n_samples, "holds": self.n_holds, "noise_sd": self.noise.tolist(),
+                "groups": {k: {"se": v, "unit": u} for k, (v, u) in self.groups().items()},
+                "se": self.se(), "undetermined": list(self.bound.unidentified), "notes": list(self.notes)}
+
+
+@dataclass(frozen=True)
+class FreeLoadPlan:
+    """Every transducer's :class:`LoadPlan`, and where they come from (``source``: protocol or pilot dataset)."""
+
+    source: str
+    loads: dict[str, LoadPlan]
+    protocol: dict = field(default_factory=dict)
+
+    def to_json_dict(self) -> dict:
+        return {"kind": "free_load", "source": self.source, "protocol": self.protocol,
+                "transducers": {k: p.to_json_dict() for k, p in self.loads.items()}}
+
+    def text(self) -> str:
+        lines = [f"free-load plan ({self.source}): predicted se (Cramer-Rao bound)"]
+        for k, p in self.loads.items():
+            holds = f", {p.n_holds} holds" if p.n_holds is not None else ""
+            lines.append(f"{k} ({p.kind}, {p.n_samples} quasi-static samples{holds}):")
+            for g, (v, u) in p.groups().items():
+                lines.append(f"  {g:<28s} {'not determined' if v is None else f'{v:.3g}'} {'' if v is None else u}")
+            lines += [f"  not determined: {n}" for n in p.bound.unidentified]
+            lines += [f"  note: {n}" for n in p.notes]
+        return "\n".join(lines)
+
+
+def _undetermined(bound: crb_loads.LoadBound, tol: float = 1e-3) -> tuple[str, ...]:
+    """Parameters with a component (scaled coordinates, relative size over ``tol``) in a dropped direction."""
+    N = crb_loads._dropped_directions(bound.bound)
+    if N.shape[1] == 0:
+        return ()
+    touched = np.abs(N).max(axis=1) > tol
+    return tuple(n for n, t in zip(bound.names, touched) if t)
+
+
+def _plan(leg: str, kind: str, bound: crb_loads.LoadBound, n: int, noise: np.ndarray, holds: int | None,
+          notes: tuple[str, ...] = ()) -> LoadPlan:
+    und = _undetermined(bound)
+    for line in bound.unidentified:
+        log.warning("%s: not determined by this protocol: %s", leg, line)
+    return LoadPlan(leg, kind, bound, n, np.asarray(noise, float), holds, und, notes)
+
+
+# ----------------------------------------------------------------------------- a pilot dataset
+
+
+def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
+    """The plan of a section-5 dataset's free loads (module docstring): each fitted, the bound at its estimate on
+    the samples the fit used with the noise it measured."""
+    from .freeload import fit_free_load
+
+    loads = {}
+    for leg in ds.free_load_legs:
+        fit = fit_free_load(ds, leg, settings)
+        recs = [r for r in ds.hanging if r.name in fit.used]
+        g_B = np.concatenate([ds.robot.g * r.gravity_directions()[fit.used[r.name]] for r in recs])
+        mount = bool(np.all(np.isfinite(fit.se[-3:]) | np.isinf(fit.se[-3:])))   # NaN: the mount was not estimated
+        rv = rotation_to_rotvec(fit.rotation)
+        if fit.load.kind == "rigid_payload":
+            R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
+            g_ft = g_B @ R
+            m = float(fit.theta[0])
+            bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, fit.sigma, mount=mount, offset=fit.offset)
+            notes = ()
+        else:
+            tree, link = ds.robot.tree, ds.robot.transducers[leg].link
+            joints = tuple(fit.load.base_joints) + tuple(fit.load.load_joints)
+            q = {j: np.concatenate([r.q[j][fit.used[r.name]] if j in r.q else np.zeros(int(fit.used[r.name].sum()))
+                                    for r in recs]) for j in joints}
+            g_ft = crb_loads.urdf_gravity_in_ft(tree, link, q, g_B, rv)
+            bodies = {l: (b.mass_kg, b.com_m) for l, b in tree.bodies.items()}
+            bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, fit.sigma, mount=mount, offset=fit.offset)[0]
+            notes = ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
+                     "rotation's rows)",)
+        loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes)
+    return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
+
+
+# ----------------------------------------------------------------------------- a protocol of held orientations
+
+
+def _num(d: dict, key: str, default, where: str, positive: bool = True) -> float:
+    v = d.get(key, default)
+    if not isinstance(v, (int, float)) or isinstance(v, bool) or (positive and not v > 0) or (not positive and v < 0):
+        raise FreeLoadPlanError(f"{where}: key '{key}' must be a {'positive' if positive else 'non-negative'} number, got {v!r}",
+                                key=key)
+    return float(v)
+
+
+def _quats(v, where: str, key: str) -> np.ndarray:
+    try:
+        q = np.asarray(v, float).reshape(-1, 4)
+    except (TypeError, ValueError):
+        q = None
+    if q is None or not len(q) or not np.all(np.isfinite(q)) or np.any(np.linalg.norm(q, axis=1) < 1e-9):
+        raise FreeLoadPlanError(f"{where}: key '{key}' must be a list of [qw, qx, qy, qz] (nonzero), got {v!r}", key=key)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+KNOWN = {"payload": {"kind", "orientations", "n_orientations", "seed", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
+                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "g"},
+         "urdf": {"kind", "robot", "transducer", "holds", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
+                  "mocap_jitter_deg", "mount", "g"}}
+
+
+def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
+    """The plan of a protocol of held orientations (module docstring); ``d`` the ``[protocol]`` table of ``path``."""
+    where = f"{path} [protocol]"
+    kind = d.get("kind")
+    if kind not in PROTOCOL_KINDS:
+        raise FreeLoadPlanError(f"{where}: key 'kind' = {kind!r}; expected one of {list(PROTOCOL_KINDS)}", key="kind")
+    unknown = sorted(set(d) - KNOWN[kind])
+    if unknown:
+        raise FreeLoadPlanError(f"{where}: unknown key(s) {unknown}; known keys for kind = {kind!r}: {sorted(KNOWN[kind])}",
+                                key=unknown[0])
+    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
+    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
+    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
+    g = _num(d, "g", 9.81, where)
+    mount = d.get("mount", True)
+    if not isinstance(mount, bool):
+        raise FreeLoadPlanError(f"{where}: key 'mount' must be true or false, got {mount!r}", key="mount")
+    if kind == "payload":
+        if "orientations" in d:
+            quats = _quats(d["orientations"], where, "orientations")
+        else:
+            n = d.get("n_orientations", 14)
+            if not isinstance(n, int) or n < 1:
+                raise FreeLoadPlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
+            q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
+            quats = q / np.linalg.norm(q, axis=1, keepdims=True)
+        m = _num(d, "mass_kg", 1.0, where)
+        com = np.asarray(d.get("com_m", [0.0, 0.0, 0.05]), float)
+        if com.shape != (3,):
+            raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
+        rpy = np.asarray(d.get("rotation_rpy", [0.0, 0.0, 0.0]), float)
+        if rpy.shape != (3,):
+            raise FreeLoadPlanError(f"{where}: key 'rotation_rpy' must be 3 numbers (rad), got {d.get('rotation_rpy')!r}",
+                                    key="rotation_rpy")
+        R_nom = rotvec_to_rotation(rpy[2] * np.eye(3)[2]) @ rotvec_to_rotation(rpy[1] * np.eye(3)[1]) @ rotvec_to_rotation(rpy[0] * np.eye(3)[0])
+        g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
+        g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
+        bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter)
+        plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats))
+        proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
+        return FreeLoadPlan(f"protocol {path}", {"payload": plan}, proto)
+    # a URDF load
+    from .data import read_robot
+
+    if "robot" not in d or "transducer" not in d or "holds" not in d:
+        missing = [k for k in ("robot", "transducer", "holds") if k not in d]
+        raise FreeLoadPlanError(f"{where}: kind = 'urdf' needs key(s) {missing} (robot.toml with urdf and the transducer's link, "
+                                "the transducer, the holds)", key=missing[0])
+    robot = read_robot(path.parent / str(d["robot"]))
+    leg = str(d["transducer"])
+    if robot.tree is None or leg not in robot.transducers or robot.transducers[leg].link is None:
+        raise FreeLoadPlanError(f"{where}: key 'transducer' = {leg!r}: {d['robot']} must name a urdf and a [transducers.{leg}] "
+                                "link", key="transducer")
+    holds = d["holds"]
+    if not isinstance(holds, list) or not holds or not all(isinstance(h, dict) and "quat" in h for h in holds):
+        raise FreeLoadPlanError(f"{where}: key 'holds' must be a list of tables {{quat = [qw, qx, qy, qz], q = {{joint = rad}}}}",
+                                key="holds")
+    quats = _quats([h["quat"] for h in holds], where, "holds.quat")
+    movable = set(robot.tree.movable)
+    bad = sorted({j for h in holds for j in h.get("q", {}) if j not in movable})
+    if bad:
+        raise FreeLoadPlanError(f"{where}: key 'holds': joint(s) {bad} are not movable joints of the URDF (movable: "
+                                f"{sorted(movable)})", key="holds")
+    q = {j: np.repeat([float(h.get("q", {}).get(j, 0.0)) for h in holds], n_per) for j in robot.tree.movable}
+    g_B = np.repeat(-g * quat_to_rotation(quats)[:, 2, :], n_per, axis=0)
+    link = robot.transducers[leg].link
+    g_ft = crb_loads.urdf_gravity_in_ft(robot.tree, link, q, g_B)
+    bodies = {l: (b.mass_kg, b.com_m) for l, b in robot.tree.bodies.items()}
+    bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter)[0]
+    plan = _plan(leg, "urdf_subtree", bound, len(g_ft), sigma, len(holds), ("evaluated at the URDF's nominal bodies",))
+    return FreeLoadPlan(f"protocol {path}", {leg: plan}, {"kind": kind, "holds": len(holds), "samples_per_hold": n_per})
