@@ -38,9 +38,9 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.optimize import minimize, minimize_scalar
 
 from .free_faces import WRENCH, FreeFace
+from .free_refine import refine_scalar, refine_simplex
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
 from .signals import relaxation
 from .unit import Effect
@@ -140,36 +140,29 @@ class Creep(Effect):
         return FreeFace(X, names, dict(shape))
 
     def free_refine(self, ctx, shape, resid):
-        # The time constant(s) by a search in ln tau (within a factor 2 of the grid's best single tau; a pair by
-        # Nelder-Mead from its grid point): each channel's residual regressed on its relaxation(s), weighted by the floor
-        w = 1.0 / ctx.sigma if ctx.sigma is not None else np.ones(6)
-        r = np.asarray(resid, float) * w
-        rr = float(np.sum(r * r))
-
-        def relax(tau: float) -> np.ndarray:
-            x = np.zeros_like(ctx.pred)
-            for k in np.unique(ctx.rec):
-                i = ctx.rec == k
-                x[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (tau,))
-            return x * w
-
-        def sse(ln_taus) -> float:
-            cols = [relax(float(np.exp(v))) for v in np.atleast_1d(ln_taus)]
-            out = rr
-            for c in range(6):
-                A = np.stack([x[:, c] for x in cols], axis=1)
-                coef, *_ = np.linalg.lstsq(A, r[:, c], rcond=None)
-                out -= float(r[:, c] @ (A @ coef))
-            return out
+        # The time constant(s) by a search in ln tau on the residual beside the free-load model's own columns
+        # (free_refine.py): within a factor 2 of the grid's best single tau, or a pair by Nelder-Mead from its grid point
+        def columns(ln_taus) -> np.ndarray:
+            out = []
+            for v in np.atleast_1d(ln_taus):
+                x = np.zeros_like(ctx.pred)
+                for k in np.unique(ctx.rec):
+                    i = ctx.rec == k
+                    x[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (float(np.exp(v)),))
+                X = np.zeros((ctx.n, 6, 6))
+                X[:, np.arange(6), np.arange(6)] = x
+                out.append(X)
+            return np.concatenate(out, axis=2)
 
         if "tau2_s" not in shape:
             lt = np.log(float(shape["tau_s"]))
-            best = minimize_scalar(sse, bounds=(lt - np.log(2.0), lt + np.log(2.0)), method="bounded", options={"xatol": 0.01})
-            return {"tau_s": float(np.round(np.exp(best.x), 3))} if best.success else None
-        x0 = np.log([float(shape["tau_s"]), float(shape["tau2_s"])])
-        best = minimize(sse, x0, method="Nelder-Mead", options={"xatol": 0.01, "fatol": 1e-6 * rr, "maxfev": 80})
-        t1, t2 = sorted(float(np.round(np.exp(v), 3)) for v in best.x)
-        return {"tau_s": t1, "tau2_s": t2} if np.all(np.isfinite(best.x)) and t2 > 1.05 * t1 else None
+            v = refine_scalar(ctx, resid, columns, lt - np.log(2.0), lt + np.log(2.0))
+            return None if v is None else {"tau_s": float(np.round(np.exp(v), 3))}
+        x = refine_simplex(ctx, resid, columns, np.log([float(shape["tau_s"]), float(shape["tau2_s"])]))
+        if x is None:
+            return None
+        t1, t2 = sorted(float(np.round(np.exp(v), 3)) for v in x)
+        return {"tau_s": t1, "tau2_s": t2} if t2 > 1.05 * t1 else None
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         par = block.get("parameters", {})
