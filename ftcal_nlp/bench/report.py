@@ -337,9 +337,21 @@ def load_speed_markdown(ls: dict) -> list[str]:
     return out
 
 
+def diagnosis_ratio_markdown(dr: dict) -> list[str]:
+    t = dr["times"]
+    out = [f"### The diagnosis' cost (issue 23, item 6): its stage against `calibrate()` without it, median of "
+           f"{dr['settings'].repeats}", ""]
+    if len(t):
+        t = t.copy()
+        t["met"] = ["yes" if r <= tg else "NO" for r, tg in zip(t.ratio, t.target)]
+        out += [md_table(t), ""]
+    return out
+
+
 def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
                      corr: dict | None = None, plan: dict | None = None, export: dict | None = None,
-                     detect: dict | None = None, loads: dict | None = None, load_speed: dict | None = None) -> str:
+                     detect: dict | None = None, loads: dict | None = None, load_speed: dict | None = None,
+                     diagnosis_ratio: dict | None = None) -> str:
     now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = f" Machine load average at the speed bench: {sp['load_average']:.1f} on 2 cores." if sp else ""
     out = [f"## Benchmarks (`python -m ftcal_nlp.bench{' --quick' if mode == 'quick' else ''}`)", "",
@@ -377,6 +389,8 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
         out += loads_markdown(loads)
     if load_speed is not None:
         out += load_speed_markdown(load_speed)
+    if diagnosis_ratio is not None:
+        out += diagnosis_ratio_markdown(diagnosis_ratio)
     if sp is not None:
         tot = sp["totals"]["nlp"]["calibration_wall_s"]
         totb = sp["totals"]["baseline"]["calibration_wall_s"]
@@ -507,7 +521,7 @@ def recommendations(prof: dict, sp: dict | None) -> list[str]:
 
 def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, prof: dict | None, mode: str,
               corr: dict | None = None, export: dict | None = None, plan: dict | None = None, detect: dict | None = None,
-              loads: dict | None = None, load_speed: dict | None = None) -> str:
+              loads: dict | None = None, load_speed: dict | None = None, diagnosis_ratio: dict | None = None) -> str:
     """Write every table, figure, ``summary.md`` and ``bench.json`` into ``folder``; returns the summary text."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -563,8 +577,11 @@ def write_all(folder: Path, acc: dict | None, sp: dict | None, sc: dict | None, 
     if load_speed is not None:
         write_table(load_speed["times"], folder, "speed_loads")
         js["speed_loads"] = {"times": load_speed["times"].to_dict(orient="records"), "failures": load_speed["failures"]}
+    if diagnosis_ratio is not None:
+        write_table(diagnosis_ratio["times"], folder, "speed_diagnosis_ratio")
+        js["speed_diagnosis_ratio"] = diagnosis_ratio["times"].to_dict(orient="records")
     text = summary_markdown(acc, sp, sc, prof, mode, corr=corr, plan=plan, export=export, detect=detect, loads=loads,
-                            load_speed=load_speed)
+                            load_speed=load_speed, diagnosis_ratio=diagnosis_ratio)
     (folder / "summary.md").write_text(text)
     (folder / "bench.json").write_text(json.dumps(js, indent=1, default=_json_default))
     return text

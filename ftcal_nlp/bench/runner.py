@@ -7,7 +7,8 @@ exported C and the batched numpy correction), ``plan`` (plan_check.py: the plan'
 calibration's reported se and the spread over seeds), ``detect`` (detect_check.py: the plan's detection
 sizes against the diagnosis' detection rate at them), ``loads`` (accuracy_loads.py, crb_loads.py: the free loads of
 issue 22, NLP and the peers against the bound), ``load_speed`` (speed.py: payload of 1e5 samples, 6-joint URDF
-load of 1e4 held samples). Results are written by report.py into ``out``.
+load of 1e4 held samples), ``diagnosis_ratio`` (speed.py: the diagnosis' stage against ``calibrate()`` without it, on
+the default problem and a payload of 1e5 samples; issue 23). Results are written by report.py into ``out``.
 """
 
 from __future__ import annotations
@@ -24,9 +25,10 @@ from .export_speed import ExportSpeedSettings
 from .plan_check import PlanCheckSettings
 from ..plan import Protocol
 from .scaling import HANGING_TASKS, ScalingSettings
-from .speed import LoadSpeedSettings, SpeedSettings
+from .speed import DiagnosisRatioSettings, LoadSpeedSettings, SpeedSettings
 
-PARTS = ("accuracy", "loads", "speed", "load_speed", "scaling", "profile", "correction", "export", "plan", "detect")
+PARTS = ("accuracy", "loads", "speed", "load_speed", "diagnosis_ratio", "scaling", "profile", "correction", "export", "plan",
+         "detect")
 
 
 @dataclass(frozen=True)
@@ -40,6 +42,7 @@ class BenchSettings:
     detect: DetectCheckSettings = field(default_factory=DetectCheckSettings)
     loads: LoadAccuracySettings = field(default_factory=LoadAccuracySettings)
     load_speed: LoadSpeedSettings = field(default_factory=LoadSpeedSettings)
+    diagnosis_ratio: DiagnosisRatioSettings = field(default_factory=DiagnosisRatioSettings)
     profile_all: bool = True          # every NLP stage, the load and the report; False: the slowest ones
     profile_count: int = 2            # with profile_all False: the slowest calibration stage and the slowest others
     parts: tuple[str, ...] = PARTS
@@ -63,6 +66,7 @@ def quick_settings() -> BenchSettings:
         detect=DetectCheckSettings(effects=("casing_load",), seeds=(0, 1, 2, 3), clean_seeds=(0,)),
         loads=LoadAccuracySettings(seeds=(0, 1, 2, 3)),
         load_speed=LoadSpeedSettings(repeats=1),
+        diagnosis_ratio=DiagnosisRatioSettings(repeats=1),
         profile_all=False,
         profile_count=1,
         mode="quick",
@@ -84,8 +88,10 @@ def tiny_settings() -> BenchSettings:
         load_speed=LoadSpeedSettings(payload_samples=5_000, urdf_held=1_000, repeats=1),
         profile_all=False,
         profile_count=1,
-        # the detect part diagnoses whole datasets (~20 s even this small); tests/test_detection.py covers the prediction
-        parts=tuple(p for p in PARTS if p != "detect"),
+        diagnosis_ratio=DiagnosisRatioSettings(repeats=1, hexapod_sim=sim_small, payload_samples=5_000),
+        # the detect part diagnoses whole datasets (~20 s even this small); tests/test_detection.py covers the prediction;
+        # diagnosis_ratio too (tests/test_diagnosis_ratio.py runs it on small problems)
+        parts=tuple(p for p in PARTS if p not in ("detect", "diagnosis_ratio")),
         mode="tiny",
     )
 
@@ -121,9 +127,9 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
     from .speed import profile_targets, run_speed
 
     from .accuracy_loads import run_load_accuracy
-    from .speed import run_load_speed
+    from .speed import run_diagnosis_ratio, run_load_speed
 
-    acc = sp = sc = prof = corr = exp = plan = det = loads = lsp = None
+    acc = sp = sc = prof = corr = exp = plan = det = loads = lsp = dr = None
     with threadpool_limits(limits=1):  # many small LAPACK calls: threads only contend on 2 cores
         if "accuracy" in settings.parts:
             acc = run_accuracy(settings.accuracy, progress=progress)
@@ -131,6 +137,8 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
             loads = run_load_accuracy(settings.loads, progress=progress)
         if "load_speed" in settings.parts:
             lsp = run_load_speed(settings.load_speed, progress=progress)
+        if "diagnosis_ratio" in settings.parts:
+            dr = run_diagnosis_ratio(settings.diagnosis_ratio, progress=progress)
         if "speed" in settings.parts or "profile" in settings.parts:
             sp = run_speed(settings.speed, progress=progress)
         if "profile" in settings.parts:
@@ -148,9 +156,10 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
         if "detect" in settings.parts:
             det = run_detect_check(settings.detect)
     text = report.write_all(Path(out), acc, sp if "speed" in settings.parts else None, sc, prof, settings.mode, corr=corr,
-                            export=exp, plan=plan, detect=det, loads=loads, load_speed=lsp)
+                            export=exp, plan=plan, detect=det, loads=loads, load_speed=lsp,
+                            diagnosis_ratio=dr)
     return {"accuracy": acc, "speed": sp, "scaling": sc, "profile": prof, "correction": corr, "export": exp, "plan": plan,
-            "detect": det, "loads": loads, "load_speed": lsp, "summary": text}
+            "detect": det, "loads": loads, "load_speed": lsp, "diagnosis_ratio": dr, "summary": text}
 
 
 __all__ = ["PARTS", "BenchSettings", "full_settings", "quick_settings", "run_bench", "tiny_settings"]

@@ -307,3 +307,62 @@ def run_load_speed(settings: LoadSpeedSettings = LoadSpeedSettings(), progress: 
                              "wall_s": float(np.median(walls)), "wall_min_s": float(np.min(walls)), "first_call_s": float(first),
                              "target_s": LOAD_TARGETS_S[problem] if name == "nlp" else np.nan})
     return {"times": pd.DataFrame(rows), "failures": failures, "settings": settings, "load_average": _load_average()}
+
+
+# ----------------------------------------------------------------------------- the diagnosis' cost (issue 23, item 6)
+
+#: issue 23: the diagnosis takes at most this many times the calibration without it
+DIAGNOSIS_RATIO_TARGET = 3.0
+
+
+@dataclass(frozen=True)
+class DiagnosisRatioSettings:
+    """``problems``: ``hexapod`` (the default problem, ``problems/bigant_sim.toml``: ``SimConfig()`` with seed 0
+    and the run's default settings) and ``payload`` (a wrist tool of ``payload_samples`` samples, the load-speed
+    bench's payload); ``repeats`` per setting (median reported)."""
+
+    repeats: int = 3
+    problems: tuple[str, ...] = ("hexapod", "payload")
+    hexapod_sim: dict = field(default_factory=dict)      # SimConfig overrides; empty: the default problem
+    payload_samples: int = 100_000
+
+
+def diagnosis_ratio_datasets(settings: DiagnosisRatioSettings, tmp: Path) -> dict:
+    """``{problem: dataset}``: each simulated, written in the interchange format into ``tmp`` and read back."""
+    from ..sim.free import simulate_free, write_free_load
+
+    out = {}
+    if "hexapod" in settings.problems:
+        out["hexapod"] = read_dataset(write_simulation(simulate(SimConfig(**settings.hexapod_sim)), tmp / "hexapod"))
+    if "payload" in settings.problems:
+        cfg = load_speed_configs(LoadSpeedSettings(payload_samples=settings.payload_samples), tmp / "unused.urdf")["payload"]
+        out["payload"] = read_dataset(write_free_load(simulate_free(cfg), tmp / "payload"))
+    return out
+
+
+def run_diagnosis_ratio(settings: DiagnosisRatioSettings = DiagnosisRatioSettings(), progress: bool = True) -> dict:
+    """Wall time of :func:`ftcal_nlp.calibrate` with the diagnosis on against the same call with it off (the run's
+    default settings otherwise), per problem: ``times`` (DataFrame: problem, samples, without_s, with_s,
+    diagnosis_s (its stage clock), ratio = diagnosis_s / without_s (the target's), ratio_whole = with_s / without_s, target,
+    verdict, effects, repeats)."""
+    from tqdm import tqdm
+
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="ftcal_diag_ratio_") as tmp:
+        data = diagnosis_ratio_datasets(settings, Path(tmp))
+        for problem, ds in tqdm(data.items(), desc="diagnosis ratio", disable=not progress):
+            on = CalibrationSettings()
+            off = replace(on, diagnose=DiagnoseSettings(enabled=False))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                _, w_off, _, _, _ = _time_calibrate(ds, off, settings.repeats)
+                run, w_on, _, sw, _ = _time_calibrate(ds, on, settings.repeats)
+            d = run.diagnosis
+            n = int(sum(r.n for r in ds.hanging) + sum(r.n for r in ds.standing) + sum(r.n for r in getattr(ds, "walking", ())))
+            without, with_, diag = float(np.median(w_off)), float(np.median(w_on)), float(np.median(sw.get("diagnosis", [np.nan])))
+            rows.append({"problem": problem, "samples": n, "without_s": without, "with_s": with_, "diagnosis_s": diag,
+                         "ratio": diag / without, "ratio_whole": with_ / without, "target": DIAGNOSIS_RATIO_TARGET,
+                         "verdict": None if d is None else d.verdict,
+                         "effects": "" if d is None else " ".join(e["name"] for e in (d.effects or [])),
+                         "repeats": len(w_on)})
+    return {"times": pd.DataFrame(rows), "settings": settings, "load_average": _load_average()}

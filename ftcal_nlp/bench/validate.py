@@ -602,7 +602,12 @@ def run_items(items: list[dict], c: dict, sim_over: dict, out_dir: str | Path, b
 
 def run_validation(cfg: dict, out_dir: str | Path) -> dict:
     """Run the validation of ``cfg`` (the ``[validation]`` table, optionally with a ``simulate``
-    sub-table) and write its outputs into ``out_dir``; returns the summary."""
+    sub-table) and write its outputs into ``out_dir``; returns the summary. ``design = "free"``: the free-load
+    sweep of issue 23 (:mod:`.validate_free`)."""
+    if cfg.get("design") == "free":
+        from .validate_free import run_free_validation
+
+        return run_free_validation(cfg, out_dir)
     c, sim_over = check_config(cfg)
     items = sweep_plan(c) if c["design"] == "sweep" else plan(c)
     # No backend key: joblib's active backend (loky, or that of a surrounding joblib.parallel_config).
