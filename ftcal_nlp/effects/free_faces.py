@@ -185,8 +185,9 @@ class FreeLoadContext:
 
     def relaxation(self, tau: float) -> np.ndarray:
         """``pred - lowpass_tau(pred)`` (N, 6), each recording apart (``signals.relaxation``: what of each change of the
-        model readings is still to relax): the column every relaxation face (creep) is built of, computed here once per
-        call with the recordings' rows found once (a face's grid and its refinement ask for it many times)."""
+        model readings is still to relax): the column every relaxation face (creep) is built of. The recordings' rows
+        and their channel-major copies of ``pred`` are found once (a face's grid and its refinement ask for it many
+        times); the result is a channel-major array seen as (N, 6) (a channel's column is contiguous)."""
         from .signals import relaxation
 
         if "_rec_rows" not in self.extra:
@@ -194,10 +195,11 @@ class FreeLoadContext:
             # a recording's samples are one run (recording after recording): a slice, no gather
             self.extra["_rec_rows"] = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i
                                        for i in rows]
-        out = np.empty_like(self.pred)
-        for i in self.extra["_rec_rows"]:
-            out[i] = _relax_channels(self.t[i], self.pred[i], float(tau)) if len(self.t[i]) > 1 else relaxation(self.t[i], self.pred[i], tau)
-        return out
+            self.extra["_rec_predT"] = [np.ascontiguousarray(self.pred[i].T) for i in self.extra["_rec_rows"]]
+        out = np.empty((6, self.n))
+        for i, xt in zip(self.extra["_rec_rows"], self.extra["_rec_predT"]):
+            out[:, i] = _relax_rows(self.t[i], xt, float(tau)) if xt.shape[1] > 1 else relaxation(self.t[i], xt.T, tau).T
+        return out.T
 
     def select(self, mask: np.ndarray) -> "FreeLoadContext":
         """The context restricted to the samples of ``mask`` (derived quantities as computed on all)."""
@@ -213,22 +215,22 @@ class FreeLoadContext:
         return FreeLoadContext(**out)
 
 
-def _relax_channels(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
-    """``signals.relaxation(t, x, tau)`` of (n, c) ``x``, the same recurrence filtered along each channel's contiguous
-    row (twice as fast as along axis 0; bit-identical); an irregular clock or ``tau == 0``: ``signals.relaxation``."""
+def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float) -> np.ndarray:
+    """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt``: the same recurrence filtered along each
+    channel's contiguous row (faster than along axis 0; bit-identical); an irregular clock or ``tau == 0``:
+    ``signals.relaxation`` itself."""
     from scipy.signal import lfilter
 
     from .signals import relaxation
 
     dt = np.diff(t)
     if tau <= 0 or np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12):
-        return relaxation(t, x, tau)
+        return relaxation(t, xt.T, tau).T
     a0 = float(1.0 - np.exp(-dt / tau)[0])
-    xt = np.ascontiguousarray(x.T)
     lp = np.empty_like(xt)
     lp[:, 0] = xt[:, 0]
     lp[:, 1:] = lfilter([a0], [1.0, -(1.0 - a0)], xt[:, :-1], axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
-    return x - lp.T
+    return xt - lp
 
 
 def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
