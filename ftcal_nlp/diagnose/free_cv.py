@@ -210,7 +210,7 @@ class Design:
         P = self._P(a)
         for i, sl in enumerate(self._sl):
             if a.dense:
-                out[i] = (P[sl] * rr[sl][:, :, None]).sum(axis=0)
+                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])   # no (n, 6, k) temporary
             else:
                 Bt = P[sl].T @ rr[sl]                                           # (m, 6)
                 m = P.shape[1]
