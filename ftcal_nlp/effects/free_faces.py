@@ -190,14 +190,16 @@ class FreeLoadContext:
         times); the result is a channel-major array seen as (N, 6) (a channel's column is contiguous)."""
         from .signals import relaxation
 
-        if "_rec_rows" not in self.extra:
+        c = self.extra.get("_relaxation")
+        # the cache is this context's (``select`` and ``dataclasses.replace`` share ``extra``): same arrays or rebuilt
+        if c is None or c[0] is not self.t or c[1] is not self.rec or c[2] is not self.pred:
             rows = [np.flatnonzero(self.rec == r) for r in np.unique(self.rec)]
             # a recording's samples are one run (recording after recording): a slice, no gather
-            self.extra["_rec_rows"] = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i
-                                       for i in rows]
-            self.extra["_rec_predT"] = [np.ascontiguousarray(self.pred[i].T) for i in self.extra["_rec_rows"]]
+            rows = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i for i in rows]
+            c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
+                                             [np.ascontiguousarray(self.pred[i].T) for i in rows])
         out = np.empty((6, self.n))
-        for i, xt in zip(self.extra["_rec_rows"], self.extra["_rec_predT"]):
+        for i, xt in zip(c[3], c[4]):
             out[:, i] = _relax_rows(self.t[i], xt, float(tau)) if xt.shape[1] > 1 else relaxation(self.t[i], xt.T, tau).T
         return out.T
 
