@@ -143,11 +143,14 @@ class Design:
         self.rw = (self.r * self.w).reshape(-1)
         # samples sorted by block: a block is a slice, every part's rows a view (one copy of each part)
         self._order = np.argsort(self.block, kind="stable")
+        # blocks are runs of consecutive samples (cv_blocks): then block order is sample order and a part's rows are
+        # used in place (a copy of every part into block order cost more than the sums themselves)
+        self._sorted = bool(np.all(self._order == np.arange(len(self._order))))
         edges = np.r_[0, np.cumsum(np.bincount(self.block, minlength=self.nb))]
         self._sl = [slice(int(edges[b]), int(edges[b + 1])) for b in range(self.nb)]
         self.block_fold = np.zeros(self.nb, int)
         self.block_fold[self.block] = self.fold
-        self._rp = self.r[self._order]
+        self._rp = self.r if self._sorted else self.r[self._order]
         rr = self._rp**2 * self.w2
         self._s = np.stack([rr[sl].sum(axis=0) for sl in self._sl])          # (B, 6)
         self._gram: dict = {}
@@ -167,7 +170,8 @@ class Design:
         """Part ``a``'s X (dense) or basis (per channel), rows in block order (cached)."""
         if id(a) not in self._perm:
             self._keep[id(a)] = a
-            self._perm[id(a)] = (a.X if a.dense else a.basis)[self._order]
+            P = a.X if a.dense else a.basis
+            self._perm[id(a)] = P if self._sorted else P[self._order]
         return self._perm[id(a)]
 
     # ---- per-block, per-channel sums
@@ -206,7 +210,7 @@ class Design:
         P = self._P(a)
         for i, sl in enumerate(self._sl):
             if a.dense:
-                out[i] = (P[sl] * rr[sl][:, :, None]).sum(axis=0)
+                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])   # no (n, 6, k) temporary
             else:
                 Bt = P[sl].T @ rr[sl]                                           # (m, 6)
                 m = P.shape[1]

@@ -122,11 +122,7 @@ class Creep(Effect):
         tau = float(shape["tau_s"])
         tau2 = shape.get("tau2_s")
         taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
-        relax = np.zeros((len(taus),) + ctx.pred.shape)
-        for r in np.unique(ctx.rec):
-            i = ctx.rec == r
-            for k, tk in enumerate(taus):
-                relax[k, i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (tk,))
+        relax = np.stack([-ctx.relaxation(tk) for tk in taus])   # creep_term(t, pred, 1, (tk,)) per recording
         if not np.any(np.abs(relax[0]) > 0):
             return None
         X = np.zeros((ctx.n, 6, 12))
@@ -145,10 +141,7 @@ class Creep(Effect):
         def columns(ln_taus) -> np.ndarray:
             out = []
             for v in np.atleast_1d(ln_taus):
-                x = np.zeros_like(ctx.pred)
-                for k in np.unique(ctx.rec):
-                    i = ctx.rec == k
-                    x[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (float(np.exp(v)),))
+                x = -ctx.relaxation(float(np.exp(v)))   # creep_term(t, pred, 1, (tau,)) per recording, cached
                 X = np.zeros((ctx.n, 6, 6))
                 X[:, np.arange(6), np.arange(6)] = x
                 out.append(X)
