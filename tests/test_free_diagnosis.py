@@ -128,7 +128,7 @@ def test_delay_and_its_se_recover_truth(tmp_path):
     d, _ = _diagnose(_sim("payload", 7, ({"name": "clock_offset", "scale": true},)), tmp_path)
     assert d.effect == "clock_offset"
     pars = d.effects[0]["parameters"]
-    vals = [(v["value"], v["se"]) for k, v in pars.items() if k.startswith("delay")]
+    vals = [(v["value"], v["se"]) for k, v in pars.items() if k in ("delay_s [s]", "torque.delay_s [s]")]
     assert vals, pars
     for v, se in vals:
         assert se is not None and abs(v - true) < 4 * se + 1e-3 * true, (v, se)

@@ -202,6 +202,11 @@ def test_creep_face_recovers_its_gains_and_the_heldout_residual_picks_tau():
     tau_c = f3.shape["tau_s"] * np.exp(b3[1::2] / b3[0::2])
     # first order in ln tau: off by ~(ln 4/3)^2 / 2 = 4 % at most, far above the noise's share
     assert f3.shape["tau_s"] in (2.0, 4.0) and np.all(np.abs(tau_c - 3.0) < 0.1 * 3.0), (f3.shape, tau_c)
+    # the 1-D refinement of the diagnosis (free_refine) on the residual: tau itself
+    refined = unit.free_refine(c3, {"tau_s": 4.0}, c3.y - c3.pred - (c3.y - c3.pred).mean(axis=0))
+    assert abs(refined["tau_s"] - 3.0) < 0.05 * 3.0, refined
+    br, sr, ar, _ = fit(c3, unit.free_face(c3, refined))
+    assert np.all(np.abs(br[0::2] - inj3.gains(1)[0]) < 4 * sr[0::2]), ((br[0::2] - inj3.gains(1)[0]) / sr[0::2])
     assert np.all(np.abs(b3[0::2] - inj3.gains(1)[0]) < 4 * s3[0::2] + 0.02 * inj3.gains(1)[0]) and np.all(a3 < 1.05 * c3.sigma)
     # off the face (two time constants, logarithmic): most of the gap closed
     for cls in unit.shapes:

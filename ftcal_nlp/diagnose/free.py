@@ -259,7 +259,8 @@ def _statement(main: FreeLegDiagnosis, legs: dict) -> list[str]:
         elif d.verdict == "effect":
             names = [st.effect.name for st in d.chain.steps]
             out.append(head + "the gap is explained by " + " then ".join(names) + "; held-out RMS " + _fmt(d.before)
-                       + " -> " + _fmt(d.after) + " (floor " + _fmt(d.floor) + ").")
+                       + " -> " + _fmt(d.after) + (" (floor " + _fmt(d.floor) + ")." if d.floor_known else
+                                                    " (no noise floor known: the fit's residual sd " + _fmt(d.floor) + ")."))
         else:
             w = d.where
             out.append(head + "a gap that no library effect explains: held-out RMS " + _fmt(d.before) + " vs floor " + _fmt(d.floor)
@@ -267,7 +268,8 @@ def _statement(main: FreeLegDiagnosis, legs: dict) -> list[str]:
                        + (f" and follows {w['explains']}" if w.get("explains") else "") + ".")
         for i, st in enumerate(d.chain.steps):
             out.append(f"  {i + 1}. {st.effect.name} {st.shape or ''}: held-out RMS after " + _fmt(st.cv.rms())
-                       + f" (paired block z {st.z:.1f}; removes {100 * st.excess_share:.0f} % of the excess then left).")
+                       + f" (paired block z {st.z:.1f}; removes {100 * st.excess_share:.0f} % of the "
+                       + ("excess then left)." if d.floor_known else "held-out sum of squares then left)."))
         if d.chain.stop:
             out.append(f"  The chain stopped: {d.chain.stop}.")
         rem = d.where.get("remaining")

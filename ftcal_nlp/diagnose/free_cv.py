@@ -12,10 +12,14 @@ below ``REL_EIG`` of its largest eigenvalue are left at zero: what the data cann
 
 Held-out evidence: the samples are cut into blocks (:func:`cv_blocks`: each quasi-static hold with the
 move that follows it; without holds, time blocks), the blocks dealt to ``folds`` folds by a seeded
-permutation; each fold is predicted from the normal equations of the others
-(``G - G_f, v - v_f``: one pass over the data per design). :class:`CVFit` holds the held-out residual of
-every sample, so scores per channel (RMS in the readings' units) and per block (for paired tests) come
-from one fit.
+permutation; each fold is predicted from the normal equations of the others (``G - G_f, v - v_f``). The
+normal equations are kept per block and channel (:class:`Design`, cached per pair of parts), so a design's
+held-out sums of squares per block (for the paired tests) and per channel (RMS in the readings' units) follow
+without a pass over the samples:
+
+    SSE_bc = s_bc - 2 beta_f' v_bc + beta_f' G_bc beta_f      (block b in fold f, channel c)
+
+:class:`CVFit` forms the held-out residual of every sample only on demand (figures).
 """
 
 from __future__ import annotations
@@ -174,7 +178,7 @@ class Design:
         Pa, Pb = self._P(a), self._P(b)
         if a.dense and b.dense:
             for i, sl in enumerate(self._sl):
-                out[i] = np.einsum("nca,ncb->cab", Pa[sl], Pb[sl], optimize=True) * w2[:, None, None]
+                out[i] = (Pa[sl].transpose(1, 2, 0) @ Pb[sl].transpose(1, 0, 2)) * w2[:, None, None]
             return out
         if not a.dense and not b.dense:
             ma, mb = Pa.shape[1], Pb.shape[1]
@@ -189,7 +193,8 @@ class Design:
             return self._pair(b, a).transpose(0, 1, 3, 2)
         m = Pa.shape[1]
         for i, sl in enumerate(self._sl):
-            BtX = np.einsum("nm,nck->cmk", Pa[sl], Pb[sl], optimize=True)      # (6, m, kb)
+            Xs = Pb[sl]
+            BtX = (Pa[sl].T @ Xs.reshape(len(Xs), -1)).reshape(m, 6, -1).transpose(1, 0, 2)      # (6, m, kb)
             for ia, c in enumerate(a.channels):
                 out[i, c, ia * m:(ia + 1) * m] = w2[c] * BtX[c]
         return out
@@ -201,7 +206,7 @@ class Design:
         P = self._P(a)
         for i, sl in enumerate(self._sl):
             if a.dense:
-                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])
+                out[i] = (P[sl] * rr[sl][:, :, None]).sum(axis=0)
             else:
                 Bt = P[sl].T @ rr[sl]                                           # (m, 6)
                 m = P.shape[1]
@@ -275,7 +280,7 @@ class Design:
                 continue
             b = solve(G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0))
             fold_beta[f] = b
-            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + np.einsum("bcij,i,j->bc", Gbc[bs], b, b)
+            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + (Gbc[bs] @ b) @ b
         beta = solve(G, v)
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)

@@ -23,7 +23,10 @@ recording apart; ``pred`` the model readings: the offsets relax nothing), parame
 ``c.creep_dlntau`` [1] (``g_c d ln tau``: the channel's time constant is ``tau exp(dlntau / creep)``
 to first order); or, shapes ``(tau, tau2)`` (``PAIRS_S``), two relaxations at once (``c.creep``,
 ``c.creep2`` [1]: a fast and a slow creep, which a single tau leaves as a delay-like rest). The shape is
-``tau`` on a grid (``TAUS_S``, factor 2 apart) or a pair, chosen by held-out residual.
+``tau`` on a grid (``TAUS_S``, factor 2 apart) or a pair, chosen by held-out residual; ``free_refine``
+then searches ``ln tau`` within a factor 2 of the best single tau, or both of a pair (Nelder-Mead), on the
+residual regressed on each channel's relaxation(s) (weighted by the floor), kept when it predicts held-out
+data better.
 
 Correction: ``y - X beta`` (the creep the face predicts, removed); on a hexapod recording (no hexapod
 face fits it) the block's ``<c>.creep [1]`` gains and ``tau_s`` applied to the readings themselves
@@ -35,6 +38,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from scipy.optimize import minimize, minimize_scalar
 
 from .free_faces import WRENCH, FreeFace
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
@@ -134,6 +138,38 @@ class Creep(Effect):
             X[:, np.arange(6), 2 * np.arange(6) + 1] = relax[1]
             names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep2 [1]"))
         return FreeFace(X, names, dict(shape))
+
+    def free_refine(self, ctx, shape, resid):
+        # The time constant(s) by a search in ln tau (within a factor 2 of the grid's best single tau; a pair by
+        # Nelder-Mead from its grid point): each channel's residual regressed on its relaxation(s), weighted by the floor
+        w = 1.0 / ctx.sigma if ctx.sigma is not None else np.ones(6)
+        r = np.asarray(resid, float) * w
+        rr = float(np.sum(r * r))
+
+        def relax(tau: float) -> np.ndarray:
+            x = np.zeros_like(ctx.pred)
+            for k in np.unique(ctx.rec):
+                i = ctx.rec == k
+                x[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (tau,))
+            return x * w
+
+        def sse(ln_taus) -> float:
+            cols = [relax(float(np.exp(v))) for v in np.atleast_1d(ln_taus)]
+            out = rr
+            for c in range(6):
+                A = np.stack([x[:, c] for x in cols], axis=1)
+                coef, *_ = np.linalg.lstsq(A, r[:, c], rcond=None)
+                out -= float(r[:, c] @ (A @ coef))
+            return out
+
+        if "tau2_s" not in shape:
+            lt = np.log(float(shape["tau_s"]))
+            best = minimize_scalar(sse, bounds=(lt - np.log(2.0), lt + np.log(2.0)), method="bounded", options={"xatol": 0.01})
+            return {"tau_s": float(np.round(np.exp(best.x), 3))} if best.success else None
+        x0 = np.log([float(shape["tau_s"]), float(shape["tau2_s"])])
+        best = minimize(sse, x0, method="Nelder-Mead", options={"xatol": 0.01, "fatol": 1e-6 * rr, "maxfev": 80})
+        t1, t2 = sorted(float(np.round(np.exp(v), 3)) for v in best.x)
+        return {"tau_s": t1, "tau2_s": t2} if np.all(np.isfinite(best.x)) and t2 > 1.05 * t1 else None
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         par = block.get("parameters", {})
