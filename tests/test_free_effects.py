@@ -483,3 +483,21 @@ def test_hexapod_simulator_takes_the_sensor_effects_and_refuses_the_free_load_on
     for name in ("inertial_load", "joint_limit_contact", "joint_limit_contact_smooth"):
         with pytest.raises(ConfigError, match="free load"):
             SimConfig.from_dict({**tiny, "effects": [name]})
+
+
+def test_creep_refinement_model_columns_reproduce_the_linear_load():
+    from ftcal_nlp.effects.creep import model_columns
+
+    sim = simulate(seed=6)
+    ctx = _payload_context(sim)
+    J = model_columns(ctx)
+    assert J.shape == (ctx.n, 6, 6 + 4 + 3)
+    x = np.r_[sim.truth["offset"], ctx.theta]
+    assert np.allclose(J[:, :, :10] @ x, ctx.pred, atol=1e-9)       # the readings are linear in (offsets, theta)
+    # a small turn of the mounting: the prediction moves along the rotation columns
+    from ftcal_nlp.sim.free.physics import payload_readings
+
+    dr = np.array([1e-6, -2e-6, 1.5e-6])
+    g2 = np.einsum("ij,nj->ni", rotvec_to_rotation(dr).T, ctx.g_ft)
+    moved = payload_readings(g2, sim.config.mass_kg, np.asarray(sim.config.com_m), np.asarray(sim.truth["offset"]))
+    assert np.allclose(moved - ctx.pred, J[:, :, 10:] @ dr, atol=1e-9)
