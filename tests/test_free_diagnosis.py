@@ -172,7 +172,7 @@ def test_run_writes_the_chain_and_its_report(tmp_path):
     assert d["verdict"] == "effect" and [e["name"] for e in d["effects"]] == ["clock_offset", "offset_drift"]
     assert d["effect"] == d["effects"][0]["name"] and d["where"]["explains"] == "motion"
     for e in d["effects"]:
-        assert len(e["heldout_rms_after"]) == 6 and e["parameters"]
+        assert len(e["heldout_rms_after"]) == 6 and e["parameters"] and set(e["parameters_when_added"]) == set(e["parameters"])
         assert all(set(v) == {"value", "se"} for v in e["parameters"].values())
     # each step shrinks the held-out RMS
     rms = [np.asarray(d["shrinkage"]["heldout_rms_before"])] + [np.asarray(e["heldout_rms_after"]) for e in d["effects"]]

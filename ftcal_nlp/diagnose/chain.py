@@ -19,7 +19,10 @@ Without a floor (the data hold no still stretch, e.g. a list of single-row poses
 weights are the free-load fit's residual sd, there is no gap to test and no excess: a candidate is added when
 its paired z passes and it saves at least ``MIN_GAIN_NO_FLOOR`` of the current held-out sum of squares.
 
-The chain ends after ``MAX_EFFECTS`` effects. :func:`joint_fit` refits the named effects together on every
+Among the candidates that pass, the best by held-out sum of squares is added, unless one with fewer parameters
+explains at least ``PARSIMONY`` of what the best does: that one goes first (a flexible face can mimic a simpler
+effect, e.g. a creep with a sub-second time constant a clock offset; the flexible one is scored again next
+round). The chain ends after ``MAX_EFFECTS`` effects. :func:`joint_fit` refits the named effects together on every
 sample (linearised around the free-load fit) and gives their parameters with se: ``cov = s^2 (A^T A)^+``,
 ``s^2`` the weighted residual variance times the AR(1) inflation of serially correlated residuals
 (``freeload.problem.serial_inflation``: what a model error that stays through a hold does to the se).
@@ -42,6 +45,7 @@ MIN_FLOOR_SHARE = 0.01
 MIN_EXCESS_SHARE = 0.25
 MIN_CHANNEL_SHARE = 0.6
 MAX_EFFECTS = 4
+PARSIMONY = 0.85
 MIN_GAIN_NO_FLOOR = 0.05
 
 
@@ -185,11 +189,18 @@ def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[E
         if not ok:
             ch.stop = "no candidate effect has a face for these data"
             break
-        good, why = accepted(ok[0], cur, design, floor_known, floor)
+        best = ok[0]
+        good, why = accepted(best, cur, design, floor_known, floor)
         if not good:
-            ch.stop = f"the next candidate, {ok[0].effect.name}, adds nothing significant on held-out data ({why})"
+            ch.stop = f"the next candidate, {best.effect.name}, adds nothing significant on held-out data ({why})"
             break
-        ch.steps.append(ok[0])
+        # parsimony: a candidate with fewer parameters that explains nearly as much goes first (a flexible face can
+        # mimic a simpler effect; the flexible one is looked at again in the next round)
+        for c in ok[1:]:
+            if (c.face.k < best.face.k and c.excess_share >= PARSIMONY * ok[0].excess_share
+                    and accepted(c, cur, design, floor_known, floor)[0]):
+                best = c
+        ch.steps.append(best)
     return ch
 
 

@@ -69,6 +69,7 @@ class FreeLegDiagnosis:
     floor_known: bool = True              # False: no still stretch; ``floor`` is the fit's residual sd
     param_names: tuple = ()               # the free-load fit's parameters (the Jacobian's columns)
     fit_params: tuple = ()                # ... and their values at the fit
+    added: list = field(default_factory=list)   # per named effect its parameters when it was added
 
     def to_json_dict(self) -> dict:
         """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
@@ -99,8 +100,10 @@ class FreeLegDiagnosis:
         out = []
         for i, s in enumerate(self.chain.steps):
             pars = self.joint.params[i] if self.joint is not None else {}
+            when = self.added[i] if i < len(self.added) else {}
             out.append({"name": s.effect.name, "transducer": self.leg, "shape": s.shape,
                         "parameters": {k: {"value": v, "se": e if np.isfinite(e) else None} for k, (v, e) in pars.items()},
+                        "parameters_when_added": {k: {"value": v, "se": e if np.isfinite(e) else None} for k, (v, e) in when.items()},
                         "heldout_rms_after": [float(x) for x in s.cv.rms()],
                         "paired_z": float(s.z), "explained": float(s.excess_share),
                         "explains": _explains(s.effect, s)})
@@ -139,6 +142,9 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     ch = run_chain(design, J, ctx, effects, floor, floor_known)
     base, cur = ch.base, ch.current
     jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
+    # each effect's parameters as the chain added it (refit with those before it only): when later effects are
+    # confounded with it, the joint refit splits what they share and says so by its se
+    added = [joint_fit(design, J, ch.steps[:i + 1], ctx).params[i] for i in range(len(ch.steps))]
     ratio_after = excess_ratio(cur, floor)
     gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
     gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
@@ -186,7 +192,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
                 "correlate": show.name, "leg": leg}
     return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
                             int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known, tuple(names),
-                            tuple(float(v) for v in fit.params))
+                            tuple(float(v) for v in fit.params), added)
 
 
 def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
