@@ -353,6 +353,10 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
     for eff in library:
         name, mag = eff.name, eff.magnitude
         realistic = tuple(float(x) for x in mag.realistic)
+        if "hexapod" not in eff.diagnosed_on:   # a free-load effect: the hexapod diagnosis has no face for it
+            out.append(DetectionSize(name, float("inf"), mag.unit, None, realistic, {},
+                                     "not predicted: no hexapod face (the free-load diagnosis names it)"))
+            continue
         if eff.needs_report_balance:
             out.append(DetectionSize(name, float("inf"), mag.unit, None, realistic, {},
                                      "not predicted: a gap only under the report's balance (eq. 9); the default exact balance has none"))

@@ -63,3 +63,9 @@ def test_detection_size_halves_with_the_noise(tmp_path, capsys):
 def test_unknown_effect_is_refused_before_simulating(tmp_path, capsys):
     assert plan_main(["-o", str(tmp_path / "p.json"), "--detect", "tether"]) == 2
     assert "unknown effect 'tether'" in capsys.readouterr().err
+
+
+def test_free_load_effects_are_not_predicted_on_a_hexapod():
+    det = predict(SMALL, detection=("inertial_load", "clock_offset")).detection
+    assert [d.effect for d in det.sizes] == ["inertial_load", "clock_offset"]
+    assert all(d.size == float("inf") and "no hexapod face" in d.note for d in det.sizes)

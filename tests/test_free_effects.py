@@ -287,6 +287,11 @@ def test_temperature_face_recovers_its_gains_and_the_lag():
     f3 = best_shape(unit, c3)
     _, _, a3, _ = fit(c3, f3)
     assert f3.shape["lag_s"] > 0 and np.all(a3 < 1.15 * c3.sigma), (f3.shape, a3 / c3.sigma)
+    # the refinement finds the lag itself (30 s) from the grid's best, and the linear face then recovers the gains
+    ref = unit.free_refine(c3, {"degree": 1, "lag_s": f3.shape["lag_s"]}, c3.y - c3.pred - (c3.y - c3.pred).mean(axis=0))
+    assert abs(ref["lag_s"] - 30.0) < 3.0, ref
+    b4, s4, a4, _ = fit(c3, unit.free_face(c3, ref))
+    assert np.all(np.abs(b4 - lag.gains(1)[0]) < 4 * s4 + 0.02 * np.abs(lag.gains(1)[0])), ((b4 - lag.gains(1)[0]) / s4)
 
 
 # ----------------------------------------------------------------------------- joint_limit_contact
@@ -486,7 +491,7 @@ def test_hexapod_simulator_takes_the_sensor_effects_and_refuses_the_free_load_on
 
 
 def test_creep_refinement_model_columns_reproduce_the_linear_load():
-    from ftcal_nlp.effects.creep import model_columns
+    from ftcal_nlp.effects.free_refine import model_columns
 
     sim = simulate(seed=6)
     ctx = _payload_context(sim)

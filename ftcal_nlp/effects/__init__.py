@@ -26,7 +26,8 @@ Modules:
   ``chassis_flex``, ``tether_force``, ``hysteresis``, ``leg_inertia``, ``robot_mass``,
   ``sensor_nonlinearity``, ``moving_com``, ``clock_offset``, ``creep``, ``inertial_load``,
   ``joint_limit_contact``, ``temperature``; ``signals.py``: the time-series helpers their
-  injectors and faces share (resampling with a delay, first-order lags).
+  injectors and faces share (resampling with a delay, first-order lags); ``free_refine.py``: a free
+  face's shape refined on the residual beside the free-load model's own columns.
 
 Nothing here imports the diagnosis, the pipeline, ``correct`` or the simulator: they
 import this package (the simulator registers :func:`injector_classes` under its

@@ -38,9 +38,9 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.optimize import minimize, minimize_scalar
 
 from .free_faces import WRENCH, FreeFace
+from .free_refine import refine_scalar, refine_simplex
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
 from .signals import relaxation
 from .unit import Effect
@@ -140,37 +140,29 @@ class Creep(Effect):
         return FreeFace(X, names, dict(shape))
 
     def free_refine(self, ctx, shape, resid):
-        # The time constant(s) by a search in ln tau (within a factor 2 of the grid's best single tau; a pair by
-        # Nelder-Mead from its grid point): the residual regressed on the relaxation columns beside the free-load
-        # model's own first-order columns (offsets, load parameters, mounting rotation: they took up part of the
-        # creep when the load was fitted), channels weighted by the floor
-        sd = ctx.sigma if ctx.sigma is not None else np.std(resid, axis=0)
-        w = 1.0 / np.where(sd > 0, sd, 1.0)
-        r = (np.asarray(resid, float) * w).reshape(-1)
-        J = (model_columns(ctx) * w[None, :, None]).reshape(len(r), -1)
-
-        def sse(ln_taus) -> float:
-            cols = []
+        # The time constant(s) by a search in ln tau on the residual beside the free-load model's own columns
+        # (free_refine.py): within a factor 2 of the grid's best single tau, or a pair by Nelder-Mead from its grid point
+        def columns(ln_taus) -> np.ndarray:
+            out = []
             for v in np.atleast_1d(ln_taus):
                 x = np.zeros_like(ctx.pred)
                 for k in np.unique(ctx.rec):
                     i = ctx.rec == k
                     x[i] = creep_term(ctx.t[i], ctx.pred[i], 1.0, (float(np.exp(v)),))
                 X = np.zeros((ctx.n, 6, 6))
-                X[:, np.arange(6), np.arange(6)] = x * w
-                cols.append(X.reshape(len(r), 6))
-            A = np.concatenate([J] + cols, axis=1)
-            coef, *_ = np.linalg.lstsq(A, r, rcond=None)
-            return float(np.sum((r - A @ coef) ** 2))
+                X[:, np.arange(6), np.arange(6)] = x
+                out.append(X)
+            return np.concatenate(out, axis=2)
 
         if "tau2_s" not in shape:
             lt = np.log(float(shape["tau_s"]))
-            best = minimize_scalar(sse, bounds=(lt - np.log(2.0), lt + np.log(2.0)), method="bounded", options={"xatol": 0.01})
-            return {"tau_s": float(np.round(np.exp(best.x), 3))} if best.success else None
-        x0 = np.log([float(shape["tau_s"]), float(shape["tau2_s"])])
-        best = minimize(sse, x0, method="Nelder-Mead", options={"xatol": 0.01, "fatol": 1e-9 * float(r @ r), "maxfev": 80})
-        t1, t2 = sorted(float(np.round(np.exp(v), 3)) for v in best.x)
-        return {"tau_s": t1, "tau2_s": t2} if np.all(np.isfinite(best.x)) and t2 > 1.05 * t1 else None
+            v = refine_scalar(ctx, resid, columns, lt - np.log(2.0), lt + np.log(2.0))
+            return None if v is None else {"tau_s": float(np.round(np.exp(v), 3))}
+        x = refine_simplex(ctx, resid, columns, np.log([float(shape["tau_s"]), float(shape["tau2_s"])]))
+        if x is None:
+            return None
+        t1, t2 = sorted(float(np.round(np.exp(v), 3)) for v in x)
+        return {"tau_s": t1, "tau2_s": t2} if t2 > 1.05 * t1 else None
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         par = block.get("parameters", {})
@@ -181,28 +173,6 @@ class Creep(Effect):
             return w, R_WB, None
         g = np.array([v["value"] if isinstance(v, dict) else v for v in g], float)
         return w - creep_term(np.asarray(t_h, float) * HOUR_S, w, g, (float(tau),)), R_WB, None
-
-
-def model_columns(ctx) -> np.ndarray:
-    """First-order columns (N, 6, 6 + p + 3) of the free-load model's readings ``[m g_ft; s x g_ft] + w_o``
-    (``m = mu theta``, ``s = K theta``, ``g_ft`` with the fitted mounting rotation): the offsets, the load's
-    parameters ``theta`` and a small turn ``dr`` of the mounting (``dg_ft = g_ft x dr``); only the offsets
-    without a fitted load in the context."""
-    n = ctx.n
-    cols = [np.broadcast_to(np.eye(6), (n, 6, 6))]
-    load, theta = ctx.load, ctx.theta
-    if load is not None and theta is not None:
-        theta = np.asarray(theta, float)
-        K = ctx.extra.get("K")
-        K = np.broadcast_to(load.lever(ctx.q, n) if K is None else K, (n, 3, len(theta)))
-        mu = np.asarray(load.mass_row, float)
-        g = ctx.g_ft
-        m, s_ = float(mu @ theta), np.einsum("nij,j->ni", K, theta)
-        Jt = np.concatenate([g[:, :, None] * mu[None, None, :], np.cross(np.moveaxis(K, 2, 1), g[:, None, :]).transpose(0, 2, 1)], axis=1)
-        dg = np.stack([np.cross(g, e) for e in np.eye(3)], axis=2)                     # (N, 3, 3)
-        Jr = np.concatenate([m * dg, np.cross(s_[:, None, :], np.moveaxis(dg, 2, 1)).transpose(0, 2, 1)], axis=1)
-        cols += [Jt, Jr]
-    return np.concatenate(cols, axis=2)
 
 
 EFFECT = Creep()

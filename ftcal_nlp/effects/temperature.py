@@ -23,7 +23,8 @@ Off-face shape (the validation sweep; a correct diagnosis still says ``temperatu
 Free face (``free_faces.py``): per channel ``(T_lag - Tbar)`` (and ``(T_lag - Tbar)^2``) with
 ``T_lag = lowpass_lag(T)`` (each recording apart), ``Tbar`` the mean over the samples; parameters
 ``<c>.dT [N/degC]`` (and ``<c>.dT2 [N/degC^2]``; torques N*m); shapes: the degree (1, 2) and the
-thermal lag (0, 20, 60 s), chosen by held-out residual. None without a temperature.
+thermal lag (0, 20, 60 s), chosen by held-out residual, then the lag refined by a bounded search
+(``free_refine``, ``free_refine.py``). None without a temperature.
 
 Correction: ``y - X beta`` (the free face on the recording's own temperature). A hexapod's
 ``correct`` has no temperature to read: readings unchanged (logged; ``Effect.correct``).
@@ -34,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from .free_faces import WRENCH, FreeFace
+from .free_refine import refine_scalar
 from .injection import EffectInjector, Magnitude, OffFaceInjector
 from .signals import lowpass
 from .unit import Effect
@@ -120,17 +122,37 @@ class Temperature(Effect):
         T = ctx.temperature
         if T is None or not np.all(np.isfinite(T)) or np.ptp(T) <= 0:
             return None
-        lag = float(shape["lag_s"])
-        Tl = np.empty(ctx.n)
-        for r in np.unique(ctx.rec):
-            i = ctx.rec == r
-            Tl[i] = lowpass(ctx.t[i], T[i], lag)
-        dT = Tl - Tl.mean()
-        d = int(shape["degree"])
-        basis = np.stack([dT**j for j in range(1, d + 1)], axis=1)
+        basis = self._basis(ctx, float(shape["lag_s"]), int(shape["degree"]))
+        d = basis.shape[1]
         names = [f"{WRENCH[c]}.dT{'' if j == 1 else j} [{'N' if c < 3 else 'N*m'}/degC{'' if j == 1 else f'^{j}'}]"
                  for c in range(6) for j in range(1, d + 1)]
         return FreeFace(None, tuple(names), dict(shape), basis=basis, channels=tuple(range(6)))
+
+    def _basis(self, ctx, lag: float, degree: int) -> np.ndarray:
+        """``(T_lag - Tbar)^j``, j = 1..degree (N, degree), the temperature lagged within each recording."""
+        Tl = np.empty(ctx.n)
+        for r in np.unique(ctx.rec):
+            i = ctx.rec == r
+            Tl[i] = lowpass(ctx.t[i], ctx.temperature[i], lag)
+        dT = Tl - Tl.mean()
+        return np.stack([dT**j for j in range(1, degree + 1)], axis=1)
+
+    def free_refine(self, ctx, shape, resid):
+        # The thermal lag by a bounded search (0 .. 4x the grid's largest) on the residual beside the free-load
+        # model's own columns (free_refine.py)
+        if ctx.temperature is None:
+            return None
+        d = int(shape["degree"])
+
+        def columns(lag: float) -> np.ndarray:
+            B = self._basis(ctx, max(lag, 0.0), d)
+            X = np.zeros((ctx.n, 6, 6 * d))
+            for c in range(6):
+                X[:, c, c * d:(c + 1) * d] = B
+            return X
+
+        lag = refine_scalar(ctx, resid, columns, 0.0, 4.0 * max(self.LAGS_S), xatol=0.5)
+        return None if lag is None else {"degree": d, "lag_s": float(np.round(lag, 1))}
 
 
 EFFECT = Temperature()
