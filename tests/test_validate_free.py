@@ -89,6 +89,10 @@ def test_scores():
     assert s["first_right"].tolist() == [True, True, False, False, False, False, False, False, False]
     assert s["false_second"].tolist() == [False, True, True, False, False, False, False, False, False]
     assert s["shrunk"].tolist() == [True, False, True, False, False, False, False, False, False]
+    assert s["false_third"].tolist() == [False] * 9
+    s3 = score(pd.DataFrame([_row(role="pair", label="creep+temperature", expect="creep+temperature",
+                                  named="temperature creep clock_offset")]), 1.5)
+    assert s3["right"].tolist() == [True] and s3["false_third"].tolist() == [True] and s3["extra"].tolist() == ["clock_offset"]
     c, _ = check_config({"design": "free", "kinds": ["payload"]})
     per = summarise(s, 1.0, c, [])["per_kind"]["payload"]
     assert per["named"] == [3, 5] and per["clean"] == [1, 2] and per["pairs"] == [1, 2]

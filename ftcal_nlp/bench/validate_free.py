@@ -38,7 +38,7 @@ What a correct diagnosis says and how it is scored (``scores.csv``):
 * shrunk to the floor: named, and after the chain the held-out RMS within ``tolerance`` x the simulated
   noise sd on every component (the noise is known here; the diagnosis' own floor, from held still
   stretches, is in ``datasets.csv`` beside it);
-* pair: ``named`` when both are in the chain.
+* pair: ``named`` when both are in the chain; ``false third`` when the chain names another effect beside them.
 
 Outputs (the hexapod sweep's): ``datasets.csv`` (one row per run), ``scores.csv`` (one row per dataset: the
 scores above), ``confusion.csv``/``.md`` (expected -> the first effect named, or none / unexplained; single
@@ -322,6 +322,7 @@ def score(rows: pd.DataFrame, tolerance: float) -> pd.DataFrame:
                     "named": " ".join(named), "right": bool(right),
                     "first_right": bool(single and not err and r["first"] in expect),
                     "false_second": bool(single and not err and len(named) > 1),
+                    "false_third": bool(r["role"] == "pair" and not err and len(set(named) - set(expect)) > 0),
                     "extra": " ".join(n for n in named if n not in expect),
                     "injected_noise": r.get("injected_noise", np.nan),
                     "worst_before_noise": r.get("worst_before_noise", np.nan), "worst_after_noise": worst,
@@ -349,6 +350,7 @@ def summarise(scores: pd.DataFrame, wall_s: float, c: dict, skipped: list[str]) 
             "pairs": _count(s[s["role"] == "pair"]["right"]),
             "clean": _count(s[s["role"] == "clean"]["right"]),
             "false_second": _count(single[single["verdict"] != "error"]["false_second"]),
+            "false_third": _count(s[(s["role"] == "pair") & (s["verdict"] != "error")]["false_third"]),
             "finished": _count(s["verdict"] != "error"),
         }
     return {"per_kind": per, "tolerance": float(c["tolerance"]), "n_runs": int(len(scores)), "wall_time_s": float(wall_s),
@@ -404,6 +406,8 @@ def validation_table(scores: pd.DataFrame, summary: dict) -> str:
             ("two effects injected together: both named", "pairs", GOAL_PAIRS, False),
             ("clean kept clean (verdict `none`)", "clean", 1.0, False),
             ("one effect: a false second effect named", "false_second", GOAL_FALSE, True),
+            ("two effects: a false third named (no goal in the issue; the single effect's rate for scale)", "false_third",
+             GOAL_FALSE, True),
             ("runs that finish", "finished", 1.0, False)]
     for what, key, share, is_false in rows:
         if not any(per[k][key][1] for k in kinds):
@@ -420,6 +424,7 @@ def validation_table(scores: pd.DataFrame, summary: dict) -> str:
                  ("pairs", _misses(s[s["role"] == "pair"])), ("clean", _misses(s[s["role"] == "clean"])),
                  ("false second", "; ".join(f"{r['label']} {r['size']}: + `{r['extra'] or r['named']}`"
                                             for _, r in single[single["false_second"]].iterrows())),
+                 ("false third", "; ".join(f"{r['label']}: + `{r['extra']}`" for _, r in s[s["false_third"]].iterrows())),
                  ("not shrunk", "; ".join(f"{r['label']} {r['size']}: {r['worst_after_noise']:.2g}x"
                                           for _, r in single[single["right"] & ~single["shrunk"]].iterrows()))]
         txt = "; ".join(f"{k}: {v}" for k, v in parts if v)

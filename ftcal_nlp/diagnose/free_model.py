@@ -6,7 +6,7 @@ noise floor from held, still stretches of the readings.
   direction is unknown, orientation not tracked, are left out and counted);
 * :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), r (3)]`` with
   ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``):
-  offsets the identity, ``theta`` exact (the model is linear in it), ``r`` by central differences;
+  offsets the identity, ``theta`` exact (the model is linear in it), ``r`` to first order (closed form);
 * :func:`hold_floor`: the readings' noise sd per channel from held, still stretches: within every window of
   ``FLOOR_WINDOW_S`` (at least ``FLOOR_MIN_SAMPLES`` samples) of a quasi-static hold, the scatter about the
   window's own mean and slope (what no model of a free load can explain: a creep or drift is smooth over the
@@ -22,12 +22,11 @@ import numpy as np
 from ..data import Dataset
 from ..effects.free_faces import FreeLoadContext, make_context
 from ..freeload.problem import predict
-from ..geometry import rotvec_to_rotation
+from ..geometry import skew
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
 FLOOR_WINDOW_S = 0.5
 FLOOR_MIN_SAMPLES = 6
-_ROT_STEP = 1e-6
 #: a floor window is still when gravity's direction in ft and every joint move less than this (rad) across it
 STILL_RAD = 3e-3
 
@@ -85,23 +84,26 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
 
 
 def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
-    """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``."""
+    """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``. In closed form (no call of
+    ``predict``): with ``g = E^T b`` and ``s = K theta``, ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``;
+    ``E expm([r]x)`` turns ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and
+    ``d t / d r = [s]x [g]x``. Blocks are written whole (a column at a time into the last axis is strided)."""
     b, K = ctx.extra["b"], ctx.extra["K"]
     load, E = fit.load, fit.rotation
-    mu = load.mass_row
-    p = len(fit.theta)
+    mu = np.asarray(load.mass_row, float)
+    theta = np.asarray(fit.theta, float)
+    p = len(theta)
     n = ctx.n
+    g = b @ E                                                    # (N, 3): (E^T b_n)^T
+    Kn = K if K.ndim == 3 else np.broadcast_to(K, (n,) + K.shape)
+    s = Kn @ theta                                               # (N, 3) first moment in ft
+    Sg = skew(g)
     J = np.zeros((n, 6, 6 + p + 3))
     J[:, np.arange(6), np.arange(6)] = 1.0
-    z = np.zeros(6)
-    for l in range(p):
-        J[:, :, 6 + l] = predict(b, K, np.eye(p)[l], mu, E, z)
-    for a in range(3):
-        d = np.zeros(3)
-        d[a] = _ROT_STEP
-        up = predict(b, K, fit.theta, mu, E @ rotvec_to_rotation(d), z)
-        dn = predict(b, K, fit.theta, mu, E @ rotvec_to_rotation(-d), z)
-        J[:, :, 6 + p + a] = (up - dn) / (2 * _ROT_STEP)
+    J[:, :3, 6:6 + p] = g[:, :, None] * mu[None, None, :]
+    J[:, 3:, 6:6 + p] = np.cross(Kn, g[:, :, None], axis=1)
+    J[:, :3, 6 + p:] = float(mu @ theta) * Sg
+    J[:, 3:, 6 + p:] = skew(s) @ Sg
     return J, tuple(fit.names)
 
 
