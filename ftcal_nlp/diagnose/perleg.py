@@ -822,7 +822,6 @@ def swing_check(dataset: Dataset, calibration: Calibration, robot: Robot, *, alp
         fits[k] = _swing_leg(l, calibration.legs[k], block_s, swing.floor[l.k])
     flagged = []
     for k, f in fits.items():
-        se = f._bse_array()
         weight = abs(f.z_weight) > z_bound and abs(f.theta[0]) > min_weight_N
         moment = abs(f.z_moment) > z_bound and abs(f.theta[1]) > min_weight_N
         if weight or moment:
