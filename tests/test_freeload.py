@@ -64,7 +64,8 @@ def _urdf_truth_theta(load: UrdfSubtree, bodies: dict) -> np.ndarray:
 
 def _urdf_checks(r, truth: dict) -> None:
     p = len(r.theta)
-    x_true = np.r_[truth["offset"], _urdf_truth_theta(r.load, truth["bodies"]), truth.get("mount_rotvec", np.zeros(3))]
+    x_true = np.r_[truth["offset"], _urdf_truth_theta(r.load, truth["bodies"]), np.zeros(0 if r.tilt is None else 2),  # no world tilt
+                   truth.get("mount_rotvec", np.zeros(3))]
     rep = r.load_report()
     assert abs(_z(rep["load_mass_kg"], truth["load_mass_kg"], rep["load_mass_se_kg"])) < Z
     fin = np.isfinite(r.se)

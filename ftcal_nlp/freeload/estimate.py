@@ -12,12 +12,13 @@ import numpy as np
 from ..calibration import Calibration
 from ..data import Dataset
 from ..errors import DataFormatError
-from ..geometry import project_to_so3, rotation_to_rotvec
+from ..geometry import project_to_so3, quat_to_rotation, rotation_to_rotvec
 from ..loads import load_for
 from ..settings import FreeLoadSettings
 from ..solver import identifiability
 from .nlp import nlp_for
-from .problem import FreeLoadData, compress, difference_noise, n_lifted, predict, serial_inflation
+from .problem import (FreeLoadData, compress, compress_tilted, difference_noise, n_lifted, predict, serial_inflation,
+                      tilt_gravity)
 from .quasistatic import select_quasi_static
 from .result import WRENCH, FreeLoadResult, FreeLoadResults
 
@@ -37,7 +38,7 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     s = settings
     g = ds.robot.g
     joints = tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ()))
-    ys, gs, qs, src, ts, idx, names, selection, masks = [], [], [], [], [], [], [], {}, {}
+    ys, gs, qs, src, ts, idx, names, selection, masks, Rw = [], [], [], [], [], [], [], {}, {}, []
     recs = [r for r in ds.hanging if r.hangs_free(leg)]
     if not recs:
         raise DataFormatError(f"{ds.manifest or 'dataset'}: transducer {leg}: no hanging recording in which its load hangs free "
@@ -53,6 +54,8 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
         masks[rec.name] = m
         ys.append(rec.wrench[leg][m])
         gs.append(g * grav[m])
+        # the orientation R_WB (as the stream gives it) where the recording has it: a world tilt acts through it
+        Rw.append(None if rec.quat is None else quat_to_rotation(rec.quat[m]))
         qs.append({j: rec.q[j][m] if j in rec.q else np.zeros(int(m.sum())) for j in joints})
         src.append(np.full(int(m.sum()), i))
         ts.append(rec.t[m])
@@ -78,7 +81,14 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     source = np.concatenate(src)
     index = np.concatenate(idx)
     noise0 = difference_noise(y, source, index)
-    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q, index)
+    tiltable = all(r is not None for r in Rw)
+    if tiltable:   # b = g R_nom^T R_WB^T u: a[n][:, k] = g R_nom^T R_WB^T e_k
+        a = g * np.einsum("nji,nkj->nik", R_nom, np.concatenate(Rw))
+    else:          # b = -a[:, :, 2] at u = (0, 0, -1): no tilt
+        a = np.zeros((n, 3, 3))
+        a[:, :, 2] = -b
+    return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q, index,
+                        a, tiltable)
 
 
 def _lin_map(p: int, mu: np.ndarray) -> np.ndarray:
@@ -99,9 +109,9 @@ def _ridge(A: np.ndarray, weight: float) -> np.ndarray:
     return weight * np.where(dg > 0, dg, fill)
 
 
-def _null_penalty(A: np.ndarray, s: FreeLoadSettings) -> np.ndarray | None:
+def _null_penalty(A: np.ndarray, s: FreeLoadSettings, tilt: bool) -> np.ndarray | None:
     """``S N N^T S`` over the directions the information ``A`` (local coordinates) leaves undetermined (``nlp.py``)."""
-    keep = np.r_[np.ones(len(A) - 3, bool), np.full(3, s.mount_rotation)]
+    keep = np.r_[np.ones(len(A) - 5, bool), np.full(2, tilt), np.full(3, s.mount_rotation)]
     ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
     if ident.determined.all():
         return None
@@ -153,7 +163,9 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     data = free_load_data(ds, leg, s, load)
     p = len(load.param_names)
     mu = load.mass_row
-    mom = compress(data.y, data.b, data.K)
+    mom = compress(data.y, data.b, data.K)             # at no tilt: the linear start
+    tilt_on = bool(s.gravity_tilt and data.tiltable)
+    mom_t = compress_tilted(data.y, data.a, data.K)    # any tilt: the NLP
     sig = data.noise0 if np.all(np.isfinite(data.noise0)) and np.all(data.noise0 > 0) else None
     nlp = nlp_for(mu)
     # start: linear least squares at E = I (a little ridge toward the prior pins what it cannot see)
@@ -171,35 +183,37 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if prior is None:
         th0 = x_lin[6:]
     E = np.eye(3)
-    x = np.r_[x_lin, E.ravel(order="F")]
-    x0 = np.r_[np.zeros(6), th0, np.eye(3).ravel(order="F")]
+    x = np.r_[x_lin, 0.0, 0.0, E.ravel(order="F")]
+    x0 = np.r_[np.zeros(6), th0, 0.0, 0.0, np.eye(3).ravel(order="F")]
     what = f"the free load of transducer {leg} ({load.kind}; recordings {list(data.names)})"
     t0 = time.perf_counter()
     iters = 0
     for _ in range(2):  # noise weights, then residual-sd weights
-        Qw, vw, sw = mom.weighted(W)
-        Jl = nlp.jacobian(x[:6], x[6:6 + p], E)
+        Qw, vw, sw = mom_t.weighted(W)
+        Jl = nlp.jacobian(x[:6], x[6:6 + p], x[6 + p:8 + p], E)
         Al = Jl.T @ Qw @ Jl
-        ridge = np.r_[_ridge(Al[:6 + p, :6 + p], s.prior_weight), np.full(9, _ridge(Al[6 + p:, 6 + p:], s.prior_weight).mean())]
-        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, what=what,
-                          null_penalty=_null_penalty(Al, s))
+        ridge = np.r_[_ridge(Al[:8 + p, :8 + p], s.prior_weight), np.full(9, _ridge(Al[8 + p:, 8 + p:], s.prior_weight).mean())]
+        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, tilt=tilt_on, what=what,
+                          null_penalty=_null_penalty(Al, s, tilt_on))
         iters += int(st.get("iter_count", 0))
         E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
-        rss = mom.rss(nlp.z(np.r_[x[:6 + p], E.ravel(order="F")]))
-        dof = (6 + p + (3 if s.mount_rotation else 0)) / 6.0
+        rss = mom_t.rss(nlp.z_tilted(np.r_[x[:8 + p], E.ravel(order="F")]))
+        dof = (6 + p + (3 if s.mount_rotation else 0) + (2 if tilt_on else 0)) / 6.0
         sig = np.sqrt(np.clip(rss, 1e-300, None) / max(mom.n - dof, 1.0))
         W = 1.0 / sig**2
     solve_time = time.perf_counter() - t0
-    w_o, theta = x[:6], x[6:6 + p]
+    w_o, theta, tilt = x[:6], x[6:6 + p], x[6 + p:8 + p]
+    b_t = np.einsum("nik,k->ni", data.a, tilt_gravity(tilt))          # gravity in ft of the tilted world
     # information in local coordinates [w_o, theta, delta]; serially correlated residuals (a model error that stays
     # through a hold) carry less information than white noise: their weight shrinks by the AR(1) inflation
-    res = data.y - predict(data.b, data.K, theta, mu, E, w_o)
+    res = data.y - predict(b_t, data.K, theta, mu, E, w_o)
     rho, inflation = serial_inflation(res, data.source, data.index)
-    Qw, _, _ = mom.weighted(W / inflation)
-    J = nlp.jacobian(w_o, theta, E)
+    Qw, _, _ = mom_t.weighted(W / inflation)
+    J = nlp.jacobian(w_o, theta, tilt, E)
     info = J.T @ Qw @ J
-    keep = np.r_[np.ones(6 + p, bool), np.full(3, s.mount_rotation)]
-    names = [f"{leg}.offset.{c}" for c in WRENCH] + [f"{leg}.{n}" for n in load.param_names] + [f"{leg}.mount.r{c}" for c in "xyz"]
+    keep = np.r_[np.ones(6 + p, bool), np.full(2, tilt_on), np.full(3, s.mount_rotation)]
+    names = ([f"{leg}.offset.{c}" for c in WRENCH] + [f"{leg}.{n}" for n in load.param_names]
+             + [f"{leg}.tilt.r{c}" for c in "xy"] + [f"{leg}.mount.r{c}" for c in "xyz"])
     ident = identifiability(info[np.ix_(keep, keep)], s.rel_eig_tol)
     n_all = len(names)
     cov = np.zeros((n_all, n_all))
@@ -222,7 +236,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         rank = int((sv > 1e-8).sum())
         comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
         tn = [n for n, t in zip(kn, touched) if t]
-        xk = np.r_[w_o, theta, rotation_to_rotvec(E)][keep]
+        xk = np.r_[w_o, theta, tilt, rotation_to_rotvec(E)][keep]
         Ck = cov[np.ix_(keep, keep)]
         for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
             a = np.zeros(len(kn))
@@ -250,13 +264,17 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if fixed:
         notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
                      "recording is estimated for a free load; a rig's tilt there biases the fit)")
+    if not tilt_on:  # no tilt term: the parameters as without one
+        out = np.r_[np.arange(6 + p), np.arange(8 + p, 11 + p)]
+        names, cov, se, null, tilt = [names[i] for i in out], cov[np.ix_(out, out)], se[out], null[out], None
     for note in notes:
         log.warning("%s", note)
     log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,
              float(mu @ theta), np.degrees(np.linalg.norm(np.r_[E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2),
              np.array2string(rms, precision=3))
     return FreeLoadResult(leg, load, w_o.copy(), theta.copy(), E, tuple(names), cov, se, sig, rms, mom.n, data.selection,
-                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null, data.masks)
+                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null, data.masks,
+                          None if tilt is None else tilt.copy())
 
 
 def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..geometry import skew
 from ..solver import ipopt, solve_checked
-from .problem import n_lifted
+from .problem import n_tilted
 
 _IPOPT = {"tol": 1e-8, "acceptable_tol": 1e-6, "acceptable_iter": 3, "max_iter": 500}  # rounding floor of the gradient ~1e-9
 
@@ -59,6 +59,17 @@ def _lifted_mx(w_o, theta, E, mu):
     return ca.vertcat(w_o, M * eR, ca.vec(ca.mtimes(eR, theta.T)))
 
 
+def _u(tilt):
+    """``R_y(tilt[1]) R_x(tilt[0]) (0, 0, -1)`` (``problem.tilt_gravity``)."""
+    return ca.vertcat(-ca.cos(tilt[0]) * ca.sin(tilt[1]), ca.sin(tilt[0]), -ca.cos(tilt[0]) * ca.cos(tilt[1]))
+
+
+def _tilted(z, tilt):
+    """``[w_o; u (x) z_r]`` of ``problem.compress_tilted``."""
+    u = _u(tilt)
+    return ca.vertcat(z[:6], u[0] * z[6:], u[1] * z[6:], u[2] * z[6:])
+
+
 @dataclass
 class FreeLoadNLP:
     """The solver and the local Jacobian for loads with ``p`` parameters and mass row ``mu`` (built once, reused)."""
@@ -68,33 +79,37 @@ class FreeLoadNLP:
     solver: ca.Function
     jac: ca.Function
     lifted: ca.Function
+    lifted_t: ca.Function
 
     @classmethod
     def build(cls, mu: np.ndarray) -> "FreeLoadNLP":
         p = len(mu)
-        d = n_lifted(p)
+        d = n_tilted(p)
         # the solver in MX: the data matrix R (d x d) enters as one matrix-vector product, so building the NLP and
         # its exact Hessian costs milliseconds at any size (SX would expand the d^2 products: seconds at d ~ 200)
-        w_o, theta, E = ca.MX.sym("w_o", 6), ca.MX.sym("theta", p), ca.MX.sym("E", 3, 3)
+        w_o, theta, E, tilt = ca.MX.sym("w_o", 6), ca.MX.sym("theta", p), ca.MX.sym("E", 3, 3), ca.MX.sym("tilt", 2)
         Rq, c = ca.MX.sym("R", d, d), ca.MX.sym("c", d)
-        nx = 6 + p + 9
+        nx = 6 + p + 2 + 9
         r, x0, inv_n = ca.MX.sym("r", nx), ca.MX.sym("x0", nx), ca.MX.sym("inv_n")
-        Pn = ca.MX.sym("Pn", 9 + p, 9 + p)
-        x = ca.vertcat(w_o, theta, ca.vec(E))
-        z = _lifted_mx(w_o, theta, E, mu)
-        e = ca.vertcat(w_o - x0[:6], theta - x0[6:6 + p], 0.5 * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]))
+        Pn = ca.MX.sym("Pn", 11 + p, 11 + p)
+        x = ca.vertcat(w_o, theta, tilt, ca.vec(E))
+        z = _tilted(_lifted_mx(w_o, theta, E, mu), tilt)
+        e = ca.vertcat(w_o - x0[:6], theta - x0[6:6 + p], tilt - x0[6 + p:8 + p],
+                       0.5 * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]))
         obj = 0.5 * inv_n * (ca.sumsqr(ca.mtimes(Rq, z) - c) + ca.dot(r, (x - x0) ** 2) + ca.dot(e, ca.mtimes(Pn, e)))
         EtE = ca.mtimes(E.T, E) - ca.DM.eye(3)
         g = ca.vertcat(*[EtE[i, k] for i in range(3) for k in range(i, 3)], ca.det(E))
         P = ca.vertcat(ca.vec(Rq), c, r, x0, inv_n, ca.vec(Pn))
         solver = ipopt(f"freeload_nlp_p{p}", {"x": x, "p": P, "f": obj, "g": g}, **_IPOPT)
         w_s, th_s, E_s = ca.SX.sym("w_o", 6), ca.SX.sym("theta", p), ca.SX.sym("E", 3, 3)
-        delta, Es = ca.SX.sym("delta", 3), ca.SX.sym("Es", 3, 3)
-        z_loc = _lifted(w_s, th_s, ca.mtimes(Es, ca.SX.eye(3) + skew(delta)), mu)
-        xl = ca.vertcat(w_s, th_s, delta)
+        delta, Es, t_s = ca.SX.sym("delta", 3), ca.SX.sym("Es", 3, 3), ca.SX.sym("tilt", 2)
+        z_loc = _tilted(_lifted(w_s, th_s, ca.mtimes(Es, ca.SX.eye(3) + skew(delta)), mu), t_s)
+        xl = ca.vertcat(w_s, th_s, t_s, delta)
         jac = ca.Function(f"freeload_jac_p{p}", [xl, Es], [ca.jacobian(z_loc, xl)])
         lifted = ca.Function(f"freeload_z_p{p}", [ca.vertcat(w_s, th_s, ca.vec(E_s))], [_lifted(w_s, th_s, E_s, mu)])
-        return cls(p, np.asarray(mu, float), solver, jac, lifted)
+        lifted_t = ca.Function(f"freeload_zt_p{p}", [ca.vertcat(w_s, th_s, t_s, ca.vec(E_s))],
+                               [_tilted(_lifted(w_s, th_s, E_s, mu), t_s)])
+        return cls(p, np.asarray(mu, float), solver, jac, lifted, lifted_t)
 
     @property
     def lbg(self) -> np.ndarray:
@@ -105,7 +120,7 @@ class FreeLoadNLP:
         return np.r_[np.zeros(6), np.inf]
 
     def solve(self, Q: np.ndarray, v: np.ndarray, n: int, ridge: np.ndarray, x0: np.ndarray, start: np.ndarray,
-              *, mount_rotation: bool, what: str, null_penalty: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+              *, mount_rotation: bool, tilt: bool, what: str, null_penalty: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
         """The optimum ``x`` and IPOPT's stats; raises :class:`~ftcal_nlp.errors.SolverError` naming ``what``."""
         lam, U = np.linalg.eigh(Q)
         ok = lam > 1e-13 * max(lam.max(), 1e-300)
@@ -113,20 +128,27 @@ class FreeLoadNLP:
         R[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
         c = np.zeros(len(v))
         c[: ok.sum()] = (U[:, ok].T @ v) / np.sqrt(lam[ok])
-        Pn = np.zeros((9 + self.p, 9 + self.p)) if null_penalty is None else null_penalty
+        Pn = np.zeros((11 + self.p, 11 + self.p)) if null_penalty is None else null_penalty
         P = np.concatenate([R.ravel(order="F"), c, ridge, x0, [1.0 / n], Pn.ravel(order="F")])
         lbx, ubx = np.full(len(start), -np.inf), np.full(len(start), np.inf)
         if not mount_rotation:  # E held at the nominal (identity)
             lbx[-9:] = ubx[-9:] = np.eye(3).ravel(order="F")
+        if not tilt:  # no tilt of the orientation stream
+            lbx[6 + self.p:8 + self.p] = ubx[6 + self.p:8 + self.p] = 0.0
         sol, st = solve_checked(self.solver, what, x0=start, p=P, lbg=self.lbg, ubg=self.ubg, lbx=lbx, ubx=ubx)
         return np.asarray(sol["x"]).ravel(), st
 
     def z(self, x: np.ndarray) -> np.ndarray:
+        """``z`` of ``problem.compress`` at ``x = [w_o, theta, vec(E)]``."""
         return np.asarray(self.lifted(x)).ravel()
 
-    def jacobian(self, w_o: np.ndarray, theta: np.ndarray, E: np.ndarray) -> np.ndarray:
-        """``dz / d[w_o, theta, delta]`` (d, 9 + p) at ``E* = E``, ``delta = 0``."""
-        return np.asarray(self.jac(np.concatenate([w_o, theta, np.zeros(3)]), E))
+    def z_tilted(self, x: np.ndarray) -> np.ndarray:
+        """``[w_o; u (x) z_r]`` of ``problem.compress_tilted`` at ``x = [w_o, theta, tilt, vec(E)]``."""
+        return np.asarray(self.lifted_t(x)).ravel()
+
+    def jacobian(self, w_o: np.ndarray, theta: np.ndarray, tilt: np.ndarray, E: np.ndarray) -> np.ndarray:
+        """``dz / d[w_o, theta, tilt, delta]`` (D, 11 + p) at ``E* = E``, ``delta = 0``."""
+        return np.asarray(self.jac(np.concatenate([w_o, theta, tilt, np.zeros(3)]), E))
 
 
 _CACHE: dict[tuple, FreeLoadNLP] = {}

@@ -62,6 +62,8 @@ class FreeLoadData:
     masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
     q: dict[str, np.ndarray] = field(default_factory=dict)       # joint -> (N,) angles of the samples used
     index: np.ndarray | None = None                              # (N,) row of each sample in its recording
+    a: np.ndarray | None = None                                  # (N, 3, 3) b = a u: u the tilted world's gravity
+    tiltable: bool = False                                       # every recording has the orientation per sample
 
     @property
     def n(self) -> int:
@@ -179,3 +181,41 @@ def serial_inflation(res: np.ndarray, source: np.ndarray, index: np.ndarray) -> 
     runs = int((~ok).sum()) + 1
     cap = max(len(res) / runs, 1.0)
     return rho, np.clip((1 + rho) / (1 - rho), 1.0, cap)
+
+
+def n_tilted(p: int) -> int:
+    """Size of the tilted lifted vector ``[w_o; u_0 z_r; u_1 z_r; u_2 z_r]`` (``z_r = z[6:]``)."""
+    return 6 + 3 * (n_lifted(p) - 6)
+
+
+def compress_tilted(y: np.ndarray, a: np.ndarray, K: np.ndarray, chunk: int = _CHUNK) -> Moments:
+    """Channel moments for a tilted gravity ``b_n = A_n u`` (``a`` (N, 3, 3) = ``A_n``, ``u`` the unit gravity of the
+    tilted world): every feature is linear in ``b_n``, so ``F_n z = w_o + sum_k u_k G(A_n e_k) z_r`` is linear in the
+    lifted ``[w_o; u (x) z_r]`` with data-only features; the moments of those are exact for any tilt."""
+    n, _, p = K.shape
+    dr = n_lifted(p) - 6
+    D = 6 + 3 * dr
+    nz_l = np.flatnonzero(np.any(K[0] != 0, axis=0)) if K.strides[0] == 0 or n == 1 else np.flatnonzero(np.any(K != 0, axis=(0, 1)))
+    cols = channel_columns(p, nz_l)
+    big = [np.r_[c, *[6 + k * dr + (cols[c][1:] - 6) for k in range(3)]] for c in range(6)]
+    Q = np.zeros((6, D, D))
+    v = np.zeros((6, D))
+    for s0 in range(0, n, chunk):
+        sl = slice(s0, min(s0 + chunk, n))
+        yb, ab, Kb = y[sl], a[sl], K[sl]
+        ones = np.ones((len(yb), 1))
+        Fts = [torque_features(Kb, ab[:, :, k]) for k in range(3)]
+        for c in range(6):
+            if c < 3:
+                X = np.concatenate([ones] + [ab[:, :, k] for k in range(3)], axis=1)
+            else:
+                X = np.concatenate([ones] + [Fts[k][:, c - 3, cols[c][1:] - 15] for k in range(3)], axis=1)
+            Q[c][np.ix_(big[c], big[c])] += X.T @ X
+            v[c][big[c]] += X.T @ yb[:, c]
+    return Moments(Q, v, np.einsum("nc,nc->c", y, y), n)
+
+
+def tilt_gravity(tilt: np.ndarray) -> np.ndarray:
+    """Unit gravity ``u = R_t (0, 0, -1)`` of a world tilted by ``R_t = R_y(tilt[1]) R_x(tilt[0])`` (rad)."""
+    al, be = float(tilt[0]), float(tilt[1])
+    return np.array([-np.cos(al) * np.sin(be), np.sin(al), -np.cos(al) * np.cos(be)])

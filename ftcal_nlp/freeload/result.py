@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..geometry import rotation_to_rotvec
+from ..geometry import quat_to_rotation, rotation_to_rotvec
 from ..results import ResultsMixin, StackedResults, Summary, fmt_pm
-from .problem import predict
+from .problem import predict, tilt_gravity
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 
@@ -54,12 +54,14 @@ class FreeLoadResult(ResultsMixin):
     eig_ratio: np.ndarray | None = None
     null: np.ndarray | None = None       # (n_params, r) undetermined directions in the parameters' own units
     used: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) samples the fit used
+    tilt: np.ndarray | None = None   # world tilt of the orientation stream (rad, about x then y); None: not estimated
 
     # ------------------------------------------------------------------ results protocol
 
     @property
     def params(self) -> pd.Series:
-        vals = np.concatenate([self.offset, self.theta, rotation_to_rotvec(self.rotation)])
+        tilt = np.zeros(0) if self.tilt is None else self.tilt
+        vals = np.concatenate([self.offset, self.theta, tilt, rotation_to_rotvec(self.rotation)])
         return pd.Series(vals, index=list(self.names), name="params")
 
     def _bse_array(self) -> np.ndarray:
@@ -113,7 +115,11 @@ class FreeLoadResult(ResultsMixin):
 
     def predict_recording(self, rec, g: float) -> np.ndarray:
         """Model readings (N, 6) of every sample of recording ``rec`` (NaN where its gravity is unknown)."""
-        return self.predict(g * rec.gravity_directions(), rec.q)
+        grav = rec.gravity_directions()
+        if rec.quat is not None and self.tilt is not None:  # the stream's world is tilted: true g_B = R_WB'^T R_t (0,0,-1)
+            grav = np.einsum("nji,j->ni", quat_to_rotation(np.nan_to_num(rec.quat, nan=1.0)), tilt_gravity(self.tilt))
+            grav[~np.all(np.isfinite(rec.quat), axis=1)] = np.nan
+        return self.predict(g * grav, rec.q)
 
     def summary(self) -> Summary:
         p = self.params
