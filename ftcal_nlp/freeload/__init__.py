@@ -33,13 +33,17 @@ angles), ``E`` the mounting rotation (``R_true = R_nom E``, exact SO(3)), ``thet
    parameters they touch given with se (reduced row echelon form: for ``shared/sample_urdf`` the total mass,
    the sum of the three bodies' y first moments, ...).
 
-Not estimated (yet): a gravity tilt. A world tilt ``R_t`` of the orientation stream (about world x and y; a turn
-about vertical is unobservable) gives gravity in ft ``E^T R_nom^T R_WB^T R_t^T (0, 0, -1)``: it sits on the world
-side of the varying ``R_WB``, so it is NOT a mounting rotation; it is separable from ``E`` whenever the orientations
-are not all about one axis. A tilt of 1 deg about x and 0.5 deg about y (``tests/test_freeload_tilt.py``) biases the
-fit beyond 4 se (the mount by ~13 se, the CoM by ~7 se, with se already widened by the correlated residuals it
-leaves). Recordings that give gravity by ``gravity_body`` only (the hexapod model has a tilt per such recording)
-are taken as exact; a note says so.
+World tilt (``FreeLoadSettings.gravity_tilt``, off by default): a tilt ``R_t = R_y(ty) R_x(tx)`` of the orientation
+stream's world (a turn about vertical is unobservable) gives gravity in ft ``E^T R_nom^T R_WB^T u``,
+``u = R_t (0, 0, -1)``: it sits on the world side of the varying ``R_WB``, so it is NOT a mounting rotation, and is
+separable from ``E`` whenever the orientations are not all about one axis (else ``identifiability()`` names
+``tilt.rx``/``tilt.ry``). With ``b_n = A_n u`` (``A_n = g R_nom^T R_WB^T``) every feature is linear in ``u``: the
+lifted vector ``[w_o; u (x) z_r]`` (``problem.compress_tilted``) keeps the compression exact for any tilt. It is
+estimated (parameters ``{leg}.tilt.rx, .ry`` in rad, between the load's and the mount's) when every recording gives
+the orientation per sample (quaternions); a 1 deg / 0.5 deg tilt left out biases the fit beyond 4 se
+(``tests/test_freeload_tilt.py``). Off by default until the modules that take the parameter vector (diagnosis
+faces, uncertainty, correct) accept the two columns. Recordings that give gravity by ``gravity_body`` only (the
+hexapod model has a tilt per such recording) are taken as exact; a note says so.
 """
 
 from __future__ import annotations
