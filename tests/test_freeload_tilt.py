@@ -110,4 +110,5 @@ def test_orientations_about_one_axis_leave_the_tilt_undetermined(tmp_path) -> No
     r = fit_free_load(read_dataset(write_free_load(replace(res, frame=df), tmp_path)), "wrist", ON)
     p = len(r.theta)
     assert np.all(np.isinf(r.se[6 + p:8 + p]))
+    assert np.all(r.tilt == 0.0) and any("held at 0" in n for n in r.notes)      # not wandering along the valley
     assert any(".tilt.r" in d for d in r.undetermined) and any("tilt.r" in line for line in r.identifiability())

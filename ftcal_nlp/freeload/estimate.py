@@ -121,6 +121,14 @@ def _null_penalty(A: np.ndarray, s: FreeLoadSettings, tilt: bool) -> np.ndarray 
     return P
 
 
+def _tilt_undetermined(A: np.ndarray, s: FreeLoadSettings) -> bool:
+    """Whether an undetermined direction of the information ``A`` (local coordinates, tilt free) moves the tilt."""
+    p = len(A) - 11
+    keep = np.r_[np.ones(8 + p, bool), np.full(3, s.mount_rotation)]
+    ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
+    return bool(np.any(np.abs(ident.vectors[6 + p:8 + p, ~ident.determined]) >= TOUCH_TOL))
+
+
 def _describe(u: np.ndarray, names: list[str], ratio: float) -> str:
     a = np.abs(u)
     big = np.flatnonzero(a >= FLAG_FRACTION * a.max())
@@ -165,6 +173,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     mu = load.mass_row
     mom = compress(data.y, data.b, data.K)             # at no tilt: the linear start
     tilt_on = bool(s.gravity_tilt and data.tiltable)
+    free_tilt = tilt_on
     mom_t = compress_tilted(data.y, data.a, data.K)    # any tilt: the NLP
     sig = data.noise0 if np.all(np.isfinite(data.noise0)) and np.all(data.noise0 > 0) else None
     nlp = nlp_for(mu)
@@ -193,12 +202,14 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         Jl = nlp.jacobian(x[:6], x[6:6 + p], x[6 + p:8 + p], E)
         Al = Jl.T @ Qw @ Jl
         ridge = np.r_[_ridge(Al[:8 + p, :8 + p], s.prior_weight), np.full(9, _ridge(Al[8 + p:, 8 + p:], s.prior_weight).mean())]
-        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, tilt=tilt_on, what=what,
+        if tilt_on and _ == 0:  # a tilt the data leave undetermined stays at 0 (else it wanders along the valley)
+            free_tilt = not (_tilt_undetermined(Al, s) or _orientation_notes(data, leg))
+        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, tilt=tilt_on and free_tilt, what=what,
                           null_penalty=_null_penalty(Al, s, tilt_on))
         iters += int(st.get("iter_count", 0))
         E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
         rss = mom_t.rss(nlp.z_tilted(np.r_[x[:8 + p], E.ravel(order="F")]))
-        dof = (6 + p + (3 if s.mount_rotation else 0) + (2 if tilt_on else 0)) / 6.0
+        dof = (6 + p + (3 if s.mount_rotation else 0) + (2 if free_tilt else 0)) / 6.0
         sig = np.sqrt(np.clip(rss, 1e-300, None) / max(mom.n - dof, 1.0))
         W = 1.0 / sig**2
     solve_time = time.perf_counter() - t0
@@ -211,7 +222,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     Qw, _, _ = mom_t.weighted(W / inflation)
     J = nlp.jacobian(w_o, theta, tilt, E)
     info = J.T @ Qw @ J
-    keep = np.r_[np.ones(6 + p, bool), np.full(2, tilt_on), np.full(3, s.mount_rotation)]
+    keep = np.r_[np.ones(6 + p, bool), np.full(2, free_tilt), np.full(3, s.mount_rotation)]
     names = ([f"{leg}.offset.{c}" for c in WRENCH] + [f"{leg}.{n}" for n in load.param_names]
              + [f"{leg}.tilt.r{c}" for c in "xy"] + [f"{leg}.mount.r{c}" for c in "xyz"])
     ident = identifiability(info[np.ix_(keep, keep)], s.rel_eig_tol)
@@ -264,6 +275,12 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if fixed:
         notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
                      "recording is estimated for a free load; a rig's tilt there biases the fit)")
+    if tilt_on and not free_tilt:   # named as undetermined: se inf, held at 0
+        se[6 + p:8 + p] = np.inf
+        undetermined.append(f"{leg}.tilt.rx {leg}.tilt.ry (the world tilt of the orientation stream: gravity spans fewer "
+                            "than three directions in ft; held at 0)")
+        notes.append(f"{leg}: the world tilt of the orientation stream is not determined by these orientations (all about "
+                     "one axis, or one orientation): held at 0")
     if not tilt_on:  # no tilt term: the parameters as without one
         out = np.r_[np.arange(6 + p), np.arange(8 + p, 11 + p)]
         names, cov, se, null, tilt = [names[i] for i in out], cov[np.ix_(out, out)], se[out], null[out], None
