@@ -1,7 +1,8 @@
 """The free-load NLP (CasADi SX + IPOPT, ``solver.ipopt``): offsets, load parameters, exact mounting rotation.
 
-Unknowns ``x = [w_o (6), theta (p), E (3x3)]``. With the channel moments of
-``problem.py`` and weights ``W_c = 1 / sigma_c^2``:
+Unknowns ``x = [w_o (6), theta (p), tilt (2), E (3x3)]`` (the tilt held at 0 by its bounds unless
+``gravity_tilt``). With the channel moments of ``problem.compress_tilted`` (lifted ``[w_o; u (x) z_r]``,
+``u = R_t (0, 0, -1)``) and weights ``W_c = 1 / sigma_c^2``:
 
     min  1/(2N) [ ||R z(x) - c||^2  +  sum_i r_i (x_i - x0_i)^2  +  e^T P_N e ]
     s.t. E^T E = I   (6 equations),   det E >= 0,
