@@ -161,6 +161,13 @@ def fig_free_residual(d: "DiagnosisResult", path: Path) -> Path | None:
     return path
 
 
+def _add_shrinkage(sec: Section, d: "DiagnosisResult", folder: Path, model: str) -> None:
+    """The held-out RMS table and its figure (``model``: what was scored, for the caption), both dataset kinds."""
+    sec.add(Table("Held-out RMS per component and the noise floor", shrinkage_table(d)))
+    sec.add(Figure("diagnosis_shrinkage.png", fig_shrinkage(d, folder / "diagnosis_shrinkage.png"),
+                   f"Held-out RMS of {model} and the noise floor, per component (log scale)."))
+
+
 def free_diagnosis_section(d: "DiagnosisResult", folder: Path) -> Section:
     """The diagnosis section of a free-load dataset (``diagnose/free.py``): verdict, the chain of effects, the held-out
     RMS per component beside the floor, where the gap lies (correlates) and its figure."""
@@ -174,10 +181,7 @@ def free_diagnosis_section(d: "DiagnosisResult", folder: Path) -> Section:
                  "Effects are added one at a time, the strongest by held-out evidence first, and refit jointly; the chain "
                  "stops when the next adds nothing significant (paired block-wise z of the log held-out sums of squares "
                  "below 3, or a saving under 1 % of the floor's variance or 25 % of the remaining excess)."))
-    sec.add(Table("Held-out RMS per component and the noise floor", shrinkage_table(d)))
-    sec.add(Figure("diagnosis_shrinkage.png", fig_shrinkage(d, folder / "diagnosis_shrinkage.png"),
-                   "Held-out RMS of the free-load model" + (", after the named effects," if d.effect else "")
-                   + " and the noise floor, per component (log scale)."))
+    _add_shrinkage(sec, d, folder, "the free-load model" + (", after the named effects," if d.effect else ""))
     cv = chain_view(d)
     if cv is not None:
         sec.add(Table("The effects named, in the order added (each refit jointly with those before it)", cv))
@@ -211,10 +215,7 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
                  "cannot be the gap: for the standing poses the within-run scatter of the readings plus a per-pose "
                  "motion-capture tilt error fitted as a variance component on the training residuals; for hanging and "
                  "walking the high-frequency scatter."))
-    sec.add(Table("Held-out RMS per component and the noise floor", shrinkage_table(d)))
-    sec.add(Figure("diagnosis_shrinkage.png", fig_shrinkage(d, folder / "diagnosis_shrinkage.png"),
-                   "Held-out RMS of the calibrated model" + (f", with {d.effect} added," if d.effect else "")
-                   + " and the noise floor, per component (log scale)."))
+    _add_shrinkage(sec, d, folder, "the calibrated model" + (f", with {d.effect} added," if d.effect else ""))
     dep = fig_dependence(d, folder / "diagnosis_dependence.png")
     if dep is not None:
         sec.add(Figure("diagnosis_dependence.png", dep,
