@@ -314,3 +314,29 @@ def test_urdf_se_at_new_joint_angles_matches_refits() -> None:
         logging.disable(logging.NOTSET)
     ratio = np.std(preds, axis=0, ddof=1) / se
     assert np.abs(ratio - 1).max() < 4.0 / np.sqrt(2 * (K - 1))
+
+
+def test_tilt_jacobian_matches_finite_differences() -> None:
+    """With a world tilt (``gravity_tilt_rad``) gravity comes from the orientations, ``g R_WB^T u(tilt)``; the 15
+    columns ``(w_o, m, h, tilt, delta)`` against central differences; without the orientations (``gx..gz``) the
+    tilt's columns are zero."""
+    rng = np.random.default_rng(4)
+    R_WB = rotvec_to_rotation(rng.normal(size=(20, 3)))
+    g_B = -9.81 * R_WB[:, 2, :]
+    R = rotvec_to_rotation(np.array([0.2, -0.1, 1.3]))
+    tilt = np.array([0.012, -0.02])
+    p = PayloadCalibration("w", rng.normal(size=6), 1.3, np.array([0.01, -0.02, 0.1]), R, np.eye(15), np.ones(6), 9.81,
+                           tilt=tilt)
+    _, J = p.predict(g_B, {}, R_WB)
+    assert J.shape == (20, 6, 15)
+    eps = 1e-6
+    for k in range(15):
+        def model(s):
+            x = np.zeros(15)
+            x[k] = s
+            q = replace(p, offset=p.offset + x[:6], mass_kg=p.mass_kg + x[6], h=p.h + x[7:10], tilt=tilt + x[10:12],
+                        R_B_ft=R @ rotvec_to_rotation(x[12:]))
+            return q.predict(g_B, {}, R_WB)[0]
+        np.testing.assert_allclose((model(eps) - model(-eps)) / (2 * eps), J[:, :, k], atol=1e-6)
+    _, J0 = p.predict(g_B, {})
+    assert J0.shape == (20, 6, 15) and not J0[:, :, 10:12].any()

@@ -4,9 +4,11 @@ noise floor from held, still stretches of the readings.
 * :func:`context_for`: a :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` of one transducer over every
   ``hanging`` recording in which its load hangs free, ALL samples (moving ones included; samples whose gravity
   direction is unknown, orientation not tracked, are left out and counted);
-* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), r (3)]`` with
-  ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``):
-  offsets the identity, ``theta`` exact (the model is linear in it), ``r`` to first order (closed form);
+* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), tilt (2), r (3)]``
+  (``tilt`` only where the fit has the world tilt of the orientation stream) with ``E = E* expm([r]x)``
+  (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``, ``b = A_n u(tilt)``,
+  ``A_n = g R_nom^T R_WB^T``, ``u = R_y(ty) R_x(tx) (0, 0, -1)``): offsets the identity, ``theta`` exact (the model
+  is linear in it), ``tilt`` and ``r`` to first order (closed form);
 * :func:`hold_floor`: the readings' noise sd per channel from held, still stretches: within every window of
   ``FLOOR_WINDOW_S`` (at least ``FLOOR_MIN_SAMPLES`` samples) of a quasi-static hold, the scatter about the
   window's own mean and slope (what no model of a free load can explain: a creep or drift is smooth over the
@@ -21,8 +23,8 @@ import numpy as np
 
 from ..data import Dataset
 from ..effects.free_faces import FreeLoadContext, make_context
-from ..freeload.problem import predict
-from ..geometry import skew
+from ..freeload.problem import predict, tilt_gravity
+from ..geometry import quat_to_rotation, skew
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
 FLOOR_WINDOW_S = 0.5
@@ -67,6 +69,11 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     q = {j: np.concatenate([p["q"][j] for p in parts]) for j in joints}
     g_B = cat("gB")
     R_nom = load.nominal_rotation(q, n)
+    a = None
+    if getattr(fit, "tilt", None) is not None and all(p["quat"] is not None for p in parts):
+        # the fit's world tilt of the orientation stream: g_B = g R_WB^T u(tilt), b = A_n u (freeload docstring)
+        a = g * np.einsum("nji,nkj->nik", R_nom, quat_to_rotation(cat("quat")))
+        g_B = g * np.einsum("nkj,k->nj", quat_to_rotation(cat("quat")), tilt_gravity(fit.tilt))
     b = np.einsum("nji,nj->ni", R_nom, g_B)
     K = load.lever(q, n)
     pred = predict(b, K, fit.theta, load.mass_row, fit.rotation, fit.offset)
@@ -80,6 +87,8 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
                        index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation)
     pos = ds.robot.transducers[leg].position_m
     ctx.extra.update(b=b, K=K, **({} if pos is None else {"position_m": np.asarray(pos, float)}))  # inertial_load's O in B
+    if a is not None:
+        ctx.extra["a"] = a                                   # (N, 3, 3): b = a u(tilt), the tilt's columns
     return ctx, notes
 
 
@@ -87,7 +96,9 @@ def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ..
     """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``. In closed form (no call of
     ``predict``): with ``g = E^T b`` and ``s = K theta``, ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``;
     ``E expm([r]x)`` turns ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and
-    ``d t / d r = [s]x [g]x``. Blocks are written whole (a column at a time into the last axis is strided)."""
+    ``d t / d r = [s]x [g]x``; with the world tilt (``ctx.extra["a"]``) ``d g / d tilt_k = E^T A_n du/dtilt_k``,
+    ``d f / d tilt_k = (mu.theta) dg``, ``d t / d tilt_k = s x dg``. Blocks are written whole (a column at a time
+    into the last axis is strided)."""
     b, K = ctx.extra["b"], ctx.extra["K"]
     load, E = fit.load, fit.rotation
     mu = np.asarray(load.mass_row, float)
@@ -98,13 +109,29 @@ def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ..
     Kn = K if K.ndim == 3 else np.broadcast_to(K, (n,) + K.shape)
     s = Kn @ theta                                               # (N, 3) first moment in ft
     Sg = skew(g)
-    J = np.zeros((n, 6, 6 + p + 3))
+    tilt = getattr(fit, "tilt", None)
+    nt = 0 if tilt is None else 2
+    J = np.zeros((n, 6, 6 + p + nt + 3))
     J[:, np.arange(6), np.arange(6)] = 1.0
     J[:, :3, 6:6 + p] = g[:, :, None] * mu[None, None, :]
     J[:, 3:, 6:6 + p] = np.cross(Kn, g[:, :, None], axis=1)
-    J[:, :3, 6 + p:] = float(mu @ theta) * Sg
-    J[:, 3:, 6 + p:] = skew(s) @ Sg
+    if nt:
+        if "a" not in ctx.extra:
+            raise ValueError(f"{fit.leg}: the fit has a world tilt but the context has no orientation per sample")
+        dg = np.einsum("nik,kt,ij->njt", ctx.extra["a"], tilt_derivative(tilt), E)     # (N, 3, 2): E^T A_n du/dtilt
+        J[:, :3, 6 + p:8 + p] = float(mu @ theta) * dg
+        J[:, 3:, 6 + p:8 + p] = np.cross(s[:, :, None], dg, axis=1)
+    J[:, :3, 6 + p + nt:] = float(mu @ theta) * Sg
+    J[:, 3:, 6 + p + nt:] = skew(s) @ Sg
     return J, tuple(fit.names)
+
+
+def tilt_derivative(tilt: np.ndarray) -> np.ndarray:
+    """``d u / d tilt`` (3, 2) of ``u = freeload.problem.tilt_gravity(tilt)``."""
+    al, be = float(tilt[0]), float(tilt[1])
+    return np.array([[np.sin(al) * np.sin(be), -np.cos(al) * np.cos(be)],
+                     [np.cos(al), 0.0],
+                     [np.sin(al) * np.cos(be), np.cos(al) * np.sin(be)]])
 
 
 def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:

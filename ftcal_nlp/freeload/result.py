@@ -1,7 +1,8 @@
 """Results of the free-load estimator, in the results protocol of ``results.py``.
 
 :class:`FreeLoadResult` (one transducer) has ``params`` (labelled: offsets
-``{leg}.offset.fx..tz`` N / N*m; the load's ``{leg}.<param>`` (kg, kg m); the
+``{leg}.offset.fx..tz`` N / N*m; the load's ``{leg}.<param>`` (kg, kg m); where estimated the world tilt of
+the orientation stream ``{leg}.tilt.rx, .ry`` rad (``calibration.json`` ``gravity_tilt_rad``); the
 mounting rotation vector ``{leg}.mount.rx..rz`` rad, ``R_true = R_nom expm(r)``),
 ``bse`` (inf where undetermined), ``cov_params()``, ``conf_int()``,
 ``summary()``, and :meth:`FreeLoadResult.identifiability`, the notes naming what
@@ -94,6 +95,9 @@ class FreeLoadResult(ResultsMixin):
                     "undetermined": list(self.undetermined), "determined_combinations": list(self.determined),
                     "samples_used": int(self.n_used), "selection": self.selection,
                     "residual_rms": self.rms.tolist(), "noise_sd": self.sigma.tolist()})
+        if self.tilt is not None:   # the world tilt of the orientation stream (rad, about x then y; se inf: held at 0)
+            p = len(self.theta)
+            out.update({"gravity_tilt_rad": self.tilt.tolist(), "gravity_tilt_se_rad": self.se[6 + p:8 + p].tolist()})
         return out
 
     def identifiability(self) -> list[str]:
