@@ -177,6 +177,8 @@ def _with_tilt(J: np.ndarray, at: int, tilt, dgB: np.ndarray | None, R_B_ft: np.
     ``dg_ft = R_B,ft^T dg_B``; ``J`` itself without a tilt."""
     if tilt is None:
         return J
+    if dgB is None:   # gravity given as such (gx..gz): the tilt does not act
+        dgB = np.zeros((len(J), 3, 2))
     R = np.broadcast_to(R_B_ft, (len(J), 3, 3))
     dg = np.einsum("nji,njt->nit", R, dgB)
     s = np.broadcast_to(s, (len(J), 3))

@@ -176,8 +176,10 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
         g_B = np.concatenate([ds.robot.g * r.gravity_directions()[fit.used[r.name]] for r in recs])
         mount = bool(np.all(np.isfinite(fit.se[-3:]) | np.isinf(fit.se[-3:])))   # NaN: the mount was not estimated
         rv = rotation_to_rotvec(fit.rotation)
-        dB = None
-        if fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
+        dB, notes = None, ()
+        if fit.tilt is not None and not np.all(np.isfinite(fit.se[6 + len(fit.theta):8 + len(fit.theta)])):
+            notes = (TILT_HELD,)
+        elif fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
             from .freeload.problem import tilt_gravity
 
             R_WB = np.concatenate([quat_to_rotation(r.quat[fit.used[r.name]]) for r in recs])
@@ -189,7 +191,6 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             m = float(fit.theta[0])
             bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, fit.sigma, mount=mount, offset=fit.offset,
                                             tilt_dirs=None if dB is None else np.einsum("ji,njt->nit", R, dB))
-            notes = ()
         else:
             tree, link = ds.robot.tree, ds.robot.transducers[leg].link
             joints = tuple(fit.load.base_joints) + tuple(fit.load.load_joints)
@@ -201,13 +202,24 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             bodies = {l: (b.mass_kg, b.com_m) for l, b in tree.bodies.items()}
             bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, fit.sigma, mount=mount, offset=fit.offset,
                                          tilt_dirs=dg)[0]
-            notes = ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
-                     "rotation's rows)",)
+            notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
+                      "rotation's rows)",)
         loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes)
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
 
 
 # ----------------------------------------------------------------------------- a protocol of held orientations
+
+
+TILT_HELD = ("the world tilt of the orientation stream: held at 0 by the estimator (gravity spans fewer than three "
+             "directions in ft, freeload.estimate): not in the bound")
+
+
+def _tilt_held(g_ft: np.ndarray) -> bool:
+    """Whether the estimator holds the world tilt at 0 for these gravity directions (one direction, a short arc)."""
+    from .freeload.estimate import NARROW, gravity_spread
+
+    return bool(gravity_spread(g_ft)[1] < NARROW)
 
 
 def _num(d: dict, key: str, default, where: str, positive: bool = True) -> float:
@@ -277,9 +289,10 @@ def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
         g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
         g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
         dg = np.repeat(np.einsum("ji,njt->nit", R_nom, crb_loads.tilt_directions(quat_to_rotation(quats), g)), n_per, axis=0)
+        held = tilt and _tilt_held(g_ft)
         bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
-                                        tilt_dirs=dg if tilt else None)
-        plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats))
+                                        tilt_dirs=dg if tilt and not held else None)
+        plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ())
         proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
         return FreeLoadPlan(f"protocol {path}", {"payload": plan}, proto)
     # a URDF load
@@ -309,9 +322,12 @@ def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
     link = robot.transducers[leg].link
     g_ft = crb_loads.urdf_gravity_in_ft(robot.tree, link, q, g_B)
     dB = np.repeat(crb_loads.tilt_directions(quat_to_rotation(quats), g), n_per, axis=0)
-    dg = np.stack([crb_loads.urdf_gravity_in_ft(robot.tree, link, q, dB[:, :, k]) for k in range(2)], axis=2) if tilt else None
+    held = tilt and _tilt_held(g_ft)
+    dg = (np.stack([crb_loads.urdf_gravity_in_ft(robot.tree, link, q, dB[:, :, k]) for k in range(2)], axis=2)
+          if tilt and not held else None)
     bodies = {l: (b.mass_kg, b.com_m) for l, b in robot.tree.bodies.items()}
     bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter,
                                  tilt_dirs=dg)[0]
-    plan = _plan(leg, "urdf_subtree", bound, len(g_ft), sigma, len(holds), ("evaluated at the URDF's nominal bodies",))
+    plan = _plan(leg, "urdf_subtree", bound, len(g_ft), sigma, len(holds),
+                 ((TILT_HELD,) if held else ()) + ("evaluated at the URDF's nominal bodies",))
     return FreeLoadPlan(f"protocol {path}", {leg: plan}, {"kind": kind, "holds": len(holds), "samples_per_hold": n_per})

@@ -230,7 +230,7 @@ class FreeLoadSettings:
     max_gap_factor: float = 3.0
     min_samples: int = 0             # fewest quasi-static samples; 0: twice the unknowns in equations (6 per sample)
     mount_rotation: bool = True
-    gravity_tilt: bool = False  # a world tilt of the orientation stream (2 dof), where the recordings give R_WB per sample
+    gravity_tilt: bool = True   # a world tilt of the orientation stream (2 dof), where the recordings give R_WB per sample
     prior_weight: float = 1e-8
     rel_eig_tol: float = REL_EIG_TOL
     loads: dict = field(default_factory=dict)

@@ -202,7 +202,8 @@ def test_orientations_about_one_axis_are_named(tmp_path) -> None:
     assert r.undetermined and np.isinf(r.load_report()["load_mass_se_kg"])
     assert any("one direction" in n for n in r.notes)
     assert any("wrist.mount." in d for d in r.undetermined)                  # the turn about gravity among them
-    assert len(r.undetermined) == 7 and len(r.determined) == 6   # one gravity direction: 6 numbers for 13 unknowns
+    assert len(r.undetermined) == 9 and len(r.determined) == 6   # one gravity direction: 6 numbers for 13 unknowns
+    assert sum(".tilt.r" in d for d in r.undetermined) == 2      # ... and the world tilt's 2, held at 0
 
 
 def _urdf_dataset(tmp_path: Path) -> Path:

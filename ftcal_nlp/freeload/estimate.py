@@ -205,7 +205,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         if tilt_on and _ == 0:  # a tilt the data leave undetermined stays at 0 (else it wanders along the valley)
             free_tilt = not (_tilt_undetermined(Al, s) or _orientation_notes(data, leg))
         x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, tilt=tilt_on and free_tilt, what=what,
-                          null_penalty=_null_penalty(Al, s, tilt_on))
+                          null_penalty=_null_penalty(Al, s, tilt_on and free_tilt))
         iters += int(st.get("iter_count", 0))
         E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
         rss = mom_t.rss(nlp.z_tilted(np.r_[x[:8 + p], E.ravel(order="F")]))
@@ -277,8 +277,8 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
                      "recording is estimated for a free load; a rig's tilt there biases the fit)")
     if tilt_on and not free_tilt:   # named as undetermined: se inf, held at 0
         se[6 + p:8 + p] = np.inf
-        undetermined.append(f"{leg}.tilt.rx {leg}.tilt.ry (the world tilt of the orientation stream: gravity spans fewer "
-                            "than three directions in ft; held at 0)")
+        undetermined += [f"{leg}.tilt.r{c} (the world tilt of the orientation stream: gravity spans fewer than three "
+                         "directions in ft; held at 0)" for c in "xy"]
         notes.append(f"{leg}: the world tilt of the orientation stream is not determined by these orientations (all about "
                      "one axis, or one orientation): held at 0")
     if not tilt_on:  # no tilt term: the parameters as without one
@@ -294,15 +294,24 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
                           None if tilt is None else tilt.copy())
 
 
+def gravity_spread(b: np.ndarray) -> np.ndarray:
+    """Singular values (3,) of the centred unit gravity directions ``b`` (N, 3) over sqrt(N): the first below
+    ``NARROW`` is one direction, the second a short arc (``_orientation_notes``; the world tilt is held at 0 there)."""
+    u = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.linalg.svd(u - u.mean(axis=0), compute_uv=False) / np.sqrt(len(u))
+
+
+NARROW = 0.02
+
+
 def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
     """A note when the gravity directions in ft span fewer than three dimensions (all orientations about one
     axis, or one orientation): the eigen-analysis names the parameters; this says why."""
-    u = data.b / np.linalg.norm(data.b, axis=1, keepdims=True)
-    sv = np.linalg.svd(u - u.mean(axis=0), compute_uv=False) / np.sqrt(len(u))
-    if sv[0] < 0.02:
+    sv = gravity_spread(data.b)
+    if sv[0] < NARROW:
         return [f"{leg}: gravity stays within ~1 deg of one direction in ft over all quasi-static samples ({', '.join(data.names)}): "
                 "one orientation cannot separate the offsets from the load; hang it in several"]
-    if sv[1] < 0.02:
+    if sv[1] < NARROW:
         return [f"{leg}: the gravity directions in ft vary along one line only (a short arc: small turns about one axis, "
                 f"{', '.join(data.names)}): what they cannot separate is named as undetermined"]
     return []
