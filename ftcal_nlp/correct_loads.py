@@ -219,10 +219,12 @@ def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration
     covariance over ``(w_o, m, h, delta)``)."""
     if fit.load.kind != "rigid_payload":
         raise DataFormatError(f"transducer {fit.leg}: a {fit.load.kind} load; the contact wrench is computed for rigid payloads")
-    cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)
+    # the fit's parameters the load wrench depends on (a gravity_body recording's own tilt does not act on new data)
+    idx = np.array([list(fit.names).index(n) for n in payload_param_names(fit.leg, fit.tilt is not None)])
+    cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)[np.ix_(idx, idx)]
     return PayloadCalibration(fit.leg, fit.offset.copy(), float(fit.theta[0]), fit.theta[1:4].copy(),
                               np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True,
-                              undetermined=np.isinf(np.asarray(fit.se, float)), null=fit.null,
+                              undetermined=np.isinf(np.asarray(fit.se, float))[idx], null=None if fit.null is None else fit.null[idx],
                               tilt=None if fit.tilt is None else np.asarray(fit.tilt, float).copy())
 
 

@@ -182,9 +182,17 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
         elif fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
             from .freeload.problem import tilt_gravity
 
-            R_WB = np.concatenate([quat_to_rotation(r.quat[fit.used[r.name]]) for r in recs])
-            g_B = ds.robot.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(fit.tilt))
-            dB = crb_loads.tilt_directions(R_WB, ds.robot.g)
+            gs, dBs = [], []
+            for r in recs:   # the tilt acts through the orientation stream's recordings only
+                m = fit.used[r.name]
+                if r.quat is None:
+                    gs.append(ds.robot.g * r.gravity_directions()[m])
+                    dBs.append(np.zeros((int(m.sum()), 3, 2)))
+                    continue
+                R_WB = quat_to_rotation(r.quat[m])
+                gs.append(ds.robot.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(fit.tilt)))
+                dBs.append(crb_loads.tilt_directions(R_WB, ds.robot.g))
+            g_B, dB = np.concatenate(gs), np.concatenate(dBs)
         if fit.load.kind == "rigid_payload":
             R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
             g_ft = g_B @ R
@@ -204,6 +212,9 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
                                          tilt_dirs=dg)[0]
             notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
                       "rotation's rows)",)
+        if fit.recording_tilts:   # estimated by the fit, not in the bound: the bound is a little optimistic there
+            notes += (f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and not "
+                      "in the bound (taken as known here)",)
         loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes)
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
 

@@ -371,7 +371,8 @@ def test_payload_held_in_recordings_with_gravity_body_only(tmp_path) -> None:
     assert len(ds.hanging) == 8 and all(r.gravity is None and r.quat is None for r in ds.hanging)
     r = fit_free_load(ds, "wrist")
     _payload_checks(r, res.truth)
-    assert any("gravity_body only" in n for n in r.notes)
+    assert any("gravity_body only" in n and "not separable" in n for n in r.notes)   # one transducer: tilts held at 0
+    assert not r.recording_tilts
 
 
 def test_hexapod_hanging_gravity_body_from_orientation_columns(tmp_path) -> None:
