@@ -288,52 +288,12 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
                   if kd == "recording" else [f"{leg}.fixed.tilt.r{c}" for c in "xy"] for kd, nm in data.groups]
     names = ([f"{leg}.offset.{c}" for c in WRENCH] + [f"{leg}.{n}" for n in load.param_names]
              + [n for t in tilt_names for n in t] + [f"{leg}.mount.r{c}" for c in "xyz"])
-    ident = identifiability(info[np.ix_(keep, keep)], s.rel_eig_tol)
-    n_all = len(names)
-    cov = np.zeros((n_all, n_all))
-    cov[np.ix_(keep, keep)] = ident.pinv()
-    se = np.full(n_all, np.nan)
-    se[keep] = np.sqrt(np.clip(np.diag(cov)[keep], 0.0, None))
-    kn = [n for n, k in zip(names, keep) if k]
-    undetermined, touched = [], np.zeros(int(keep.sum()), bool)
-    for j in np.flatnonzero(~ident.determined):
-        u = ident.vectors[:, j]
-        touched |= np.abs(u) >= TOUCH_TOL
-        undetermined.append(_describe(u, kn, float(ident.ratio[j])))
-    se_k = se[keep]
-    se_k[touched] = np.inf
-    se[keep] = se_k
-    determined = []
-    if touched.any():
-        Nn = ident.vectors[:, ~ident.determined][touched]          # null directions on the touched parameters (scaled)
-        U, sv, _ = np.linalg.svd(Nn, full_matrices=True)
-        rank = int((sv > 1e-8).sum())
-        comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
-        tn = [n for n, t in zip(kn, touched) if t]
-        xk = np.r_[w_o, theta, tilts, rotation_to_rotvec(E)][keep]
-        Ck = cov[np.ix_(keep, keep)]
-        for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
-            a = np.zeros(len(kn))
-            a[touched] = c
-            determined.append({"combination": _combo_text(a[touched], tn), "value": float(a @ xk),
-                               "se": float(np.sqrt(max(a @ Ck @ a, 0.0))),
-                               "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
-    null = np.zeros((n_all, int((~ident.determined).sum())))
-    null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
+    cov, se, null, undetermined, determined, ident = _covariance(info, keep, names, np.r_[w_o, theta, tilts,
+                                                                                          rotation_to_rotvec(E)], s)
     rms = np.sqrt((res**2).mean(axis=0))
-    notes = []
     if undetermined:
         log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
-    notes += _orientation_notes(data, leg)
-    for g in getattr(load, "groups", ()):
-        if g.joint is not None and np.ptp(data.q.get(g.joint, np.zeros(1))) < _STILL_JOINT_RAD:
-            notes.append(f"{leg}: joint '{g.joint}' never moves in the samples used (range "
-                         f"{np.ptp(data.q.get(g.joint, np.zeros(1))):.2g} rad): the links it carries ({', '.join(g.links)}) "
-                         "cannot be told apart from the group above them; their split is the URDF's")
-    if np.any(inflation > 2.0):
-        notes.append(f"{leg}: residuals correlated from sample to sample (lag-1 correlation {np.array2string(rho, precision=2)} "
-                     f"in fx..tz): se widened by {np.array2string(np.sqrt(inflation), precision=2)}; the model misses "
-                     "something that stays through a hold (the diagnosis looks for it)")
+    notes = _leg_notes(data, load, leg, rho, inflation)
     rec_names = [nm for (kd, nm) in data.groups if kd == "recording"]
     if rec.any() and s.recording_tilt is False:
         notes.append(f"{leg}: recordings {rec_names} give gravity by gravity_body only: taken as exact (recording_tilt = "
@@ -378,6 +338,62 @@ def gravity_spread(b: np.ndarray) -> np.ndarray:
 
 
 NARROW = 0.02
+
+
+def _covariance(info: np.ndarray, keep: np.ndarray, names: list[str], x: np.ndarray, s: FreeLoadSettings):
+    """``(cov, se, null, undetermined, determined, ident)`` from the information ``info`` over the estimated local
+    coordinates ``keep`` (step 4 of the package docstring): covariance on the determined subspace, se inf for
+    parameters an undetermined direction moves, the directions described, the determined combinations of those
+    parameters (reduced row echelon form) at the estimate ``x`` (local coordinates' values), the null space in the
+    parameters' own units."""
+    ident = identifiability(info[np.ix_(keep, keep)], s.rel_eig_tol)
+    n_all = len(names)
+    cov = np.zeros((n_all, n_all))
+    cov[np.ix_(keep, keep)] = ident.pinv()
+    se = np.full(n_all, np.nan)
+    se[keep] = np.sqrt(np.clip(np.diag(cov)[keep], 0.0, None))
+    kn = [n for n, k in zip(names, keep) if k]
+    undetermined, touched = [], np.zeros(int(keep.sum()), bool)
+    for j in np.flatnonzero(~ident.determined):
+        u = ident.vectors[:, j]
+        touched |= np.abs(u) >= TOUCH_TOL
+        undetermined.append(_describe(u, kn, float(ident.ratio[j])))
+    se_k = se[keep]
+    se_k[touched] = np.inf
+    se[keep] = se_k
+    determined = []
+    if touched.any():
+        Nn = ident.vectors[:, ~ident.determined][touched]          # null directions on the touched parameters (scaled)
+        U, sv, _ = np.linalg.svd(Nn, full_matrices=True)
+        rank = int((sv > 1e-8).sum())
+        comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
+        tn = [n for n, t in zip(kn, touched) if t]
+        xk = x[keep]
+        Ck = cov[np.ix_(keep, keep)]
+        for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
+            a = np.zeros(len(kn))
+            a[touched] = c
+            determined.append({"combination": _combo_text(a[touched], tn), "value": float(a @ xk),
+                               "se": float(np.sqrt(max(a @ Ck @ a, 0.0))),
+                               "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
+    null = np.zeros((n_all, int((~ident.determined).sum())))
+    null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
+    return cov, se, null, undetermined, determined, ident
+
+
+def _leg_notes(data: FreeLoadData, load, leg: str, rho: np.ndarray, inflation: np.ndarray) -> list[str]:
+    """The notes of one transducer's data: its gravity directions, joints that never move, correlated residuals."""
+    notes = _orientation_notes(data, leg)
+    for g in getattr(load, "groups", ()):
+        if g.joint is not None and np.ptp(data.q.get(g.joint, np.zeros(1))) < _STILL_JOINT_RAD:
+            notes.append(f"{leg}: joint '{g.joint}' never moves in the samples used (range "
+                         f"{np.ptp(data.q.get(g.joint, np.zeros(1))):.2g} rad): the links it carries ({', '.join(g.links)}) "
+                         "cannot be told apart from the group above them; their split is the URDF's")
+    if np.any(inflation > 2.0):
+        notes.append(f"{leg}: residuals correlated from sample to sample (lag-1 correlation {np.array2string(rho, precision=2)} "
+                     f"in fx..tz): se widened by {np.array2string(np.sqrt(inflation), precision=2)}; the model misses "
+                     "something that stays through a hold (the diagnosis looks for it)")
+    return notes
 
 
 def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
