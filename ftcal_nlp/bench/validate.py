@@ -110,10 +110,10 @@ GOAL_PAIRS = 0.8       # issue 23: two effects injected together both named in >
 GOAL_FALSE_SECOND = 0.1   # issue 23: a single effect grows a false second in <= 1 case in 10
 #: the pairs of the sweep (issue 23, item 2): library effects whose faces follow different things, each at the high
 #: end of its realistic range: time / shaft angle, weighed mass / a common tilt, load / pose history, shaft angle /
-#: a cable, time / shaft speed, pose history / mass, load tilt / shaft angle, load nonlinearity / time
+#: a cable, time / shaft speed, pose history / mass, load tilt / shaft angle, load nonlinearity / time, a cable / time
 PAIRS = (("offset_drift", "casing_load"), ("robot_mass", "mocap_bias"), ("gain_crosstalk", "hysteresis"),
          ("casing_load", "tether_force"), ("offset_drift", "leg_inertia"), ("hysteresis", "robot_mass"),
-         ("chassis_flex", "casing_load"), ("sensor_nonlinearity", "offset_drift"))
+         ("chassis_flex", "casing_load"), ("sensor_nonlinearity", "offset_drift"), ("tether_force", "offset_drift"))
 COMPONENTS = tuple(WRENCH_COMPONENTS)
 
 

@@ -7,23 +7,34 @@ parameters and held-out RMS are unchanged by what follows. Then, while a gap is 
 * **a gap remains** (also what decides whether to look again at all, so that a dataset the first effect explains
   costs what it did): after the last joint refit some recording kind's held-out excess over its floor,
   ``mean_c (rms_after_c / floor_c)^2 - 1``, exceeds that kind's gap threshold (``attribute.gap_threshold``:
-  standing 0.5 and four of its sampling se ``sqrt(2 / P)``, hanging 0.1, walking swing 1.0); or the design check
-  of the calibration's fitted frames found a common tilt (``delta_bic < -10``) and no named effect has a design face;
+  standing 0.5 and four of its sampling se ``sqrt(2 / P)``, hanging 0.1, walking swing 1.0); or, when the error
+  model frees the transducer rotations and no named effect has a design face, the design check of the joint refit's
+  rotations finds a common tilt (``delta_bic < -10``: a motion-capture bias that another effect hid from the first
+  step's check);
 * every candidate not yet named that had evidence of its own in the first step (``delta_bic < DBIC_STRONG`` where
-  the gap lay) is scored with the named effects in the base model (``attribute.attribute`` with
+  the gap lay; with a design gap open, those with a design face too) is scored with the named effects in the base model (``attribute.attribute`` with
   ``base_effect``: the standing problem with all the named faces plus the candidate's,
   :class:`~ftcal_nlp.effects.combined.Combined`; the hanging and swing faces stacked and cross-validated on the same
   folds; each candidate's variants as in the first step), against the named effects alone;
 * the best candidate by ``delta_bic`` where the gap lies, among those that remove at least ``EXPLAINED_MIN`` of the
   excess the named effects leave (``attribute.explained_fraction``) with ``delta_bic < DBIC_STRONG``, is added when
-  it passes the stated held-out test: on the recording kind where it removes most of the excess, the paired
+  it passes the stated held-out test (of candidates within ``BIC_TIE`` of the best, the one that adds the fewest
+  parameters is taken): on the recording kind where it removes most of the excess, the paired
   comparison of the held-out sums of squares without and with it, block by block (standing: each pose; hanging and
   walking swing: each fold's time block of each leg), ``d_b = ln(SS0_b / SS1_b)``, has ``mean(d) / se(d) >= Z_MIN``
   (a candidate named for the design gap alone: the design check's ``delta_bic < DBIC_STRONG`` is its test), and its
   saving is material: at least ``MIN_FLOOR_SHARE`` of the floor's variance on that kind;
 * the named effects and the new one are refit with the whole calibration (``joint.joint_refit`` of the combined
   effect; the new effect's joint variant chosen there, the others kept as chosen): the link's parameters with se
-  and the held-out RMS after it on the kind the shrinkage is reported on.
+  and the held-out RMS after it on the kind the shrinkage is reported on. The link stands when that joint model
+  predicts held-out data better than the one before it: on the test's kind the held-out excess falls by
+  ``JOINT_MIN`` at least, and no kind's excess rises above ``JOINT_WORSE`` x what it was (and its threshold);
+  else the chain stops there (a face that helps beside the named ones' attribution faces can spoil the joint fit).
+  A link named for the design gap alone is not judged so (free rotations absorb what it explains).
+
+Once an effect with a design face (a common tilt of the frames: ``mocap_bias``, ``tether_force``) is named, the
+walking swing kind is left out of the gaps, the test and the joint check (``SKIP_AFTER_DESIGN``): the swing legs'
+weights are predicted with the transducer frames that effect turns, so their residual grows with it whatever is left.
 
 The chain stops when no gap is left, when the best candidate fails the test, or after ``MAX_EFFECTS`` effects.
 """
@@ -36,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from ..effects import Effect
+from ..effects import Effect, design_check
 from ..effects.combined import Combined
 from ..solver import SolverError
 from .attribute import (
@@ -58,6 +69,10 @@ Z_MIN = 3.0              # paired block-wise z of the held-out saving
 EXPLAINED_MIN = 0.5      # share of the excess the named effects leave that the next must remove
 MIN_FLOOR_SHARE = 0.05   # ... and at least this share of the floor's variance on its kind
 MAX_EFFECTS = 3          # the most effects the chain names
+SKIP_AFTER_DESIGN = ("walking swing",)   # kinds not looked at once a design-face effect is named (below)
+BIC_TIE = 2.0            # candidates this close in delta BIC are as good: the one with fewer parameters goes first
+JOINT_MIN = 0.25         # the joint refit with the new effect: its kind's held-out excess falls by this share at least
+JOINT_WORSE = 1.25       # ... and no kind's rises above this factor (and its threshold)
 
 
 @dataclass(frozen=True)
@@ -99,15 +114,49 @@ def kind_threshold(kind: str, n: int) -> float:
     return thr
 
 
-def gap_left(joint: JointRefit) -> dict:
-    """The kinds whose held-out excess over the floor after the joint refit exceeds their threshold -> the excess."""
+def gap_left(joint: JointRefit, skip=()) -> dict:
+    """The kinds (but ``skip``) whose held-out excess over the floor after the joint refit exceeds their threshold ->
+    the excess."""
     out = {}
     for kind, k in joint.kinds.items():
-        fl = np.where(k.floor > 0, k.floor, np.nan)
-        ex = float(np.nanmean((k.rms_after / fl) ** 2) - 1.0)
+        if kind in skip:
+            continue
+        ex = excess(k)
         if np.isfinite(ex) and ex > kind_threshold(kind, k.n):
             out[kind] = ex
     return out
+
+
+def excess(k) -> float:
+    """A kind's held-out excess over its floor after a joint refit, ``mean_c (rms_after_c / floor_c)^2 - 1``."""
+    fl = np.where(k.floor > 0, k.floor, np.nan)
+    return float(np.nanmean((k.rms_after / fl) ** 2) - 1.0)
+
+
+def joint_better(cur: JointRefit, new: JointRefit, kind: str, skip=()) -> tuple[bool, str]:
+    """Whether the joint refit with the new effect predicts held-out data better than the one before (module
+    docstring): on the test's kind its excess falls by ``JOINT_MIN`` at least, and no kind's excess rises above
+    ``JOINT_WORSE`` x what it was and its threshold."""
+    for k, a in new.kinds.items():
+        b = cur.kinds.get(k)
+        if b is None or k in skip:
+            continue
+        e0, e1 = excess(b), excess(a)
+        if k == kind and not e1 <= (1.0 - JOINT_MIN) * e0:
+            return False, f"{k} excess over the floor {e0:.3g} -> {e1:.3g}"
+        if e1 > max(JOINT_WORSE * e0, kind_threshold(k, a.n)):
+            return False, f"{k} excess over the floor rises {e0:.3g} -> {e1:.3g}"
+    return True, ""
+
+
+def design_gap(joint: JointRefit, robot) -> bool:
+    """The design check (``effects.design_check``) of the joint refit's transducer rotations: a common tilt with
+    ``delta_bic < DBIC_STRONG`` (what a motion-capture bias or a cable leaves once the named effects are fitted)."""
+    cal = joint.calibration
+    if cal is None:
+        return False
+    R = np.stack([np.asarray(cal.legs[k].rotation_to_body, float) for k in robot.legs])
+    return design_check(R, robot.nominal_rotations())["delta_bic"] < DBIC_STRONG
 
 
 def paired_z(sc: KindScore) -> float:
@@ -170,15 +219,18 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
     ch = HexChain()
     named = (type(first)(**joint.variant),)
     cur = joint
-    design_open = att.design is not None and att.design["delta_bic"] < DBIC_STRONG and not first.design_face
     gap1 = gaps(att)
     # a candidate that explained nothing of the gap on its own (delta BIC >= DBIC_STRONG where it lies) is not
     # looked at again: what it could explain beside the first effect it would have explained alone too
     looked_at = {s.effect for s in att.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap1))
                  and ranking_bic(s, gap1) < DBIC_STRONG}
     while True:
-        left = gap_left(cur)
-        design_open = design_open and not any(m.design_face for m in named)
+        # the swing legs' weights are predicted with the transducer frames, which a named design-face effect (a common
+        # tilt) turns: after one, the swing kind says nothing about what is left (SKIP_AFTER_DESIGN)
+        skip = SKIP_AFTER_DESIGN if any(m.design_face for m in named) else ()
+        left = gap_left(cur, skip)
+        design_open = att.design is not None and not any(m.design_face for m in named) and design_gap(cur, robot)
+        log.debug("diagnosis: chain after %s: gap left %s, design %s", [m.name for m in named], left, design_open)
         if not left and not design_open:
             ch.stop = "no gap above the floor is left after the joint refit"
             break
@@ -186,13 +238,13 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             ch.stop = f"{MAX_EFFECTS} effects named (the most the chain adds)"
             break
         base = Combined(named)
-        cands = [e for e in effects if e.name not in {m.name for m in named} and e.name in looked_at]
+        cands = [e for e in effects if e.name not in {m.name for m in named} and (e.name in looked_at or (design_open and e.design_face))]
         try:
             att2 = attribute(views, cands, model, prior, robot, balance, folds=folds, seed=seed, x_start=x_start, base_effect=base)
         except (SolverError, np.linalg.LinAlgError) as exc:
             ch.stop = f"scoring the candidates beside {base.name} failed: {exc}"
             break
-        gap = gaps(att2)
+        gap = {k: v for k, v in gaps(att2).items() if k not in skip}
         ch.rounds.append(_round(att2, gap))
         if not gap:
             ch.stop = "with the named effects in the model no gap above the floor is left"
@@ -204,6 +256,10 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
                        f"delta BIC < {DBIC_STRONG:g}")
             break
         best = min(ok, key=lambda s: (ranking_bic(s, gap), s.delta_bic))
+        # parsimony: as good by BIC (within BIC_TIE) with fewer parameters goes first (a mocap bias and a cable both
+        # explain a common tilt of the frames; the cable spends parameters on every face)
+        best = min((s for s in ok if ranking_bic(s, gap) <= ranking_bic(best, gap) + BIC_TIE),
+                   key=lambda s: (sum(k.dof for k in s.kinds.values()), ranking_bic(s, gap), s.delta_bic))
         passes_, why, kind, z = passes(best, gap)
         if not passes_:
             ch.stop = f"the next candidate, {best.effect}, adds nothing significant on held-out data ({why})"
@@ -213,6 +269,12 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             j2 = joint_refit(views, both, model, prior, calibration, robot, balance, folds=folds, seed=seed, x_start=x_start)
         except (SolverError, np.linalg.LinAlgError) as exc:
             ch.stop = f"the joint refit with {both.name} failed: {exc}"
+            break
+        # a link named for the design gap alone is not judged by the joint refit: free rotations absorb what it
+        # explains, and the swing legs' weights, predicted with the tilted frames, say nothing about it
+        good, why = joint_better(cur, j2, kind, SKIP_AFTER_DESIGN if both.design_face else ()) if kind != "design" else (True, "")
+        if not good:
+            ch.stop = f"the joint refit with {best.effect} does not predict held-out data better ({why})"
             break
         named = rebuild(both.members, j2.variant)
         mine = Combined(named).member_parameters(j2.parameters)[-1]
