@@ -178,3 +178,42 @@ def test_two_effects_are_both_named_with_parameters(tmp_path):
 def test_a_single_effect_grows_no_second():
     _, d = _diagnosis(7, [("casing_load", 1.5)])
     assert d.effect == "casing_load" and [e["name"] for e in d.effects_list()] == ["casing_load"], d.chain
+
+
+def test_the_stated_test_and_the_joint_check():
+    """``passes``: z, saving and the design gap as stated; ``gap_left`` / ``joint_better`` on joint refits' kinds."""
+    from types import SimpleNamespace
+
+    from ftcal_nlp.diagnose.hexchain import JOINT_MIN, gap_left, joint_better, kind_threshold, passes
+    from ftcal_nlp.diagnose.joint import KindRefit
+
+    rng = np.random.default_rng(6)
+    b0 = rng.chisquare(6, 100) * 3.0
+
+    def ks(b1):
+        return KindScore("standing", np.ones(6), np.ones(6), np.ones(6), b0.sum(), b1.sum(), 1.0, 1.0, 600, 6, b0, b1)
+
+    good = SimpleNamespace(kinds={"standing": ks(b0 / 2.5)}, design=None)
+    assert passes(good, {"standing": 2.0})[0]
+    noise = SimpleNamespace(kinds={"standing": ks(b0 * rng.uniform(0.9, 1.1, 100))}, design=None)
+    ok, why, kind, z = passes(noise, {"standing": 2.0})
+    assert not ok and "paired block-wise z" in why and kind == "standing"
+    tiny = SimpleNamespace(kinds={"standing": ks(b0 - 0.01 * b0.mean())}, design=None)  # significant, not material
+    ok, why, _, _ = passes(tiny, {"standing": 2.0})
+    assert not ok and "floor's variance" in why
+    tilt = SimpleNamespace(kinds={}, design={"delta_bic": -20.0})
+    assert passes(tilt, {"design": 2.0})[:3] == (True, "", "design")
+    assert not passes(SimpleNamespace(kinds={}, design=None), {"standing": 2.0})[0]
+
+    fl = np.full(6, 0.1)
+    refit = lambda **kinds: SimpleNamespace(kinds={k: KindRefit(k, fl, fl * r, fl, 100) for k, r in kinds.items()})  # noqa: E731
+    assert kind_threshold("standing", 100) == pytest.approx(max(0.5, 4 * np.sqrt(2 / 100)))
+    assert gap_left(refit(standing=1.1, hanging=1.2)) == {"hanging": pytest.approx(0.44)}
+    assert gap_left(refit(standing=1.1, hanging=1.2), skip=("hanging",)) == {}
+    cur = refit(standing=2.0, hanging=1.0)
+    assert joint_better(cur, refit(standing=1.2, hanging=1.0), "standing") == (True, "")
+    e1 = (1.0 - JOINT_MIN) * 3.0 + 1.0   # excess just above what the check allows
+    assert not joint_better(cur, refit(standing=np.sqrt(e1 + 0.01), hanging=1.0), "standing")[0]
+    ok, why = joint_better(cur, refit(standing=1.0, hanging=2.0), "standing")
+    assert not ok and "hanging" in why
+    assert joint_better(cur, refit(standing=1.0, hanging=2.0), "standing", skip=("hanging",))[0]
