@@ -107,7 +107,7 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
         if key not in memo:
             memo[key] = effect.free_face(ctx, shape)
         face = memo[key]
-        if face is None or not np.any(face.X if face.dense else face.basis):
+        if face is None or not face.any():
             continue
         tried += 1
         cv = design.fit(X0 + [face])

@@ -153,10 +153,11 @@ class Design:
         self._rp = self.r if self._sorted else self.r[self._order]
         rr = self._rp**2 * self.w2
         self._s = np.stack([rr[sl].sum(axis=0) for sl in self._sl])          # (B, 6)
+        self._rrT = np.ascontiguousarray((self._rp * self.w2).T)             # (6, N) weighted residual, channel-major
         self._gram: dict = {}
         self._vec: dict = {}
-        self._perm: dict = {}   # part id -> its rows in block order (X or basis)
-        self._keep: dict = {}   # parts by id, so that an id is not reused while its blocks are cached
+        self._perm: dict = {}   # basis id -> its rows in block order
+        self._keep: dict = {}   # parts (and bases) by id, so that an id is not reused while its sums are cached
 
     @property
     def n(self) -> int:
@@ -166,56 +167,39 @@ class Design:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
         return (X * self.w[None, :, None]).reshape(-1, X.shape[2])
 
-    def _P(self, a) -> np.ndarray:
-        """Part ``a``'s X (dense) or basis (per channel), rows in block order (cached)."""
-        if id(a) not in self._perm:
-            self._keep[id(a)] = a
-            P = a.X if a.dense else a.basis
-            self._perm[id(a)] = P if self._sorted else P[self._order]
-        return self._perm[id(a)]
+    def _P(self, B: np.ndarray) -> np.ndarray:
+        """A face's channel basis ``B`` (N, m) with its rows in block order (cached; as is when already in order)."""
+        if self._sorted:
+            return B
+        if id(B) not in self._perm:
+            self._keep[("B", id(B))] = B
+            self._perm[id(B)] = B[self._order]
+        return self._perm[id(B)]
 
-    # ---- per-block, per-channel sums
+    # ---- per-block, per-channel sums (each face's channel blocks: a channel's columns meet only its rows)
     def _pair(self, a, b) -> np.ndarray:
         """(B, 6, ka, kb): sum over the block's samples of channel c's weighted column products."""
         out = np.zeros((self.nb, 6, a.k, b.k))
-        w2 = self.w2
-        Pa, Pb = self._P(a), self._P(b)
-        if a.dense and b.dense:
-            for i, sl in enumerate(self._sl):
-                out[i] = (Pa[sl].transpose(1, 2, 0) @ Pb[sl].transpose(1, 0, 2)) * w2[:, None, None]
-            return out
-        if not a.dense and not b.dense:
-            ma, mb = Pa.shape[1], Pb.shape[1]
-            for i, sl in enumerate(self._sl):
-                BtB = Pa[sl].T @ Pb[sl]
-                for ia, c in enumerate(a.channels):
-                    if c in b.channels:
-                        jb = b.channels.index(c)
-                        out[i, c, ia * ma:(ia + 1) * ma, jb * mb:(jb + 1) * mb] = w2[c] * BtB
-            return out
-        if a.dense:
-            return self._pair(b, a).transpose(0, 1, 3, 2)
-        m = Pa.shape[1]
-        for i, sl in enumerate(self._sl):
-            Xs = Pb[sl]
-            BtX = (Pa[sl].T @ Xs.reshape(len(Xs), -1)).reshape(m, 6, -1).transpose(1, 0, 2)      # (6, m, kb)
-            for ia, c in enumerate(a.channels):
-                out[i, c, ia * m:(ia + 1) * m] = w2[c] * BtX[c]
+        ab = {c: (cols, B) for c, cols, B in a.channel_blocks()}
+        done: dict = {}      # a basis shared by several channels (per_channel): its products once
+        for c, cols_b, Bb in b.channel_blocks():
+            if c not in ab:
+                continue
+            cols_a, Ba = ab[c]
+            key = (id(Ba), id(Bb))
+            if key not in done:
+                Pa, Pb = self._P(Ba), self._P(Bb)
+                done[key] = np.stack([Pa[sl].T @ Pb[sl] for sl in self._sl])           # (B, ma, mb)
+            out[:, c, cols_a[:, None], cols_b[None, :]] = self.w2[c] * done[key]
         return out
 
     def _rhs(self, a) -> np.ndarray:
         """(B, 6, ka): sum over the block's samples of channel c's weighted column times residual."""
         out = np.zeros((self.nb, 6, a.k))
-        rr = self._rp * self.w2
-        P = self._P(a)
-        for i, sl in enumerate(self._sl):
-            if a.dense:
-                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])   # no (n, 6, k) temporary
-            else:
-                Bt = P[sl].T @ rr[sl]                                           # (m, 6)
-                m = P.shape[1]
-                for ia, c in enumerate(a.channels):
-                    out[i, c, ia * m:(ia + 1) * m] = Bt[:, c]
+        for c, cols, B in a.channel_blocks():
+            P = self._P(B)
+            rc = self._rrT[c]
+            out[:, c, cols] = np.stack([P[sl].T @ rc[sl] for sl in self._sl])
         return out
 
     def _blocks(self, a, b) -> np.ndarray:
@@ -239,8 +223,10 @@ class Design:
         for key in [k for k in self._gram if i in k]:
             del self._gram[key]
         self._vec.pop(i, None)
-        self._perm.pop(i, None)
         self._keep.pop(i, None)
+        for _, _, B in part.channel_blocks():
+            if self._perm.pop(id(B), None) is not None:
+                self._keep.pop(("B", id(B)), None)
 
     # ---- predictions (on demand)
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:

@@ -122,30 +122,26 @@ class Creep(Effect):
         tau = float(shape["tau_s"])
         tau2 = shape.get("tau2_s")
         taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
-        relax = np.stack([-ctx.relaxation(tk) for tk in taus])   # creep_term(t, pred, 1, (tk,)) per recording
+        relax = [-ctx.relaxation(tk) for tk in taus]   # creep_term(t, pred, 1, (tk,)) per recording
         if not np.any(np.abs(relax[0]) > 0):
             return None
-        X = np.zeros((ctx.n, 6, 12))
-        X[:, np.arange(6), 2 * np.arange(6)] = relax[0]
-        if tau2 is None:
-            X[:, np.arange(6), 2 * np.arange(6) + 1] = (relax[2] - relax[1]) / (2 * self.DLN)
-            names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep_dlntau [1]"))
-        else:
-            X[:, np.arange(6), 2 * np.arange(6) + 1] = relax[1]
-            names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep2 [1]"))
-        return FreeFace(X, names, dict(shape))
+        # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array)
+        second = (relax[2] - relax[1]) / (2 * self.DLN) if tau2 is None else relax[1]
+        bases = [np.stack([relax[0][:, c], second[:, c]], axis=1) for c in range(6)]
+        second_name = "creep_dlntau" if tau2 is None else "creep2"
+        names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.{second_name} [1]"))
+        return FreeFace.channelwise(bases, names, dict(shape))
 
     def free_refine(self, ctx, shape, resid):
         # The time constant(s) by a search in ln tau on the residual beside the free-load model's own columns
         # (free_refine.py): within a factor 2 of the grid's best single tau, or a pair by Nelder-Mead from its grid point
-        def columns(ln_taus) -> np.ndarray:
-            out = []
-            for v in np.atleast_1d(ln_taus):
-                x = -ctx.relaxation(float(np.exp(v)))   # creep_term(t, pred, 1, (tau,)) per recording, cached
-                X = np.zeros((ctx.n, 6, 6))
-                X[:, np.arange(6), np.arange(6)] = x
-                out.append(X)
-            return np.concatenate(out, axis=2)
+        def columns(ln_taus) -> FreeFace:
+            # per tau each channel's own relaxation (creep_term(t, pred, 1, (tau,)) per recording): a channel-wise face
+            # whose columns are tau-major, as the dense (N, 6, 6 x taus) array of one diagonal block per tau was
+            xs = [-ctx.relaxation(float(np.exp(v))) for v in np.atleast_1d(ln_taus)]
+            m = len(xs)
+            return FreeFace(None, tuple(f"x{j}" for j in range(6 * m)),
+                            blocks=tuple((c, np.arange(m) * 6 + c, np.stack([x[:, c] for x in xs], axis=1)) for c in range(6)))
 
         if "tau2_s" not in shape:
             lt = np.log(float(shape["tau_s"]))

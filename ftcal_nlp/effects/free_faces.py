@@ -73,18 +73,38 @@ class FreeFace:
     """An effect's free face for one shape: ``X`` (N, 6, k) design columns (the effect adds ``X beta`` to the
     readings), ``names`` (k,) parameter labels with units, ``shape`` the shape parameters that built it.
 
-    A face whose columns act on one channel each (:meth:`per_channel`) keeps only its ``basis`` (N, m) and
-    ``channels``; ``X`` is then built on demand (the diagnosis uses the structure: a channel's columns meet
-    only that channel's rows)."""
+    Most faces are sparse in the channels: a column acts on a few channels only. Two forms keep that structure
+    instead of the mostly-zero ``X`` (which is then built on demand):
+
+    * :meth:`per_channel`: one ``basis`` (N, m) shared by each of ``channels`` (columns channel-major);
+    * :meth:`channelwise`: per channel its own basis (N, m_c) and the columns it fills (e.g. creep: each channel's
+      own relaxation).
+
+    :meth:`channel_blocks` gives every form as ``(channel, columns, B)`` triples, ``B`` (N, m_c) the channel's
+    non-zero columns (for a dense ``X``: the columns not identically zero on that channel, found once); the
+    diagnosis' sums use only these (a channel's columns meet only that channel's rows)."""
 
     def __init__(self, X: np.ndarray | None, names, shape: dict | None = None, *, basis: np.ndarray | None = None,
-                 channels: tuple[int, ...] = ()):
+                 channels: tuple[int, ...] = (), blocks: tuple | None = None):
         self.names = tuple(names)
         self.shape = dict(shape or {})
         self.basis = None if basis is None else np.asarray(basis, float)
         self.channels = tuple(int(c) for c in channels)
         self._X = None if X is None else np.asarray(X, float)
-        if self._X is None:
+        self._blocks = None
+        if blocks is not None:
+            self._blocks = tuple((int(c), np.asarray(cols, int), np.asarray(B, float)) for c, cols, B in blocks)
+            if self._X is not None or self.basis is not None:
+                raise ValueError("FreeFace: give X, basis or blocks, not several")
+            chans = [c for c, _, _ in self._blocks]
+            bad = [c for c, cols, B in self._blocks if B.ndim != 2 or B.shape[1] != len(cols) or not 0 <= c < 6
+                   or len(set(cols.tolist())) != len(cols) or (len(cols) and (cols.min() < 0 or cols.max() >= len(self.names)))]
+            if bad or len(set(chans)) != len(chans):
+                raise ValueError(f"FreeFace: blocks must be (channel 0..5, distinct columns of the {len(self.names)}, "
+                                 "B (N, len(columns))), one block per channel")
+            if len({len(B) for _, _, B in self._blocks}) > 1:
+                raise ValueError("FreeFace: every block's B must have the same number of samples")
+        elif self._X is None:
             if self.basis is None or self.basis.ndim != 2 or self.basis.shape[1] * len(self.channels) != len(self.names):
                 raise ValueError(f"FreeFace: a per-channel face needs basis (N, m) with m x {len(self.channels)} channels = "
                                  f"{len(self.names)} names")
@@ -97,20 +117,43 @@ class FreeFace:
 
     @property
     def n(self) -> int:
-        return len(self._X) if self._X is not None else len(self.basis)
+        if self._X is not None:
+            return len(self._X)
+        if self.basis is not None:
+            return len(self.basis)
+        return len(self._blocks[0][2]) if self._blocks else 0
 
     @property
     def dense(self) -> bool:
         return self._X is not None
 
+    def channel_blocks(self) -> tuple:
+        """``((channel, columns (m_c,), B (N, m_c)), ...)``: each channel's non-zero columns (class docstring)."""
+        if self._blocks is None:
+            if self.basis is not None:
+                m = self.basis.shape[1]
+                self._blocks = tuple((c, np.arange(i * m, (i + 1) * m), self.basis) for i, c in enumerate(self.channels))
+            else:
+                nz = np.any(self._X != 0, axis=0)                      # (6, k): columns not identically zero per channel
+                self._blocks = tuple((c, np.flatnonzero(nz[c]), np.ascontiguousarray(self._X[:, c, nz[c]]))
+                                     for c in range(6) if nz[c].any())
+        return self._blocks
+
+    def any(self) -> bool:
+        """Whether any column is non-zero anywhere."""
+        if self._X is not None:
+            return bool(np.any(self._X))
+        if self.basis is not None:
+            return bool(np.any(self.basis))
+        return any(bool(np.any(B)) for _, _, B in self._blocks)
+
     @property
     def X(self) -> np.ndarray:
         if self._X is not None:
             return self._X
-        n, m = self.basis.shape
-        X = np.zeros((n, 6, self.k))
-        for i, c in enumerate(self.channels):
-            X[:, c, i * m:(i + 1) * m] = self.basis
+        X = np.zeros((self.n, 6, self.k))
+        for c, cols, B in self.channel_blocks():
+            X[:, c, cols] = B
         return X
 
     def wrench(self, beta: np.ndarray, rows=slice(None)) -> np.ndarray:
@@ -118,10 +161,18 @@ class FreeFace:
         beta = np.asarray(beta, float)
         if self._X is not None:
             return self._X[rows] @ beta
-        B = self.basis[rows]
-        out = np.zeros((len(B), 6))
-        out[:, list(self.channels)] = B @ beta.reshape(len(self.channels), -1).T
-        return out
+        if self.basis is not None:
+            B = self.basis[rows]
+            out = np.zeros((len(B), 6))
+            out[:, list(self.channels)] = B @ beta.reshape(len(self.channels), -1).T
+            return out
+        out = None
+        for c, cols, B in self._blocks:
+            Br = B[rows]
+            if out is None:
+                out = np.zeros((len(Br), 6))
+            out[:, c] = Br @ beta[cols]
+        return np.zeros((len(np.arange(self.n)[rows]), 6)) if out is None else out
 
     @staticmethod
     def per_channel(basis: np.ndarray, labels: tuple[str, ...], unit_f: str = "N", unit_t: str = "N*m",
@@ -132,6 +183,17 @@ class FreeFace:
         chans = tuple(channels)
         names = [f"{WRENCH[c]}.{lab} [{unit_f if c < 3 else unit_t}]" for c in chans for lab in labels]
         return FreeFace(None, tuple(names), shape, basis=basis, channels=chans)
+
+    @staticmethod
+    def channelwise(bases, names, shape: dict | None = None, channels=range(6)) -> "FreeFace":
+        """A face whose channel ``channels[i]`` has its own columns ``bases[i]`` (N, m) (column order channel-major:
+        channel ``i``'s are ``i m .. (i + 1) m - 1``; ``names`` k = m x channels labels)."""
+        chans = tuple(channels)
+        bases = [np.asarray(B, float) for B in bases]
+        bases = [B[:, None] if B.ndim == 1 else B for B in bases]
+        m = bases[0].shape[1] if bases else 0
+        return FreeFace(None, names, shape, blocks=tuple((c, np.arange(i * m, (i + 1) * m), B)
+                                                         for i, (c, B) in enumerate(zip(chans, bases))))
 
 
 @dataclass(frozen=True)

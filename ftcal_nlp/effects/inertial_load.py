@@ -205,9 +205,7 @@ class InertialLoad(Effect):
         w_in = point_mass_wrench(ctx, R_W_ft, p_O)
         if w_in is None or not np.any(np.abs(w_in) > 0):
             return None
-        X = np.zeros((ctx.n, 6, 6))
-        X[:, np.arange(6), np.arange(6)] = w_in
-        return FreeFace(X, tuple(f"{c}.gain [1]" for c in WRENCH), dict(shape))
+        return FreeFace.channelwise([w_in[:, c] for c in range(6)], tuple(f"{c}.gain [1]" for c in WRENCH), dict(shape))
 
 
 EFFECT = InertialLoad()

@@ -144,12 +144,9 @@ class Temperature(Effect):
             return None
         d = int(shape["degree"])
 
-        def columns(lag: float) -> np.ndarray:
-            B = self._basis(ctx, max(lag, 0.0), d)
-            X = np.zeros((ctx.n, 6, 6 * d))
-            for c in range(6):
-                X[:, c, c * d:(c + 1) * d] = B
-            return X
+        def columns(lag: float) -> FreeFace:
+            # the lagged basis on each channel (channel-major columns): a per-channel face, no (N, 6, 6 d) array
+            return FreeFace.per_channel(self._basis(ctx, max(lag, 0.0), d), tuple(f"T{j}" for j in range(1, d + 1)))
 
         lag = refine_scalar(ctx, resid, columns, 0.0, 4.0 * max(self.LAGS_S), xatol=0.5)
         return None if lag is None else {"degree": d, "lag_s": float(np.round(lag, 1))}
