@@ -33,6 +33,7 @@ import numpy as np
 from ..data import Dataset
 from ..effects import Effect, resolve_effects
 from ..effects.free_faces import FreeFace
+from ..effects.free_refine import use_model_face
 from ..settings import DiagnoseSettings
 from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
 from .correlates import EXPLAINED_MIN, CorrelateScore, score_correlates
@@ -132,6 +133,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     ctx = dataclasses.replace(ctx, sigma=floor)   # what a face's refinement weighs channels by
     Jx, names = model_jacobian(ctx, fit)
     J = FreeFace(Jx, names)
+    use_model_face(ctx, J)        # a face's refinement regresses on the same columns (no second Jacobian)
     block = cv_blocks(ctx.hold, ctx.rec, s.folds)
     if int(block.max()) + 1 < s.folds:
         notes.append(f"{leg}: {ctx.n} samples make {int(block.max()) + 1} cross-validation block(s), fewer than the {s.folds} "

@@ -67,6 +67,8 @@ import numpy as np
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 #: fewer consecutive quasi-static samples than this are not a hold (a pause in a motion)
 MIN_HOLD = 5
+#: how many time constants' relaxations a context keeps (:meth:`FreeLoadContext.relaxation`)
+RELAXATION_CACHE = 16
 
 
 class FreeFace:
@@ -259,11 +261,20 @@ class FreeLoadContext:
             # a recording's samples are one run (recording after recording): a slice, no gather
             rows = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i for i in rows]
             c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
-                                             [np.ascontiguousarray(self.pred[i].T) for i in rows])
+                                             [np.ascontiguousarray(self.pred[i].T) for i in rows], {})
+        done = c[5]               # the last few time constants' results (a grid's pairs reuse its single ones)
+        tau = float(tau)
+        if tau in done:
+            return done[tau]
         out = np.empty((6, self.n))
         for i, xt in zip(c[3], c[4]):
-            out[:, i] = _relax_rows(self.t[i], xt, float(tau)) if xt.shape[1] > 1 else relaxation(self.t[i], xt.T, tau).T
-        return out.T
+            out[:, i] = _relax_rows(self.t[i], xt, tau) if xt.shape[1] > 1 else relaxation(self.t[i], xt.T, tau).T
+        out = out.T
+        out.flags.writeable = False
+        if len(done) >= RELAXATION_CACHE:
+            del done[next(iter(done))]
+        done[tau] = out
+        return out
 
     def select(self, mask: np.ndarray) -> "FreeLoadContext":
         """The context restricted to the samples of ``mask`` (derived quantities as computed on all)."""
@@ -290,7 +301,7 @@ def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float) -> np.ndarray:
     dt = np.diff(t)
     if tau <= 0 or np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12):
         return relaxation(t, xt.T, tau).T
-    a0 = float(1.0 - np.exp(-dt / tau)[0])
+    a0 = float(1.0 - np.exp(-dt[:1] / tau)[0])
     lp = np.empty_like(xt)
     lp[:, 0] = xt[:, 0]
     lp[:, 1:] = lfilter([a0], [1.0, -(1.0 - a0)], xt[:, :-1], axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]

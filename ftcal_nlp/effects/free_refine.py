@@ -58,6 +58,12 @@ def model_face(ctx):
     return c[2]
 
 
+def use_model_face(ctx, face) -> None:
+    """Let the refinements of ``ctx`` use ``face`` (a :class:`~.free_faces.FreeFace` of the free-load model's
+    first-order columns, e.g. the diagnosis' own Jacobian) instead of building :func:`model_columns` again."""
+    ctx.extra["_model_face"] = (ctx.g_ft, ctx.theta, face)
+
+
 def _gram(a, b, w2: np.ndarray) -> np.ndarray:
     """``sum_n X_a,n^T W^2 X_b,n`` (ka, kb) from two faces' channel blocks."""
     out = np.zeros((a.k, b.k))

@@ -116,13 +116,34 @@ def _inertia_map(v: np.ndarray) -> np.ndarray:
 def rigid_regressor(w: np.ndarray, alpha: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``Y`` (N, 6, 9): the inertial wrench on the transducer ``Y pi`` of a rigid load turning about P (module
     docstring), ft axes; ``p`` (3,) or (N, 3) the ft origin relative to P in ft axes."""
-    n = len(w)
-    Y = np.zeros((n, 6, 9))
-    W, A = _skew(w), _skew(alpha)
-    Y[:, :3, 0:3] = -(A + W @ W)
-    Y[:, 3:, 0:3] = -_skew(np.broadcast_to(p, (n, 3))) @ Y[:, :3, 0:3]     # -p x f
-    Y[:, 3:, 3:9] = -(_inertia_map(alpha) + W @ _inertia_map(w))
+    F, T, R = _rigid_parts(w, alpha, p)
+    Y = np.zeros((len(w), 6, 9))
+    Y[:, :3, 0:3] = F
+    Y[:, 3:, 0:3] = T
+    Y[:, 3:, 3:9] = R
     return Y
+
+
+def _rigid_parts(w, alpha, p) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The non-zero blocks of :func:`rigid_regressor`: forces on ``h`` (N, 3, 3), torques on ``h`` (N, 3, 3) and on
+    the inertia (N, 3, 6)."""
+    n = len(w)
+    W, A = _skew(w), _skew(alpha)
+    F = -(A + W @ W)
+    return F, -_skew(np.broadcast_to(p, (n, 3))) @ F, -(_inertia_map(alpha) + W @ _inertia_map(w))   # -p x f
+
+
+def rigid_face(w: np.ndarray, alpha: np.ndarray, p: np.ndarray, shape: dict | None = None) -> FreeFace:
+    """:func:`rigid_regressor` as a channel-wise :class:`FreeFace` (each channel's columns not identically zero; no
+    (N, 6, 9) array)."""
+    F, T, R = _rigid_parts(w, alpha, p)
+    blocks = []
+    for c in range(6):
+        B = F[:, c, :] if c < 3 else np.concatenate([T[:, c - 3, :], R[:, c - 3, :]], axis=1)
+        nz = np.flatnonzero(np.any(B != 0, axis=0))
+        if len(nz):
+            blocks.append((c, nz, np.ascontiguousarray(B[:, nz])))
+    return FreeFace(None, RIGID_NAMES, shape, blocks=tuple(blocks))
 
 
 def rigid_parameters(mass_kg: float, com_m, inertia_com, p=np.zeros(3)) -> np.ndarray:
@@ -201,7 +222,7 @@ class InertialLoad(Effect):
         R_W_ft, p_O = pose
         if shape["model"] == "rigid":
             p = np.einsum("nji,nj->ni", R_W_ft, p_O)           # O relative to P (W's origin), ft axes
-            return FreeFace(rigid_regressor(*frame_motion(ctx.t, ctx.rec, R_W_ft), p), RIGID_NAMES, dict(shape))
+            return rigid_face(*frame_motion(ctx.t, ctx.rec, R_W_ft), p, dict(shape))
         w_in = point_mass_wrench(ctx, R_W_ft, p_O)
         if w_in is None or not np.any(np.abs(w_in) > 0):
             return None
