@@ -68,7 +68,7 @@ WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 #: fewer consecutive quasi-static samples than this are not a hold (a pause in a motion)
 MIN_HOLD = 5
 #: how many time constants' relaxations a context keeps (:meth:`FreeLoadContext.relaxation`)
-RELAXATION_CACHE = 16
+RELAXATION_CACHE = 24
 
 
 class FreeFace:
