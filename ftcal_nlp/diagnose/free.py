@@ -155,7 +155,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     ref = cur if (gap_after and not ch.steps) or not ch.steps else base
     corr = score_correlates(design, J, ref, ctx, None) if (gap_before or gap_after) else []
     if ch.steps and gap_after:  # what the named effects leave: where it lies
-        rest = score_correlates(design, J, cur, ctx, extra)
+        rest = score_correlates(design, J, ch.current_design, ctx, extra)
     else:
         rest = []
     top = corr[0] if corr and corr[0].explained >= EXPLAINED_MIN else None

@@ -101,6 +101,7 @@ class CVFit:
         self.beta, self.G, self.block_sse, self.chan_sse, self.rss = beta, G, block_sse, chan_sse, float(rss)
         self.k = int(off[-1])
         self._heldout = self._resid = None
+        self._fold_parts = None      # per fold its parts (a face tuned per fold: ``Design.fit_per_fold``)
 
     @property
     def sse(self) -> float:
@@ -112,7 +113,7 @@ class CVFit:
     @property
     def heldout(self) -> np.ndarray:
         if self._heldout is None:
-            self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta)
+            self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta, self._fold_parts)
         return self._heldout
 
     @property
@@ -232,22 +233,17 @@ class Design:
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
         return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))
 
-    def heldout(self, parts, off, fold_beta) -> np.ndarray:
-        """(N, 6) held-out residual: each sample predicted by its fold's fit."""
+    def heldout(self, parts, off, fold_beta, fold_parts=None) -> np.ndarray:
+        """(N, 6) held-out residual: each sample predicted by its fold's fit (``fold_parts``: per fold its parts)."""
         out = np.empty((self.n, 6))
         for f in range(self.folds):
             rows = np.flatnonzero(self.fold == f)
             if len(rows):
-                out[rows] = self.r[rows] - self.model(parts, off, fold_beta[f], rows)
+                out[rows] = self.r[rows] - self.model(parts if fold_parts is None else fold_parts[f], off, fold_beta[f], rows)
         return out
 
-    def fit(self, parts) -> CVFit:
-        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
-        from ..effects.free_faces import FreeFace
-
-        if isinstance(parts, np.ndarray):
-            parts = [FreeFace(parts, tuple(f"c{j}" for j in range(parts.shape[2])))]
-        parts = list(parts)
+    def _assemble(self, parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(Gbc (B, 6, k, k), vbc (B, 6, k), off)`` of the design of ``parts`` from the cached sums."""
         ks = [p.k for p in parts]
         off = np.r_[0, np.cumsum(ks)]
         k = int(off[-1])
@@ -260,6 +256,21 @@ class Design:
                 Gbc[:, :, off[i]:off[i + 1], off[j]:off[j + 1]] = blk
                 if j != i:
                     Gbc[:, :, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 1, 3, 2)
+        return Gbc, vbc, off
+
+    @staticmethod
+    def _parts(parts) -> list:
+        from ..effects.free_faces import FreeFace
+
+        if isinstance(parts, np.ndarray):
+            return [FreeFace(parts, tuple(f"c{j}" for j in range(parts.shape[2])))]
+        return list(parts)
+
+    def fit(self, parts) -> CVFit:
+        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
+        parts = self._parts(parts)
+        Gbc, vbc, off = self._assemble(parts)
+        k = int(off[-1])
         Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)                  # (B, k, k), (B, k)
         G, v = Gb.sum(axis=0), vb.sum(axis=0)
         fold_beta = np.zeros((self.folds, k))
@@ -275,6 +286,47 @@ class Design:
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)
         return CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
+
+    def train_sse(self, parts) -> np.ndarray:
+        """(folds,) the weighted residual sum of squares of the design of ``parts`` fitted on each fold's training
+        blocks (the other folds'), over those blocks: what a shape tuned per fold minimises."""
+        parts = self._parts(parts)
+        Gbc, vbc, _ = self._assemble(parts)
+        Gb, vb, sb = Gbc.sum(axis=1), vbc.sum(axis=1), self._s.sum(axis=1)
+        G, v, s = Gb.sum(axis=0), vb.sum(axis=0), float(sb.sum())
+        out = np.full(self.folds, np.inf)
+        for f in range(self.folds):
+            bs = np.flatnonzero(self.block_fold == f)
+            Gf, vf = G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0)
+            b = solve(Gf, vf)
+            out[f] = s - float(sb[bs].sum()) - 2 * vf @ b + b @ Gf @ b
+        return out
+
+    def fit_per_fold(self, parts, fold_faces: list, whole: CVFit) -> CVFit:
+        """Blocked cross-validation of ``parts`` plus a face tuned per fold: fold ``f`` is predicted by the design
+        ``parts + [fold_faces[f]]`` fitted on the other folds' blocks (``fold_faces[f]`` tuned on those blocks too, by
+        the caller); ``whole`` the design with the face tuned on all samples, whose all-sample fit (``beta``, ``G``,
+        ``rss``, ``resid``) the result carries."""
+        parts = self._parts(parts)
+        fold_beta = np.zeros((self.folds, whole.k))
+        sse_bc = np.zeros((self.nb, 6))
+        fparts = []
+        for f in range(self.folds):
+            pf = parts + [fold_faces[f]]
+            fparts.append(pf)
+            bs = np.flatnonzero(self.block_fold == f)
+            if not len(bs):
+                continue
+            Gbc, vbc, off = self._assemble(pf)
+            Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)
+            b = solve(Gb.sum(axis=0) - Gb[bs].sum(axis=0), vb.sum(axis=0) - vb[bs].sum(axis=0))
+            fold_beta[f] = b
+            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + (Gbc[bs] @ b) @ b
+        sse_bc = np.clip(sse_bc, 0.0, None)
+        out = CVFit(self, whole._parts, whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
+                    sse_bc.sum(axis=0) / self.w2, whole.rss)
+        out._fold_parts = fparts
+        return out
 
 
 def paired_gain(before: CVFit, after: CVFit) -> tuple[float, float]:
