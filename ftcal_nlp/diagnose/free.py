@@ -146,7 +146,8 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
     # each effect's parameters as the chain added it (refit with those before it only): when later effects are
     # confounded with it, the joint refit splits what they share and says so by its se
-    added = [joint_fit(design, J, ch.steps[:i + 1], ctx).params[i] for i in range(len(ch.steps))]
+    added = [(joint_fit(design, J, ch.steps[:i + 1], ctx) if i + 1 < len(ch.steps) else jf).params[i]
+             for i in range(len(ch.steps))]
     ratio_after = excess_ratio(cur, floor)
     gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
     gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)

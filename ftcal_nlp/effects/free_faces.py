@@ -161,20 +161,19 @@ class FreeFace:
     def wrench(self, beta: np.ndarray, rows=slice(None)) -> np.ndarray:
         """The effect's wrench (N, 6) (of ``rows``) for parameters ``beta`` (k,)."""
         beta = np.asarray(beta, float)
-        if self._X is not None:
+        if self._X is not None and self._blocks is None:
             return self._X[rows] @ beta
         if self.basis is not None:
             B = self.basis[rows]
             out = np.zeros((len(B), 6))
             out[:, list(self.channels)] = B @ beta.reshape(len(self.channels), -1).T
             return out
-        out = None
+        # channel blocks (a dense face once the diagnosis has found them): each channel's non-zero columns only
+        n = len(np.arange(self.n)[rows]) if not isinstance(rows, slice) or rows != slice(None) else self.n
+        out = np.zeros((n, 6))
         for c, cols, B in self._blocks:
-            Br = B[rows]
-            if out is None:
-                out = np.zeros((len(Br), 6))
-            out[:, c] = Br @ beta[cols]
-        return np.zeros((len(np.arange(self.n)[rows]), 6)) if out is None else out
+            out[:, c] = B[rows] @ beta[cols]
+        return out
 
     @staticmethod
     def per_channel(basis: np.ndarray, labels: tuple[str, ...], unit_f: str = "N", unit_t: str = "N*m",
@@ -268,7 +267,12 @@ class FreeLoadContext:
             return done[tau]
         out = np.empty((6, self.n))
         for i, xt in zip(c[3], c[4]):
-            out[:, i] = _relax_rows(self.t[i], xt, tau) if xt.shape[1] > 1 else relaxation(self.t[i], xt.T, tau).T
+            if xt.shape[1] <= 1:
+                out[:, i] = relaxation(self.t[i], xt.T, tau).T
+            elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
+                _relax_rows(self.t[i], xt, tau, out=out[:, i])
+            else:
+                out[:, i] = _relax_rows(self.t[i], xt, tau)
         out = out.T
         out.flags.writeable = False
         if len(done) >= RELAXATION_CACHE:
@@ -290,22 +294,28 @@ class FreeLoadContext:
         return FreeLoadContext(**out)
 
 
-def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float) -> np.ndarray:
-    """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt``: the same recurrence filtered along each
-    channel's contiguous row (faster than along axis 0; bit-identical); an irregular clock or ``tau == 0``:
-    ``signals.relaxation`` itself."""
+def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | None = None) -> np.ndarray:
+    """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt`` (into ``out`` (c, n) if given): the same
+    recurrence filtered along each channel's contiguous row (faster than along axis 0; bit-identical); an irregular
+    clock or ``tau == 0``: ``signals.relaxation`` itself."""
     from scipy.signal import lfilter
 
     from .signals import relaxation
 
     dt = np.diff(t)
     if tau <= 0 or np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12):
-        return relaxation(t, xt.T, tau).T
+        r = relaxation(t, xt.T, tau).T
+        if out is not None:
+            out[...] = r
+        return r
     a0 = float(1.0 - np.exp(-dt[:1] / tau)[0])
-    lp = np.empty_like(xt)
-    lp[:, 0] = xt[:, 0]
-    lp[:, 1:] = lfilter([a0], [1.0, -(1.0 - a0)], xt[:, :-1], axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
-    return xt - lp
+    # the low-pass at sample k is the filter's output at k - 1 (its own first sample at k = 0): filtering the whole
+    # row gives the same outputs (a causal filter), and the relaxation is formed in place, without the low-pass array
+    y = lfilter([a0], [1.0, -(1.0 - a0)], xt, axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
+    out = np.empty_like(xt) if out is None else out
+    out[:, 0] = xt[:, 0] - xt[:, 0]
+    np.subtract(xt[:, 1:], y[:, :-1], out=out[:, 1:])
+    return out
 
 
 def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
