@@ -103,10 +103,11 @@ def _relaxation_columns(ctx, taus) -> FreeFace:
     """Per tau each channel's own relaxation (``creep_term(t, pred, 1, (tau,))`` per recording): a channel-wise face
     whose columns are tau-major, as the dense (N, 6, 6 x taus) array of one diagonal block per tau was (the
     refinement's columns)."""
-    xs = [-ctx.relaxation(float(tau)) for tau in taus]
+    xs = [-ctx.relaxation(float(tau)) for tau in taus]    # (N, 6) views of channel-major arrays
     m = len(xs)
+    # column-major channel blocks (a channel's relaxations are contiguous rows of a (m, N) array)
     return FreeFace(None, tuple(f"x{j}" for j in range(6 * m)),
-                    blocks=tuple((c, np.arange(m) * 6 + c, np.stack([x[:, c] for x in xs], axis=1)) for c in range(6)))
+                    blocks=tuple((c, np.arange(m) * 6 + c, np.stack([x[:, c] for x in xs], axis=0).T) for c in range(6)))
 
 
 class Creep(Effect):
@@ -132,12 +133,21 @@ class Creep(Effect):
         tau = float(shape["tau_s"])
         tau2 = shape.get("tau2_s")
         taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
-        relax = [-ctx.relaxation(tk) for tk in taus]   # creep_term(t, pred, 1, (tk,)) per recording
-        if not np.any(np.abs(relax[0]) > 0):
+        R = [ctx.relaxation(tk) for tk in taus]   # the columns are -R: creep_term(t, pred, 1, (tk,)) per recording
+        if not np.any(np.abs(R[0]) > 0):
             return None
-        # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array)
-        second = (relax[2] - relax[1]) / (2 * self.DLN) if tau2 is None else relax[1]
-        bases = [np.stack([relax[0][:, c], second[:, c]], axis=1) for c in range(6)]
+        # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array), written in place:
+        # -R0, and (-R2 - -R1) / (2 DLN) = (R1 - R2) / (2 DLN) exactly (or -R1, the second relaxation)
+        bases = []
+        for c in range(6):
+            B = np.empty((2, ctx.n)).T       # column-major: each column written (and later read) contiguously
+            np.negative(R[0][:, c], out=B[:, 0])
+            if tau2 is None:
+                np.subtract(R[1][:, c], R[2][:, c], out=B[:, 1])
+                B[:, 1] /= 2 * self.DLN
+            else:
+                np.negative(R[1][:, c], out=B[:, 1])
+            bases.append(B)
         second_name = "creep_dlntau" if tau2 is None else "creep2"
         names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.{second_name} [1]"))
         return FreeFace.channelwise(bases, names, dict(shape))

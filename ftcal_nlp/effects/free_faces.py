@@ -260,19 +260,20 @@ class FreeLoadContext:
             # a recording's samples are one run (recording after recording): a slice, no gather
             rows = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i for i in rows]
             c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
-                                             [np.ascontiguousarray(self.pred[i].T) for i in rows], {})
+                                             [np.ascontiguousarray(self.pred[i].T) for i in rows], {},
+                                             [_clock(self.t[i]) for i in rows])
         done = c[5]               # the last few time constants' results (a grid's pairs reuse its single ones)
         tau = float(tau)
         if tau in done:
             return done[tau]
         out = np.empty((6, self.n))
-        for i, xt in zip(c[3], c[4]):
+        for i, xt, clock in zip(c[3], c[4], c[6]):
             if xt.shape[1] <= 1:
                 out[:, i] = relaxation(self.t[i], xt.T, tau).T
             elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
-                _relax_rows(self.t[i], xt, tau, out=out[:, i])
+                _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock)
             else:
-                out[:, i] = _relax_rows(self.t[i], xt, tau)
+                out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock)
         out = out.T
         out.flags.writeable = False
         if len(done) >= RELAXATION_CACHE:
@@ -294,21 +295,28 @@ class FreeLoadContext:
         return FreeLoadContext(**out)
 
 
-def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | None = None) -> np.ndarray:
+def _clock(t: np.ndarray) -> tuple[bool, np.ndarray]:
+    """``(regular, dt[:1])`` of a recording's clock: whether its sample period is constant (to 1e-9 relative)."""
+    dt = np.diff(t)
+    return (bool(len(dt)) and not np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12)), dt[:1]
+
+
+def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | None = None,
+                clock: tuple | None = None) -> np.ndarray:
     """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt`` (into ``out`` (c, n) if given): the same
     recurrence filtered along each channel's contiguous row (faster than along axis 0; bit-identical); an irregular
-    clock or ``tau == 0``: ``signals.relaxation`` itself."""
+    clock or ``tau == 0``: ``signals.relaxation`` itself. ``clock``: :func:`_clock` of ``t`` if known."""
     from scipy.signal import lfilter
 
     from .signals import relaxation
 
-    dt = np.diff(t)
-    if tau <= 0 or np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12):
+    regular, dt1 = _clock(t) if clock is None else clock
+    if tau <= 0 or not regular:
         r = relaxation(t, xt.T, tau).T
         if out is not None:
             out[...] = r
         return r
-    a0 = float(1.0 - np.exp(-dt[:1] / tau)[0])
+    a0 = float(1.0 - np.exp(-dt1 / tau)[0])
     # the low-pass at sample k is the filter's output at k - 1 (its own first sample at k = 0): filtering the whole
     # row gives the same outputs (a causal filter), and the relaxation is formed in place, without the low-pass array
     y = lfilter([a0], [1.0, -(1.0 - a0)], xt, axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
@@ -325,6 +333,8 @@ def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
     for r in np.unique(rec):
         i = np.flatnonzero(rec == r)
         if len(i) >= 2:
+            if i[-1] - i[0] + 1 == len(i):      # a recording's samples are one run: a slice, no gather
+                i = slice(int(i[0]), int(i[-1]) + 1)
             out[i] = np.gradient(x[i], t[i], axis=0)
     return out
 

@@ -178,7 +178,7 @@ def rigid_face(w: np.ndarray, alpha: np.ndarray, p: np.ndarray, shape: dict | No
         cols = F[c] if c < 3 else [-v for v in T[c - 3]] + R[c - 3]
         nz = [j for j, v in enumerate(cols) if np.any(v != 0)]
         if nz:
-            blocks.append((c, np.array(nz), np.stack([cols[j] for j in nz], axis=1)))
+            blocks.append((c, np.array(nz), np.stack([cols[j] for j in nz], axis=0).T))   # column-major: no strided copy
     return FreeFace(None, RIGID_NAMES, shape, blocks=tuple(blocks))
 
 
