@@ -318,13 +318,23 @@ DIAGNOSIS_RATIO_TARGET = 3.0
 @dataclass(frozen=True)
 class DiagnosisRatioSettings:
     """``problems``: ``hexapod`` (the default problem, ``problems/bigant_sim.toml``: ``SimConfig()`` with seed 0
-    and the run's default settings) and ``payload`` (a wrist tool of ``payload_samples`` samples, the load-speed
-    bench's payload); ``repeats`` per setting (median reported)."""
+    and the run's default settings), ``payload`` (a wrist tool of ``payload_samples`` samples, the load-speed
+    bench's payload, clean) and ``payload_effects`` (the same payload with ``payload_effects`` injected, each at its
+    registry test size (``Magnitude.test``, inside its realistic range), injector seed 0: the chain then names
+    effects, refines their shapes and looks again); ``repeats`` per setting (median reported)."""
 
     repeats: int = 3
-    problems: tuple[str, ...] = ("hexapod", "payload")
+    problems: tuple[str, ...] = ("hexapod", "payload", "payload_effects")
     hexapod_sim: dict = field(default_factory=dict)      # SimConfig overrides; empty: the default problem
     payload_samples: int = 100_000
+    payload_effects: tuple[str, ...] = ("creep", "clock_offset")
+
+
+def payload_effect_injectors(names: tuple[str, ...]) -> tuple[dict, ...]:
+    """The free-load simulator's ``effects`` entries of ``names``: each at its registry test size, seed 0."""
+    from ..effects import EFFECTS
+
+    return tuple({"name": n, "scale": float(EFFECTS[n].magnitude.test), "seed": 0} for n in names)
 
 
 def diagnosis_ratio_datasets(settings: DiagnosisRatioSettings, tmp: Path) -> dict:
@@ -334,15 +344,18 @@ def diagnosis_ratio_datasets(settings: DiagnosisRatioSettings, tmp: Path) -> dic
     out = {}
     if "hexapod" in settings.problems:
         out["hexapod"] = read_dataset(write_simulation(simulate(SimConfig(**settings.hexapod_sim)), tmp / "hexapod"))
+    cfg = load_speed_configs(LoadSpeedSettings(payload_samples=settings.payload_samples), tmp / "unused.urdf")["payload"]
     if "payload" in settings.problems:
-        cfg = load_speed_configs(LoadSpeedSettings(payload_samples=settings.payload_samples), tmp / "unused.urdf")["payload"]
         out["payload"] = read_dataset(write_free_load(simulate_free(cfg), tmp / "payload"))
+    if "payload_effects" in settings.problems:
+        cfg_e = replace(cfg, effects=payload_effect_injectors(settings.payload_effects))
+        out["payload_effects"] = read_dataset(write_free_load(simulate_free(cfg_e), tmp / "payload_effects"))
     return out
 
 
 def run_diagnosis_ratio(settings: DiagnosisRatioSettings = DiagnosisRatioSettings(), progress: bool = True) -> dict:
     """Wall time of :func:`ftcal_nlp.calibrate` with the diagnosis on against the same call with it off (the run's
-    default settings otherwise), per problem: ``times`` (DataFrame: problem, samples, without_s, with_s,
+    default settings otherwise), per problem: ``times`` (DataFrame: problem, injected (effects), samples, without_s, with_s,
     diagnosis_s (its stage clock), ratio = diagnosis_s / without_s (the target's), ratio_whole = with_s / without_s, target,
     verdict, effects, repeats)."""
     from tqdm import tqdm
@@ -360,7 +373,8 @@ def run_diagnosis_ratio(settings: DiagnosisRatioSettings = DiagnosisRatioSetting
             d = run.diagnosis
             n = int(sum(r.n for r in ds.hanging) + sum(r.n for r in ds.standing) + sum(r.n for r in getattr(ds, "walking", ())))
             without, with_, diag = float(np.median(w_off)), float(np.median(w_on)), float(np.median(sw.get("diagnosis", [np.nan])))
-            rows.append({"problem": problem, "samples": n, "without_s": without, "with_s": with_, "diagnosis_s": diag,
+            injected = " + ".join(settings.payload_effects) if problem == "payload_effects" else ""
+            rows.append({"problem": problem, "injected": injected, "samples": n, "without_s": without, "with_s": with_, "diagnosis_s": diag,
                          "ratio": diag / without, "ratio_whole": with_ / without, "target": DIAGNOSIS_RATIO_TARGET,
                          "verdict": None if d is None else d.verdict,
                          "effects": "" if d is None else " ".join(e["name"] for e in (d.effects or [])),

@@ -47,6 +47,8 @@ MIN_CHANNEL_SHARE = 0.6
 MAX_EFFECTS = 4
 PARSIMONY = 0.85
 MIN_GAIN_NO_FLOOR = 0.05
+#: a face's refined shape (``free_refine``) is scored with each fold's shape tuned on the other folds' blocks alone
+REFINE_PER_FOLD = True
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,12 @@ class Candidate:
     status: str = "ok"
     note: str = ""
     shapes_tried: int = 0
+    base: CVFit | None = None  # the design with ``face`` (tuned on every sample) when ``cv`` tuned it per fold
+
+    @property
+    def design_cv(self) -> CVFit:
+        """The cross-validation of the design with this candidate's ``face`` itself: what later designs build on."""
+        return self.cv if self.base is None else self.base
 
 
 @dataclass
@@ -78,6 +86,12 @@ class Chain:
     @property
     def current(self) -> CVFit:
         return self.steps[-1].cv if self.steps else self.base
+
+    @property
+    def current_design(self) -> CVFit:
+        """The design of the named effects' faces as they join later designs (:attr:`Candidate.design_cv`): what the
+        next candidates are compared with (the same faces in both)."""
+        return self.steps[-1].design_cv if self.steps else self.base
 
 
 def excess_ratio(cv: CVFit, floor: np.ndarray) -> np.ndarray:
@@ -107,7 +121,7 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
         if key not in memo:
             memo[key] = effect.free_face(ctx, shape)
         face = memo[key]
-        if face is None or not np.any(face.X if face.dense else face.basis):
+        if face is None or not face.any():
             continue
         tried += 1
         cv = design.fit(X0 + [face])
@@ -116,23 +130,48 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
     if best is None:
         return Candidate(effect, {}, None, None, status="not applicable", note="its face does not apply to these data")
     refine = getattr(effect, "free_refine", None)
+    base_cv = None
     if refine is not None:   # the unit may refine its grid's best shape on the current residual (free_faces.py)
-        shape2 = refine(ctx, dict(best[0]), cur.resid)
-        if shape2 is not None and shape2 != best[0]:
-            key = (effect.name, repr(sorted(shape2.items())))
+        def face_of(sh):
+            key = (effect.name, repr(sorted(sh.items())))
             if key not in memo:
-                memo[key] = effect.free_face(ctx, shape2)
-            face2 = memo[key]
-            if face2 is not None:
-                cv2 = design.fit(X0 + [face2])
-                tried += 1
-                if cv2.sse < best[2].sse:
-                    best = (shape2, face2, cv2)
+                memo[key] = effect.free_face(ctx, sh)
+            return memo[key]
+
+        shape2 = refine(ctx, dict(best[0]), cur.resid)
+        face2 = face_of(shape2) if shape2 is not None and shape2 != best[0] else None
+        near = tuple(effect.free_refine_near(ctx, dict(best[0]))) if REFINE_PER_FOLD else ()
+        if near:
+            # held-out evidence of the refined shape: each fold's shape tuned on the other folds' blocks alone (the
+            # unit's shapes near the grid's best, ``free_refine_near``, each scored by the training blocks' residual
+            # sum of squares of the current design with its refinement columns), and that fold predicted with it;
+            # the shape tuned on every sample is what the chain keeps (its face joins later designs, the joint refit)
+            whole = design.fit(X0 + [face2]) if face2 is not None else best[2]
+            tsse = []
+            for _, cols in near:
+                tsse.append(design.train_sse(X0 + [cols]))
+                design.forget(cols)
+            pick = np.argmin(np.asarray(tsse), axis=0)                 # (folds,): each fold's shape
+            fold_faces = []
+            for f in range(design.folds):
+                ff = face_of(near[int(pick[f])][0])
+                fold_faces.append(ff if ff is not None and ff.k == best[1].k else best[1])
+            cv2 = design.fit_per_fold(X0, fold_faces, whole)
+            tried += 1
+            if cv2.sse < best[2].sse:
+                best = (shape2 if face2 is not None else best[0], face2 if face2 is not None else best[1], cv2)
+                base_cv = whole
+        elif face2 is not None:
+            cv2 = design.fit(X0 + [face2])
+            tried += 1
+            if cv2.sse < best[2].sse:
+                best = (shape2, face2, cv2)
     shape, face, cv = best
     gain, z = paired_gain(cur, cv)
     floor_sse = 6.0 * design.n
     share = (cur.sse - cv.sse) / max(cur.sse - floor_sse, 1e-300) if floor_known else gain
-    return Candidate(effect, dict(shape), face, cv, gain, z, float(share), _bic(design, cv, cur), shapes_tried=tried)
+    return Candidate(effect, dict(shape), face, cv, gain, z, float(share), _bic(design, cv, cur), shapes_tried=tried,
+                     base=base_cv)
 
 
 def accepted(c: Candidate, cur: CVFit, design: Design, floor_known: bool = True,
@@ -173,7 +212,7 @@ def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[E
     ch = Chain(design.fit([J]))
     memo: dict = {}
     while True:
-        cur = ch.current
+        cur = ch.current_design
         if floor_known and np.max(excess_ratio(cur, floor)) <= 1.0 + GAP_REL:
             ch.stop = "no gap above the floor remains" if ch.steps else "no gap above the floor"
             break

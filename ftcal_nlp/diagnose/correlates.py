@@ -52,7 +52,7 @@ def _face(basis: np.ndarray, label: str) -> FreeFace | None:
     keep = np.ptp(basis, axis=0) > 0
     if not keep.any():
         return None
-    return FreeFace.per_channel(basis[:, keep], tuple(f"{label}{j}" for j in range(int(keep.sum()))))
+    return FreeFace.per_channel(basis if keep.all() else basis[:, keep], tuple(f"{label}{j}" for j in range(int(keep.sum()))))
 
 
 def correlate_faces(ctx: FreeLoadContext) -> dict[str, tuple[FreeFace, np.ndarray, str]]:

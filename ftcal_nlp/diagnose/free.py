@@ -33,6 +33,7 @@ import numpy as np
 from ..data import Dataset
 from ..effects import Effect, resolve_effects
 from ..effects.free_faces import FreeFace
+from ..effects.free_refine import use_model_face
 from ..settings import DiagnoseSettings
 from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
 from .correlates import EXPLAINED_MIN, CorrelateScore, score_correlates
@@ -132,6 +133,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     ctx = dataclasses.replace(ctx, sigma=floor)   # what a face's refinement weighs channels by
     Jx, names = model_jacobian(ctx, fit)
     J = FreeFace(Jx, names)
+    use_model_face(ctx, J)        # a face's refinement regresses on the same columns (no second Jacobian)
     block = cv_blocks(ctx.hold, ctx.rec, s.folds)
     if int(block.max()) + 1 < s.folds:
         notes.append(f"{leg}: {ctx.n} samples make {int(block.max()) + 1} cross-validation block(s), fewer than the {s.folds} "
@@ -144,7 +146,8 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
     # each effect's parameters as the chain added it (refit with those before it only): when later effects are
     # confounded with it, the joint refit splits what they share and says so by its se
-    added = [joint_fit(design, J, ch.steps[:i + 1], ctx).params[i] for i in range(len(ch.steps))]
+    added = [(joint_fit(design, J, ch.steps[:i + 1], ctx) if i + 1 < len(ch.steps) else jf).params[i]
+             for i in range(len(ch.steps))]
     ratio_after = excess_ratio(cur, floor)
     gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
     gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
@@ -153,7 +156,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     ref = cur if (gap_after and not ch.steps) or not ch.steps else base
     corr = score_correlates(design, J, ref, ctx, None) if (gap_before or gap_after) else []
     if ch.steps and gap_after:  # what the named effects leave: where it lies
-        rest = score_correlates(design, J, cur, ctx, extra)
+        rest = score_correlates(design, J, ch.current_design, ctx, extra)
     else:
         rest = []
     top = corr[0] if corr and corr[0].explained >= EXPLAINED_MIN else None

@@ -101,6 +101,7 @@ class CVFit:
         self.beta, self.G, self.block_sse, self.chan_sse, self.rss = beta, G, block_sse, chan_sse, float(rss)
         self.k = int(off[-1])
         self._heldout = self._resid = None
+        self._fold_parts = None      # per fold its parts (a face tuned per fold: ``Design.fit_per_fold``)
 
     @property
     def sse(self) -> float:
@@ -112,7 +113,7 @@ class CVFit:
     @property
     def heldout(self) -> np.ndarray:
         if self._heldout is None:
-            self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta)
+            self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta, self._fold_parts)
         return self._heldout
 
     @property
@@ -153,10 +154,11 @@ class Design:
         self._rp = self.r if self._sorted else self.r[self._order]
         rr = self._rp**2 * self.w2
         self._s = np.stack([rr[sl].sum(axis=0) for sl in self._sl])          # (B, 6)
+        self._rrT = np.ascontiguousarray((self._rp * self.w2).T)             # (6, N) weighted residual, channel-major
         self._gram: dict = {}
         self._vec: dict = {}
-        self._perm: dict = {}   # part id -> its rows in block order (X or basis)
-        self._keep: dict = {}   # parts by id, so that an id is not reused while its blocks are cached
+        self._perm: dict = {}   # basis id -> its rows in block order
+        self._keep: dict = {}   # parts (and bases) by id, so that an id is not reused while its sums are cached
 
     @property
     def n(self) -> int:
@@ -166,56 +168,39 @@ class Design:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
         return (X * self.w[None, :, None]).reshape(-1, X.shape[2])
 
-    def _P(self, a) -> np.ndarray:
-        """Part ``a``'s X (dense) or basis (per channel), rows in block order (cached)."""
-        if id(a) not in self._perm:
-            self._keep[id(a)] = a
-            P = a.X if a.dense else a.basis
-            self._perm[id(a)] = P if self._sorted else P[self._order]
-        return self._perm[id(a)]
+    def _P(self, B: np.ndarray) -> np.ndarray:
+        """A face's channel basis ``B`` (N, m) with its rows in block order (cached; as is when already in order)."""
+        if self._sorted:
+            return B
+        if id(B) not in self._perm:
+            self._keep[("B", id(B))] = B
+            self._perm[id(B)] = B[self._order]
+        return self._perm[id(B)]
 
-    # ---- per-block, per-channel sums
+    # ---- per-block, per-channel sums (each face's channel blocks: a channel's columns meet only its rows)
     def _pair(self, a, b) -> np.ndarray:
         """(B, 6, ka, kb): sum over the block's samples of channel c's weighted column products."""
         out = np.zeros((self.nb, 6, a.k, b.k))
-        w2 = self.w2
-        Pa, Pb = self._P(a), self._P(b)
-        if a.dense and b.dense:
-            for i, sl in enumerate(self._sl):
-                out[i] = (Pa[sl].transpose(1, 2, 0) @ Pb[sl].transpose(1, 0, 2)) * w2[:, None, None]
-            return out
-        if not a.dense and not b.dense:
-            ma, mb = Pa.shape[1], Pb.shape[1]
-            for i, sl in enumerate(self._sl):
-                BtB = Pa[sl].T @ Pb[sl]
-                for ia, c in enumerate(a.channels):
-                    if c in b.channels:
-                        jb = b.channels.index(c)
-                        out[i, c, ia * ma:(ia + 1) * ma, jb * mb:(jb + 1) * mb] = w2[c] * BtB
-            return out
-        if a.dense:
-            return self._pair(b, a).transpose(0, 1, 3, 2)
-        m = Pa.shape[1]
-        for i, sl in enumerate(self._sl):
-            Xs = Pb[sl]
-            BtX = (Pa[sl].T @ Xs.reshape(len(Xs), -1)).reshape(m, 6, -1).transpose(1, 0, 2)      # (6, m, kb)
-            for ia, c in enumerate(a.channels):
-                out[i, c, ia * m:(ia + 1) * m] = w2[c] * BtX[c]
+        ab = {c: (cols, B) for c, cols, B in a.channel_blocks()}
+        done: dict = {}      # a basis shared by several channels (per_channel): its products once
+        for c, cols_b, Bb in b.channel_blocks():
+            if c not in ab:
+                continue
+            cols_a, Ba = ab[c]
+            key = (id(Ba), id(Bb))
+            if key not in done:
+                Pa, Pb = self._P(Ba), self._P(Bb)
+                done[key] = np.stack([Pa[sl].T @ Pb[sl] for sl in self._sl])           # (B, ma, mb)
+            out[:, c, cols_a[:, None], cols_b[None, :]] = self.w2[c] * done[key]
         return out
 
     def _rhs(self, a) -> np.ndarray:
         """(B, 6, ka): sum over the block's samples of channel c's weighted column times residual."""
         out = np.zeros((self.nb, 6, a.k))
-        rr = self._rp * self.w2
-        P = self._P(a)
-        for i, sl in enumerate(self._sl):
-            if a.dense:
-                out[i] = np.einsum("nck,nc->ck", P[sl], rr[sl])   # no (n, 6, k) temporary
-            else:
-                Bt = P[sl].T @ rr[sl]                                           # (m, 6)
-                m = P.shape[1]
-                for ia, c in enumerate(a.channels):
-                    out[i, c, ia * m:(ia + 1) * m] = Bt[:, c]
+        for c, cols, B in a.channel_blocks():
+            P = self._P(B)
+            rc = self._rrT[c]
+            out[:, c, cols] = np.stack([P[sl].T @ rc[sl] for sl in self._sl])
         return out
 
     def _blocks(self, a, b) -> np.ndarray:
@@ -239,29 +224,26 @@ class Design:
         for key in [k for k in self._gram if i in k]:
             del self._gram[key]
         self._vec.pop(i, None)
-        self._perm.pop(i, None)
         self._keep.pop(i, None)
+        for _, _, B in part.channel_blocks():
+            if self._perm.pop(id(B), None) is not None:
+                self._keep.pop(("B", id(B)), None)
 
     # ---- predictions (on demand)
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
         return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))
 
-    def heldout(self, parts, off, fold_beta) -> np.ndarray:
-        """(N, 6) held-out residual: each sample predicted by its fold's fit."""
+    def heldout(self, parts, off, fold_beta, fold_parts=None) -> np.ndarray:
+        """(N, 6) held-out residual: each sample predicted by its fold's fit (``fold_parts``: per fold its parts)."""
         out = np.empty((self.n, 6))
         for f in range(self.folds):
             rows = np.flatnonzero(self.fold == f)
             if len(rows):
-                out[rows] = self.r[rows] - self.model(parts, off, fold_beta[f], rows)
+                out[rows] = self.r[rows] - self.model(parts if fold_parts is None else fold_parts[f], off, fold_beta[f], rows)
         return out
 
-    def fit(self, parts) -> CVFit:
-        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
-        from ..effects.free_faces import FreeFace
-
-        if isinstance(parts, np.ndarray):
-            parts = [FreeFace(parts, tuple(f"c{j}" for j in range(parts.shape[2])))]
-        parts = list(parts)
+    def _assemble(self, parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(Gbc (B, 6, k, k), vbc (B, 6, k), off)`` of the design of ``parts`` from the cached sums."""
         ks = [p.k for p in parts]
         off = np.r_[0, np.cumsum(ks)]
         k = int(off[-1])
@@ -274,6 +256,21 @@ class Design:
                 Gbc[:, :, off[i]:off[i + 1], off[j]:off[j + 1]] = blk
                 if j != i:
                     Gbc[:, :, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 1, 3, 2)
+        return Gbc, vbc, off
+
+    @staticmethod
+    def _parts(parts) -> list:
+        from ..effects.free_faces import FreeFace
+
+        if isinstance(parts, np.ndarray):
+            return [FreeFace(parts, tuple(f"c{j}" for j in range(parts.shape[2])))]
+        return list(parts)
+
+    def fit(self, parts) -> CVFit:
+        """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
+        parts = self._parts(parts)
+        Gbc, vbc, off = self._assemble(parts)
+        k = int(off[-1])
         Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)                  # (B, k, k), (B, k)
         G, v = Gb.sum(axis=0), vb.sum(axis=0)
         fold_beta = np.zeros((self.folds, k))
@@ -289,6 +286,47 @@ class Design:
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)
         return CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
+
+    def train_sse(self, parts) -> np.ndarray:
+        """(folds,) the weighted residual sum of squares of the design of ``parts`` fitted on each fold's training
+        blocks (the other folds'), over those blocks: what a shape tuned per fold minimises."""
+        parts = self._parts(parts)
+        Gbc, vbc, _ = self._assemble(parts)
+        Gb, vb, sb = Gbc.sum(axis=1), vbc.sum(axis=1), self._s.sum(axis=1)
+        G, v, s = Gb.sum(axis=0), vb.sum(axis=0), float(sb.sum())
+        out = np.full(self.folds, np.inf)
+        for f in range(self.folds):
+            bs = np.flatnonzero(self.block_fold == f)
+            Gf, vf = G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0)
+            b = solve(Gf, vf)
+            out[f] = s - float(sb[bs].sum()) - 2 * vf @ b + b @ Gf @ b
+        return out
+
+    def fit_per_fold(self, parts, fold_faces: list, whole: CVFit) -> CVFit:
+        """Blocked cross-validation of ``parts`` plus a face tuned per fold: fold ``f`` is predicted by the design
+        ``parts + [fold_faces[f]]`` fitted on the other folds' blocks (``fold_faces[f]`` tuned on those blocks too, by
+        the caller); ``whole`` the design with the face tuned on all samples, whose all-sample fit (``beta``, ``G``,
+        ``rss``, ``resid``) the result carries."""
+        parts = self._parts(parts)
+        fold_beta = np.zeros((self.folds, whole.k))
+        sse_bc = np.zeros((self.nb, 6))
+        fparts = []
+        for f in range(self.folds):
+            pf = parts + [fold_faces[f]]
+            fparts.append(pf)
+            bs = np.flatnonzero(self.block_fold == f)
+            if not len(bs):
+                continue
+            Gbc, vbc, off = self._assemble(pf)
+            Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)
+            b = solve(Gb.sum(axis=0) - Gb[bs].sum(axis=0), vb.sum(axis=0) - vb[bs].sum(axis=0))
+            fold_beta[f] = b
+            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + (Gbc[bs] @ b) @ b
+        sse_bc = np.clip(sse_bc, 0.0, None)
+        out = CVFit(self, whole._parts, whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
+                    sse_bc.sum(axis=0) / self.w2, whole.rss)
+        out._fold_parts = fparts
+        return out
 
 
 def paired_gain(before: CVFit, after: CVFit) -> tuple[float, float]:

@@ -96,6 +96,17 @@ def delay_columns(pred_rate: np.ndarray, shape: str, higher: tuple = ()) -> tupl
     return X, ("delay_s [s]", "torque.delay_s [s]")
 
 
+def _channelwise_shared(cols: list, names: tuple, shape: dict) -> FreeFace:
+    """A face whose k parameters act on every channel through each channel's own column ``cols[j][:, c]`` ((N, 6)
+    each): the channel blocks of ``np.stack(cols, axis=2)`` (the columns not identically zero on a channel)."""
+    blocks = []
+    for c in range(6):
+        nz = [j for j, col in enumerate(cols) if np.any(col[:, c] != 0)]
+        if nz:
+            blocks.append((c, np.array(nz), np.stack([cols[j][:, c] for j in nz], axis=0).T))   # column-major
+    return FreeFace(None, names, shape, blocks=tuple(blocks))
+
+
 def refine_delay(t: np.ndarray, rec: np.ndarray, y: np.ndarray, pred: np.ndarray, d0: float,
                  sigma: np.ndarray | None = None, iters: int = 8) -> tuple[float, float]:
     """``(delay_s, se)``: Gauss-Newton on ``y(t) = pred(t - d) + w_o`` (an offset per channel refit alongside),
@@ -149,6 +160,10 @@ class ClockOffset(Effect):
         for _ in range(int(shape.get("order", 1)) - 1):
             d = rate(d, ctx.t, ctx.rec)
             higher.append(d)
+        if shape["channels"] == "all":   # every channel its own rate (and curvature ...): channel-wise, no (N, 6, k) array
+            cols = [-ctx.pred_rate] + [(-1) ** j * h / float(np.prod(np.arange(1, j + 1))) for j, h in enumerate(higher, start=2)]
+            names = ("delay_s [s]",) + tuple(f"delay_s^{j} [s^{j}]" for j in range(2, len(higher) + 2))
+            return _channelwise_shared(cols, names, dict(shape))
         X, names = delay_columns(ctx.pred_rate, shape["channels"], tuple(higher))
         return FreeFace(X, names, dict(shape))
 

@@ -99,6 +99,17 @@ class CreepLogInjector(OffFaceInjector, CreepInjector):
     weights = (1.0 / 8,) * 8
 
 
+def _relaxation_columns(ctx, taus) -> FreeFace:
+    """Per tau each channel's own relaxation (``creep_term(t, pred, 1, (tau,))`` per recording): a channel-wise face
+    whose columns are tau-major, as the dense (N, 6, 6 x taus) array of one diagonal block per tau was (the
+    refinement's columns)."""
+    xs = [-ctx.relaxation(float(tau)) for tau in taus]    # (N, 6) views of channel-major arrays
+    m = len(xs)
+    # column-major channel blocks (a channel's relaxations are contiguous rows of a (m, N) array)
+    return FreeFace(None, tuple(f"x{j}" for j in range(6 * m)),
+                    blocks=tuple((c, np.arange(m) * 6 + c, np.stack([x[:, c] for x in xs], axis=0).T) for c in range(6)))
+
+
 class Creep(Effect):
     name = "creep"
     description = "a reading that relaxes after each change of load"
@@ -122,31 +133,29 @@ class Creep(Effect):
         tau = float(shape["tau_s"])
         tau2 = shape.get("tau2_s")
         taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
-        relax = np.stack([-ctx.relaxation(tk) for tk in taus])   # creep_term(t, pred, 1, (tk,)) per recording
-        if not np.any(np.abs(relax[0]) > 0):
+        R = [ctx.relaxation(tk) for tk in taus]   # the columns are -R: creep_term(t, pred, 1, (tk,)) per recording
+        if not np.any(np.abs(R[0]) > 0):
             return None
-        X = np.zeros((ctx.n, 6, 12))
-        X[:, np.arange(6), 2 * np.arange(6)] = relax[0]
-        if tau2 is None:
-            X[:, np.arange(6), 2 * np.arange(6) + 1] = (relax[2] - relax[1]) / (2 * self.DLN)
-            names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep_dlntau [1]"))
-        else:
-            X[:, np.arange(6), 2 * np.arange(6) + 1] = relax[1]
-            names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.creep2 [1]"))
-        return FreeFace(X, names, dict(shape))
+        # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array), written in place:
+        # -R0, and (-R2 - -R1) / (2 DLN) = (R1 - R2) / (2 DLN) exactly (or -R1, the second relaxation)
+        bases = []
+        for c in range(6):
+            B = np.empty((2, ctx.n)).T       # column-major: each column written (and later read) contiguously
+            np.negative(R[0][:, c], out=B[:, 0])
+            if tau2 is None:
+                np.subtract(R[1][:, c], R[2][:, c], out=B[:, 1])
+                B[:, 1] /= 2 * self.DLN
+            else:
+                np.negative(R[1][:, c], out=B[:, 1])
+            bases.append(B)
+        second_name = "creep_dlntau" if tau2 is None else "creep2"
+        names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.{second_name} [1]"))
+        return FreeFace.channelwise(bases, names, dict(shape))
 
     def free_refine(self, ctx, shape, resid):
         # The time constant(s) by a search in ln tau on the residual beside the free-load model's own columns
         # (free_refine.py): within a factor 2 of the grid's best single tau, or a pair by Nelder-Mead from its grid point
-        def columns(ln_taus) -> np.ndarray:
-            out = []
-            for v in np.atleast_1d(ln_taus):
-                x = -ctx.relaxation(float(np.exp(v)))   # creep_term(t, pred, 1, (tau,)) per recording, cached
-                X = np.zeros((ctx.n, 6, 6))
-                X[:, np.arange(6), np.arange(6)] = x
-                out.append(X)
-            return np.concatenate(out, axis=2)
-
+        columns = self._refine_columns(ctx)
         if "tau2_s" not in shape:
             lt = np.log(float(shape["tau_s"]))
             v = refine_scalar(ctx, resid, columns, lt - np.log(2.0), lt + np.log(2.0))
@@ -156,6 +165,31 @@ class Creep(Effect):
             return None
         t1, t2 = sorted(float(np.round(np.exp(v), 3)) for v in x)
         return {"tau_s": t1, "tau2_s": t2} if t2 > 1.05 * t1 else None
+
+    #: per-fold tuning (``free_refine_near``): points per single tau over its refinement's range, steps of a pair's
+    NEAR_POINTS = 5
+    NEAR_PAIR_STEP = 0.5 * np.log(2.0)
+
+    def free_refine_near(self, ctx, shape):
+        # the shapes free_refine searches among: single tau within a factor 2 (NEAR_POINTS evenly in ln tau), a pair
+        # on a 3 x 3 grid of half-octave steps about its grid point; each with its refinement columns
+        if "tau2_s" not in shape:
+            lt = np.log(float(shape["tau_s"]))
+            pts = [(v,) for v in np.linspace(lt - np.log(2.0), lt + np.log(2.0), self.NEAR_POINTS)]
+        else:
+            l1, l2 = np.log(float(shape["tau_s"])), np.log(float(shape["tau2_s"]))
+            d = self.NEAR_PAIR_STEP * np.arange(-1, 2)
+            pts = [(l1 + a, l2 + b) for a in d for b in d if l2 + b > l1 + a + np.log(1.05)]
+        out = []
+        for p in pts:
+            taus = [float(np.round(np.exp(v), 3)) for v in p]
+            sh = {"tau_s": taus[0]} if len(taus) == 1 else {"tau_s": taus[0], "tau2_s": taus[1]}
+            out.append((sh, _relaxation_columns(ctx, taus)))
+        return tuple(out)
+
+    @staticmethod
+    def _refine_columns(ctx):
+        return lambda ln_taus: _relaxation_columns(ctx, [float(np.exp(v)) for v in np.atleast_1d(ln_taus)])
 
     def correct(self, cal, block, ctx, w, phi, R_WB, t_h, *, with_cov=True, source="calibration"):
         par = block.get("parameters", {})

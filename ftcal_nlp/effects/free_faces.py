@@ -67,24 +67,46 @@ import numpy as np
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 #: fewer consecutive quasi-static samples than this are not a hold (a pause in a motion)
 MIN_HOLD = 5
+#: how many time constants' relaxations a context keeps (:meth:`FreeLoadContext.relaxation`)
+RELAXATION_CACHE = 24
 
 
 class FreeFace:
     """An effect's free face for one shape: ``X`` (N, 6, k) design columns (the effect adds ``X beta`` to the
     readings), ``names`` (k,) parameter labels with units, ``shape`` the shape parameters that built it.
 
-    A face whose columns act on one channel each (:meth:`per_channel`) keeps only its ``basis`` (N, m) and
-    ``channels``; ``X`` is then built on demand (the diagnosis uses the structure: a channel's columns meet
-    only that channel's rows)."""
+    Most faces are sparse in the channels: a column acts on a few channels only. Two forms keep that structure
+    instead of the mostly-zero ``X`` (which is then built on demand):
+
+    * :meth:`per_channel`: one ``basis`` (N, m) shared by each of ``channels`` (columns channel-major);
+    * :meth:`channelwise`: per channel its own basis (N, m_c) and the columns it fills (e.g. creep: each channel's
+      own relaxation).
+
+    :meth:`channel_blocks` gives every form as ``(channel, columns, B)`` triples, ``B`` (N, m_c) the channel's
+    non-zero columns (for a dense ``X``: the columns not identically zero on that channel, found once); the
+    diagnosis' sums use only these (a channel's columns meet only that channel's rows)."""
 
     def __init__(self, X: np.ndarray | None, names, shape: dict | None = None, *, basis: np.ndarray | None = None,
-                 channels: tuple[int, ...] = ()):
+                 channels: tuple[int, ...] = (), blocks: tuple | None = None):
         self.names = tuple(names)
         self.shape = dict(shape or {})
         self.basis = None if basis is None else np.asarray(basis, float)
         self.channels = tuple(int(c) for c in channels)
         self._X = None if X is None else np.asarray(X, float)
-        if self._X is None:
+        self._blocks = None
+        if blocks is not None:
+            self._blocks = tuple((int(c), np.asarray(cols, int), np.asarray(B, float)) for c, cols, B in blocks)
+            if self._X is not None or self.basis is not None:
+                raise ValueError("FreeFace: give X, basis or blocks, not several")
+            chans = [c for c, _, _ in self._blocks]
+            bad = [c for c, cols, B in self._blocks if B.ndim != 2 or B.shape[1] != len(cols) or not 0 <= c < 6
+                   or len(set(cols.tolist())) != len(cols) or (len(cols) and (cols.min() < 0 or cols.max() >= len(self.names)))]
+            if bad or len(set(chans)) != len(chans):
+                raise ValueError(f"FreeFace: blocks must be (channel 0..5, distinct columns of the {len(self.names)}, "
+                                 "B (N, len(columns))), one block per channel")
+            if len({len(B) for _, _, B in self._blocks}) > 1:
+                raise ValueError("FreeFace: every block's B must have the same number of samples")
+        elif self._X is None:
             if self.basis is None or self.basis.ndim != 2 or self.basis.shape[1] * len(self.channels) != len(self.names):
                 raise ValueError(f"FreeFace: a per-channel face needs basis (N, m) with m x {len(self.channels)} channels = "
                                  f"{len(self.names)} names")
@@ -97,30 +119,60 @@ class FreeFace:
 
     @property
     def n(self) -> int:
-        return len(self._X) if self._X is not None else len(self.basis)
+        if self._X is not None:
+            return len(self._X)
+        if self.basis is not None:
+            return len(self.basis)
+        return len(self._blocks[0][2]) if self._blocks else 0
 
     @property
     def dense(self) -> bool:
         return self._X is not None
 
+    def channel_blocks(self) -> tuple:
+        """``((channel, columns (m_c,), B (N, m_c)), ...)``: each channel's non-zero columns (class docstring)."""
+        if self._blocks is None:
+            if self.basis is not None:
+                m = self.basis.shape[1]
+                self._blocks = tuple((c, np.arange(i * m, (i + 1) * m), self.basis) for i, c in enumerate(self.channels))
+            else:
+                nz = np.any(self._X != 0, axis=0)                      # (6, k): columns not identically zero per channel
+                self._blocks = tuple((c, np.flatnonzero(nz[c]), np.ascontiguousarray(self._X[:, c, nz[c]]))
+                                     for c in range(6) if nz[c].any())
+        return self._blocks
+
+    def any(self) -> bool:
+        """Whether any column is non-zero anywhere."""
+        if self._X is not None:
+            return bool(np.any(self._X))
+        if self.basis is not None:
+            return bool(np.any(self.basis))
+        return any(bool(np.any(B)) for _, _, B in self._blocks)
+
     @property
     def X(self) -> np.ndarray:
         if self._X is not None:
             return self._X
-        n, m = self.basis.shape
-        X = np.zeros((n, 6, self.k))
-        for i, c in enumerate(self.channels):
-            X[:, c, i * m:(i + 1) * m] = self.basis
+        X = np.zeros((self.n, 6, self.k))
+        for c, cols, B in self.channel_blocks():
+            X[:, c, cols] = B
         return X
 
     def wrench(self, beta: np.ndarray, rows=slice(None)) -> np.ndarray:
         """The effect's wrench (N, 6) (of ``rows``) for parameters ``beta`` (k,)."""
         beta = np.asarray(beta, float)
-        if self._X is not None:
+        if self._X is not None and self._blocks is None:
             return self._X[rows] @ beta
-        B = self.basis[rows]
-        out = np.zeros((len(B), 6))
-        out[:, list(self.channels)] = B @ beta.reshape(len(self.channels), -1).T
+        if self.basis is not None:
+            B = self.basis[rows]
+            out = np.zeros((len(B), 6))
+            out[:, list(self.channels)] = B @ beta.reshape(len(self.channels), -1).T
+            return out
+        # channel blocks (a dense face once the diagnosis has found them): each channel's non-zero columns only
+        n = len(np.arange(self.n)[rows]) if not isinstance(rows, slice) or rows != slice(None) else self.n
+        out = np.zeros((n, 6))
+        for c, cols, B in self._blocks:
+            out[:, c] = B[rows] @ beta[cols]
         return out
 
     @staticmethod
@@ -132,6 +184,17 @@ class FreeFace:
         chans = tuple(channels)
         names = [f"{WRENCH[c]}.{lab} [{unit_f if c < 3 else unit_t}]" for c in chans for lab in labels]
         return FreeFace(None, tuple(names), shape, basis=basis, channels=chans)
+
+    @staticmethod
+    def channelwise(bases, names, shape: dict | None = None, channels=range(6)) -> "FreeFace":
+        """A face whose channel ``channels[i]`` has its own columns ``bases[i]`` (N, m) (column order channel-major:
+        channel ``i``'s are ``i m .. (i + 1) m - 1``; ``names`` k = m x channels labels)."""
+        chans = tuple(channels)
+        bases = [np.asarray(B, float) for B in bases]
+        bases = [B[:, None] if B.ndim == 1 else B for B in bases]
+        m = bases[0].shape[1] if bases else 0
+        return FreeFace(None, names, shape, blocks=tuple((c, np.arange(i * m, (i + 1) * m), B)
+                                                         for i, (c, B) in enumerate(zip(chans, bases))))
 
 
 @dataclass(frozen=True)
@@ -197,11 +260,26 @@ class FreeLoadContext:
             # a recording's samples are one run (recording after recording): a slice, no gather
             rows = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i for i in rows]
             c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
-                                             [np.ascontiguousarray(self.pred[i].T) for i in rows])
+                                             [np.ascontiguousarray(self.pred[i].T) for i in rows], {},
+                                             [_clock(self.t[i]) for i in rows])
+        done = c[5]               # the last few time constants' results (a grid's pairs reuse its single ones)
+        tau = float(tau)
+        if tau in done:
+            return done[tau]
         out = np.empty((6, self.n))
-        for i, xt in zip(c[3], c[4]):
-            out[:, i] = _relax_rows(self.t[i], xt, float(tau)) if xt.shape[1] > 1 else relaxation(self.t[i], xt.T, tau).T
-        return out.T
+        for i, xt, clock in zip(c[3], c[4], c[6]):
+            if xt.shape[1] <= 1:
+                out[:, i] = relaxation(self.t[i], xt.T, tau).T
+            elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
+                _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock)
+            else:
+                out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock)
+        out = out.T
+        out.flags.writeable = False
+        if len(done) >= RELAXATION_CACHE:
+            del done[next(iter(done))]
+        done[tau] = out
+        return out
 
     def select(self, mask: np.ndarray) -> "FreeLoadContext":
         """The context restricted to the samples of ``mask`` (derived quantities as computed on all)."""
@@ -217,22 +295,35 @@ class FreeLoadContext:
         return FreeLoadContext(**out)
 
 
-def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float) -> np.ndarray:
-    """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt``: the same recurrence filtered along each
-    channel's contiguous row (faster than along axis 0; bit-identical); an irregular clock or ``tau == 0``:
-    ``signals.relaxation`` itself."""
+def _clock(t: np.ndarray) -> tuple[bool, np.ndarray]:
+    """``(regular, dt[:1])`` of a recording's clock: whether its sample period is constant (to 1e-9 relative)."""
+    dt = np.diff(t)
+    return (bool(len(dt)) and not np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12)), dt[:1]
+
+
+def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | None = None,
+                clock: tuple | None = None) -> np.ndarray:
+    """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt`` (into ``out`` (c, n) if given): the same
+    recurrence filtered along each channel's contiguous row (faster than along axis 0; bit-identical); an irregular
+    clock or ``tau == 0``: ``signals.relaxation`` itself. ``clock``: :func:`_clock` of ``t`` if known."""
     from scipy.signal import lfilter
 
     from .signals import relaxation
 
-    dt = np.diff(t)
-    if tau <= 0 or np.ptp(dt) > 1e-9 * max(float(np.mean(dt)), 1e-12):
-        return relaxation(t, xt.T, tau).T
-    a0 = float(1.0 - np.exp(-dt / tau)[0])
-    lp = np.empty_like(xt)
-    lp[:, 0] = xt[:, 0]
-    lp[:, 1:] = lfilter([a0], [1.0, -(1.0 - a0)], xt[:, :-1], axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
-    return xt - lp
+    regular, dt1 = _clock(t) if clock is None else clock
+    if tau <= 0 or not regular:
+        r = relaxation(t, xt.T, tau).T
+        if out is not None:
+            out[...] = r
+        return r
+    a0 = float(1.0 - np.exp(-dt1 / tau)[0])
+    # the low-pass at sample k is the filter's output at k - 1 (its own first sample at k = 0): filtering the whole
+    # row gives the same outputs (a causal filter), and the relaxation is formed in place, without the low-pass array
+    y = lfilter([a0], [1.0, -(1.0 - a0)], xt, axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
+    out = np.empty_like(xt) if out is None else out
+    out[:, 0] = xt[:, 0] - xt[:, 0]
+    np.subtract(xt[:, 1:], y[:, :-1], out=out[:, 1:])
+    return out
 
 
 def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
@@ -242,6 +333,8 @@ def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
     for r in np.unique(rec):
         i = np.flatnonzero(rec == r)
         if len(i) >= 2:
+            if i[-1] - i[0] + 1 == len(i):      # a recording's samples are one run: a slice, no gather
+                i = slice(int(i[0]), int(i[-1]) + 1)
             out[i] = np.gradient(x[i], t[i], axis=0)
     return out
 

@@ -116,13 +116,70 @@ def _inertia_map(v: np.ndarray) -> np.ndarray:
 def rigid_regressor(w: np.ndarray, alpha: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``Y`` (N, 6, 9): the inertial wrench on the transducer ``Y pi`` of a rigid load turning about P (module
     docstring), ft axes; ``p`` (3,) or (N, 3) the ft origin relative to P in ft axes."""
-    n = len(w)
-    Y = np.zeros((n, 6, 9))
-    W, A = _skew(w), _skew(alpha)
-    Y[:, :3, 0:3] = -(A + W @ W)
-    Y[:, 3:, 0:3] = -_skew(np.broadcast_to(p, (n, 3))) @ Y[:, :3, 0:3]     # -p x f
-    Y[:, 3:, 3:9] = -(_inertia_map(alpha) + W @ _inertia_map(w))
+    F, T, R = _rigid_parts(w, alpha, p)
+    Y = np.zeros((len(w), 6, 9))
+    Y[:, :3, 0:3] = F
+    Y[:, 3:, 0:3] = T
+    Y[:, 3:, 3:9] = R
     return Y
+
+
+def _rigid_parts(w, alpha, p) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The non-zero blocks of :func:`rigid_regressor`: forces on ``h`` (N, 3, 3), torques on ``h`` (N, 3, 3) and on
+    the inertia (N, 3, 6)."""
+    n = len(w)
+    W, A = _skew(w), _skew(alpha)
+    F = -(A + W @ W)
+    return F, -_skew(np.broadcast_to(p, (n, 3))) @ F, -(_inertia_map(alpha) + W @ _inertia_map(w))   # -p x f
+
+
+def _skew_entries(v: np.ndarray) -> list:
+    """``[v]x`` as a 3 x 3 list of (N,) arrays (None for the zero diagonal)."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return [[None, -z, y], [z, None, -x], [-y, x, None]]
+
+
+def _inertia_entries(v: np.ndarray) -> list:
+    """``L(v)`` of :func:`_inertia_map` as a 3 x 6 list of (N,) arrays (None for its zeros)."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return [[x, y, z, None, None, None], [None, x, None, y, z, None], [None, None, x, None, y, z]]
+
+
+def _mul(A: list, B: list, n: int) -> list:
+    """The product of two matrices of (N,) arrays (None: zero), entry by entry (no (N, 3, k) stacks)."""
+    out = []
+    for i in range(len(A)):
+        row = []
+        for j in range(len(B[0])):
+            acc = None
+            for k in range(len(B)):
+                if A[i][k] is not None and B[k][j] is not None:
+                    term = A[i][k] * B[k][j]
+                    acc = term if acc is None else acc + term
+            row.append(np.zeros(n) if acc is None else acc)
+        out.append(row)
+    return out
+
+
+def rigid_face(w: np.ndarray, alpha: np.ndarray, p: np.ndarray, shape: dict | None = None) -> FreeFace:
+    """:func:`rigid_regressor` as a channel-wise :class:`FreeFace` (each channel's columns not identically zero),
+    formed entry by entry from the 3 x 3 and 3 x 6 blocks (no (N, 3, k) stacks, no (N, 6, 9) array)."""
+    n = len(w)
+    W = _skew_entries(w)
+    WW = _mul(W, W, n)
+    A = _skew_entries(alpha)
+    F = [[-(WW[i][j] if A[i][j] is None else A[i][j] + WW[i][j]) for j in range(3)] for i in range(3)]
+    T = _mul(_skew_entries(np.broadcast_to(np.asarray(p, float), (n, 3)).copy()), F, n)          # p x f; -p x f below
+    WL = _mul(W, _inertia_entries(w), n)
+    La = _inertia_entries(alpha)
+    R = [[-(WL[i][j] if La[i][j] is None else La[i][j] + WL[i][j]) for j in range(6)] for i in range(3)]
+    blocks = []
+    for c in range(6):
+        cols = F[c] if c < 3 else [-v for v in T[c - 3]] + R[c - 3]
+        nz = [j for j, v in enumerate(cols) if np.any(v != 0)]
+        if nz:
+            blocks.append((c, np.array(nz), np.stack([cols[j] for j in nz], axis=0).T))   # column-major: no strided copy
+    return FreeFace(None, RIGID_NAMES, shape, blocks=tuple(blocks))
 
 
 def rigid_parameters(mass_kg: float, com_m, inertia_com, p=np.zeros(3)) -> np.ndarray:
@@ -134,9 +191,18 @@ def rigid_parameters(mass_kg: float, com_m, inertia_com, p=np.zeros(3)) -> np.nd
 
 
 def _ft_pose(ctx) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(R_W,ft (N, 3, 3), p_O (N, 3) in W)`` of the context, or None without an orientation stream."""
+    """``(R_W,ft (N, 3, 3), p_O (N, 3) in W)`` of the context, or None without an orientation stream (kept in the
+    context's ``extra`` for its other shapes)."""
     if ctx.quat is None or not np.all(np.isfinite(ctx.quat)):
         return None
+    key = (ctx.quat, ctx.rotation, ctx.q, ctx.load)
+    c = ctx.extra.get("_ft_pose")
+    if c is None or any(a is not b for a, b in zip(c[0], key)):
+        c = ctx.extra["_ft_pose"] = (key, _ft_pose_of(ctx))
+    return c[1]
+
+
+def _ft_pose_of(ctx) -> tuple[np.ndarray, np.ndarray]:
     R_WB = quat_to_rotation(ctx.quat)
     n = ctx.n
     E = np.eye(3) if ctx.rotation is None else np.asarray(ctx.rotation, float)
@@ -201,13 +267,11 @@ class InertialLoad(Effect):
         R_W_ft, p_O = pose
         if shape["model"] == "rigid":
             p = np.einsum("nji,nj->ni", R_W_ft, p_O)           # O relative to P (W's origin), ft axes
-            return FreeFace(rigid_regressor(*frame_motion(ctx.t, ctx.rec, R_W_ft), p), RIGID_NAMES, dict(shape))
+            return rigid_face(*frame_motion(ctx.t, ctx.rec, R_W_ft), p, dict(shape))
         w_in = point_mass_wrench(ctx, R_W_ft, p_O)
         if w_in is None or not np.any(np.abs(w_in) > 0):
             return None
-        X = np.zeros((ctx.n, 6, 6))
-        X[:, np.arange(6), np.arange(6)] = w_in
-        return FreeFace(X, tuple(f"{c}.gain [1]" for c in WRENCH), dict(shape))
+        return FreeFace.channelwise([w_in[:, c] for c in range(6)], tuple(f"{c}.gain [1]" for c in WRENCH), dict(shape))
 
 
 EFFECT = InertialLoad()

@@ -144,15 +144,25 @@ class Temperature(Effect):
             return None
         d = int(shape["degree"])
 
-        def columns(lag: float) -> np.ndarray:
-            B = self._basis(ctx, max(lag, 0.0), d)
-            X = np.zeros((ctx.n, 6, 6 * d))
-            for c in range(6):
-                X[:, c, c * d:(c + 1) * d] = B
-            return X
+        def columns(lag: float) -> FreeFace:
+            # the lagged basis on each channel (channel-major columns): a per-channel face, no (N, 6, 6 d) array
+            return FreeFace.per_channel(self._basis(ctx, max(lag, 0.0), d), tuple(f"T{j}" for j in range(1, d + 1)))
 
         lag = refine_scalar(ctx, resid, columns, 0.0, 4.0 * max(self.LAGS_S), xatol=0.5)
         return None if lag is None else {"degree": d, "lag_s": float(np.round(lag, 1))}
+
+    #: per-fold tuning (``free_refine_near``): lags evenly over free_refine's range
+    NEAR_POINTS = 9
+
+    def free_refine_near(self, ctx, shape):
+        # the lags free_refine searches among, each with its refinement columns (the lagged basis on every channel)
+        if ctx.temperature is None:
+            return ()
+        d = int(shape["degree"])
+        lags = np.round(np.linspace(0.0, 4.0 * max(self.LAGS_S), self.NEAR_POINTS), 1)
+        return tuple(({"degree": d, "lag_s": float(lag)},
+                      FreeFace.per_channel(self._basis(ctx, float(lag), d), tuple(f"T{j}" for j in range(1, d + 1))))
+                     for lag in lags)
 
 
 EFFECT = Temperature()
