@@ -4,7 +4,8 @@ parameters and its mounting rotation from hanging recordings with gravity per sa
 API (the result object other modules build on):
 
 * ``fit_free_loads(dataset, settings) -> FreeLoadResults``: every transducer whose load is not a hexapod leg
-  (``Dataset.free_load_legs``), independently; ``fit_free_load(dataset, leg, settings) -> FreeLoadResult``.
+  (``Dataset.free_load_legs``), independently except those sharing a ``gravity_body`` recording's tilt (fitted
+  together, ``joint.py``); ``fit_free_load(dataset, leg, settings) -> FreeLoadResult`` (one, alone).
 * :class:`FreeLoadResult` (``result.py``): results protocol (``params``, ``bse``, ``cov_params()``,
   ``conf_int()``, ``summary()``), ``identifiability()`` (what the data leave undetermined, which
   combinations they determine), ``load_report()`` (the ``calibration.json`` keys of the load),
@@ -72,7 +73,8 @@ under each transducer's name; their correlation across transducers is not writte
 
 from __future__ import annotations
 
-from .estimate import fit_free_load, fit_free_loads, free_load_calibration, free_load_data
+from .estimate import fit_free_load, free_load_calibration, free_load_data
+from .joint import fit_free_loads
 from .problem import FreeLoadData
 from .result import FreeLoadResult, FreeLoadResults
 

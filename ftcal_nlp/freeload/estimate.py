@@ -417,21 +417,6 @@ def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
     return []
 
 
-def fit_free_loads(ds: Dataset, settings: FreeLoadSettings | None = None) -> FreeLoadResults:
-    """Every free-load transducer of ``ds`` (``Dataset.free_load_legs``): each on its own, except those that share a
-    ``gravity_body``-only recording's tilt (``joint.py``), fitted together."""
-    legs = ds.free_load_legs
-    if not legs:
-        raise DataFormatError(f"{ds.manifest or 'dataset'}: no transducer carries a free load (every one has a {{leg}}_phi column)")
-    from .joint import clusters, fit_joint
-
-    s = FreeLoadSettings() if settings is None else settings
-    out: dict[str, FreeLoadResult] = {}
-    for cl in clusters(ds, list(legs), s):   # transducers sharing a gravity_body recording's tilt: fitted together
-        out.update({cl[0]: fit_free_load(ds, cl[0], s)} if len(cl) == 1 else fit_joint(ds, cl, s))
-    return FreeLoadResults({k: out[k] for k in legs})
-
-
 def free_load_calibration(res: FreeLoadResults, robot) -> Calibration:
     """The :class:`~ftcal_nlp.calibration.Calibration` of free loads: per transducer its offsets with se, the load's
     weight, and the load's keys of ``OUTPUT_FORMAT.md`` (``load_mass_kg``, ``load_com_m``, URDF groups and links,

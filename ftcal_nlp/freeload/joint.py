@@ -25,15 +25,16 @@ import casadi as ca
 import numpy as np
 
 from ..data import Dataset
+from ..errors import DataFormatError
 from ..geometry import project_to_so3, rotation_to_rotvec
 from ..loads import load_for
 from ..settings import FreeLoadSettings
 from ..solver import identifiability, ipopt, solve_checked
-from .estimate import (_covariance, _leg_notes, _lin_map, _orientation_notes, _null_count, _ridge, free_load_data,
-                       held_tilts)
+from .estimate import (_covariance, _leg_notes, _lin_map, _orientation_notes, _null_count, _ridge, fit_free_load,
+                       free_load_data, held_tilts)
 from .nlp import _IPOPT, _lifted_mx, _tilted, nlp_for
 from .problem import compress, compress_tilted, n_tilted, predict, serial_inflation, tilt_gravity
-from .result import WRENCH, FreeLoadResult
+from .result import WRENCH, FreeLoadResult, FreeLoadResults
 
 log = logging.getLogger(__name__)
 
@@ -269,3 +270,17 @@ def fit_joint(ds: Dataset, legs: list[str], s: FreeLoadSettings) -> dict[str, Fr
                                   cov[np.ix_(sel, sel)], se[sel], 1.0 / np.sqrt(Ws[k]), rms, d.n, d.selection, tuple(und_k),
                                   tuple(det_k), notes, iters, solve_time, ident.ratio, null[sel][:, cols], d.masks, ttl, rec_t)
     return out
+
+
+def fit_free_loads(ds: Dataset, settings: FreeLoadSettings | None = None) -> FreeLoadResults:
+    """Every free-load transducer of ``ds`` (``Dataset.free_load_legs``): each on its own
+    (``estimate.fit_free_load``), except those that share a ``gravity_body``-only recording's tilt, fitted together
+    (:func:`fit_joint`)."""
+    legs = ds.free_load_legs
+    if not legs:
+        raise DataFormatError(f"{ds.manifest or 'dataset'}: no transducer carries a free load (every one has a {{leg}}_phi column)")
+    s = FreeLoadSettings() if settings is None else settings
+    out: dict[str, FreeLoadResult] = {}
+    for cl in clusters(ds, list(legs), s):   # transducers sharing a gravity_body recording's tilt: fitted together
+        out.update({cl[0]: fit_free_load(ds, cl[0], s)} if len(cl) == 1 else fit_joint(ds, cl, s))
+    return FreeLoadResults({k: out[k] for k in legs})
