@@ -32,7 +32,7 @@ from ..settings import FreeLoadSettings
 from ..solver import identifiability, ipopt, solve_checked
 from .estimate import (_covariance, _leg_notes, _lin_map, _orientation_notes, _null_count, _ridge, fit_free_load,
                        free_load_data, held_tilts)
-from .nlp import _IPOPT, _lifted_mx, _tilted, nlp_for
+from .nlp import _IPOPT, _lifted_mx, _tilted, nlp_for, square_root
 from .problem import compress, compress_tilted, n_tilted, predict, serial_inflation, tilt_gravity
 from .result import WRENCH, FreeLoadResult, FreeLoadResults
 
@@ -185,13 +185,7 @@ def fit_joint(ds: Dataset, legs: list[str], s: FreeLoadSettings) -> dict[str, Fr
             pen[np.ix_(keep, keep)] = Nn @ Nn.T
         parts = []
         for kg in pairs:
-            Qg, vg, _ = moms[kg].weighted(Ws[kg[0]])
-            lam, U = np.linalg.eigh(Qg)
-            ok = lam > 1e-13 * max(lam.max(), 1e-300)
-            Rm = np.zeros_like(Qg)
-            Rm[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
-            cv = np.zeros(len(vg))
-            cv[: ok.sum()] = (U[:, ok].T @ vg) / np.sqrt(lam[ok])
+            Rm, cv = square_root(*moms[kg].weighted(Ws[kg[0]])[:2])
             parts += [Rm.ravel(order="F"), cv]
         nl = len(Al)
         P = np.concatenate(parts + [ridge, x0, [1.0 / n_all], (np.zeros((nl, nl)) if pen is None else pen).ravel(order="F")])
