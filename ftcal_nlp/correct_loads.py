@@ -165,8 +165,7 @@ def tilted_gravity(p, g_B: np.ndarray, R_WB: np.ndarray | None) -> tuple[np.ndar
         return g_B, None
     if R_WB is None:
         return g_B, np.zeros((len(g_B), 3, 2))
-    from .diagnose.free_model import tilt_derivative
-    from .freeload.problem import tilt_gravity
+    from .freeload.problem import tilt_derivative, tilt_gravity
 
     return (p.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(p.tilt)),
             p.g * np.einsum("nkj,kt->njt", R_WB, tilt_derivative(p.tilt)))

@@ -5,8 +5,9 @@ gravity in B is ``F_r R_y(ty) R_x(tx) (0, 0, -1)``, ``F_r`` the frame of the rec
 * Two wrist transducers on one body; one recording turns the body through held orientations with the orientation
   per sample (it fixes each transducer's mounting rotation), six hold one orientation each and give only their
   nominal ``gravity_body``, each truly tilted by 0.5-1 deg: with the defaults (``"auto"``) every tilt is estimated
-  and recovered within 4 se, with everything else; without the term (``recording_tilt = false``) the fit is biased
-  beyond 4 se.
+  and recovered within 4 se, with everything else, each transducer alone and both together (one tilt per recording,
+  shared: ``freeload/joint.py``); without the term (``recording_tilt = false``) the fit is biased beyond 4 se. A
+  transducer free only in the gravity_body recordings gets its mount through the tilts the other fixes.
 * The recordings that give gravity by ``gravity_body`` only and nothing else: a tilt per recording and the mounting
   rotation absorb one another; ``"auto"`` holds them at 0 with a note naming the recordings, the numbers as without
   the term.
@@ -23,7 +24,7 @@ import tomli_w
 from ftcal_nlp.correct_loads import payload_from_fit
 from ftcal_nlp.data import read_dataset
 from ftcal_nlp.diagnose.free_model import context_for, model_jacobian
-from ftcal_nlp.freeload import fit_free_load
+from ftcal_nlp.freeload import fit_free_load, fit_free_loads
 from ftcal_nlp.freeload.problem import gravity_frame, predict, tilt_gravity
 from ftcal_nlp.geometry import rotation_to_quat, rotvec_to_rotation
 from ftcal_nlp.plan_loads import plan_from_dataset
@@ -51,9 +52,10 @@ def _readings(t: dict, g_B: np.ndarray, rng) -> np.ndarray:
     return np.concatenate([f, np.cross(t["com"], f)], axis=1) + t["offset"] + rng.normal(size=(len(g_B), 6)) * NOISE
 
 
-def write_dataset(folder: Path, seed: int, *, with_turns: bool, n_holds: int = 6, legs=("a", "b")) -> tuple[dict, dict]:
+def write_dataset(folder: Path, seed: int, *, with_turns: bool, n_holds: int = 6, legs=("a", "b"),
+                  turn_free: tuple[str, ...] | None = None) -> tuple[dict, dict]:
     """A section-5 dataset of ``legs`` (the truth of :func:`_truth`): optionally ``turn.csv`` (8 held orientations,
-    ``qw..qz``), and ``n_holds`` recordings ``h{r}.csv`` of one held orientation each with only their nominal
+    ``qw..qz``; ``turn_free``: the transducers free in it, default all), and ``n_holds`` recordings ``h{r}.csv`` of one held orientation each with only their nominal
     ``gravity_body``, truly tilted by ``tilts[r]`` (rad, in the frame of that direction). Returns (truth, tilts)."""
     rng = np.random.default_rng(seed)
     truth = {k: v for k, v in _truth(rng).items() if k in legs}
@@ -77,7 +79,7 @@ def write_dataset(folder: Path, seed: int, *, with_turns: bool, n_holds: int = 6
         df = frame(-G * R[:, 2, :], len(R))                  # R_WB^T (0, 0, -g)
         df[["qw", "qx", "qy", "qz"]] = rotation_to_quat(R)
         df.to_csv(folder / "turn.csv", index=False)
-        entries.append({"file": "turn.csv", "kind": "hanging"})
+        entries.append({"file": "turn.csv", "kind": "hanging", **({} if turn_free is None else {"free": list(turn_free)})})
     for r in range(n_holds):
         nominal = -rotvec_to_rotation(rng.normal(size=3) * 1.2)[2, :]
         tilt = np.radians(rng.uniform(0.5, 1.0, 2) * rng.choice([-1.0, 1.0], 2))
@@ -102,11 +104,20 @@ def _z(r, t: dict, tilts: dict | None) -> np.ndarray:
 
 
 def test_recording_tilts_are_recovered_and_bias_a_fit_without_them(tmp_path) -> None:
+    """Each transducer on its own (``fit_free_load``) and both together (``fit_free_loads``: the tilts shared, one
+    per recording), the tilts and everything else within 4 se; without the term biased beyond 4 se."""
     truth, tilts = write_dataset(tmp_path / "d", 3, with_turns=True)
     ds = read_dataset(tmp_path / "d" / "dataset.toml")
+    joint = fit_free_loads(ds).legs
     for leg, t in truth.items():
+        rj = joint[leg]
+        assert np.abs(_z(rj, t, tilts)).max() < Z and np.all(np.isfinite(rj.se)) and not rj.undetermined
+        assert any("shared with transducers" in n for n in rj.notes)
+        for rec, v in rj.recording_tilts.items():                        # one tilt per recording, the same for both
+            np.testing.assert_array_equal(v, joint["a"].recording_tilts[rec])
         r = fit_free_load(ds, leg)                                       # the defaults: "auto"
         assert set(r.recording_tilts) == set(tilts) and np.all(np.isfinite(r.se)) and not r.undetermined
+        assert np.all(rj.se <= r.se * (1 + 1e-6))                        # pooled: no wider
         assert f"{leg}.h0.tilt.rx" in r.names and r.names[-3] == f"{leg}.mount.rx"
         z = _z(r, t, tilts)
         assert np.all(np.abs(z) < Z), (leg, np.round(z, 2))
@@ -119,6 +130,21 @@ def test_recording_tilts_are_recovered_and_bias_a_fit_without_them(tmp_path) -> 
         assert np.abs(_z(off, t, None)).max() > Z                       # no tilt term: biased beyond 4 se
     plan = plan_from_dataset(ds)                                         # the bound says what it leaves out
     assert all(any("gravity_body recordings" in n for n in p.notes) for p in plan.loads.values())
+
+
+def test_a_transducer_without_its_own_orientations_gets_its_mount_through_the_shared_tilts(tmp_path) -> None:
+    """b hangs free only in the gravity_body recordings: on its own the tilts and its mount absorb one another (held,
+    biased beyond 4 se); together with a (whose turns fix its mount) the shared tilts fix b's mount: every parameter
+    of b within 4 se."""
+    truth, tilts = write_dataset(tmp_path / "d", 6, with_turns=True, turn_free=("a",))
+    ds = read_dataset(tmp_path / "d" / "dataset.toml")
+    alone = fit_free_load(ds, "b")
+    assert not alone.recording_tilts and any("not separable" in n for n in alone.notes)
+    assert np.abs(_z(alone, truth["b"], None)).max() > Z
+    joint = fit_free_loads(ds).legs
+    for leg in ("a", "b"):
+        z = _z(joint[leg], truth[leg], tilts)
+        assert np.all(np.abs(z) < Z) and np.all(np.isfinite(joint[leg].se)), (leg, np.round(z, 2))
 
 
 def test_gravity_body_alone_holds_the_tilts_with_a_note(tmp_path) -> None:
@@ -135,6 +161,20 @@ def test_gravity_body_alone_holds_the_tilts_with_a_note(tmp_path) -> None:
     np.testing.assert_allclose(r.se, off.se, rtol=1e-9)
     forced = fit_free_load(ds, "a", FreeLoadSettings(recording_tilt=True))   # estimated anyway: the gauge is named
     assert forced.recording_tilts and len(forced.undetermined) >= 3
+
+
+def test_two_transducers_with_gravity_body_alone_hold_the_shared_tilts(tmp_path) -> None:
+    """Two transducers, every gravity direction from gravity_body, both mounts free: a common turn of the body moves
+    the shared tilts and both mounts; held at 0 with a note, the numbers those of recording_tilt = false."""
+    write_dataset(tmp_path / "d", 7, with_turns=False, n_holds=8)
+    ds = read_dataset(tmp_path / "d" / "dataset.toml")
+    joint = fit_free_loads(ds).legs
+    off = fit_free_loads(ds, FreeLoadSettings(recording_tilt=False)).legs
+    for leg in ("a", "b"):
+        assert not joint[leg].recording_tilts and any("common turn of the body" in n for n in joint[leg].notes)
+        assert joint[leg].names == off[leg].names
+        assert np.all(np.abs(joint[leg].params.to_numpy() - off[leg].params.to_numpy()) < 1e-3 * off[leg].se)
+        np.testing.assert_allclose(joint[leg].se, off[leg].se, rtol=1e-3)
 
 
 def test_the_jacobian_has_the_recording_tilts(tmp_path) -> None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..data import Dataset
 from ..effects.free_faces import FreeLoadContext, make_context
-from ..freeload.problem import gravity_frame, predict, tilt_gravity
+from ..freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
 from ..geometry import quat_to_rotation, skew
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
@@ -132,14 +132,6 @@ def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ..
     J[:, :3, 6 + p + nt:] = float(mu @ theta) * Sg
     J[:, 3:, 6 + p + nt:] = skew(s) @ Sg
     return J, tuple(fit.names)
-
-
-def tilt_derivative(tilt: np.ndarray) -> np.ndarray:
-    """``d u / d tilt`` (3, 2) of ``u = freeload.problem.tilt_gravity(tilt)``."""
-    al, be = float(tilt[0]), float(tilt[1])
-    return np.array([[np.sin(al) * np.sin(be), -np.cos(al) * np.cos(be)],
-                     [np.cos(al), 0.0],
-                     [np.sin(al) * np.cos(be), np.cos(al) * np.sin(be)]])
 
 
 def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:

@@ -4,7 +4,8 @@ parameters and its mounting rotation from hanging recordings with gravity per sa
 API (the result object other modules build on):
 
 * ``fit_free_loads(dataset, settings) -> FreeLoadResults``: every transducer whose load is not a hexapod leg
-  (``Dataset.free_load_legs``), independently; ``fit_free_load(dataset, leg, settings) -> FreeLoadResult``.
+  (``Dataset.free_load_legs``), independently except those sharing a ``gravity_body`` recording's tilt (fitted
+  together, ``joint.py``); ``fit_free_load(dataset, leg, settings) -> FreeLoadResult`` (one, alone).
 * :class:`FreeLoadResult` (``result.py``): results protocol (``params``, ``bse``, ``cov_params()``,
   ``conf_int()``, ``summary()``), ``identifiability()`` (what the data leave undetermined, which
   combinations they determine), ``load_report()`` (the ``calibration.json`` keys of the load),
@@ -14,7 +15,8 @@ API (the result object other modules build on):
   samples the fit used).
 
 Modules: ``quasistatic`` (sample selection), ``problem`` (data, exact compression), ``nlp`` (CasADi/IPOPT),
-``estimate`` (the fit), ``result`` (results protocol).
+``estimate`` (the fit), ``joint`` (transducers sharing a recording's tilt, fitted together), ``result`` (results
+protocol).
 
 Model (``loads.base``): ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``, ``b = R_nom^T g_B`` the
 nominal gravity in ft for each sample (``R_nom`` from ``robot.toml`` or from the URDF for the sample's joint
@@ -60,13 +62,19 @@ tilts at 0 (taken as exact, not reported) and says so in a note naming them. The
 else fixes the mount (a recording with the orientation per sample or ``gx..gz``, or ``mount_rotation = false``):
 then a 0.5-1 deg tilt per recording is recovered within 4 se and leaving it out biases
 the fit beyond 4 se (``tests/test_freeload_recording_tilt.py``). ``true`` estimates them regardless (the gauge then
-named undetermined), ``false`` takes them as exact with a note. Each transducer is fitted on its own: the tilt of a
-recording two transducers share is estimated by each.
+named undetermined), ``false`` takes them as exact with a note. The tilt is the body's: ``fit_free_loads`` fits the
+transducers that hang free in a common such recording together (``joint.py``: one NLP, the tilts and the world tilt
+shared, each transducer's result its block of the joint covariance; a transducer without recordings of its own
+that fix its mount gets it through the shared tilts); ``fit_free_load`` fits one transducer alone. With every
+gravity direction from ``gravity_body`` and the mounts free, a common turn of the body stays undetermined (the
+tilts are then held, as for one transducer). The covariance file keeps each transducer's block (the shared tilts
+under each transducer's name; their correlation across transducers is not written).
 """
 
 from __future__ import annotations
 
-from .estimate import fit_free_load, fit_free_loads, free_load_calibration, free_load_data
+from .estimate import fit_free_load, free_load_calibration, free_load_data
+from .joint import fit_free_loads
 from .problem import FreeLoadData
 from .result import FreeLoadResult, FreeLoadResults
 

@@ -143,15 +143,23 @@ def _null_count(A: np.ndarray, s: FreeLoadSettings, keep: np.ndarray, cand: np.n
 def _recording_tilts_held(A: np.ndarray, s: FreeLoadSettings, p: int, free: np.ndarray, rec: np.ndarray) -> np.ndarray:
     """The per-recording tilt groups (``rec``, bool per group) held at 0 under ``recording_tilt = "auto"``: those that
     create undetermined directions the other parameters (``free`` tilts, offsets, load, mount) do not have."""
-    n0, _ = _null_count(A, s, _keep(p, free & ~rec, s.mount_rotation), np.zeros(len(A), bool))
+    return held_tilts(A, s, free, rec, lambda f: _keep(p, f, s.mount_rotation), 6 + p)
+
+
+def held_tilts(A: np.ndarray, s: FreeLoadSettings, free: np.ndarray, rec: np.ndarray, keep_of, at: int) -> np.ndarray:
+    """:func:`_recording_tilts_held` for any layout: ``keep_of(free)`` the estimated local coordinates, the tilts'
+    columns from ``at`` (two per group)."""
+    n0, _ = _null_count(A, s, keep_of(free & ~rec), np.zeros(len(A), bool))
     held = np.zeros(len(free), bool)
     for _ in range(2):
         trial = free & ~held
-        cand = _keep(p, trial & rec, False) & ~_keep(p, np.zeros(len(free), bool), False)
-        n1, moved = _null_count(A, s, _keep(p, trial, s.mount_rotation), cand)
+        cand = np.zeros(len(A), bool)
+        for k in np.flatnonzero(trial & rec):
+            cand[at + 2 * k:at + 2 * k + 2] = True
+        n1, moved = _null_count(A, s, keep_of(trial), cand)
         if n1 <= n0:
             return held
-        touched = moved[6 + p:6 + p + 2 * len(free)].reshape(-1, 2).any(axis=1) & rec
+        touched = moved[at:at + 2 * len(free)].reshape(-1, 2).any(axis=1) & rec
         held |= touched if touched.any() and _ == 0 else rec
     return held
 
@@ -407,14 +415,6 @@ def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
         return [f"{leg}: the gravity directions in ft vary along one line only (a short arc: small turns about one axis, "
                 f"{', '.join(data.names)}): what they cannot separate is named as undetermined"]
     return []
-
-
-def fit_free_loads(ds: Dataset, settings: FreeLoadSettings | None = None) -> FreeLoadResults:
-    """Every free-load transducer of ``ds`` (``Dataset.free_load_legs``), each on its own."""
-    legs = ds.free_load_legs
-    if not legs:
-        raise DataFormatError(f"{ds.manifest or 'dataset'}: no transducer carries a free load (every one has a {{leg}}_phi column)")
-    return FreeLoadResults({k: fit_free_load(ds, k, settings) for k in legs})
 
 
 def free_load_calibration(res: FreeLoadResults, robot) -> Calibration:

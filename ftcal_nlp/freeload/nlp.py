@@ -132,12 +132,7 @@ class FreeLoadNLP:
         Qs, vs = (Q, v) if isinstance(Q, (list, tuple)) else ([Q], [v])
         parts = []
         for Qg, vg in zip(Qs, vs):
-            lam, U = np.linalg.eigh(Qg)
-            ok = lam > 1e-13 * max(lam.max(), 1e-300)
-            R = np.zeros_like(Qg)
-            R[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
-            c = np.zeros(len(vg))
-            c[: ok.sum()] = (U[:, ok].T @ vg) / np.sqrt(lam[ok])
+            R, c = square_root(Qg, vg)
             parts += [R.ravel(order="F"), c]
         nl = 9 + self.p + 2 * self.G
         Pn = np.zeros((nl, nl)) if null_penalty is None else null_penalty
@@ -162,6 +157,17 @@ class FreeLoadNLP:
     def jacobian(self, w_o: np.ndarray, theta: np.ndarray, tilt: np.ndarray, E: np.ndarray) -> np.ndarray:
         """``dz / d[w_o, theta, tilt, delta]`` (D, 11 + p) at ``E* = E``, ``delta = 0``."""
         return np.asarray(self.jac(np.concatenate([w_o, theta, tilt, np.zeros(3)]), E))
+
+
+def square_root(Q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, c)`` with ``z^T Q z - 2 v^T z = ||R z - c||^2 - ||c||^2`` (module docstring; positive eigenvalues of ``Q``)."""
+    lam, U = np.linalg.eigh(Q)
+    ok = lam > 1e-13 * max(lam.max(), 1e-300)
+    R = np.zeros_like(Q)
+    R[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
+    c = np.zeros(len(v))
+    c[: ok.sum()] = (U[:, ok].T @ v) / np.sqrt(lam[ok])
+    return R, c
 
 
 _CACHE: dict[tuple, FreeLoadNLP] = {}

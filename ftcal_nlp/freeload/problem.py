@@ -233,3 +233,11 @@ def tilt_gravity(tilt: np.ndarray) -> np.ndarray:
     """Unit gravity ``u = R_t (0, 0, -1)`` of a world tilted by ``R_t = R_y(tilt[1]) R_x(tilt[0])`` (rad)."""
     al, be = float(tilt[0]), float(tilt[1])
     return np.array([-np.cos(al) * np.sin(be), np.sin(al), -np.cos(al) * np.cos(be)])
+
+
+def tilt_derivative(tilt: np.ndarray) -> np.ndarray:
+    """``d u / d tilt`` (3, 2) of ``u = tilt_gravity(tilt)``."""
+    al, be = float(tilt[0]), float(tilt[1])
+    return np.array([[np.sin(al) * np.sin(be), -np.cos(al) * np.cos(be)],
+                     [np.cos(al), 0.0],
+                     [np.sin(al) * np.cos(be), np.cos(al) * np.sin(be)]])
