@@ -178,9 +178,35 @@ class Design:
         return self._perm[id(B)]
 
     # ---- per-block, per-channel sums (each face's channel blocks: a channel's columns meet only its rows)
+    def _hcat(self, a):
+        """``(H (N, sum m_c), [(channel, columns, rows of H)])``: part ``a``'s channel blocks side by side (cached)."""
+        key = ("H", id(a))
+        if key not in self._perm:
+            self._keep[key] = a
+            blocks = a.channel_blocks()
+            offs = np.cumsum([0] + [B.shape[1] for _, _, B in blocks])
+            H = np.concatenate([self._P(B) for _, _, B in blocks], axis=1)
+            self._perm[key] = (H, [(c, cols, slice(int(offs[i]), int(offs[i + 1]))) for i, (c, cols, _) in enumerate(blocks)])
+        return self._perm[key]
+
     def _pair(self, a, b) -> np.ndarray:
         """(B, 6, ka, kb): sum over the block's samples of channel c's weighted column products."""
         out = np.zeros((self.nb, 6, a.k, b.k))
+        if b.basis is not None and a.basis is None and len(a.channel_blocks()) > 1:
+            # one basis on every channel of b against a's own columns per channel: every channel's products in one
+            # matrix product per block (b's basis read once, not once per channel)
+            H, where = self._hcat(a)
+            Pb = self._P(b.basis)
+            T = np.stack([H[sl].T @ Pb[sl] for sl in self._sl])                   # (B, sum m_c, mb)
+            mb = b.basis.shape[1]
+            bch = {c: i for i, c in enumerate(b.channels)}
+            for c, cols_a, rows in where:
+                if c in bch:
+                    cols_b = np.arange(bch[c] * mb, (bch[c] + 1) * mb)
+                    out[:, c, cols_a[:, None], cols_b[None, :]] = self.w2[c] * T[:, rows]
+            return out
+        if a.basis is not None and b.basis is None and len(b.channel_blocks()) > 1:
+            return self._pair(b, a).transpose(0, 1, 3, 2)
         ab = {c: (cols, B) for c, cols, B in a.channel_blocks()}
         done: dict = {}      # a basis shared by several channels (per_channel): its products once
         for c, cols_b, Bb in b.channel_blocks():
@@ -225,6 +251,8 @@ class Design:
             del self._gram[key]
         self._vec.pop(i, None)
         self._keep.pop(i, None)
+        if self._perm.pop(("H", i), None) is not None:
+            self._keep.pop(("H", i), None)
         for _, _, B in part.channel_blocks():
             if self._perm.pop(id(B), None) is not None:
                 self._keep.pop(("B", id(B)), None)
