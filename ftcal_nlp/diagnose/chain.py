@@ -140,23 +140,17 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
 
         shape2 = refine(ctx, dict(best[0]), cur.resid)
         face2 = face_of(shape2) if shape2 is not None and shape2 != best[0] else None
-        near = tuple(effect.free_refine_near(ctx, dict(best[0]))) if REFINE_PER_FOLD else ()
+        near = [f for f in (face_of(sh) for sh in effect.free_refine_near(ctx, dict(best[0])))
+                if f is not None and f.k == best[1].k] if REFINE_PER_FOLD else []
         if near:
-            # held-out evidence of the refined shape: each fold's shape tuned on the other folds' blocks alone (the
-            # unit's shapes near the grid's best, ``free_refine_near``, each scored by the training blocks' residual
-            # sum of squares of the current design with its refinement columns), and that fold predicted with it;
-            # the shape tuned on every sample is what the chain keeps (its face joins later designs, the joint refit)
+            # held-out evidence of the refined shape: each fold's shape tuned on the other folds' blocks alone (among
+            # the unit's shapes near the grid's best, ``free_refine_near``, by the training blocks' residual sum of
+            # squares of the current design with that shape's face), and that fold predicted with it; the shape tuned
+            # on every sample is what the chain keeps (its face joins later designs and the joint refit)
             whole = design.fit(X0 + [face2]) if face2 is not None else best[2]
-            tsse = []
-            for _, cols in near:
-                tsse.append(design.train_sse(X0 + [cols]))
-                design.forget(cols)
-            pick = np.argmin(np.asarray(tsse), axis=0)                 # (folds,): each fold's shape
-            fold_faces = []
-            for f in range(design.folds):
-                ff = face_of(near[int(pick[f])][0])
-                fold_faces.append(ff if ff is not None and ff.k == best[1].k else best[1])
-            cv2 = design.fit_per_fold(X0, fold_faces, whole)
+            tsse = np.asarray([design.train_sse(X0 + [f]) for f in near])    # (shapes, folds)
+            pick = np.argmin(tsse, axis=0)                                 # each fold's shape
+            cv2 = design.fit_per_fold(X0, [near[int(i)] for i in pick], whole)
             tried += 1
             if cv2.sse < best[2].sse:
                 best = (shape2 if face2 is not None else best[0], face2 if face2 is not None else best[1], cv2)

@@ -75,11 +75,12 @@ def correlate_faces(ctx: FreeLoadContext) -> dict[str, tuple[FreeFace, np.ndarra
     if f is not None:
         out["motion"] = (f, ctx.omega, "rate of turn of gravity in ft [rad/s]")
     if ctx.hold.max() >= 0:
-        dec = [ctx.load_step * np.exp(-ctx.since_change / tau)[:, None] for tau in LOAD_TAUS_S]
-        moving = ctx.hold < 0
-        for d in dec:
-            d[moving] = 0.0
-        f = _face(np.concatenate(dec, axis=1), "decay")
+        # the decays written side by side into one array (no per-tau copies to concatenate)
+        dec = np.empty((ctx.n, 6 * len(LOAD_TAUS_S)))
+        for k, tau in enumerate(LOAD_TAUS_S):
+            np.multiply(ctx.load_step, np.exp(-ctx.since_change / tau)[:, None], out=dec[:, 6 * k:6 * k + 6])
+        dec[ctx.hold < 0] = 0.0
+        f = _face(dec, "decay")
         if f is not None:
             out["load"] = (f, ctx.since_change, "time since the last change of load [s]")
         f = _face(ctx.load_step, "step")

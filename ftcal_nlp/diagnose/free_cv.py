@@ -178,11 +178,36 @@ class Design:
         return self._perm[id(B)]
 
     # ---- per-block, per-channel sums (each face's channel blocks: a channel's columns meet only its rows)
-    def _pair(self, a, b) -> np.ndarray:
-        """(B, 6, ka, kb): sum over the block's samples of channel c's weighted column products."""
-        out = np.zeros((self.nb, 6, a.k, b.k))
+    def _hcat(self, a):
+        """``(H (N, sum m_c), [(channel, columns, rows of H)])``: part ``a``'s channel blocks side by side (cached)."""
+        key = ("H", id(a))
+        if key not in self._perm:
+            self._keep[key] = a
+            blocks = a.channel_blocks()
+            offs = np.cumsum([0] + [B.shape[1] for _, _, B in blocks])
+            H = np.concatenate([self._P(B) for _, _, B in blocks], axis=1)
+            self._perm[key] = (H, [(c, cols, slice(int(offs[i]), int(offs[i + 1]))) for i, (c, cols, _) in enumerate(blocks)])
+        return self._perm[key]
+
+    def _pair(self, a, b) -> list:
+        """``[(c, columns of a, columns of b, T (B, ma, mb)), ...]``: per channel ``c`` that both parts act on, the sum
+        over each block's samples of channel c's weighted column products (the non-zero part of the (B, 6, ka, kb)
+        array of every pair of columns)."""
+        if b.basis is not None and a.basis is None and len(a.channel_blocks()) > 1:
+            # one basis on every channel of b against a's own columns per channel: every channel's products in one
+            # matrix product per block (b's basis read once, not once per channel)
+            H, where = self._hcat(a)
+            Pb = self._P(b.basis)
+            T = np.stack([H[sl].T @ Pb[sl] for sl in self._sl])                   # (B, sum m_c, mb)
+            mb = b.basis.shape[1]
+            bch = {c: i for i, c in enumerate(b.channels)}
+            return [(c, cols_a, np.arange(bch[c] * mb, (bch[c] + 1) * mb), self.w2[c] * T[:, rows])
+                    for c, cols_a, rows in where if c in bch]
+        if a.basis is not None and b.basis is None and len(b.channel_blocks()) > 1:
+            return _transposed(self._pair(b, a))
         ab = {c: (cols, B) for c, cols, B in a.channel_blocks()}
         done: dict = {}      # a basis shared by several channels (per_channel): its products once
+        out = []
         for c, cols_b, Bb in b.channel_blocks():
             if c not in ab:
                 continue
@@ -191,7 +216,7 @@ class Design:
             if key not in done:
                 Pa, Pb = self._P(Ba), self._P(Bb)
                 done[key] = np.stack([Pa[sl].T @ Pb[sl] for sl in self._sl])           # (B, ma, mb)
-            out[:, c, cols_a[:, None], cols_b[None, :]] = self.w2[c] * done[key]
+            out.append((c, cols_a, cols_b, self.w2[c] * done[key]))
         return out
 
     def _rhs(self, a) -> np.ndarray:
@@ -203,11 +228,11 @@ class Design:
             out[:, c, cols] = np.stack([P[sl].T @ rc[sl] for sl in self._sl])
         return out
 
-    def _blocks(self, a, b) -> np.ndarray:
+    def _blocks(self, a, b) -> list:
         key = (id(a), id(b))
         if key not in self._gram:
             if (id(b), id(a)) in self._gram:
-                return self._gram[(id(b), id(a))].transpose(0, 1, 3, 2)
+                return _transposed(self._gram[(id(b), id(a))])
             self._keep[id(a)], self._keep[id(b)] = a, b
             self._gram[key] = self._pair(a, b)
         return self._gram[key]
@@ -225,6 +250,8 @@ class Design:
             del self._gram[key]
         self._vec.pop(i, None)
         self._keep.pop(i, None)
+        if self._perm.pop(("H", i), None) is not None:
+            self._keep.pop(("H", i), None)
         for _, _, B in part.channel_blocks():
             if self._perm.pop(id(B), None) is not None:
                 self._keep.pop(("B", id(B)), None)
@@ -242,21 +269,35 @@ class Design:
                 out[rows] = self.r[rows] - self.model(parts if fold_parts is None else fold_parts[f], off, fold_beta[f], rows)
         return out
 
-    def _assemble(self, parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(Gbc (B, 6, k, k), vbc (B, 6, k), off)`` of the design of ``parts`` from the cached sums."""
+    def _assemble(self, parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+        """``(Gb (B, k, k), vbc (B, 6, k), off, terms)`` of the design of ``parts`` from the cached sums: the weighted
+        normal matrix per block (summed over the channels), the right-hand sides per block and channel, and the
+        channel terms ``(c, rows, columns, T, factor)`` of the per-channel normal matrices (:meth:`_quadratic`)."""
         ks = [p.k for p in parts]
         off = np.r_[0, np.cumsum(ks)]
         k = int(off[-1])
-        Gbc = np.zeros((self.nb, 6, k, k))
+        Gb = np.zeros((self.nb, k, k))
         vbc = np.zeros((self.nb, 6, k))
+        terms = []
         for i, a in enumerate(parts):
             vbc[:, :, off[i]:off[i + 1]] = self._vecs(a)
             for j in range(i, len(parts)):
-                blk = self._blocks(a, parts[j])
-                Gbc[:, :, off[i]:off[i + 1], off[j]:off[j + 1]] = blk
-                if j != i:
-                    Gbc[:, :, off[j]:off[j + 1], off[i]:off[i + 1]] = blk.transpose(0, 1, 3, 2)
-        return Gbc, vbc, off
+                for c, ca, cb, T in self._blocks(a, parts[j]):     # channels in increasing order: the sum over them
+                    ri, ci = off[i] + ca, off[j] + cb
+                    Gb[:, ri[:, None], ci[None, :]] += T
+                    if j != i:
+                        Gb[:, ci[:, None], ri[None, :]] += T.transpose(0, 2, 1)
+                    terms.append((c, ri, ci, T, 1.0 if j == i else 2.0))
+        return Gb, vbc, off, terms
+
+    @staticmethod
+    def _quadratic(terms: list, B: np.ndarray, blocks=slice(None)) -> np.ndarray:
+        """(b, 6): ``beta_b' G_bc beta_b`` per block (of ``blocks``) and channel, ``B`` (b, k) each block's
+        coefficients, from the channel terms of :meth:`_assemble`."""
+        q = np.zeros((len(B), 6))
+        for c, ri, ci, T, f in terms:
+            q[:, c] += f * np.einsum("bij,bi,bj->b", T[blocks], B[:, ri], B[:, ci])
+        return q
 
     @staticmethod
     def _parts(parts) -> list:
@@ -269,19 +310,17 @@ class Design:
     def fit(self, parts) -> CVFit:
         """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
         parts = self._parts(parts)
-        Gbc, vbc, off = self._assemble(parts)
+        Gb, vbc, off, terms = self._assemble(parts)
         k = int(off[-1])
-        Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)                  # (B, k, k), (B, k)
+        vb = vbc.sum(axis=1)                                        # (B, k)
         G, v = Gb.sum(axis=0), vb.sum(axis=0)
         fold_beta = np.zeros((self.folds, k))
-        sse_bc = np.zeros((self.nb, 6))
         for f in range(self.folds):
             bs = np.flatnonzero(self.block_fold == f)
-            if not len(bs):
-                continue
-            b = solve(G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0))
-            fold_beta[f] = b
-            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + (Gbc[bs] @ b) @ b
+            if len(bs):
+                fold_beta[f] = solve(G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0))
+        Bb = fold_beta[self.block_fold]                             # (B, k): each block's fold's coefficients
+        sse_bc = self._s - 2 * np.einsum("bck,bk->bc", vbc, Bb) + self._quadratic(terms, Bb)
         beta = solve(G, v)
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)
@@ -291,8 +330,8 @@ class Design:
         """(folds,) the weighted residual sum of squares of the design of ``parts`` fitted on each fold's training
         blocks (the other folds'), over those blocks: what a shape tuned per fold minimises."""
         parts = self._parts(parts)
-        Gbc, vbc, _ = self._assemble(parts)
-        Gb, vb, sb = Gbc.sum(axis=1), vbc.sum(axis=1), self._s.sum(axis=1)
+        Gb, vbc, _, _ = self._assemble(parts)
+        vb, sb = vbc.sum(axis=1), self._s.sum(axis=1)
         G, v, s = Gb.sum(axis=0), vb.sum(axis=0), float(sb.sum())
         out = np.full(self.folds, np.inf)
         for f in range(self.folds):
@@ -317,16 +356,22 @@ class Design:
             bs = np.flatnonzero(self.block_fold == f)
             if not len(bs):
                 continue
-            Gbc, vbc, off = self._assemble(pf)
-            Gb, vb = Gbc.sum(axis=1), vbc.sum(axis=1)
+            Gb, vbc, off, terms = self._assemble(pf)
+            vb = vbc.sum(axis=1)
             b = solve(Gb.sum(axis=0) - Gb[bs].sum(axis=0), vb.sum(axis=0) - vb[bs].sum(axis=0))
             fold_beta[f] = b
-            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + (Gbc[bs] @ b) @ b
+            Bb = np.broadcast_to(b, (len(bs), len(b)))
+            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + self._quadratic(terms, Bb, bs)
         sse_bc = np.clip(sse_bc, 0.0, None)
         out = CVFit(self, whole._parts, whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
                     sse_bc.sum(axis=0) / self.w2, whole.rss)
         out._fold_parts = fparts
         return out
+
+
+def _transposed(entries: list) -> list:
+    """The channel entries of a pair ``(a, b)`` as those of ``(b, a)``."""
+    return [(c, cb, ca, T.transpose(0, 2, 1)) for c, ca, cb, T in entries]
 
 
 def paired_gain(before: CVFit, after: CVFit) -> tuple[float, float]:

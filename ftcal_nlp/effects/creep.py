@@ -171,8 +171,9 @@ class Creep(Effect):
     NEAR_PAIR_STEP = 0.5 * np.log(2.0)
 
     def free_refine_near(self, ctx, shape):
-        # the shapes free_refine searches among: single tau within a factor 2 (NEAR_POINTS evenly in ln tau), a pair
-        # on a 3 x 3 grid of half-octave steps about its grid point; each with its refinement columns
+        # the shapes free_refine searches among: single tau within a factor 2 (NEAR_POINTS evenly in ln tau: the grid's
+        # neighbours and the half-octaves between; a face's d/d ln tau column takes up what lies between), a pair on a
+        # 3 x 3 grid of half-octave steps about its grid point
         if "tau2_s" not in shape:
             lt = np.log(float(shape["tau_s"]))
             pts = [(v,) for v in np.linspace(lt - np.log(2.0), lt + np.log(2.0), self.NEAR_POINTS)]
@@ -183,8 +184,7 @@ class Creep(Effect):
         out = []
         for p in pts:
             taus = [float(np.round(np.exp(v), 3)) for v in p]
-            sh = {"tau_s": taus[0]} if len(taus) == 1 else {"tau_s": taus[0], "tau2_s": taus[1]}
-            out.append((sh, _relaxation_columns(ctx, taus)))
+            out.append({"tau_s": taus[0]} if len(taus) == 1 else {"tau_s": taus[0], "tau2_s": taus[1]})
         return tuple(out)
 
     @staticmethod

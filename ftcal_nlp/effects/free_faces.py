@@ -67,8 +67,9 @@ import numpy as np
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 #: fewer consecutive quasi-static samples than this are not a hold (a pause in a motion)
 MIN_HOLD = 5
-#: how many time constants' relaxations a context keeps (:meth:`FreeLoadContext.relaxation`)
-RELAXATION_CACHE = 24
+#: the memory a context's cache of relaxations may take (bytes; :meth:`FreeLoadContext.relaxation`): 40 time
+#: constants of 10^5 samples (a creep grid, its refinements and each fold's shapes), fewer of longer recordings
+RELAXATION_CACHE_BYTES = 200e6
 
 
 class FreeFace:
@@ -276,7 +277,7 @@ class FreeLoadContext:
                 out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock)
         out = out.T
         out.flags.writeable = False
-        if len(done) >= RELAXATION_CACHE:
+        if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
             del done[next(iter(done))]
         done[tau] = out
         return out

@@ -155,14 +155,11 @@ class Temperature(Effect):
     NEAR_POINTS = 9
 
     def free_refine_near(self, ctx, shape):
-        # the lags free_refine searches among, each with its refinement columns (the lagged basis on every channel)
+        # the lags free_refine searches among (its degree)
         if ctx.temperature is None:
             return ()
-        d = int(shape["degree"])
         lags = np.round(np.linspace(0.0, 4.0 * max(self.LAGS_S), self.NEAR_POINTS), 1)
-        return tuple(({"degree": d, "lag_s": float(lag)},
-                      FreeFace.per_channel(self._basis(ctx, float(lag), d), tuple(f"T{j}" for j in range(1, d + 1))))
-                     for lag in lags)
+        return tuple({"degree": int(shape["degree"]), "lag_s": float(lag)} for lag in lags)
 
 
 EFFECT = Temperature()

@@ -147,11 +147,10 @@ class Effect:
         """A refined shape from the grid's best ``shape`` and the current residual (N, 6); None: none (the default)."""
         return None
 
-    def free_refine_near(self, ctx, shape: dict) -> tuple:
-        """``((shape, columns), ...)``: shapes near the grid's best ``shape`` spanning what :meth:`free_refine` searches,
-        each with its refinement columns (a :class:`~.free_faces.FreeFace`): the diagnosis tunes the shape per
-        cross-validation fold among them, on the fold's training blocks alone (``free_faces.py``); ``()`` (the
-        default): the refined shape is scored as tuned on every sample."""
+    def free_refine_near(self, ctx, shape: dict) -> tuple[dict, ...]:
+        """Shapes near the grid's best ``shape`` spanning what :meth:`free_refine` searches: the diagnosis tunes the
+        shape per cross-validation fold among them (their faces), on the fold's training blocks alone
+        (``free_faces.py``); ``()`` (the default): the refined shape is scored as tuned on every sample."""
         return ()
 
     def free_correct(self, ctx, shape: dict, beta: np.ndarray) -> np.ndarray:
