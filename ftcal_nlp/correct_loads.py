@@ -9,20 +9,23 @@ rotation times the estimated mounting rotation):
 
     g_ft = R_B,ft^T g_B,        w_load = [m g_ft ; c x (m g_ft)],        w_contact = w_m - w_o - w_load
 
-``g_B`` gravity in B (m/s^2): ``R_WB^T [0, 0, -g]`` from ``qw..qz``, or ``g`` times the unit direction
-``gx..gz``. The contact wrench is what the environment adds to the tool's weight: zero (within noise) while the
+``g_B`` gravity in B (m/s^2): ``R_WB^T [0, 0, -g]`` from ``qw..qz`` (``g R_WB^T u(tilt)`` when the calibration
+estimated a world tilt of the orientation stream, ``gravity_tilt_rad``: ``u = R_y(ty) R_x(tx) (0, 0, -1)``,
+``freeload``), or ``g`` times the unit direction ``gx..gz`` (an accelerometer's gravity: no world to tilt). The contact wrench is what the environment adds to the tool's weight: zero (within noise) while the
 tool touches nothing.
 
 Standard error per sample and component (delta method, first order):
 
     Var(w_contact) = J C J^T + diag(sigma^2),
 
-``J`` the derivative of ``w_o + w_load`` with respect to the parameters ``(w_o, m, c or h = m c, delta)``
+``J`` the derivative of ``w_o + w_load`` with respect to the parameters ``(w_o, m, c or h = m c[, tilt], delta)``
 (``delta`` a rotation of ft in its own axes: ``d g_ft = [g_ft]x delta``, so ``d w_load / d delta =
-[m [g_ft]x ; [h]x [g_ft]x]``), ``C`` their covariance and ``sigma`` the readings' noise sd (``noise_sd`` of
+[m [g_ft]x ; [h]x [g_ft]x]``; the tilt ``d g_ft / d tilt = R_B,ft^T g R_WB^T du/dtilt``, ``d w_load / d tilt =
+[m dg_ft ; h x dg_ft]``, zero for ``gx..gz`` rows), ``C`` their covariance and ``sigma`` the readings' noise sd (``noise_sd`` of
 the calibration). In process (:func:`payload_from_fit`) ``C`` is the fit's full covariance; from
 ``calibration.json`` it is the full covariance of the run's covariance file (``meta.covariance_file``,
-``calibration_cov.npz`` beside it: parameters ``{X}.offset.*``, ``{X}.mass_kg``, ``{X}.h_*``, ``{X}.mount.r*``)
+``calibration_cov.npz`` beside it: parameters ``{X}.offset.*``, ``{X}.mass_kg``, ``{X}.h_*``[, ``{X}.tilt.r*``],
+``{X}.mount.r*``)
 when that file is there, else the diagonal of the stored standard errors (correlations between offsets and
 mass then left out: said in the log). A component that depends on an undetermined parameter (se inf) gets
 se inf. Rows without an orientation or with NaN readings are dropped and counted in the log.
@@ -63,7 +66,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class PayloadCalibration:
     """One transducer's payload calibration: offsets ``offset`` (6,), ``mass_kg``, first moment ``h`` (3,) kg m
-    in ft, ``R_B_ft`` (3, 3) the estimated ft orientation in B, ``cov`` (13, 13) over ``(w_o, m, h, delta)``,
+    in ft, ``R_B_ft`` (3, 3) the estimated ft orientation in B, ``cov`` (13, 13) over ``(w_o, m, h, delta)`` (15: ``(w_o, m, h, tilt, delta)``),
     ``sigma`` (6,) the readings' noise sd, ``g`` m/s^2, ``full_cov`` whether ``cov`` holds the correlations,
     ``undetermined`` (13,) the parameters the data leave undetermined (None: none)."""
 
@@ -78,12 +81,14 @@ class PayloadCalibration:
     full_cov: bool = True
     undetermined: np.ndarray | None = None
     null: np.ndarray | None = None
+    tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
 
     joints: tuple[str, ...] = ()
 
-    def predict(self, g_B: np.ndarray, q: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """``w_o + w_load`` (N, 6) and its derivative (N, 6, 13) (:func:`predicted_load`; ``q`` unused)."""
-        return predicted_load(self, g_B)
+    def predict(self, g_B: np.ndarray, q: dict[str, np.ndarray], R_WB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``w_o + w_load`` (N, 6) and its derivative (N, 6, 13 [+ 2]) (:func:`predicted_load`; ``q`` unused)."""
+        g_B, dg = tilted_gravity(self, g_B, R_WB)
+        return predicted_load(self, g_B, dg)
 
 
 @dataclass(frozen=True)
@@ -104,13 +109,16 @@ class UrdfLoadCalibration:
     full_cov: bool = True
     undetermined: np.ndarray | None = None
     null: np.ndarray | None = None
+    tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
 
     @property
     def joints(self) -> tuple[str, ...]:
         return tuple(self.load.base_joints) + tuple(self.load.load_joints)
 
-    def predict(self, g_B: np.ndarray, q: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """``w_o + w_load`` (N, 6) and its derivative (N, 6, 6 + p + 3) (module docstring), vectorised over samples."""
+    def predict(self, g_B: np.ndarray, q: dict[str, np.ndarray], R_WB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``w_o + w_load`` (N, 6) and its derivative (N, 6, 6 + p [+ 2] + 3) (module docstring), vectorised over
+        samples; ``R_WB`` (N, 3, 3) the orientations ``g_B`` came from (the world tilt acts through them)."""
+        g_B, dgB = tilted_gravity(self, g_B, R_WB)
         n, p = len(g_B), len(self.theta)
         R = self.load.nominal_rotation(q, n) @ self.E
         g = np.einsum("nji,nj->ni", R, g_B)
@@ -126,18 +134,56 @@ class UrdfLoadCalibration:
         J[:, 3:, 6: 6 + p] = -G @ K                                 # d(s x g)/d theta = -[g]x K
         J[:, :3, 6 + p:] = M * G
         J[:, 3:, 6 + p:] = skew(s) @ G
-        return model, J
+        return model, _with_tilt(J, 6 + p, self.tilt, dgB, R, M, s)
 
 
-def param_names(leg: str, load_params: tuple[str, ...] | list[str] = ("mass_kg", "h_x", "h_y", "h_z")) -> list[str]:
-    """The labels of ``(w_o, theta, delta)`` in the results protocol and the covariance file."""
+def param_names(leg: str, load_params: tuple[str, ...] | list[str] = ("mass_kg", "h_x", "h_y", "h_z"),
+                tilt: bool = False) -> list[str]:
+    """The labels of ``(w_o, theta[, tilt], delta)`` in the results protocol and the covariance file."""
     return ([f"{leg}.offset.{c}" for c in WRENCH_COMPONENTS] + [f"{leg}.{n}" for n in load_params]
-            + [f"{leg}.mount.r{c}" for c in "xyz"])
+            + ([f"{leg}.tilt.r{c}" for c in "xy"] if tilt else []) + [f"{leg}.mount.r{c}" for c in "xyz"])
 
 
-def payload_param_names(leg: str) -> list[str]:
-    """The labels of ``(w_o, m, h, delta)`` of a payload."""
-    return param_names(leg)
+def payload_param_names(leg: str, tilt: bool = False) -> list[str]:
+    """The labels of ``(w_o, m, h[, tilt], delta)`` of a payload."""
+    return param_names(leg, tilt=tilt)
+
+
+def _tilt_of(d: dict) -> tuple[np.ndarray | None, np.ndarray]:
+    """The world tilt ``gravity_tilt_rad`` of a leg entry (None: not estimated) and its variance (0 or 2 values)."""
+    if "gravity_tilt_rad" not in d:
+        return None, np.zeros(0)
+    se = np.asarray([np.inf if v is None else v for v in d.get("gravity_tilt_se_rad", [np.inf, np.inf])], float)
+    return np.asarray(d["gravity_tilt_rad"], float), se**2
+
+
+def tilted_gravity(p, g_B: np.ndarray, R_WB: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Gravity in B of a calibration ``p`` with a world tilt and its derivative ``d g_B / d tilt`` (N, 3, 2):
+    ``g R_WB^T u(tilt)`` where the orientations ``R_WB`` are known; else ``g_B`` as given and a zero derivative
+    (``gx..gz``: an accelerometer's gravity). Without a tilt: ``(g_B, None)``."""
+    if p.tilt is None:
+        return g_B, None
+    if R_WB is None:
+        return g_B, np.zeros((len(g_B), 3, 2))
+    from .diagnose.free_model import tilt_derivative
+    from .freeload.problem import tilt_gravity
+
+    return (p.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(p.tilt)),
+            p.g * np.einsum("nkj,kt->njt", R_WB, tilt_derivative(p.tilt)))
+
+
+def _with_tilt(J: np.ndarray, at: int, tilt, dgB: np.ndarray | None, R_B_ft: np.ndarray, M: float, s: np.ndarray) -> np.ndarray:
+    """``J`` with the tilt's two columns inserted at ``at`` (before the mount's): ``[M dg_ft ; s x dg_ft]``,
+    ``dg_ft = R_B,ft^T dg_B``; ``J`` itself without a tilt."""
+    if tilt is None:
+        return J
+    if dgB is None:   # gravity given as such (gx..gz): the tilt does not act
+        dgB = np.zeros((len(J), 3, 2))
+    R = np.broadcast_to(R_B_ft, (len(J), 3, 3))
+    dg = np.einsum("nji,njt->nit", R, dgB)
+    s = np.broadcast_to(s, (len(J), 3))
+    T = np.concatenate([M * dg, np.cross(s[:, :, None], dg, axis=1)], axis=1)
+    return np.concatenate([J[:, :, :at], T, J[:, :, at:]], axis=2)
 
 
 def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.json",
@@ -151,7 +197,8 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
                                   "computed for 'rigid_payload' and 'urdf_subtree' loads", path=where)
         m, c = float(d["load_mass_kg"]), np.asarray(d["load_com_m"], float)
         m_se, c_se = float(d["load_mass_se_kg"]), np.asarray(d["load_com_se_m"], float)
-        var = np.concatenate([np.asarray(d["offset_se"], float) ** 2, [m_se**2], m**2 * c_se**2 + c**2 * m_se**2,
+        tilt, var_t = _tilt_of(d)
+        var = np.concatenate([np.asarray(d["offset_se"], float) ** 2, [m_se**2], m**2 * c_se**2 + c**2 * m_se**2, var_t,
                               np.asarray(d["mount_rotvec_se"], float) ** 2])
         R = np.asarray(d["rotation_to_body"], float)
         sigma = np.asarray(d.get("noise_sd", d.get("residual_rms")), float)
@@ -162,9 +209,9 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
     if cov is not None:
         C, und, null = cov
         return PayloadCalibration(leg, off, m, m * c, R, np.where(np.isfinite(C), C, 0.0), sigma, g, full_cov=True,
-                                  undetermined=np.asarray(und, bool), null=null)
+                                  undetermined=np.asarray(und, bool), null=null, tilt=tilt)
     return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False,
-                              undetermined=np.isinf(var))
+                              undetermined=np.isinf(var), tilt=tilt)
 
 
 def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration:
@@ -172,10 +219,13 @@ def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration
     covariance over ``(w_o, m, h, delta)``)."""
     if fit.load.kind != "rigid_payload":
         raise DataFormatError(f"transducer {fit.leg}: a {fit.load.kind} load; the contact wrench is computed for rigid payloads")
-    cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)
+    # the fit's parameters the load wrench depends on (a gravity_body recording's own tilt does not act on new data)
+    idx = np.array([list(fit.names).index(n) for n in payload_param_names(fit.leg, fit.tilt is not None)])
+    cov = np.where(np.isfinite(fit.cov), fit.cov, 0.0)[np.ix_(idx, idx)]
     return PayloadCalibration(fit.leg, fit.offset.copy(), float(fit.theta[0]), fit.theta[1:4].copy(),
                               np.asarray(R_nominal, float) @ fit.rotation, cov, fit.sigma.copy(), g, full_cov=True,
-                              undetermined=np.isinf(np.asarray(fit.se, float)), null=fit.null)
+                              undetermined=np.isinf(np.asarray(fit.se, float))[idx], null=None if fit.null is None else fit.null[idx],
+                              tilt=None if fit.tilt is None else np.asarray(fit.tilt, float).copy())
 
 
 def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> UrdfLoadCalibration:
@@ -194,6 +244,7 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
         sigma = np.asarray(d.get("noise_sd", d.get("residual_rms")), float)
         var_tail = np.asarray(d["mount_rotvec_se"], float) ** 2
         var_off = np.asarray(d["offset_se"], float) ** 2
+        tilt, var_t = _tilt_of(d)
     except KeyError as exc:
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a URDF-load calibration (the "
                               "contact wrench needs the URDF, the sensor link and the groups' parameters)", path=where,
@@ -212,15 +263,26 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
         raise DataFormatError(f"{where}: transducer {leg}: the URDF {path} below '{link}' has groups {names}, the calibration "
                               f"{sorted(groups)}; expected the URDF the calibration was made with", path=where)
     theta = np.concatenate([[groups[n]["mass_kg"], *groups[n]["first_moment_kgm"]] for n in names]).astype(float)
-    cov = None if cc is None else cc.block(param_names(leg, load.param_names))
+    cov = None if cc is None else cc.block(param_names(leg, load.param_names, tilt is not None))
     if cov is not None:
         C, und, null = cov
         return UrdfLoadCalibration(leg, load, off, theta, E, np.where(np.isfinite(C), C, 0.0), sigma, g, True,
-                                   np.asarray(und, bool), null)
+                                   np.asarray(und, bool), null, tilt)
     var_th = np.concatenate([[groups[n]["mass_se_kg"], *groups[n]["first_moment_se_kgm"]] for n in names]).astype(float) ** 2
-    var = np.concatenate([var_off, var_th, var_tail])
+    var = np.concatenate([var_off, var_th, var_t, var_tail])
     return UrdfLoadCalibration(leg, load, off, theta, E, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, False,
-                               np.isinf(var), None)
+                               np.isinf(var), None, tilt)
+
+
+def orientation_of_frame(df: pd.DataFrame) -> np.ndarray | None:
+    """``R_WB`` (N, 3, 3) from ``qw..qz`` (normalised; NaN rows where missing), or None without those columns."""
+    if not set(QUAT_COLUMNS) <= set(map(str, df.columns)):
+        return None
+    q = df[list(QUAT_COLUMNS)].to_numpy(float)
+    ok = np.all(np.isfinite(q), axis=1)
+    out = np.full((len(q), 3, 3), np.nan)
+    out[ok] = quat_to_rotation(q[ok] / np.linalg.norm(q[ok], axis=1, keepdims=True))
+    return out
 
 
 def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
@@ -239,9 +301,10 @@ def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
     raise DataFormatError(f"{where}: the contact wrench needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz", path=where)
 
 
-def predicted_load(p: PayloadCalibration, g_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def predicted_load(p: PayloadCalibration, g_B: np.ndarray, dgB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``w_o + w_load`` (N, 6) for gravity ``g_B`` (N, 3) and its derivative ``J`` (N, 6, 13) with respect to
-    ``(w_o, m, h, delta)`` (module docstring)."""
+    ``(w_o, m, h, delta)`` (module docstring); with a tilt (``p.tilt``, ``dgB = d g_B / d tilt`` (N, 3, 2)) (N, 6, 15)
+    over ``(w_o, m, h, tilt, delta)``."""
     g = np.einsum("ji,nj->ni", p.R_B_ft, g_B)                     # R_B,ft^T g_B
     model = np.concatenate([p.mass_kg * g, np.cross(p.h, g)], axis=1) + p.offset
     G = skew(g)
@@ -251,14 +314,15 @@ def predicted_load(p: PayloadCalibration, g_B: np.ndarray) -> tuple[np.ndarray, 
     J[:, 3:, 7:10] = -G                                            # d(h x g)/dh
     J[:, :3, 10:13] = p.mass_kg * G                                # d g_ft / d delta = [g_ft]x
     J[:, 3:, 10:13] = skew(p.h) @ G
-    return model, J
+    return model, _with_tilt(J, 10, p.tilt, dgB, p.R_B_ft, p.mass_kg, p.h)
 
 
 def contact_wrench(p: PayloadCalibration | UrdfLoadCalibration, w_m: np.ndarray, g_B: np.ndarray,
-                   q: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6), gravity ``g_B`` and
-    joint angles ``q`` (joint -> (N,); URDF loads)."""
-    model, J = p.predict(g_B, {} if q is None else q)
+                   q: dict[str, np.ndarray] | None = None, R_WB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6), gravity ``g_B``,
+    joint angles ``q`` (joint -> (N,); URDF loads) and the orientations ``R_WB`` (N, 3, 3) ``g_B`` came from
+    (None: ``gx..gz``; a calibration's world tilt acts through them)."""
+    model, J = p.predict(g_B, {} if q is None else q, R_WB)
     var = calibration_variance(p, J) + p.sigma**2
     return w_m - model, np.sqrt(np.clip(var, 0.0, None))
 
@@ -305,6 +369,7 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
         raise DataFormatError(f"{where}: missing column(s) {missing} of the calibrated transducer(s) {legs}", path=where,
                               column=missing[0])
     g_B = gravity_of_frame(df, next(iter(cal_legs.values())).g, where)
+    R_WB = orientation_of_frame(df)
     w = df[cols].to_numpy(float)
     q: dict[str, np.ndarray] = {}
     for c in cal_legs.values():
@@ -324,7 +389,7 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
     out: dict[str, np.ndarray] = {"t": df["t"].to_numpy(float)[keep]}
     ses: dict[str, np.ndarray] = {}
     for i, k in enumerate(legs):
-        wc, se = contact_wrench(cal_legs[k], w[keep, 6 * i: 6 * i + 6], g_B[keep], qk)
+        wc, se = contact_wrench(cal_legs[k], w[keep, 6 * i: 6 * i + 6], g_B[keep], qk, None if R_WB is None else R_WB[keep])
         for j, c in enumerate(WRENCH_COMPONENTS):
             out[f"{k}_{c}"] = wc[:, j]
             ses[f"{k}_{c}_se"] = se[:, j]
@@ -349,7 +414,7 @@ def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration |
         if l.get("load_kind") == "urdf_subtree":
             out[k] = urdf_from_json(l, k, g, cal_path, cc)
         else:
-            block = None if cc is None else cc.block(payload_param_names(k))
+            block = None if cc is None else cc.block(payload_param_names(k, "gravity_tilt_rad" in l))
             out[k] = payload_from_json(l, k, g, str(cal_path), block)
     diag = [k for k, c in out.items() if not c.full_cov]
     if diag:

@@ -31,7 +31,12 @@ rotations of a mount). Jacobian rows per sample (6 x p):
     d/d(f_o, t_o) = I6,
     payload:  d/dm = [g; c x g],  d/dc = [0; -m [g]x],
     URDF:     d/dm_k = [g; p_k x g],  d/ds_k = [0; -[g]x R_k],
-    d/ddelta  = [M [g]x; [S]x [g]x].
+    d/ddelta  = [M [g]x; [S]x [g]x],
+    d/dtilt_k = [M dg_k; S x dg_k]      (optional: a world tilt of the orientation stream, ``freeload``),
+
+``dg_k = R_B,ft^T g R_WB^T du/dtilt_k`` at the tilt (``u = R_y(ty) R_x(tx) (0, 0, -1)``; at 0:
+``du/dtx = (0, 1, 0)``, ``du/dty = (-1, 0, 0)``): given per sample as ``tilt_dirs`` (N, 3, 2). The two columns sit
+between the load's and the mount's (``TILT_NAMES``), as in the estimator's parameter vector.
 
 Noise: white readings ``diag(s_f^2 I3, s_t^2 I3)``; optionally an orientation
 stream with white jitter of ``s_R`` rad per axis (errors in variables: the
@@ -60,6 +65,24 @@ from .solver import REL_EIG_TOL
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 OFFSET_NAMES = tuple(f"offset_{c}" for c in WRENCH)
 ROT_NAMES = ("mount_rx", "mount_ry", "mount_rz")
+TILT_NAMES = ("tilt_rx", "tilt_ry")
+
+
+def tilt_directions(R_WB: np.ndarray, g: float) -> np.ndarray:
+    """``d g_B / d tilt`` (N, 3, 2) at no tilt, in B: ``g R_WB^T du/dtilt``; map to ft like gravity (linear)."""
+    du = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 0.0]])
+    return g * np.einsum("nkj,kt->njt", np.asarray(R_WB, float), du)
+
+
+def _with_tilt(J: np.ndarray, tilt_dirs: np.ndarray | None, M: float, S: np.ndarray, mount: bool) -> np.ndarray:
+    """``J`` with the tilt's columns ``[M dg; S x dg]`` inserted before the mount's (module docstring)."""
+    if tilt_dirs is None:
+        return J
+    dg = np.asarray(tilt_dirs, float)
+    S = np.broadcast_to(S, (len(J), 3))
+    T = np.concatenate([M * dg, np.cross(S[:, :, None], dg, axis=1)], axis=1)
+    at = J.shape[2] - (3 if mount else 0)
+    return np.concatenate([J[:, :, :at], T, J[:, :, at:]], axis=2)
 
 
 # ----------------------------------------------------------------------------- the bound with names
@@ -157,8 +180,8 @@ def _rotation_rows(g: np.ndarray, M: float, S: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- rigid payload
 
 
-def payload_names(mount: bool = True) -> tuple[str, ...]:
-    return OFFSET_NAMES + ("mass_kg", "com_x", "com_y", "com_z") + (ROT_NAMES if mount else ())
+def payload_names(mount: bool = True, tilt: bool = False) -> tuple[str, ...]:
+    return OFFSET_NAMES + ("mass_kg", "com_x", "com_y", "com_z") + (TILT_NAMES if tilt else ()) + (ROT_NAMES if mount else ())
 
 
 def payload_jacobian(g_ft: np.ndarray, mass_kg: float, com_m: np.ndarray, mount: bool = True) -> np.ndarray:
@@ -177,13 +200,18 @@ def payload_jacobian(g_ft: np.ndarray, mass_kg: float, com_m: np.ndarray, mount:
 
 
 def payload_bound(g_ft: np.ndarray, mass_kg: float, com_m: np.ndarray, sigma: np.ndarray, *, mount: bool = True,
-                  orientation_sd_rad: float = 0.0, offset: np.ndarray | None = None, rel_tol: float = REL_EIG_TOL) -> LoadBound:
-    """The bound of a rigid payload for gravity ``g_ft`` (N, 3) in the true ft frame and reading noise ``sigma`` (6,)."""
+                  orientation_sd_rad: float = 0.0, offset: np.ndarray | None = None, rel_tol: float = REL_EIG_TOL,
+                  tilt_dirs: np.ndarray | None = None) -> LoadBound:
+    """The bound of a rigid payload for gravity ``g_ft`` (N, 3) in the true ft frame and reading noise ``sigma`` (6,);
+    ``tilt_dirs`` (N, 3, 2) ``d g_ft / d tilt``: the world tilt of the orientation stream estimated too (at 0)."""
     g = np.asarray(g_ft, float)
-    J = payload_jacobian(g, mass_kg, com_m, mount)
-    A = _rotation_rows(g, mass_kg, mass_kg * np.broadcast_to(np.asarray(com_m, float), g.shape))
-    theta = np.concatenate([np.zeros(6) if offset is None else offset, [mass_kg], com_m, np.zeros(3) if mount else []])
-    return named_bound(J, reading_covariance(sigma, A, orientation_sd_rad), payload_names(mount), theta, rel_tol)
+    S = mass_kg * np.broadcast_to(np.asarray(com_m, float), g.shape)
+    J = _with_tilt(payload_jacobian(g, mass_kg, com_m, mount), tilt_dirs, mass_kg, S, mount)
+    A = _rotation_rows(g, mass_kg, S)
+    tilt = tilt_dirs is not None
+    theta = np.concatenate([np.zeros(6) if offset is None else offset, [mass_kg], com_m, np.zeros(2) if tilt else [],
+                            np.zeros(3) if mount else []])
+    return named_bound(J, reading_covariance(sigma, A, orientation_sd_rad), payload_names(mount, tilt), theta, rel_tol)
 
 
 # ----------------------------------------------------------------------------- URDF load: joint groups
@@ -233,11 +261,11 @@ def group_poses(tree, ft_link: str, groups: tuple[JointGroup, ...], q: Mapping[s
     return np.stack([R for R, _ in poses]), np.stack([p for _, p in poses])
 
 
-def urdf_names(groups: tuple[JointGroup, ...], mount: bool = True) -> tuple[str, ...]:
+def urdf_names(groups: tuple[JointGroup, ...], mount: bool = True, tilt: bool = False) -> tuple[str, ...]:
     names = list(OFFSET_NAMES)
     for grp in groups:
         names += [f"{grp.name}.mass_kg", f"{grp.name}.moment_x", f"{grp.name}.moment_y", f"{grp.name}.moment_z"]
-    return tuple(names) + (ROT_NAMES if mount else ())
+    return tuple(names) + (TILT_NAMES if tilt else ()) + (ROT_NAMES if mount else ())
 
 
 def urdf_first_moment(R: np.ndarray, p: np.ndarray, masses: np.ndarray, moments: np.ndarray) -> np.ndarray:
@@ -273,26 +301,32 @@ def urdf_gravity_in_ft(tree, ft_link: str, q: Mapping[str, np.ndarray], g_B: np.
 
 def urdf_bound(tree, ft_link: str, q: Mapping[str, np.ndarray], g_ft: np.ndarray, bodies: Mapping[str, tuple[float, np.ndarray]],
                sigma: np.ndarray, *, mount: bool = True, orientation_sd_rad: float = 0.0, offset: np.ndarray | None = None,
-               rel_tol: float = REL_EIG_TOL) -> tuple[LoadBound, tuple[JointGroup, ...]]:
+               rel_tol: float = REL_EIG_TOL, tilt_dirs: np.ndarray | None = None) -> tuple[LoadBound, tuple[JointGroup, ...]]:
     """The bound of the URDF load below ``ft_link`` for joint angles ``q`` (N,) each, gravity ``g_ft`` (N, 3) in
-    the true ft frame and the true bodies ``{link: (mass, CoM in own link)}``; returns it and the groups."""
+    the true ft frame and the true bodies ``{link: (mass, CoM in own link)}``; returns it and the groups.
+    ``tilt_dirs`` (N, 3, 2) ``d g_ft / d tilt``: the world tilt estimated too (module docstring)."""
     groups = joint_groups(tree, ft_link)
     masses, moments = group_truth(tree, groups, bodies)
     g = np.asarray(g_ft, float)
     R, p = group_poses(tree, ft_link, groups, q, len(g))
-    J = urdf_jacobian(g, R, p, masses, moments, mount)
-    A = _rotation_rows(g, float(masses.sum()), urdf_first_moment(R, p, masses, moments))
+    S = urdf_first_moment(R, p, masses, moments)
+    J = _with_tilt(urdf_jacobian(g, R, p, masses, moments, mount), tilt_dirs, float(masses.sum()), S, mount)
+    A = _rotation_rows(g, float(masses.sum()), S)
+    tilt = tilt_dirs is not None
     theta = np.concatenate([np.zeros(6) if offset is None else offset,
-                            np.column_stack([masses, moments]).ravel(), np.zeros(3) if mount else []])
-    return named_bound(J, reading_covariance(sigma, A, orientation_sd_rad), urdf_names(groups, mount), theta, rel_tol), groups
+                            np.column_stack([masses, moments]).ravel(), np.zeros(2) if tilt else [], np.zeros(3) if mount else []])
+    return (named_bound(J, reading_covariance(sigma, A, orientation_sd_rad), urdf_names(groups, mount, tilt), theta, rel_tol),
+            groups)
 
 
 # ----------------------------------------------------------------------------- a simulated dataset's bound
 
 
-def free_load_bound(res, *, mount: bool = True, held_only: bool = True, rel_tol: float = REL_EIG_TOL) -> LoadBound:
+def free_load_bound(res, *, mount: bool = True, held_only: bool = True, rel_tol: float = REL_EIG_TOL,
+                    tilt: bool = False) -> LoadBound:
     """The bound of a ``sim.free.simulate_free`` result at its truth, from its held (quasi-static) samples, its
-    reading noise and its orientation jitter (a URDF result: ``LoadBound`` of the joint groups)."""
+    reading noise and its orientation jitter (a URDF result: ``LoadBound`` of the joint groups); ``tilt``: the
+    world tilt of the orientation stream estimated too (the simulation has none: the bound at 0)."""
     from .sim.free import gravity_in_body, gravity_in_ft, load_tree, true_rotation
     from .sim.free.simulate import rpy_to_rotation
 
@@ -302,13 +336,17 @@ def free_load_bound(res, *, mount: bool = True, held_only: bool = True, rel_tol:
     jitter = np.radians(cfg.mocap_jitter_deg)
     rv = np.asarray(truth["mount_rotvec"], float)
     off = np.asarray(truth["offset"], float)
+    dB = tilt_directions(res.R_WB[sel], cfg.g) if tilt else None
     if cfg.kind == "payload":
-        g_ft = gravity_in_ft(res.R_WB[sel], true_rotation(rpy_to_rotation(cfg.rotation_rpy), rv), cfg.g)
+        R_true = true_rotation(rpy_to_rotation(cfg.rotation_rpy), rv)
+        g_ft = gravity_in_ft(res.R_WB[sel], R_true, cfg.g)
         return payload_bound(g_ft, truth["mass_kg"], np.asarray(truth["com_m"]), sigma, mount=mount,
-                             orientation_sd_rad=jitter, offset=off, rel_tol=rel_tol)
+                             orientation_sd_rad=jitter, offset=off, rel_tol=rel_tol,
+                             tilt_dirs=None if dB is None else np.einsum("ji,njt->nit", R_true, dB))
     tree = load_tree(cfg.urdf_path)
     q = {j: np.asarray(v)[sel] for j, v in res.q.items()}
     g_ft = urdf_gravity_in_ft(tree, cfg.ft_link, q, gravity_in_body(res.R_WB[sel], cfg.g), rv)
     bodies = {l: (b["mass_kg"], np.asarray(b["com_m"])) for l, b in truth["bodies"].items()}
+    dg = None if dB is None else np.stack([urdf_gravity_in_ft(tree, cfg.ft_link, q, dB[:, :, k], rv) for k in range(2)], axis=2)
     return urdf_bound(tree, cfg.ft_link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter, offset=off,
-                      rel_tol=rel_tol)[0]
+                      rel_tol=rel_tol, tilt_dirs=dg)[0]

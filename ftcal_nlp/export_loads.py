@@ -5,11 +5,12 @@ free loads (``load_kind`` ``rigid_payload`` or ``urdf_subtree``). One call per s
 the calibration's numbers baked in as constants; it computes what ``correct`` writes (``correct_loads.py``):
 for every transducer k
 
-    g_B = R_WB^T [0, 0, -g]                                     gravity in B from the body's orientation
-    g_k = (R_nom,k(q) E_k)^T g_B                                gravity in the (estimated true) ft_k frame
+    g_B,k = g R_WB^T u_k                                        gravity in B from the body's orientation
+    g_k = (R_nom,k(q) E_k)^T g_B,k                              gravity in the (estimated true) ft_k frame
     w_c,k = w_m,k - w_o,k - [M_k g_k ; s_k(q) x g_k]           contact wrench in ft_k, about its origin
 
-with, for a rigid payload, ``R_nom`` the robot's nominal rotation, ``M = m`` and ``s = h = m c``; for a URDF
+with ``u_k = R_y(ty) R_x(tx) (0, 0, -1)`` the world tilt of the orientation stream transducer k's calibration
+estimated (``gravity_tilt_rad``; ``(0, 0, -1)`` without one), for a rigid payload, ``R_nom`` the robot's nominal rotation, ``M = m`` and ``s = h = m c``; for a URDF
 load, ``R_nom(q)`` the URDF's sensor pose for the joints above it and ``s(q) = sum_G M_G p_G(q) + R_G(q) H_G``
 over the groups of links below it (``loads.urdf_subtree``), the joint transforms written symbolically
 (``T_origin [exp(q [a]x), 0; 0, 1]`` revolute/continuous, ``T_origin [I, q a; 0, 1]`` prismatic, Rodrigues'
@@ -26,6 +27,7 @@ import numpy as np
 
 from .codegen import ExportedFiles, write_generated
 from .errors import DataFormatError
+from .freeload.problem import tilt_gravity
 from .geometry import quat_to_rotation
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -81,10 +83,13 @@ def correction_function(cals: dict, name: str) -> ca.Function:
     quat = ca.MX.sym("quat", 4)
     qd = {j: qv[i] for i, j in enumerate(joints)}
     g = next(iter(cals.values())).g
-    g_B = -g * quat_to_rotation(quat)[2, :].T
+    R_WB = quat_to_rotation(quat)
     out = []
     for i, k in enumerate(legs):
         c = cals[k]
+        tilt = getattr(c, "tilt", None)
+        u = ca.DM([0.0, 0.0, -1.0]) if tilt is None else ca.DM(tilt_gravity(tilt))
+        g_B = g * ca.mtimes(R_WB.T, u)
         if isinstance(c, UrdfLoadCalibration):
             load = c.load
             R_nom, _ = symbolic_pose(load.tree, load.tree.root, load.ft_link, qd)

@@ -5,7 +5,8 @@ orientations, ``[protocol] kind = "payload"`` or ``"urdf"``) dispatches here fro
 
 The prediction is the Cramer-Rao bound of :mod:`ftcal_nlp.crb_loads` (its own reading model, independent of
 the estimator): per quasi-static sample ``i`` the readings' derivative ``J_i`` with respect to the offsets, the
-load's parameters and the mounting rotation, and
+load's parameters, the world tilt of the orientation stream (where the estimator fits it: a dataset whose fit has
+it; a protocol with ``gravity_tilt``, default that of ``[free_load]``) and the mounting rotation, and
 
     F = sum_i J_i^T Sigma^-1 J_i,     se >= sqrt(diag F^+)   (on the directions F determines),
 
@@ -26,7 +27,8 @@ Inputs:
   of B in W, each a hold) or ``n_orientations`` (drawn uniformly on SO(3) with ``seed``), ``hold_s``,
   ``rate_hz``, ``noise_force_N``, ``noise_torque_Nm``, ``mocap_jitter_deg``, ``mass_kg``, ``com_m`` (the
   tool's expected mass and CoM in ft: where the bound is evaluated), ``rotation_rpy`` (nominal ft in B,
-  rad), ``mount`` (estimate the mounting rotation, default true). ``kind = "urdf"``: ``robot`` (a robot.toml
+  rad), ``mount`` (estimate the mounting rotation, default true), ``gravity_tilt`` (estimate the world tilt of
+  the orientation stream, default ``FreeLoadSettings.gravity_tilt``). ``kind = "urdf"``: ``robot`` (a robot.toml
   with ``urdf`` and the transducer's ``link``, relative to the protocol file), ``transducer``, and
   ``holds = [{quat = [qw, qx, qy, qz], q = {joint = rad, ...}}, ...]`` (joints not named held at 0), the
   noise and hold keys as above; the URDF's bodies are the expected load.
@@ -106,6 +108,8 @@ class LoadPlan:
                 grp = n[: -len(".mass_kg")]
                 out[f"{grp}.mass"] = (rms((n,)), "kg")
                 out[f"{grp}.first_moment"] = (rms(tuple(f"{grp}.moment_{c}" for c in "xyz"), 1e3), "kg*mm")
+        if "tilt_rx" in self.bound.names:
+            out["gravity_tilt"] = (rms(crb_loads.TILT_NAMES, float(np.degrees(1.0))), "deg")
         if "mount_rx" in self.bound.names:
             out["mount_rotation"] = (rms(crb_loads.ROT_NAMES, float(np.degrees(1.0))), "deg")
         return out
@@ -172,27 +176,61 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
         g_B = np.concatenate([ds.robot.g * r.gravity_directions()[fit.used[r.name]] for r in recs])
         mount = bool(np.all(np.isfinite(fit.se[-3:]) | np.isinf(fit.se[-3:])))   # NaN: the mount was not estimated
         rv = rotation_to_rotvec(fit.rotation)
+        dB, notes = None, ()
+        if fit.tilt is not None and not np.all(np.isfinite(fit.se[6 + len(fit.theta):8 + len(fit.theta)])):
+            notes = (TILT_HELD,)
+        elif fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
+            from .freeload.problem import tilt_gravity
+
+            gs, dBs = [], []
+            for r in recs:   # the tilt acts through the orientation stream's recordings only
+                m = fit.used[r.name]
+                if r.quat is None:
+                    gs.append(ds.robot.g * r.gravity_directions()[m])
+                    dBs.append(np.zeros((int(m.sum()), 3, 2)))
+                    continue
+                R_WB = quat_to_rotation(r.quat[m])
+                gs.append(ds.robot.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(fit.tilt)))
+                dBs.append(crb_loads.tilt_directions(R_WB, ds.robot.g))
+            g_B, dB = np.concatenate(gs), np.concatenate(dBs)
         if fit.load.kind == "rigid_payload":
             R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
             g_ft = g_B @ R
             m = float(fit.theta[0])
-            bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, fit.sigma, mount=mount, offset=fit.offset)
-            notes = ()
+            bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, fit.sigma, mount=mount, offset=fit.offset,
+                                            tilt_dirs=None if dB is None else np.einsum("ji,njt->nit", R, dB))
         else:
             tree, link = ds.robot.tree, ds.robot.transducers[leg].link
             joints = tuple(fit.load.base_joints) + tuple(fit.load.load_joints)
             q = {j: np.concatenate([r.q[j][fit.used[r.name]] if j in r.q else np.zeros(int(fit.used[r.name].sum()))
                                     for r in recs]) for j in joints}
             g_ft = crb_loads.urdf_gravity_in_ft(tree, link, q, g_B, rv)
+            dg = None if dB is None else np.stack([crb_loads.urdf_gravity_in_ft(tree, link, q, dB[:, :, k], rv)
+                                                   for k in range(2)], axis=2)
             bodies = {l: (b.mass_kg, b.com_m) for l, b in tree.bodies.items()}
-            bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, fit.sigma, mount=mount, offset=fit.offset)[0]
-            notes = ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
-                     "rotation's rows)",)
+            bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, fit.sigma, mount=mount, offset=fit.offset,
+                                         tilt_dirs=dg)[0]
+            notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
+                      "rotation's rows)",)
+        if fit.recording_tilts:   # estimated by the fit, not in the bound: the bound is a little optimistic there
+            notes += (f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and not "
+                      "in the bound (taken as known here)",)
         loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes)
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
 
 
 # ----------------------------------------------------------------------------- a protocol of held orientations
+
+
+TILT_HELD = ("the world tilt of the orientation stream: held at 0 by the estimator (gravity spans fewer than three "
+             "directions in ft, freeload.estimate): not in the bound")
+
+
+def _tilt_held(g_ft: np.ndarray) -> bool:
+    """Whether the estimator holds the world tilt at 0 for these gravity directions (one direction, a short arc)."""
+    from .freeload.estimate import NARROW, gravity_spread
+
+    return bool(gravity_spread(g_ft)[1] < NARROW)
 
 
 def _num(d: dict, key: str, default, where: str, positive: bool = True) -> float:
@@ -214,9 +252,9 @@ def _quats(v, where: str, key: str) -> np.ndarray:
 
 
 KNOWN = {"payload": {"kind", "orientations", "n_orientations", "seed", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
-                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "g"},
+                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "gravity_tilt", "g"},
          "urdf": {"kind", "robot", "transducer", "holds", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
-                  "mocap_jitter_deg", "mount", "g"}}
+                  "mocap_jitter_deg", "mount", "gravity_tilt", "g"}}
 
 
 def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
@@ -236,6 +274,11 @@ def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
     mount = d.get("mount", True)
     if not isinstance(mount, bool):
         raise FreeLoadPlanError(f"{where}: key 'mount' must be true or false, got {mount!r}", key="mount")
+    from .settings import FreeLoadSettings
+
+    tilt = d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
+    if not isinstance(tilt, bool):
+        raise FreeLoadPlanError(f"{where}: key 'gravity_tilt' must be true or false, got {tilt!r}", key="gravity_tilt")
     if kind == "payload":
         if "orientations" in d:
             quats = _quats(d["orientations"], where, "orientations")
@@ -256,8 +299,11 @@ def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
         R_nom = rotvec_to_rotation(rpy[2] * np.eye(3)[2]) @ rotvec_to_rotation(rpy[1] * np.eye(3)[1]) @ rotvec_to_rotation(rpy[0] * np.eye(3)[0])
         g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
         g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
-        bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter)
-        plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats))
+        dg = np.repeat(np.einsum("ji,njt->nit", R_nom, crb_loads.tilt_directions(quat_to_rotation(quats), g)), n_per, axis=0)
+        held = tilt and _tilt_held(g_ft)
+        bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
+                                        tilt_dirs=dg if tilt and not held else None)
+        plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ())
         proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
         return FreeLoadPlan(f"protocol {path}", {"payload": plan}, proto)
     # a URDF load
@@ -286,7 +332,13 @@ def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
     g_B = np.repeat(-g * quat_to_rotation(quats)[:, 2, :], n_per, axis=0)
     link = robot.transducers[leg].link
     g_ft = crb_loads.urdf_gravity_in_ft(robot.tree, link, q, g_B)
+    dB = np.repeat(crb_loads.tilt_directions(quat_to_rotation(quats), g), n_per, axis=0)
+    held = tilt and _tilt_held(g_ft)
+    dg = (np.stack([crb_loads.urdf_gravity_in_ft(robot.tree, link, q, dB[:, :, k]) for k in range(2)], axis=2)
+          if tilt and not held else None)
     bodies = {l: (b.mass_kg, b.com_m) for l, b in robot.tree.bodies.items()}
-    bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter)[0]
-    plan = _plan(leg, "urdf_subtree", bound, len(g_ft), sigma, len(holds), ("evaluated at the URDF's nominal bodies",))
+    bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter,
+                                 tilt_dirs=dg)[0]
+    plan = _plan(leg, "urdf_subtree", bound, len(g_ft), sigma, len(holds),
+                 ((TILT_HELD,) if held else ()) + ("evaluated at the URDF's nominal bodies",))
     return FreeLoadPlan(f"protocol {path}", {leg: plan}, {"kind": kind, "holds": len(holds), "samples_per_hold": n_per})

@@ -217,7 +217,10 @@ class FreeLoadSettings:
     ``noise_factor`` times the median of its rate over the samples the other two call still, when that is
     larger (noisier streams, as the standing poses do). ``mount_rotation``: estimate the transducer's mounting
     rotation; ``prior_weight``: weight of the load's nominal values (the URDF's) relative to the information of
-    each parameter, which pins only what the data leave undetermined; ``loads``: transducer -> load name or
+    each parameter, which pins only what the data leave undetermined; ``gravity_tilt``: a world tilt of the
+    orientation stream (2 parameters); ``recording_tilt``: a tilt of each recording that gives gravity by
+    ``gravity_body`` only (2 parameters each; ``"auto"``: where the data determine it with everything else, else
+    held at 0 with a note); ``loads``: transducer -> load name or
     ``module:Class`` instead of the dataset's kind. A recording whose samples lie farther apart than ``window_s`` is
     a list of poses: every sample is a hold."""
 
@@ -230,7 +233,8 @@ class FreeLoadSettings:
     max_gap_factor: float = 3.0
     min_samples: int = 0             # fewest quasi-static samples; 0: twice the unknowns in equations (6 per sample)
     mount_rotation: bool = True
-    gravity_tilt: bool = False  # a world tilt of the orientation stream (2 dof), where the recordings give R_WB per sample
+    gravity_tilt: bool = True   # a world tilt of the orientation stream (2 dof), where the recordings give R_WB per sample
+    recording_tilt: bool | str = "auto"  # a tilt per gravity_body-only recording (2 dof each): true, false or "auto"
     prior_weight: float = 1e-8
     rel_eig_tol: float = REL_EIG_TOL
     loads: dict = field(default_factory=dict)
@@ -241,6 +245,8 @@ class FreeLoadSettings:
                 raise ValueError(f"FreeLoadSettings.{name}: expected a positive number, got {getattr(self, name)!r}")
         if not self.noise_factor >= 0 or not self.prior_weight >= 0:
             raise ValueError("FreeLoadSettings: noise_factor and prior_weight must be >= 0")
+        if self.recording_tilt not in (True, False, "auto"):
+            raise ConfigError(f"recording_tilt: expected true, false or \"auto\", got {self.recording_tilt!r}", key="free_load.recording_tilt")
 
 
 @dataclass(frozen=True)

@@ -68,9 +68,10 @@ def test_bad_urdf_input_gets_one_clear_error_and_writes_nothing(case, leg4, tmp_
 @pytest.mark.parametrize("axis", ["vertical", "horizontal"])
 def test_orientations_about_one_axis_are_named_by_the_run(axis, tmp_path, capsys) -> None:
     """Turns about the vertical only (one gravity direction in ft): 7 of the 13 directions undetermined (as the
-    estimator's own test), their se null in calibration.json and the run says so. Turns about one horizontal
-    axis (gravity sweeps a plane) determine every parameter of a payload (f = m g + f_o, t = h x g + t_o with g
-    spanning two dimensions): nothing is named, every se finite -- no false alarm."""
+    estimator's own test) and the world tilt's 2 (held at 0), their se null in calibration.json and the run says
+    so. Turns about one horizontal axis (gravity sweeps a plane) determine every parameter of a payload (f = m g +
+    f_o, t = h x g + t_o with g spanning two dimensions): only the world tilt is named (gravity spans fewer than
+    three directions: held at 0), every other se finite -- no false alarm."""
     res = simulate_payload(PayloadConfig(seed=8, n_orientations=6, hold_s=4.0, move_s=2.0))
     df = res.frame.copy()
     q = df[["qw", "qx", "qy", "qz"]].to_numpy()
@@ -82,9 +83,11 @@ def test_orientations_about_one_axis_are_named_by_the_run(axis, tmp_path, capsys
     text = "".join(capsys.readouterr())
     leg = json.loads((tmp_path / "out" / "calibration.json").read_text())["legs"]["wrist"]
     se = [*leg["offset_se"], leg["load_mass_se_kg"], *leg["load_com_se_m"], *leg["mount_rotvec_se"]]
-    if axis == "vertical":
-        assert len(leg["undetermined"]) == 7 and "not determined by the data" in text and "one direction" in text
+    tilt = [u for u in leg["undetermined"] if ".tilt.r" in u]
+    assert len(tilt) == 2 and leg["gravity_tilt_rad"] == [0.0, 0.0] and leg["gravity_tilt_se_rad"] == [None, None]
+    if axis == "vertical":   # 7 + the world tilt's 2 (held at 0)
+        assert len(leg["undetermined"]) == 9 and "not determined by the data" in text and "one direction" in text
         assert leg["load_mass_se_kg"] is None and sum(s is None for s in se) >= 7
-    else:
-        assert leg["undetermined"] == [] and "not determined" not in text
+    else:                    # only the world tilt (a turn about a horizontal axis moves it like the mount and offsets)
+        assert leg["undetermined"] == tilt and "one direction" not in text
         assert all(s is not None and np.isfinite(s) for s in se)

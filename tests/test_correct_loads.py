@@ -207,7 +207,8 @@ def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
     """The calibration part of the se per sample, from calibration.json and its covariance file (what ``correct``
     uses), against the sd of the predicted load wrench over refits to fresh noise on the same motion (Monte-Carlo
     error of an sd from K refits: 1/sqrt(2(K-1)) relative; 4 of those). The diagonal of the stored se (the
-    fallback) misses the offset-load correlations: it falls outside that band."""
+    fallback) misses the offset-load correlations: it falls outside that band. With the world tilt (the default):
+    gravity from orientations ``R_WB`` goes through each refit's tilt, and the se from the file with them too."""
     from ftcal_nlp.freeload import fit_free_load
     from ftcal_nlp.sim.free import PayloadConfig, simulate_payload
 
@@ -224,24 +225,31 @@ def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
     g_B *= 9.81 / np.linalg.norm(g_B, axis=1, keepdims=True)
     _, J = predicted_load(p, g_B)
     se_full, se_diag = np.sqrt(calibration_variance(p, J)), np.sqrt(calibration_variance(p_diag, J))
+    from ftcal_nlp.freeload.problem import tilt_gravity
+
+    assert p.tilt is not None and J.shape[-1] == 15
+    R_WB = rotvec_to_rotation(rng.normal(size=(12, 3)))
+    se_tilt = np.sqrt(calibration_variance(p, p.predict(-9.81 * R_WB[:, 2, :], {}, R_WB)[1]))
     # the same motion and truth as the run's simulation (seed 5): fresh white noise of the simulator's sd per refit
     sim = simulate_payload(PayloadConfig(seed=5, n_orientations=8, hold_s=5.0))
     rec = res.dataset.hanging[0]
     np.testing.assert_allclose(rec.wrench["wrist"], sim.frame[[f"wrist_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]])
     sd = np.asarray(sim.truth["noise"])
     K = 300
-    preds = []
+    preds, preds_t = [], []
     logging.disable(logging.WARNING)
     try:
         for _ in range(K):
             w = sim.clean + rng.normal(size=sim.clean.shape) * sd
             fit = fit_free_load(replace(res.dataset, recordings=(replace(rec, wrench={"wrist": w}),)), "wrist")
             preds.append(fit.predict(g_B, {}))
+            preds_t.append(fit.predict(9.81 * np.einsum("nkj,k->nj", R_WB, tilt_gravity(fit.tilt)), {}))
     finally:
         logging.disable(logging.NOTSET)
     mc = np.std(preds, axis=0, ddof=1)
     band = 4.0 / np.sqrt(2 * (K - 1))
     assert np.abs(mc / se_full - 1).max() < band
+    assert np.abs(np.std(preds_t, axis=0, ddof=1) / se_tilt - 1).max() < band
     assert np.abs(mc / se_diag - 1).max() > band          # the test can tell the two apart
 
 
@@ -314,3 +322,29 @@ def test_urdf_se_at_new_joint_angles_matches_refits() -> None:
         logging.disable(logging.NOTSET)
     ratio = np.std(preds, axis=0, ddof=1) / se
     assert np.abs(ratio - 1).max() < 4.0 / np.sqrt(2 * (K - 1))
+
+
+def test_tilt_jacobian_matches_finite_differences() -> None:
+    """With a world tilt (``gravity_tilt_rad``) gravity comes from the orientations, ``g R_WB^T u(tilt)``; the 15
+    columns ``(w_o, m, h, tilt, delta)`` against central differences; without the orientations (``gx..gz``) the
+    tilt's columns are zero."""
+    rng = np.random.default_rng(4)
+    R_WB = rotvec_to_rotation(rng.normal(size=(20, 3)))
+    g_B = -9.81 * R_WB[:, 2, :]
+    R = rotvec_to_rotation(np.array([0.2, -0.1, 1.3]))
+    tilt = np.array([0.012, -0.02])
+    p = PayloadCalibration("w", rng.normal(size=6), 1.3, np.array([0.01, -0.02, 0.1]), R, np.eye(15), np.ones(6), 9.81,
+                           tilt=tilt)
+    _, J = p.predict(g_B, {}, R_WB)
+    assert J.shape == (20, 6, 15)
+    eps = 1e-6
+    for k in range(15):
+        def model(s):
+            x = np.zeros(15)
+            x[k] = s
+            q = replace(p, offset=p.offset + x[:6], mass_kg=p.mass_kg + x[6], h=p.h + x[7:10], tilt=tilt + x[10:12],
+                        R_B_ft=R @ rotvec_to_rotation(x[12:]))
+            return q.predict(g_B, {}, R_WB)[0]
+        np.testing.assert_allclose((model(eps) - model(-eps)) / (2 * eps), J[:, :, k], atol=1e-6)
+    _, J0 = p.predict(g_B, {})
+    assert J0.shape == (20, 6, 15) and not J0[:, :, 10:12].any()

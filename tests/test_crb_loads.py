@@ -234,3 +234,33 @@ def test_free_load_bound_of_simulations(leg) -> None:
     bp = cl.free_load_bound(p)
     assert bp.identifiable and bp.names == cl.payload_names(True)
     assert np.isclose(bp.theta[6], p.truth["mass_kg"])
+
+
+def test_tilt_columns_match_the_forward_model_of_a_tilted_stream() -> None:
+    """The world tilt's columns (``tilt_dirs``): the stream reports ``R_t R_WB``, true gravity in B is then
+    ``g R_WB'^T u(tilt)`` (``freeload.problem.tilt_gravity``); central differences at tilt 0 of the simulator's
+    payload readings equal them, and the bound with the tilt is wider than without (it is a nuisance)."""
+    from ftcal_nlp.freeload.problem import tilt_gravity
+
+    rng = np.random.default_rng(2)
+    R_WB = rotvec_to_rotation(rng.normal(size=(30, 3)))
+    R0 = rotvec_to_rotation(np.array([0.3, -0.2, 1.0]))
+    m, c, off = 1.3, np.array([0.01, -0.02, 0.07]), rng.normal(size=6)
+    dg = np.einsum("ji,njt->nit", R0, cl.tilt_directions(R_WB, 9.81))
+    J = cl._with_tilt(cl.payload_jacobian(gravity_in_ft(R_WB, R0, 9.81), m, c, mount=True), dg, m, m * c, True)
+    assert J.shape == (30, 6, 15) and cl.payload_names(True, True)[10:12] == cl.TILT_NAMES
+    eps = 1e-6
+    for k in range(2):
+        d = np.zeros(2)
+        d[k] = eps
+
+        def w(t):
+            g_B = 9.81 * np.einsum("nkj,k->nj", R_WB, tilt_gravity(t))
+            return payload_readings(g_B @ R0, m, c, off)
+
+        np.testing.assert_allclose((w(d) - w(-d)) / (2 * eps), J[:, :, 10 + k], atol=1e-6)
+    sigma = np.array([0.02] * 3 + [6e-4] * 3)
+    b0 = cl.payload_bound(gravity_in_ft(R_WB, R0, 9.81), m, c, sigma)
+    b1 = cl.payload_bound(gravity_in_ft(R_WB, R0, 9.81), m, c, sigma, tilt_dirs=dg)
+    assert b1.identifiable and b1.names[10:12] == cl.TILT_NAMES
+    assert np.all(b1.sd(b0.names) >= b0.bound.sd * (1 - 1e-9)) and np.any(b1.sd(b0.names) > 1.01 * b0.bound.sd)

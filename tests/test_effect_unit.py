@@ -153,3 +153,20 @@ def test_a_units_kind_decides_its_correction():
                                          if u.kind == "sensor" and n != "hysteresis" and "hexapod" in u.diagnosed_on)
     assert {n for n, u in EFFECTS.items() if u.kind == "body"} == {"tether_force", "robot_mass", "mocap_bias", "leg_inertia",
                                                                     "moving_com"}
+
+
+def test_diagnosed_on_says_which_faces_a_unit_has():
+    """``diagnosed_on`` holds "free" exactly for the units with a free-load face (``free_shapes`` overridden) and
+    "hexapod" for those with a hexapod face (a standing face, a linear hanging / swing face or the design face);
+    the hexapod diagnosis' candidates are those (``attribute.hexapod_candidates``), the rest are not ranking rows."""
+    from ftcal_nlp.diagnose.attribute import hexapod_candidates
+
+    for name, u in EFFECTS.items():
+        free = type(u).free_shapes is not Effect.free_shapes
+        hexa = any(getattr(type(u), f) is not getattr(Effect, f)
+                   for f in ("standing_params", "standing", "hanging_features", "swing_features", "standing_balance")) or u.design_face
+        assert ("free" in u.diagnosed_on) == free, name
+        assert ("hexapod" in u.diagnosed_on) == hexa, name
+    assert "free" in EFFECTS["offset_drift"].diagnosed_on
+    names = [u.name for u in hexapod_candidates(list(EFFECTS.values()))]
+    assert names == [n for n, u in EFFECTS.items() if "hexapod" in u.diagnosed_on] and "clock_offset" not in names

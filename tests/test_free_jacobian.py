@@ -1,6 +1,7 @@
 """The free-load diagnosis' model Jacobian in closed form (``diagnose/free_model.model_jacobian``) equals central
 differences of the model readings (``freeload.problem.predict``) in every parameter: offsets, the load's
-parameters and the mount rotation ``E expm([r]x)``, on a payload and on a URDF leg (per-sample levers)."""
+parameters, the world tilt of the orientation stream (``b = A_n u(tilt)``, where the fit has it) and the mount
+rotation ``E expm([r]x)``, on a payload and on a URDF leg (per-sample levers), with and without the tilt."""
 
 import numpy as np
 import pytest
@@ -8,22 +9,25 @@ import pytest
 from ftcal_nlp.data import read_dataset
 from ftcal_nlp.diagnose.free_model import context_for, model_jacobian
 from ftcal_nlp.freeload import fit_free_loads
-from ftcal_nlp.freeload.problem import predict
+from ftcal_nlp.freeload.problem import predict, tilt_gravity
 from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.settings import FreeLoadSettings
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 
 
 @pytest.mark.parametrize("cfg", [PayloadConfig(seed=2, n_orientations=8, hold_s=3.0, move_s=2.0),
                                  UrdfLegConfig(seed=2, n_orientations=4, poses_per_orientation=2, hold_s=2.0, move_s=1.0)])
-def test_the_jacobian_is_the_central_differences(cfg, tmp_path):
+@pytest.mark.parametrize("tilt", [False, True])
+def test_the_jacobian_is_the_central_differences(cfg, tilt, tmp_path):
     ds = read_dataset(write_free_load(simulate_free(cfg), tmp_path / "d"))
-    leg, fit = next(iter(fit_free_loads(ds).legs.items()))
+    leg, fit = next(iter(fit_free_loads(ds, FreeLoadSettings(gravity_tilt=tilt)).legs.items()))
+    assert (fit.tilt is not None) == tilt
     ctx, _ = context_for(ds, leg, fit)
     J, names = model_jacobian(ctx, fit)
     b, K, mu, E = ctx.extra["b"], ctx.extra["K"], fit.load.mass_row, fit.rotation
     theta, w_o = np.asarray(fit.theta, float), np.asarray(fit.offset, float)
-    p = len(theta)
-    assert J.shape == (ctx.n, 6, 6 + p + 3) and tuple(names) == tuple(fit.names)
+    p, nt = len(theta), 2 if tilt else 0
+    assert J.shape == (ctx.n, 6, 6 + p + nt + 3) and tuple(names) == tuple(fit.names)
     h = 1e-6
     cols = []
     for k in range(6):                                     # offsets
@@ -34,6 +38,14 @@ def test_the_jacobian_is_the_central_differences(cfg, tmp_path):
         d = np.zeros(p)
         d[k] = h * max(1.0, abs(theta[k]))
         cols.append((predict(b, K, theta + d, mu, E, w_o) - predict(b, K, theta - d, mu, E, w_o)) / (2 * d[k]))
+    if tilt:                                               # the world tilt: b = A_n u(tilt)
+        a, t0 = ctx.extra["a"], np.asarray(fit.tilt, float)
+        np.testing.assert_allclose(b, np.einsum("nik,k->ni", a, tilt_gravity(t0)), rtol=0, atol=1e-12)
+        for k in range(2):
+            d = np.zeros(2)
+            d[k] = h
+            bp, bm = (np.einsum("nik,k->ni", a, tilt_gravity(t0 + sgn * d)) for sgn in (1, -1))
+            cols.append((predict(bp, K, theta, mu, E, w_o) - predict(bm, K, theta, mu, E, w_o)) / (2 * h))
     for a in range(3):                                     # the mount rotation
         d = np.zeros(3)
         d[a] = h

@@ -202,7 +202,8 @@ def test_orientations_about_one_axis_are_named(tmp_path) -> None:
     assert r.undetermined and np.isinf(r.load_report()["load_mass_se_kg"])
     assert any("one direction" in n for n in r.notes)
     assert any("wrist.mount." in d for d in r.undetermined)                  # the turn about gravity among them
-    assert len(r.undetermined) == 7 and len(r.determined) == 6   # one gravity direction: 6 numbers for 13 unknowns
+    assert len(r.undetermined) == 9 and len(r.determined) == 6   # one gravity direction: 6 numbers for 13 unknowns
+    assert sum(".tilt.r" in d for d in r.undetermined) == 2      # ... and the world tilt's 2, held at 0
 
 
 def _urdf_dataset(tmp_path: Path) -> Path:
@@ -370,7 +371,8 @@ def test_payload_held_in_recordings_with_gravity_body_only(tmp_path) -> None:
     assert len(ds.hanging) == 8 and all(r.gravity is None and r.quat is None for r in ds.hanging)
     r = fit_free_load(ds, "wrist")
     _payload_checks(r, res.truth)
-    assert any("gravity_body only" in n for n in r.notes)
+    assert any("gravity_body only" in n and "not separable" in n for n in r.notes)   # one transducer: tilts held at 0
+    assert not r.recording_tilts
 
 
 def test_hexapod_hanging_gravity_body_from_orientation_columns(tmp_path) -> None:

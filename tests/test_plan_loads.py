@@ -76,6 +76,8 @@ def test_protocol_of_held_orientations(payload, tmp_path) -> None:
     assert flat.bound.unidentified and flat.se()["mass_kg"] is None and flat.se()["offset_fz"] is None
     assert flat.groups()["load_mass"][0] is None and flat.to_json_dict()["se"]["mass_kg"] is None
     assert len(flat.bound.unidentified) == 7                    # one gravity direction: 7 of 13 (as the estimator says)
+    assert "tilt_rx" not in flat.bound.names and any("world tilt" in n for n in flat.notes)   # held at 0, as the estimator
+    assert "tilt_rx" in plan_from_protocol(base, tmp_path / "p.toml").loads["payload"].bound.names   # estimated, bounded
 
 
 def test_plan_of_a_urdf_leg_dataset_names_what_the_fit_names(tmp_path) -> None:
@@ -85,7 +87,8 @@ def test_plan_of_a_urdf_leg_dataset_names_what_the_fit_names(tmp_path) -> None:
     assert plan_cli.main([str(manifest), "-o", str(out)]) == 0
     js = json.loads(out.read_text())["transducers"]["r_leg"]
     fit = fit_free_load(read_dataset(manifest), "r_leg")
-    fit_se = {n.split(".", 1)[1].replace(".h_", ".moment_").replace("offset.", "offset_").replace("mount.r", "mount_r"): s
+    fit_se = {n.split(".", 1)[1].replace(".h_", ".moment_").replace("offset.", "offset_").replace("mount.r", "mount_r")
+              .replace("tilt.r", "tilt_r"): s
               for n, s in zip(fit.names, fit.se)}
     assert set(fit_se) == set(js["se"])
     for n, s in js["se"].items():

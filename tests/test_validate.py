@@ -288,3 +288,44 @@ def test_tiny_sweep_through_joblib(tmp_path):
     rows = pd.read_csv(tmp_path / "datasets.csv")
     assert list(rows["index"]) == [x["index"] for x in items] and (rows["role"] == "twin").sum() == 1
     assert np.isfinite(scores.filter(like="twin_floor_").to_numpy(float)).all()
+
+
+def test_pairs_in_the_plan_and_their_rows_of_the_table():
+    """Issue 23, item 2: pairs of library effects (each at the high end of its realistic range, own seeds, after the
+    twins), restricted to the effects withheld; the table counts pairs with both named and single effects with a
+    false second."""
+    from ftcal_nlp.bench.validate import PAIRS, sweep_summary, validation_table
+
+    a = sweep_plan(sweep_cfg())
+    pairs = [x for x in a if x["role"] == "pair"]
+    assert [tuple(x["effect"].split("+")) for x in pairs] == list(PAIRS) and 6 <= len(PAIRS) <= 10
+    assert min(x["index"] for x in pairs) > max(x["index"] for x in a if x["role"] == "twin")
+    for x in pairs:
+        want = [EFFECTS[n].magnitude.realistic[1] for n in x["effect"].split("+")]
+        assert [float(v) for v in x["scales"].split()] == want and x["twin"] is None and x["expect"] == x["effect"]
+    seeds = [x["seed"] for x in a if x["role"] != "twin"]
+    assert len(set(seeds)) == len(seeds)
+    only = sweep_plan(sweep_cfg(effects=["offset_drift", "casing_load"], variants=[], n_clean=0))
+    assert [x["effect"] for x in only if x["role"] == "pair"] == ["offset_drift+casing_load"]
+    mine = sweep_plan(sweep_cfg(effects=["offset_drift"], variants=[], n_clean=0, pairs=["robot_mass+mocap_bias"]))
+    assert [x["effect"] for x in mine if x["role"] == "pair"] == ["robot_mass+mocap_bias"]
+    for bad in (["robot_mass+clock_offset"], ["casing_load+casing_load"], ["moving_com+casing_load"], ["casing_load"], "x"):
+        with pytest.raises(ValueError, match=r"\[validation\]\.pairs"):
+            check_config({"pairs": bad})
+
+    def row(i, role, effect, named, effects):
+        return {"index": i, "seed": i, "role": role, "effect": effect, "expect": effect, "expect_legs": "", "named": named,
+                "legs": "", "verdict": "effect", "kind_key": "standing", "twin": None, "time_s": 1.0, "effects": effects,
+                "size": "hi", "scale": 1.0}
+
+    rows = pd.DataFrame([row(0, "library", "casing_load", "casing_load", "casing_load"),
+                         row(1, "library", "offset_drift", "offset_drift", "offset_drift hysteresis"),
+                         row(2, "variant", "casing_load", "casing_load", "casing_load"),
+                         row(3, "pair", "offset_drift+casing_load", "casing_load", "casing_load offset_drift"),
+                         row(4, "pair", "robot_mass+mocap_bias", "robot_mass", "robot_mass")])
+    sc = score(rows, 1.5)
+    s = sweep_summary(rows, sc, 1.0, 1.5)
+    assert s["pairs"] == (1, 2) and s["false_second"] == (1, 3)
+    table = validation_table(rows, sc, s)
+    assert "both named | 1/2 (robot_mass+mocap_bias: `robot_mass`) | >= 80% |" in table
+    assert "a false second named | 1/3 (offset_drift hi: `offset_drift` then `hysteresis`) | <= 10% |" in table

@@ -17,6 +17,11 @@ packages expect pose averages of held poses). Groups (estimate minus truth):
   (the joint groups' masses and first moments with what the data do not determine projected out,
   ``Bound.project``), ``mount_rotation``.
 
+With the world tilt of the orientation stream (``[free_load] gravity_tilt``, the NLP's default) the NLP is scored
+against the bound that has the tilt's two parameters too (``crb_loads.free_load_bound(tilt=True)``; the
+simulations have none: truth 0) and its tilt gets a row group ``gravity_tilt`` (deg); the peers, which have no
+tilt, against the bound without it.
+
 ``z = e / sd_CRB`` with the bound of the mounting rotation unknown (what the NLP and calibForce estimate);
 ``z_known`` against the bound with the mounting known (what ft_calib assumes: where its model holds it should
 reach that one). A group's ratio is ``sqrt(mean z^2)`` over its parameters and datasets.
@@ -43,8 +48,8 @@ from ..sim.free.simulate import rpy_to_rotation
 SCENARIOS = ("payload_no_mount", "payload_mount", "urdf_leg")
 PAYLOAD_GROUPS = {"offsets": slice(0, 6), "mass": slice(6, 7), "com": slice(7, 10), "mount_rotation": slice(10, 13)}
 GROUP_UNITS = {"offsets": "N, N*m", "mass": "kg", "com": "mm", "mount_rotation": "deg", "total_mass": "kg",
-               "first_moments": "kg m, kg"}
-GROUP_SCALE = {"com": 1e3, "mount_rotation": np.degrees(1.0)}
+               "first_moments": "kg m, kg", "gravity_tilt": "deg"}
+GROUP_SCALE = {"com": 1e3, "mount_rotation": np.degrees(1.0), "gravity_tilt": np.degrees(1.0)}
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 
 
@@ -124,39 +129,47 @@ def _rows(scenario, seed, est, group, names, e, sd, sd_known) -> list[dict]:
 
 
 def payload_errors(scenario: str, seed: int, est: str, theta: np.ndarray, res, b: cl.LoadBound, b0: cl.LoadBound) -> list[dict]:
-    """Rows of a payload estimate ``theta`` (offset, mass, com, mount rotvec) against the truth and both bounds."""
+    """Rows of a payload estimate ``theta`` (offset, mass, com[, tilt], mount rotvec; ``b``'s order) against the truth
+    and both bounds."""
     rv_true = np.asarray(res.truth["mount_rotvec"])
-    e = theta[:10] - b.theta[:10]
-    e_rot = rotation_to_rotvec(rotvec_to_rotation(rv_true).T @ rotvec_to_rotation(theta[10:13]))
+    nt = len(theta) - 13                                # 2: the NLP's world tilt (truth 0)
+    e = theta[:10 + nt] - b.theta[:10 + nt]
+    e_rot = rotation_to_rotvec(rotvec_to_rotation(rv_true).T @ rotvec_to_rotation(theta[-3:]))
     err = np.concatenate([e, e_rot])
+    groups = {**PAYLOAD_GROUPS, "mount_rotation": slice(10 + nt, 13 + nt)}
+    if nt:
+        groups["gravity_tilt"] = slice(10, 12)
     rows = []
-    for g, sl in PAYLOAD_GROUPS.items():
+    for g, sl in groups.items():
         if g == "mount_rotation" and est == "ft_calib" and not np.any(rv_true):
             continue                                    # assumed nominal and exactly so: not an estimate
         names = b.names[sl]
-        sd_known = b0.sd(names) if g != "mount_rotation" else None
+        sd_known = b0.sd(names) if g not in ("mount_rotation", "gravity_tilt") else None
         rows += _rows(scenario, seed, est, g, names, err[sl], b.bound.sd[sl], sd_known)
     return rows
 
 
 def urdf_errors(scenario: str, seed: int, est: str, theta: np.ndarray, res, b: cl.LoadBound, b0: cl.LoadBound) -> list[dict]:
-    """Rows of a URDF-load estimate ``theta`` (``urdf_names`` order) against the truth and both bounds."""
+    """Rows of a URDF-load estimate ``theta`` (``urdf_names`` order[, tilt]) against the truth and both bounds."""
     n = len(b.names)
+    nt = 2 if "tilt_rx" in b.names else 0
     e = theta - b.theta
     rv_true = np.asarray(res.truth["mount_rotvec"])
     e[n - 3:] = rotation_to_rotvec(rotvec_to_rotation(rv_true).T @ rotvec_to_rotation(theta[n - 3:]))
     ep = b.bound.project(e)
-    ep0 = b0.bound.project(e[: n - 3])
+    ep0 = b0.bound.project(e[: n - 3 - nt])
     masses = {nm: 1.0 for nm in b.names if nm.endswith(".mass_kg")}
     rows = _rows(scenario, seed, est, "offsets", b.names[:6], ep[:6], b.bound.sd[:6], b0.bound.sd[:6])
     e_m = sum(e[b.names.index(k)] for k in masses)
     rows += _rows(scenario, seed, est, "total_mass", ["total_mass_kg"], [e_m], [b.sd_of(masses)], [b0.sd_of(masses)])
     # the projected group parameters: directions the data determine (scaled-Fisher eigenvalues >= REL_EIG_TOL)
-    sl = slice(6, n - 3)
+    sl = slice(6, n - 3 - nt)
     r = _rows(scenario, seed, est, "first_moments", b.names[sl], ep[sl], b.bound.sd[sl], b0.bound.sd[sl])
     for row, e0 in zip(r, ep0[sl]):
         row["z_known"] = float(e0 / row["crb_sd_known_mount"])
     rows += r
+    if nt:
+        rows += _rows(scenario, seed, est, "gravity_tilt", b.names[n - 5:n - 3], ep[n - 5:n - 3], b.bound.sd[n - 5:n - 3], None)
     rows += _rows(scenario, seed, est, "mount_rotation", b.names[n - 3:], ep[n - 3:], b.bound.sd[n - 3:], None)
     return rows
 
@@ -166,6 +179,7 @@ def evaluate(scenario: str, seed: int, settings: LoadAccuracySettings, workdir: 
     res = simulate_free(settings.config(scenario, seed))
     b = cl.free_load_bound(res, mount=True)
     b0 = cl.free_load_bound(res, mount=False)
+    bt = cl.free_load_bound(res, mount=True, tilt=True)     # an estimate with the world tilt: scored against this one
     info = {"scenario": scenario, "seed": seed, "n": len(res.held), "n_held": int(res.held.sum()),
             "crb_dropped_dirs": b.bound.n_dropped, "mount_deg": float(np.degrees(np.linalg.norm(res.truth["mount_rotvec"])))}
     rows = []
@@ -182,7 +196,7 @@ def evaluate(scenario: str, seed: int, settings: LoadAccuracySettings, workdir: 
         info[f"{name}_wall_s"] = est.wall_s
         info[f"{name}_kept"] = est.kept
         errors = payload_errors if res.config.kind == "payload" else urdf_errors
-        rows += errors(scenario, seed, name, est.theta, res, b, b0)
+        rows += errors(scenario, seed, name, est.theta, res, bt if len(est.theta) == len(bt.names) else b, b0)
     return {"rows": rows, "info": info}
 
 

@@ -33,10 +33,12 @@ def nlp_estimate(res, workdir: Path) -> tuple[np.ndarray, float, int]:
 
 
 def estimate_theta(fit) -> np.ndarray:
-    """A ``FreeLoadResult`` in ``crb_loads`` order: payload ``(offset 6, mass, CoM 3, mount rotvec 3)`` (the CoM
-    ``h / m``); URDF load ``(offset 6, per joint group (mass, first moment 3), mount rotvec 3)`` (both group by
-    the nearest movable joint, first moments in the frame of that joint's child link)."""
+    """A ``FreeLoadResult`` in ``crb_loads`` order: payload ``(offset 6, mass, CoM 3[, tilt 2], mount rotvec 3)`` (the
+    CoM ``h / m``); URDF load ``(offset 6, per joint group (mass, first moment 3)[, tilt 2], mount rotvec 3)`` (both
+    group by the nearest movable joint, first moments in the frame of that joint's child link); the world tilt where
+    the fit has it (``crb_loads.TILT_NAMES``)."""
+    tilt = np.zeros(0) if fit.tilt is None else np.asarray(fit.tilt, float)
     if fit.load.kind == "rigid_payload":
         m, h = fit.theta[0], fit.theta[1:4]
-        return np.concatenate([fit.offset, [m], h / m, fit.mount_rotvec])
-    return np.concatenate([fit.offset, fit.theta, fit.mount_rotvec])
+        return np.concatenate([fit.offset, [m], h / m, tilt, fit.mount_rotvec])
+    return np.concatenate([fit.offset, fit.theta, tilt, fit.mount_rotvec])

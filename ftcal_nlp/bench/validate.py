@@ -19,6 +19,8 @@ with the diagnosis on, and score what it says against what a correct diagnosis s
     folds = 5
     workers = 1                # joblib n_jobs (-1: every core; the machine's cores are shared: keep 1-2)
     backend = "loky"           # joblib backend; "loky" = local processes
+    pairs = ["a+b", ...]       # sweep: pairs of library effects injected together (default: those of PAIRS
+                               # whose effects are both in `effects`; [] none)
     n_datasets = 24            # random design only: datasets, share of clean ones, "realistic" | "test"
     clean_share = 0.15
     magnitude = "realistic"
@@ -35,7 +37,8 @@ The sweep (issue 13, item 5) runs (a) ``n_clean`` clean datasets, (b) every libr
 effect at two sizes, (c) every off-face variant at two sizes (effects whose realistic
 range is one value, the all-or-nothing faults and ``moving_com``, run that value twice,
 on two seeds), each on its own seed, and (d) for every dataset of (b) and (c) its clean
-twin: the same seed without the effect. What a correct diagnosis says: the effect's
+twin: the same seed without the effect, and (e) the pairs of ``PAIRS`` (issue 23, item 2), each effect at the
+high end of its realistic range, one dataset each (after the twins; no twin). What a correct diagnosis says: the effect's
 name for library effects; for a variant its ``expect`` (a library effect for a drift or
 casing load of another shape, ``unexplained`` on ``expect_legs`` for a fault outside the
 library, ``none`` for pure measurement noise). An effect outside the library counts as
@@ -44,7 +47,9 @@ scored against the clean twin's noise floor on the recording kind the diagnosis 
 it on (``diagnosis.kinds``): after the named effect, held-out RMS within ``tolerance`` x
 that floor on every component, for each library effect (of either shape) named right.
 ``moving_com`` datasets are exact physics calibrated with the report's fixed-CoM balance
-(eq. 9); every other dataset, twins included, uses the exact balance.
+(eq. 9); every other dataset, twins included, uses the exact balance. A pair is found when both of its effects are
+in the diagnosis' chain (``effects`` of ``diagnosis.json``, ``diagnose/hexchain.py``); a dataset with one library
+effect (of either shape) has a false second when the chain names more than one effect.
 
 Outputs in the output folder: ``validation.md`` (the table of issue 13: what | measured
 | goal), ``datasets.csv`` (one row per run, twins included), ``scores.csv`` (one row
@@ -92,15 +97,23 @@ from ..sim.variants import VARIANTS
 log = logging.getLogger("ftcal_nlp.bench.validate")
 
 DEFAULTS = {"design": "sweep", "seed": 0, "n_clean": 6, "effects": None, "variants": None, "sizes": "realistic",
-            "tolerance": 1.5, "model": "full", "folds": 5, "workers": 1, "backend": "loky",
+            "tolerance": 1.5, "model": "full", "folds": 5, "workers": 1, "backend": "loky", "pairs": None,
             "n_datasets": 24, "clean_share": 0.15, "magnitude": "realistic"}
 SIM_DEFAULTS = {"n_poses": 200, "hanging_cycles": 3.0, "walk_cycles": 1.0}
 DESIGNS = ("sweep", "random")
 RANDOM_KEYS = ("n_datasets", "clean_share", "magnitude")        # design "random" only
-SWEEP_KEYS = ("n_clean", "variants", "sizes", "tolerance")       # design "sweep" only
+SWEEP_KEYS = ("n_clean", "variants", "sizes", "tolerance", "pairs")   # design "sweep" only
 SIZES = ("realistic", "test")
 GOAL_LIBRARY = 0.9     # issue 13: >= 18/20 library effects named right
 GOAL_SHRINKAGE = 0.8   # issue 13: >= 13/16 within the twin's floor
+GOAL_PAIRS = 0.8       # issue 23: two effects injected together both named in >= 80 % of cases
+GOAL_FALSE_SECOND = 0.1   # issue 23: a single effect grows a false second in <= 1 case in 10
+#: the pairs of the sweep (issue 23, item 2): library effects whose faces follow different things, each at the high
+#: end of its realistic range: time / shaft angle, weighed mass / a common tilt, load / pose history, shaft angle /
+#: a cable, time / shaft speed, pose history / mass, load tilt / shaft angle, load nonlinearity / time, a cable / time
+PAIRS = (("offset_drift", "casing_load"), ("robot_mass", "mocap_bias"), ("gain_crosstalk", "hysteresis"),
+         ("casing_load", "tether_force"), ("offset_drift", "leg_inertia"), ("hysteresis", "robot_mass"),
+         ("chassis_flex", "casing_load"), ("sensor_nonlinearity", "offset_drift"), ("tether_force", "offset_drift"))
 COMPONENTS = tuple(WRENCH_COMPONENTS)
 
 
@@ -189,7 +202,33 @@ def sweep_plan(cfg: dict) -> list[dict]:
                 "expect": EXPECT_NONE, "expect_legs": "", "twin": it["index"]}
         it["twin"] = twin["index"]
         items.append(twin)
+    pairs = pair_names(cfg.get("pairs"))
+    if cfg.get("pairs") is None:   # the default pairs among the effects withheld
+        pairs = [p for p in pairs if set(p) <= set(effects)]
+    for a, b in pairs:
+        i = len(items)
+        scales = [float(INJECTORS[n].magnitude.realistic[1]) for n in (a, b)]
+        items.append({"index": i, "seed": base + i, "role": "pair", "effect": f"{a}+{b}", "size": "hi", "scale": None,
+                      "scales": " ".join(f"{v:g}" for v in scales), "expect": f"{a}+{b}", "expect_legs": "", "twin": None})
     return items
+
+
+def pair_names(value) -> list[tuple[str, str]]:
+    """``[validation].pairs`` (``"a+b"`` strings; None: :data:`PAIRS`) as name pairs, checked (hexapod library effects
+    that need no other balance, two different ones)."""
+    if value is None:
+        return list(PAIRS)
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"[validation].pairs: expected a list of \"effect+effect\" strings, got {value!r}")
+    out = []
+    for v in value:
+        pair = tuple(v.split("+"))
+        bad = [n for n in pair if n not in HEXAPOD_EFFECTS or EFFECTS[n].needs_report_balance]
+        if len(pair) != 2 or pair[0] == pair[1] or bad:
+            raise ValueError(f"[validation].pairs: {v!r} is not two different hexapod library effects joined by '+' "
+                             f"(known: {sorted(n for n in HEXAPOD_EFFECTS if not EFFECTS[n].needs_report_balance)})")
+        out.append(pair)
+    return out
 
 
 # ============================================================================= one dataset
@@ -216,6 +255,7 @@ def _diagnosis_fields(d) -> dict:
            "components": " ".join(d.where.get("components", [])), "kind": sh.get("kind"), "kind_key": kind_key,
            "gaps": ";".join(d.gaps), "explains": d.where.get("explains"),
            "best": d.ranking[0]["effect"] if d.ranking else "", "second": d.ranking[1]["effect"] if len(d.ranking) > 1 else "",
+           "effects": " ".join(e["name"] for e in d.effects_list()),
            "rms_ratio_before": float(np.mean(b / f)), "rms_ratio_after": float(np.mean(a / f)),
            "shrinkage_error": float(np.mean(a / f) - 1.0), "kinds_json": json.dumps(kinds),
            "design_tilt_deg": float(np.linalg.norm(design["tilt_deg"])) if design is not None else float("nan"),
@@ -233,6 +273,8 @@ def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
     # an effect whose gap exists only under the report's fixed-CoM balance (moving_com) is exact physics: no injector
     report = lab in EFFECTS and EFFECTS[lab].needs_report_balance
     spec = [] if lab == "none" or report else [{"name": lab, "scale": item["scale"], "seed": item["seed"]}]
+    if item.get("role") == "pair":   # two effects together, each with the dataset's seed
+        spec = [{"name": n, "scale": float(v), "seed": item["seed"]} for n, v in zip(lab.split("+"), str(item["scales"]).split())]
     balance = "report" if report else "exact"
     row = {**item, "balance": balance}
     try:
@@ -369,6 +411,29 @@ def _count(mask) -> tuple[int, int]:
     return int(m.sum()), int(m.size)
 
 
+def _role(rows: pd.DataFrame, role: str) -> pd.DataFrame:
+    return rows[rows["role"] == role] if "role" in rows else rows.iloc[:0]
+
+
+def n_named(row) -> int:
+    """How many effects the diagnosis' chain named (``effects`` column; a failed run: 0)."""
+    e = row.get("effects")
+    return len(str(e).split()) if isinstance(e, str) and row.get("named") != "error" else 0
+
+
+def both_named(row) -> bool:
+    """A pair's effects are both in the chain."""
+    e = row.get("effects")
+    return isinstance(e, str) and row.get("named") != "error" and set(str(row["effect"]).split("+")) <= set(e.split())
+
+
+def single_library(rows: pd.DataFrame) -> pd.DataFrame:
+    """The finished datasets with one library effect (either shape): what a false second is counted on."""
+    if "role" not in rows:
+        return rows.iloc[:0]
+    return rows[rows["role"].isin(["library", "variant"]) & rows["expect"].isin(list(EFFECTS)) & (rows["named"] != "error")]
+
+
 def sweep_summary(rows: pd.DataFrame, scores: pd.DataFrame, wall_s: float, tolerance: float) -> dict:
     """Counts of the sweep (issue 13's table): each ``[right, n]``, plus the misses that explain them."""
     sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "shrink_ok", "effect"])
@@ -390,6 +455,8 @@ def sweep_summary(rows: pd.DataFrame, scores: pd.DataFrame, wall_s: float, toler
         "shrinkage": _count(named_right["shrink_ok"] == True),  # noqa: E712
         "shrinkage_exact_shape": _count(named_right[named_right["role"] == "library"]["shrink_ok"] == True),  # noqa: E712
         "noise_none": _count(noise["named"] == EXPECT_NONE),
+        "pairs": _count([both_named(r) for _, r in _role(rows, "pair").iterrows()]),
+        "false_second": _count([n_named(r) > 1 for _, r in single_library(rows).iterrows()]),
         "finished": _count(rows["named"] != "error"),
         "tolerance": tolerance, "n_runs": len(rows), "wall_time_s": float(wall_s),
         "mean_time_per_run_s": float(rows["time_s"].mean()) if len(rows) else float("nan"),
@@ -486,6 +553,18 @@ def validation_table(rows: pd.DataFrame, scores: pd.DataFrame, summary: dict) ->
                + _shrinkage_detail(named_right, rows))
         add(f"after the named effect, held-out RMS within {tol:g}x the floor of a clean twin, every component", s["shrinkage"], det,
             _goal(s["shrinkage"][1], GOAL_SHRINKAGE))
+    if s.get("pairs", (0, 0))[1]:
+        pr = _role(rows, "pair")
+        miss = [f"{r['effect']}: " + (" then ".join(f"`{n}`" for n in str(r.get("effects") or "").split()) or f"`{r['named']}`")
+                for _, r in pr.iterrows() if not both_named(r)]
+        add("two effects injected together (each at the high end of its realistic range): both named", s["pairs"],
+            "; ".join(miss), f">= {100 * GOAL_PAIRS:.0f}%")
+    if s.get("false_second", (0, 0))[1]:
+        sl = single_library(rows)
+        extra = [f"{r['effect']} {r.get('size') or ''}: " + " then ".join(f"`{n}`" for n in str(r["effects"]).split())
+                 for _, r in sl.iterrows() if n_named(r) > 1]
+        add("one library effect (either shape): a false second named", s["false_second"], "; ".join(extra),
+            f"<= {100 * GOAL_FALSE_SECOND:.0f}%")
     err = rows[rows["named"] == "error"]
     edet = "; ".join(f"{r['effect']} {r.get('size') or ''}: {str(r.get('error', ''))[:80]}" for _, r in err.head(4).iterrows())
     add("runs that finish", s["finished"], edet, _goal(s["finished"][1]))
@@ -551,6 +630,8 @@ def check_config(cfg: dict) -> tuple[dict, dict]:
         raise ValueError(f"[validation].workers: expected a non-zero integer (joblib n_jobs; -1: every core), got {c['workers']!r}")
     if not (isinstance(c["tolerance"], (int, float)) and c["tolerance"] > 0):
         raise ValueError(f"[validation].tolerance: expected a positive factor, got {c['tolerance']!r}")
+    if c["design"] == "sweep":
+        pair_names(c["pairs"])   # bad pairs fail here, naming the key
     if not isinstance(c["backend"], str):
         raise ValueError(f"[validation].backend: expected a joblib backend name such as 'loky' or 'dask', got {c['backend']!r}")
     if not isinstance(c["model"], str):
@@ -591,7 +672,8 @@ def run_items(items: list[dict], c: dict, sim_over: dict, out_dir: str | Path, b
     head = (f"Withheld-effect validation: {summary['n_runs']} runs ({int((rows['role'] == 'twin').sum())} clean twins), "
             f"sizes {c['sizes']}, seed {c['seed']}, simulator {sim_over}; wall time {wall:.0f} s on {c['workers']} worker(s).\n\n")
     scores.to_csv(out / "scores.csv", index=False)
-    M = confusion(rows[rows["role"] != "twin"], ["none"] + list(dict.fromkeys(rows["effect"])))
+    single = rows[~rows["role"].isin(["twin", "pair"])]   # the pairs have their own row of the table
+    M = confusion(single, ["none"] + list(dict.fromkeys(single["effect"])))
     M.to_csv(out / "confusion.csv")
     (out / "confusion.md").write_text(_markdown(M, {}))
     (out / "validation.md").write_text(head + table)

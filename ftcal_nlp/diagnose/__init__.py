@@ -15,8 +15,12 @@ Map of the package (``diagnose(...)``, ``diagnose_run(run)`` in ``core.py`` run 
 * ``perleg.py``: per-leg checks that need no effect library (a free linear map per leg,
   each leg's weight refit on its swing phases).
 * ``joint.py``: the named effect refit with the whole calibration (``calibration_with_effect.json``).
+* ``hexchain.py``: several effects (issue 23): while a gap is left after the joint refit, the remaining candidates
+  are scored with the named effects in the base model (``attribute(..., base_effect=Combined(named))``,
+  ``effects/combined.py``), the best is added when it passes a stated paired fold-wise held-out test, and refit
+  jointly with the named ones; ``effects`` in ``diagnosis.json`` lists the chain.
 * ``result.py``: :class:`DiagnosisResult` (``diagnosis.json`` content, summary); ``report/`` renders it.
-* ``core.py``: ``diagnose`` and ``diagnose_run``: views -> attribution -> localisation -> result.
+* ``core.py``: ``diagnose`` and ``diagnose_run``: views -> attribution -> localisation -> joint refit -> chain -> result.
 
 Free loads (``DATA_FORMAT.md`` section 5: payloads, URDF loads; issue 23), ``diagnose_free(dataset, free_loads)``
 in ``free.py``, which the pipeline runs for them:
@@ -29,9 +33,8 @@ in ``free.py``, which the pipeline runs for them:
   paired block-wise test; the joint refit's parameters with se;
 * ``correlates.py``: where the gap lies: time, each joint angle, motion, the load's history, temperature.
 
-Hexapod datasets keep the single-effect diagnosis above (``effects`` in ``diagnosis.json`` lists that one effect):
-its attribution scores each candidate by an augmented IPOPT problem per recording kind, and a chain there would
-change today's single-effect results.
+On hexapod datasets the first effect is the single-effect diagnosis above, unchanged (its name, parameters and
+joint refit); ``hexchain.py`` looks again only when the joint refit leaves a gap (or a common tilt of the frames).
 
 The candidate effects are not here: each is one unit of :mod:`ftcal_nlp.effects` (its
 injector, model faces and their variants, correction and off-face shapes), read from

@@ -42,7 +42,8 @@ import numpy as np
 
 from ..selection import fold_indices
 from ..effects import Effect, design_check
-from .linear_fit import base_linear, recalibrate, score_linear
+from ..effects.combined import Combined
+from .linear_fit import base_linear, rebase, recalibrate, score_linear
 from .scores import KindScore
 from ..solver import SolverError
 from .standing_fit import AugmentedProblem
@@ -104,7 +105,20 @@ def _kind_score(kind, floor, held_before, held_after, in_before, in_after, dof) 
     s = np.where(floor > 0, floor, 1.0)
     return KindScore(kind, (held_before**2).mean(0), (held_after**2).mean(0), floor,
                      float(((held_before / s) ** 2).sum()), float(((held_after / s) ** 2).sum()),
-                     float(((in_before / s) ** 2).sum()), float(((in_after / s) ** 2).sum()), held_before.size, int(dof))
+                     float(((in_before / s) ** 2).sum()), float(((in_after / s) ** 2).sum()), held_before.size, int(dof),
+                     ((held_before / s) ** 2).sum(1), ((held_after / s) ** 2).sum(1))
+
+
+def _warm_start(prob: AugmentedProblem, x_base: np.ndarray, base: AugmentedProblem) -> np.ndarray:
+    """A start for ``prob`` (the named effects and one more, ``effects/combined.py``) from the fit ``x_base`` of
+    ``base`` (the named effects): the model's and the named faces' values, the new face at its start."""
+    x0 = np.array(prob.x0, float)
+    x0[: prob.n_model] = x_base[: base.n_model]
+    m_face = base.n_eta - (6 if base.effect.shifts_offsets else 0)
+    x0[prob.n_model : prob.n_model + m_face] = x_base[base.n_model : base.n_model + m_face]
+    if base.effect.shifts_offsets:
+        x0[-6:] = x_base[-6:]
+    return x0
 
 
 def rotations_free(problem: AugmentedProblem) -> bool:
@@ -113,8 +127,13 @@ def rotations_free(problem: AugmentedProblem) -> bool:
 
 
 def attribute(views: Views, effects: list[Effect], model, prior, robot, balance: str, *, folds: int, seed: int,
-              x_start: np.ndarray | None = None) -> Attribution:
-    """Score every effect in ``effects`` (module docstring); ``x_start`` the model's fitted x (warm start)."""
+              x_start: np.ndarray | None = None, base_effect: Combined | None = None) -> Attribution:
+    """Score every effect in ``effects`` that has hexapod faces (module docstring); ``x_start`` the model's fitted
+    x (warm start). ``base_effect``: the effects named so far (the chain, ``hexchain.py``): they are part of the
+    base model (standing: its augmented problem; hanging, swing: their faces, cross-validated), each candidate is
+    scored with them (``Combined(named + [candidate])``) against it, and the design check is left out when a named
+    effect has a design face."""
+    effects = hexapod_candidates(effects)
     base: dict = {}
     base_off = None
     sv = views.standing
@@ -122,21 +141,43 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
     held0 = None
     design = None
     fidx = None
+    raw: dict = {}   # the chain's base scores against the model alone (their dof), what candidates are rebased on
+    ref_off = None   # the offsets the swing residuals were computed with (the chain: the model alone's)
     if sv is not None:
-        base_prob = AugmentedProblem(model, prior, robot, balance)
+        base_prob = AugmentedProblem(model, prior, robot, balance, base_effect)
         fidx = fold_indices(sv.P, folds, seed)
         x0 = base_prob.x0 if x_start is None or len(x_start) != base_prob.n_model else x_start
+        if base_effect is not None:
+            x0 = np.concatenate([x0[: base_prob.n_model], base_prob.x0[base_prob.n_model :]])
+            ref_off = AugmentedProblem(model, prior, robot, balance).transforms(x0)[2]
         cv0 = base_prob.cross_validate(sv.data, sv.R_WB, fidx, x0)
         xb, dof_b, held0, in0 = cv0.x, cv0.dof, cv0.held, cv0.r_in
         # the floor is the noise model's (floor.py), never raised from the residual it is compared with
         base["standing"] = _kind_score("standing", sv.floor, held0, held0, in0, in0, 0)
         R_b, _, base_off = base_prob.transforms(xb)
-        if rotations_free(base_prob):
+        if base_effect is None:
+            ref_off = base_off
+        if rotations_free(base_prob) and not (base_effect is not None and base_effect.design_face):
             design = design_check(R_b, robot.nominal_rotations())
-    if views.hanging is not None:
-        base["hanging"] = base_linear(views.hanging)
-    if views.swing is not None:
-        base["walking swing"] = base_linear(views.swing)
+    if base_effect is None:
+        if views.hanging is not None:
+            base["hanging"] = base_linear(views.hanging)
+        if views.swing is not None:
+            base["walking swing"] = base_linear(views.swing)
+    else:
+        if views.hanging is not None:
+            face = base_effect.hanging_features(views.hanging.legs)
+            raw["hanging"] = score_linear(views.hanging, face, folds)[0] if face is not None else None
+            base["hanging"] = _as_base(raw["hanging"]) if face is not None else base_linear(views.hanging)
+        if views.swing is not None:
+            sw_b = recalibrate(views.swing, R_b, base_off, ref_off) if sv is not None else None
+            face = base_effect.swing_features(views.swing.legs if sw_b is None else sw_b.legs)
+            raw["walking swing"] = score_linear(views.swing, face, folds, after=sw_b)[0] if (face is not None or sw_b is not None) else None
+            base["walking swing"] = _as_base(raw["walking swing"]) if raw["walking swing"] is not None else base_linear(views.swing)
+
+    def scored(kind: str, sc: KindScore) -> KindScore:
+        """A candidate's kind score against the base (the chain: against the named effects' faces)."""
+        return rebase(sc, raw[kind]) if raw.get(kind) is not None else sc
 
     def score_one(eff: Effect) -> tuple[EffectScore, np.ndarray | None]:
         t0 = time.perf_counter()
@@ -146,28 +187,32 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
             if sv is not None and eff.needs_report_balance and balance != "report":
                 note = "not applicable: the calibration already uses the exact balance (moving CoMs included)"
             elif sv is not None:
-                prob = AugmentedProblem(model, prior, robot, balance, eff)
+                prob = AugmentedProblem(model, prior, robot, balance, eff if base_effect is None else Combined(base_effect.members + (eff,)))
                 if prob.n_eta > 0 or prob.balance != balance:
-                    x0 = np.concatenate([xb, prob.x0[prob.n_model :]])
+                    x0 = np.concatenate([xb, prob.x0[prob.n_model :]]) if base_effect is None else _warm_start(prob, xb, base_prob)
                     cv = prob.cross_validate(sv.data, sv.R_WB, fidx, x0)
                     x, dof, held, r_in = cv.x, cv.dof, cv.held, cv.r_in
                     kinds["standing"] = _kind_score("standing", sv.floor, held0, held, in0, r_in, dof - dof_b)
                     fit = prob.result(x, prob.design(sv.data))
                     R_e, _, off_e = prob.transforms(x)
                     recal = (R_e, off_e)
+            both = eff if base_effect is None else Combined(base_effect.members + (eff,))
             if views.hanging is not None:
                 face = eff.hanging_features(views.hanging.legs)
                 if face is not None:
-                    kinds["hanging"], _ = score_linear(views.hanging, face, folds)
+                    kinds["hanging"] = scored("hanging", score_linear(views.hanging, both.hanging_features(views.hanging.legs)
+                                                                      if base_effect is not None else face, folds)[0])
             if views.swing is not None:
                 # The swing legs' weights are predicted with the calibration's rotations: with the
                 # effect added to the standing fit they move, and the swing residual with them.
                 sw_after = None
                 if recal is not None:
-                    sw_after = recalibrate(views.swing, recal[0], recal[1], base_off)
+                    sw_after = recalibrate(views.swing, recal[0], recal[1], ref_off)
                 face = eff.swing_features(views.swing.legs if sw_after is None else sw_after.legs)
                 if face is not None or sw_after is not None:
-                    kinds["walking swing"], _ = score_linear(views.swing, face, folds, after=sw_after)
+                    if base_effect is not None:
+                        face = both.swing_features(views.swing.legs if sw_after is None else sw_after.legs)
+                    kinds["walking swing"] = scored("walking swing", score_linear(views.swing, face, folds, after=sw_after)[0])
         except SolverError as exc:
             status = f"failed: {exc.status}"
             log.warning("diagnosis: %s", exc)
@@ -192,6 +237,18 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
     att = Attribution(base, scores, design, held0, after, getattr(base_prob.model, "name", str(model)) if base_prob else str(model),
                       balance, views, fidx or [])
     return replace(att, scores=ranked(att))
+
+
+def _as_base(sc: KindScore) -> KindScore:
+    """What the named effects' faces leave (``sc``'s after) as a base score: nothing added to it."""
+    return KindScore(sc.kind, sc.mse_after, sc.mse_after, sc.floor, sc.z_after, sc.z_after, sc.rss_after, sc.rss_after, sc.n, 0,
+                     sc.blocks_after, sc.blocks_after)
+
+
+def hexapod_candidates(effects: list[Effect]) -> list[Effect]:
+    """The candidates a hexapod dataset can be diagnosed with: the units whose ``diagnosed_on`` holds "hexapod" (a
+    free-load-only unit has no standing, hanging or swing face; it is not a candidate here, not a row of the ranking)."""
+    return [e for e in effects if "hexapod" in e.diagnosed_on]
 
 
 def ranking_bic(score: EffectScore, gap: dict) -> float:

@@ -33,6 +33,7 @@ from .attribute import (
     gap_threshold,
     ranking_bic,
 )
+from .hexchain import run_chain
 from .joint import joint_refit
 from .perleg import perleg_checks
 from .localise import (
@@ -151,6 +152,12 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
             jk = joint.kinds.get(primary)
             if jk is not None:  # how far it shrinks: the joint model's held-out residual (module joint.py)
                 before, after = jk.rms_before, jk.rms_after
+    chain = None
+    if joint is not None:   # several effects: look again while a gap is left (hexchain.py)
+        chain = run_chain(views, att, by_name[effect].model_effect or resolve_effects([effect], registry)[0], joint, effects, model,
+                          prior, calibration, robot, balance, primary, folds=s.folds, seed=s.seed, x_start=x_start)
+        if chain.links and primary in chain.links[-1].joint.kinds:   # the shrinkage: after every named effect
+            after = chain.links[-1].joint.kinds[primary].rms_after
     shrink = {"heldout_rms_before": before, "heldout_rms_after": after, "noise_floor": floor, "kind": KIND_NAMES.get(primary, primary),
               "kind_key": primary}
     ranking = []
@@ -161,11 +168,12 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
                         "variant": dict(sc.model_effect.variant) if sc.model_effect is not None else {}})
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
-    statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + list(evidence_notes)
+    statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + _chain_statement(chain, shrink) + list(evidence_notes)
     effect_fit = by_name[effect].fit if verdict == "effect" else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
                            str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit, perleg,
-                           views.standing.floor_parts.get("noise_model") if views.standing is not None else None, joint)
+                           views.standing.floor_parts.get("noise_model") if views.standing is not None else None, joint,
+                           chain=chain)
 
 
 PRIORITY = ("standing", "hanging", "walking swing")
@@ -260,6 +268,20 @@ def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[s
                                                                          for r in good[:4]) + ".")
         if verdict == "effect" and len(good) > 1 and good[1]["explained"] >= 0.5 and good[1]["delta_bic"] - good[0]["delta_bic"] < 0.05 * abs(good[0]["delta_bic"]):
             out.append(f"{good[0]['effect']} and {good[1]['effect']} explain this gap almost equally well here; they are confusable on these recordings.")
+    return out
+
+
+def _chain_statement(chain, shrink) -> list[str]:
+    """The links after the first and why the chain stopped (when it looked again)."""
+    if chain is None or not chain.rounds:
+        return []
+    out = []
+    for link in chain.links:
+        a = np.asarray(link.rms_after, float)
+        out.append(f"Then {link.name}: refit with the effects before it, the held-out {shrink['kind']} RMS is "
+                   + " ".join(f"{v:.3g}" for v in a) + f" (paired block-wise z {link.z:.1f} on the {link.kind} recordings; "
+                   f"it removes {100 * link.explained:.0f} % of the excess the effects before it left).")
+    out.append(f"The chain of effects stopped: {chain.stop}.")
     return out
 
 

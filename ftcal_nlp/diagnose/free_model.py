@@ -4,9 +4,13 @@ noise floor from held, still stretches of the readings.
 * :func:`context_for`: a :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` of one transducer over every
   ``hanging`` recording in which its load hangs free, ALL samples (moving ones included; samples whose gravity
   direction is unknown, orientation not tracked, are left out and counted);
-* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), r (3)]`` with
-  ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``):
-  offsets the identity, ``theta`` exact (the model is linear in it), ``r`` to first order (closed form);
+* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), tilts (2 each), r (3)]``
+  (the world tilt of the orientation stream and each ``gravity_body``-only recording's tilt, where the fit has them)
+  with ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``,
+  ``b = A_n u(tilt)``, ``A_n = g R_nom^T F_n``, ``F_n = R_WB^T`` for an orientation stream, the frame of the
+  recording's nominal gravity for ``gravity_body`` (``problem.gravity_frame``), ``u = R_y(ty) R_x(tx) (0, 0, -1)``):
+  offsets the identity, ``theta`` exact (the model is linear in it), the tilts and ``r`` to first order (closed
+  form; a tilt's columns are zero on the samples of other groups);
 * :func:`hold_floor`: the readings' noise sd per channel from held, still stretches: within every window of
   ``FLOOR_WINDOW_S`` (at least ``FLOOR_MIN_SAMPLES`` samples) of a quasi-static hold, the scatter about the
   window's own mean and slope (what no model of a free load can explain: a creep or drift is smooth over the
@@ -21,8 +25,8 @@ import numpy as np
 
 from ..data import Dataset
 from ..effects.free_faces import FreeLoadContext, make_context
-from ..freeload.problem import predict
-from ..geometry import skew
+from ..freeload.problem import gravity_frame, predict, tilt_gravity
+from ..geometry import quat_to_rotation, skew
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
 FLOOR_WINDOW_S = 0.5
@@ -59,14 +63,26 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
         used = fit.used.get(rec.name)
         still = used[ok] if used is not None and len(used) == rec.n else None
         temp = rec.temperature.get(leg)   # the optional {leg}_temp_C / temp_C column (docs/proposals/temperature.md)
-        parts.append(dict(t=rec.t[ok], y=rec.wrench[leg][ok], gB=g * grav[ok], q=q, still=still, index=np.flatnonzero(ok),
+        # the frame the sample's gravity is tilted in and the fit's tilt block (freeload.estimate.free_load_data)
+        if rec.quat is not None:
+            F, block = np.swapaxes(quat_to_rotation(rec.quat[ok]), 1, 2), ("world" if fit.tilt is not None else None)
+        elif rec.gravity is not None:
+            F, block = gravity_frame(grav[ok]), None
+        else:
+            F = np.broadcast_to(gravity_frame(grav[:1])[0], (int(ok.sum()), 3, 3))
+            block = rec.name if rec.name in getattr(fit, "recording_tilts", {}) else None
+        blocks = (["world"] if fit.tilt is not None else []) + list(getattr(fit, "recording_tilts", {}))
+        tilt = np.zeros(2) if block is None else (fit.tilt if block == "world" else fit.recording_tilts[block])
+        parts.append(dict(t=rec.t[ok], y=rec.wrench[leg][ok], gB=g * F @ tilt_gravity(tilt), q=q, still=still,
+                          index=np.flatnonzero(ok), F=F, block=np.full(int(ok.sum()), -1 if block is None else blocks.index(block)),
                           rec=np.full(int(ok.sum()), i), quat=None if rec.quat is None else rec.quat[ok],
                           temp=None if temp is None else np.asarray(temp, float)[ok]))
     cat = lambda k: np.concatenate([p[k] for p in parts])  # noqa: E731
     n = sum(len(p["t"]) for p in parts)
     q = {j: np.concatenate([p["q"][j] for p in parts]) for j in joints}
-    g_B = cat("gB")
+    g_B = cat("gB")                                      # with the fit's tilts: g F_n u(tilt of the sample's group)
     R_nom = load.nominal_rotation(q, n)
+    a = g * np.einsum("nji,njk->nik", R_nom, cat("F"))     # b = a u (freeload docstring)
     b = np.einsum("nji,nj->ni", R_nom, g_B)
     K = load.lever(q, n)
     pred = predict(b, K, fit.theta, load.mass_row, fit.rotation, fit.offset)
@@ -80,6 +96,7 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
                        index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation)
     pos = ds.robot.transducers[leg].position_m
     ctx.extra.update(b=b, K=K, **({} if pos is None else {"position_m": np.asarray(pos, float)}))  # inertial_load's O in B
+    ctx.extra.update(a=a, tilt_block=cat("block"))         # b = a u(tilt of block), the tilts' columns
     return ctx, notes
 
 
@@ -87,7 +104,9 @@ def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ..
     """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``. In closed form (no call of
     ``predict``): with ``g = E^T b`` and ``s = K theta``, ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``;
     ``E expm([r]x)`` turns ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and
-    ``d t / d r = [s]x [g]x``. Blocks are written whole (a column at a time into the last axis is strided)."""
+    ``d t / d r = [s]x [g]x``; with the world tilt (``ctx.extra["a"]``) ``d g / d tilt_k = E^T A_n du/dtilt_k``,
+    ``d f / d tilt_k = (mu.theta) dg``, ``d t / d tilt_k = s x dg``. Blocks are written whole (a column at a time
+    into the last axis is strided)."""
     b, K = ctx.extra["b"], ctx.extra["K"]
     load, E = fit.load, fit.rotation
     mu = np.asarray(load.mass_row, float)
@@ -98,13 +117,29 @@ def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ..
     Kn = K if K.ndim == 3 else np.broadcast_to(K, (n,) + K.shape)
     s = Kn @ theta                                               # (N, 3) first moment in ft
     Sg = skew(g)
-    J = np.zeros((n, 6, 6 + p + 3))
+    tilts = ([] if getattr(fit, "tilt", None) is None else [fit.tilt]) + list(getattr(fit, "recording_tilts", {}).values())
+    nt = 2 * len(tilts)
+    J = np.zeros((n, 6, 6 + p + nt + 3))
     J[:, np.arange(6), np.arange(6)] = 1.0
     J[:, :3, 6:6 + p] = g[:, :, None] * mu[None, None, :]
     J[:, 3:, 6:6 + p] = np.cross(Kn, g[:, :, None], axis=1)
-    J[:, :3, 6 + p:] = float(mu @ theta) * Sg
-    J[:, 3:, 6 + p:] = skew(s) @ Sg
+    for k, tilt in enumerate(tilts):   # each tilt moves the samples of its group only
+        m = ctx.extra["tilt_block"] == k
+        dg = np.einsum("nik,kt,ij->njt", ctx.extra["a"][m], tilt_derivative(tilt), E)     # (n_k, 3, 2): E^T A_n du/dtilt
+        c = 6 + p + 2 * k
+        J[m, :3, c:c + 2] = float(mu @ theta) * dg
+        J[m, 3:, c:c + 2] = np.cross(s[m][:, :, None], dg, axis=1)
+    J[:, :3, 6 + p + nt:] = float(mu @ theta) * Sg
+    J[:, 3:, 6 + p + nt:] = skew(s) @ Sg
     return J, tuple(fit.names)
+
+
+def tilt_derivative(tilt: np.ndarray) -> np.ndarray:
+    """``d u / d tilt`` (3, 2) of ``u = freeload.problem.tilt_gravity(tilt)``."""
+    al, be = float(tilt[0]), float(tilt[1])
+    return np.array([[np.sin(al) * np.sin(be), -np.cos(al) * np.cos(be)],
+                     [np.cos(al), 0.0],
+                     [np.sin(al) * np.cos(be), np.cos(al) * np.sin(be)]])
 
 
 def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:

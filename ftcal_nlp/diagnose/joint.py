@@ -225,7 +225,7 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     J = [hanging_nuisance(l, n_rec) for l in legs]
     qn = J[0][0].shape[2]
     q = face.blocks[0].shape[2] if face is not None else 0
-    m_eff = (K * q if face.per_leg else q) if face is not None else 0
+    m_eff = face.size(K) if face is not None else 0
     n_tot = K * qn + m_eff
     A = np.zeros((folds, n_tot, n_tot))
     b = np.zeros((folds, n_tot))
@@ -235,8 +235,11 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
         idx = list(range(l.k * qn, (l.k + 1) * qn))
         if with_effect and face is not None:
             X = np.concatenate([X, face.blocks[i]], axis=2)
-            off = K * qn + (l.k * q if face.per_leg else 0)
-            idx += list(range(off, off + q))
+            if face.cols is not None:   # stacked faces (``LinearFace.cols``)
+                idx += list(K * qn + face.index(i, l.k))
+            else:
+                off = K * qn + (l.k * q if face.per_leg else 0)
+                idx += list(range(off, off + q))
         idx = np.asarray(idx)
         s = fl[l.k]
         Xs, ys = X / s[None, :, None], l.e / s[None, :]
@@ -458,8 +461,8 @@ def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calib
         q = face.blocks[0].shape[2]
         base = score_linear(series, None, folds)[0]
         ss = np.zeros(6)
-        for l, X in zip(after.legs, face.blocks):
-            b = beta[l.k * q : (l.k + 1) * q] if face.per_leg else beta
+        for i, (l, X) in enumerate(zip(after.legs, face.blocks)):
+            b = beta[face.index(i, l.k)] if face.cols is not None else (beta[l.k * q : (l.k + 1) * q] if face.per_leg else beta)
             ss += ((l.e - X @ b) ** 2).sum(axis=0)
         return KindRefit(series.kind, np.sqrt(base.mse_before), np.sqrt(ss / series.n), base.floor, series.n)
     sc, _ = score_linear(series, face, folds, after=after)

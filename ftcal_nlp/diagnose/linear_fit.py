@@ -80,7 +80,7 @@ def score_linear(series: LegSeries, face: LinearFace | None, folds: int, after: 
     if face is None:
         face = LinearFace([np.zeros((len(l.t), 6, 1)) for l in after.legs], (), False)
     q = face.blocks[0].shape[2]
-    m = K * q if face.per_leg else q
+    m = face.size(K)
     fidx = time_folds(series, folds)
     sig = _std(series)
     nl = len(series.legs)
@@ -88,7 +88,9 @@ def score_linear(series: LegSeries, face: LinearFace | None, folds: int, after: 
     b = np.zeros((folds, nl, 6, m))
     yy = np.zeros((folds, nl, 6))
     for i, (l, X, s, fi) in enumerate(zip(after.legs, face.blocks, sig, fidx)):
-        sl = slice(l.k * q, (l.k + 1) * q) if face.per_leg else slice(0, q)
+        # stacked faces (``LinearFace.cols``) place the block's columns by index, one face by its layout
+        sl = face.index(i, l.k) if face.cols is not None else (slice(l.k * q, (l.k + 1) * q) if face.per_leg else slice(0, q))
+        ix = np.ix_(sl, sl) if face.cols is not None else (sl, sl)
         Xs = X / s[None, :, None]
         ys = l.e / s[None, :]
         for f in range(folds):
@@ -96,18 +98,20 @@ def score_linear(series: LegSeries, face: LinearFace | None, folds: int, after: 
             if not sel.any():
                 continue
             Xf, yf = Xs[sel], ys[sel]
-            A[f, i, :, sl, sl] = np.einsum("nca,ncb->cab", Xf, Xf)
-            b[f, i, :, sl] = np.einsum("nca,nc->ca", Xf, yf)
+            A[f, i][(slice(None), *ix)] = np.einsum("nca,ncb->cab", Xf, Xf)
+            b[f, i][:, sl] = np.einsum("nca,nc->ca", Xf, yf)
             yy[f, i] = (yf**2).sum(axis=0)
     A_tot, b_tot = A.sum(axis=(0, 1, 2)), b.sum(axis=(0, 1, 2))
     reg = RIDGE * max(np.trace(A_tot) / m, 1e-300) * np.eye(m) + (1e-300 if np.trace(A_tot) > 0 else 1.0) * np.eye(m)
     ss_phys = np.zeros(6)
     z_after = 0.0
+    blocks = np.zeros((folds, nl))
     for f in range(folds):
         Af, bf = A[f].sum(axis=(0, 1)), b[f].sum(axis=(0, 1))
         beta = np.linalg.solve(A_tot - Af + reg, b_tot - bf)
         ss = yy[f] - 2 * np.einsum("icm,m->ic", b[f], beta) + np.einsum("m,icmn,n->ic", beta, A[f], beta)  # (nl, 6)
         z_after += float(ss.sum())
+        blocks[f] = ss.sum(axis=1)
         for i, s in enumerate(sig):
             ss_phys += ss[i] * s**2
     beta_all = np.linalg.solve(A_tot + reg, b_tot)
@@ -117,8 +121,15 @@ def score_linear(series: LegSeries, face: LinearFace | None, folds: int, after: 
     n_all = series.n
     rss_before = float(sum(((l.e / s) ** 2).sum() for l, s in zip(series.legs, sig)))
     score = KindScore(series.kind, base.mse_before, ss_phys / n_all, base.floor, base.z_before, z_after, rss_before,
-                      rss_after, base.n, dof)
+                      rss_after, base.n, dof, None, blocks.ravel())
     return score, beta_all
+
+
+def rebase(score: KindScore, base: KindScore) -> KindScore:
+    """``score`` (a face stacked on ``base``'s, both against the fitted model alone) against ``base``: before is
+    what ``base`` leaves held out (and in sample), the dof those the stacked face adds (the chain, ``hexchain.py``)."""
+    return KindScore(score.kind, base.mse_after, score.mse_after, score.floor, base.z_after, score.z_after, base.rss_after,
+                     score.rss_after, score.n, score.dof - base.dof, base.blocks_after, score.blocks_after)
 
 
 def recalibrate(series: LegSeries, R_new: np.ndarray, off_new: np.ndarray | None, off_old: np.ndarray | None,

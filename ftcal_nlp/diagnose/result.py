@@ -53,6 +53,7 @@ class DiagnosisResult:
     joint: Any = None       # the joint refit with the named effect (joint.JointRefit) or None
     effects: list | None = None  # the chain of named effects (free loads, ``chain.py``); None: the single named effect
     free: dict | None = None     # free loads: transducer -> free.FreeLegDiagnosis
+    chain: Any = None            # hexapods: the links after the first effect (hexchain.HexChain) or None
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:
@@ -111,14 +112,18 @@ class DiagnosisResult:
                                      for f in self.perleg.findings]
         if self.joint is not None:
             out["joint_refit"] = self.joint.to_json_dict()
+        if self.chain is not None:
+            out["chain"] = self.chain.to_json_dict()
         if self.notes:
             out["notes"] = list(self.notes)
         return out
 
     def effects_list(self) -> list[dict]:
         """``effects`` of ``diagnosis.json``: the chain in the order the effects were added, each with its parameters
-        (value, se) and the held-out RMS after it. Hexapod datasets name one effect (the single-effect diagnosis):
-        its entry carries the standing face's parameters (or the joint refit's) and the shrinkage's held-out RMS."""
+        (value, se) and the held-out RMS after it. Hexapod datasets: the first is the single-effect diagnosis' (the
+        standing face's parameters, the held-out RMS after its joint refit on the shrinkage's kind); the links the
+        chain added after it (``hexchain.py``) carry the joint refit of every effect named so far: the link's own
+        parameters, the held-out RMS after it, the paired z and the share of the excess it removed."""
         if self.effects is not None:
             return list(self.effects)
         if self.effect is None:
@@ -127,8 +132,17 @@ class DiagnosisResult:
         if self.effect_fit is not None:
             p, se = self.effect_fit.effect_params, self.effect_fit.effect_bse
             pars = {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, v, e in zip(p.index, p, se)}
-        return [{"name": self.effect, "parameters": pars, "heldout_rms_after": _lst(self.shrinkage["heldout_rms_after"]),
-                 "explains": self.where.get("explains")}]
+        links = self.chain.links if self.chain is not None else []
+        first_after = self.shrinkage["heldout_rms_after"]
+        if links and self.joint is not None and self.shrinkage.get("kind_key") in self.joint.kinds:
+            first_after = self.joint.kinds[self.shrinkage["kind_key"]].rms_after   # the shrinkage is the chain's end
+        out = [{"name": self.effect, "parameters": pars, "heldout_rms_after": _lst(first_after), "explains": self.where.get("explains")}]
+        for link in links:
+            out.append({"name": link.name, "variant": dict(link.unit.variant),
+                        "parameters": {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in link.parameters.items()},
+                        "heldout_rms_after": _lst(link.rms_after), "explains": link.unit.explains, "kind": link.kind,
+                        "paired_z": float(link.z) if np.isfinite(link.z) else None, "explained": float(link.explained)})
+        return out
 
     def summary(self) -> str:
         """A short terminal summary."""

@@ -37,6 +37,10 @@ class KindScore:
     rss_after: float
     n: int
     dof: int
+    # held-out sums of squares in floor units per block (standing: per pose; hanging, swing: per fold and leg),
+    # without / with the effect: what the chain's paired test compares (``hexchain.py``); None: not kept
+    blocks_before: np.ndarray | None = None
+    blocks_after: np.ndarray | None = None
 
     @property
     def delta_bic(self) -> float:

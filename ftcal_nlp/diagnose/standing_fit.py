@@ -156,7 +156,8 @@ class AugmentedProblem:
     @property
     def solver(self):
         if self._solver is None:
-            self._solver = ipopt(f"diag_{self.name}_{self.balance}", self._nlp)
+            # (several effects, ``effects/combined.py``: "a+b" is no CasADi function name)
+            self._solver = ipopt(f"diag_{self.name.replace('+', '_and_')}_{self.balance}", self._nlp)
         return self._solver
 
     def fit(self, Phi: np.ndarray, weights: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:

@@ -20,6 +20,8 @@ Modules:
   effect's correction (its standing face evaluated on samples).
 * ``free_faces.py``: the free-load face protocol (issue 23): :class:`FreeLoadContext`,
   :class:`FreeFace`, :func:`make_context`; units declare ``free_shapes``/``free_face``/``free_correct``.
+* ``combined.py``: :class:`~.combined.Combined`, several units as one augmentation (the hexapod chain of
+  effects, issue 23: standing corrections added, linear faces stacked, :func:`.faces.stack_faces`).
 * ``registry.py``: ``LIBRARY_EFFECTS``, :data:`EFFECTS`, :func:`resolve_effects`,
   :func:`with_units` (a copy with a toy effect added), :func:`injector_classes`.
 * the units: ``offset_drift``, ``gain_crosstalk``, ``casing_load``, ``mocap_bias``,

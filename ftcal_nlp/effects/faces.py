@@ -189,11 +189,47 @@ class HangingLeg:
 @dataclass(frozen=True)
 class LinearFace:
     """Features of a linear face: ``blocks[i]`` (N_i, 6, q) for ``legs[i]``; ``per_leg``: each
-    leg has its own q parameters (m = K q), else the q parameters are shared (m = q)."""
+    leg has its own q parameters (m = K q), else the q parameters are shared (m = q). ``cols``: several
+    faces stacked (:func:`stack_faces`): per block the indices (q,) of its columns in the parameter vector
+    (``len(names)`` parameters); None: the layout ``per_leg`` says."""
 
     blocks: list
     names: tuple
     per_leg: bool
+    cols: tuple | None = None
+
+    def size(self, K: int) -> int:
+        """The number of parameters with ``K`` legs."""
+        q = self.blocks[0].shape[2]
+        return len(self.names) if self.cols is not None else (K * q if self.per_leg else q)
+
+    def index(self, i: int, k: int) -> np.ndarray:
+        """The parameter indices (q,) of ``blocks[i]``'s columns, the block of leg index ``k``."""
+        if self.cols is not None:
+            return np.asarray(self.cols[i], int)
+        q = self.blocks[0].shape[2]
+        return np.arange(k * q, (k + 1) * q) if self.per_leg else np.arange(q)
+
+
+def stack_faces(faces: list[tuple[str, LinearFace]], legs: list[HangingLeg]) -> LinearFace | None:
+    """Several linear faces of the same ``legs`` as one (``(prefix, face)``, None faces left out): per leg the
+    blocks side by side, each face's parameters after the previous ones' (names ``prefix:name``); None when no face
+    is left."""
+    faces = [(p, f) for p, f in faces if f is not None]
+    if not faces:
+        return None
+    K = max(l.k for l in legs) + 1 if legs else 0
+    blocks, cols, names, off = [], [[] for _ in legs], [], 0
+    for p, f in faces:
+        if len(f.names) != f.size(K):
+            raise ValueError(f"face {p!r}: {len(f.names)} names for {f.size(K)} parameters")
+        for i, l in enumerate(legs):
+            cols[i].append(off + f.index(i, l.k))
+        names += [f"{p}:{n}" for n in f.names]
+        off += f.size(K)
+    for i in range(len(legs)):
+        blocks.append(np.concatenate([f.blocks[i] for _, f in faces], axis=2))
+    return LinearFace(blocks, tuple(names), False, tuple(np.concatenate(c) for c in cols))
 
 
 def per_leg_face(legs: list[HangingLeg], make, labels) -> LinearFace:

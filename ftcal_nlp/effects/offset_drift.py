@@ -134,6 +134,7 @@ class OffsetDrift(Effect):
     kind = "sensor"
     injector_cls = OffsetDriftInjector
     applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
+    diagnosed_on = frozenset({"hexapod", "free"})   # hexapod faces and a free-load face (``free_face``)
     shapes = (OffsetDriftRampInjector, OffsetDriftStepInjector, OffsetDriftFastInjector)
     shifts_offsets = True
     DEGREES = (1, 2, 4)   # the smooth time bases tried (attribution keeps the best held-out)

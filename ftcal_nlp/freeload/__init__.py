@@ -9,8 +9,9 @@ API (the result object other modules build on):
   ``conf_int()``, ``summary()``), ``identifiability()`` (what the data leave undetermined, which
   combinations they determine), ``load_report()`` (the ``calibration.json`` keys of the load),
   ``predict(gravity_B, q)`` / ``predict_recording(rec, g)`` (model readings of any sample), ``offset``,
-  ``theta``, ``rotation`` (``E``), ``sigma``, ``rms``, ``selection`` (kept / dropped per recording, thresholds),
-  ``used`` (recording -> boolean mask of the samples the fit used).
+  ``theta``, ``rotation`` (``E``), ``tilt`` (the world tilt), ``recording_tilts`` (recording -> tilt), ``sigma``,
+  ``rms``, ``selection`` (kept / dropped per recording, thresholds), ``used`` (recording -> boolean mask of the
+  samples the fit used).
 
 Modules: ``quasistatic`` (sample selection), ``problem`` (data, exact compression), ``nlp`` (CasADi/IPOPT),
 ``estimate`` (the fit), ``result`` (results protocol).
@@ -21,7 +22,7 @@ angles), ``E`` the mounting rotation (``R_true = R_nom E``, exact SO(3)), ``thet
 (mass and first moment per rigid group: linear in the readings). Steps:
 
 1. quasi-static samples of each recording in which the load hangs free (``quasistatic.py``; counts logged);
-2. the exact compression of the samples into channel moments (``problem.py``: no loop over samples);
+2. the exact compression of the samples into channel moments (``problem.py``: no loop over samples), per tilt group;
 3. a start by linear least squares with ``E = I``; then the NLP with exact SO(3) (``nlp.py``), weighted by
    the readings' noise (first differences), re-weighted once by the residual sd per channel; what the data
    leave undetermined stays at the load's prior (the URDF's values; ``E = I``), nothing else does;
@@ -33,17 +34,34 @@ angles), ``E`` the mounting rotation (``R_true = R_nom E``, exact SO(3)), ``thet
    parameters they touch given with se (reduced row echelon form: for ``shared/sample_urdf`` the total mass,
    the sum of the three bodies' y first moments, ...).
 
-World tilt (``FreeLoadSettings.gravity_tilt``, off by default): a tilt ``R_t = R_y(ty) R_x(tx)`` of the orientation
+World tilt (``FreeLoadSettings.gravity_tilt``, on by default): a tilt ``R_t = R_y(ty) R_x(tx)`` of the orientation
 stream's world (a turn about vertical is unobservable) gives gravity in ft ``E^T R_nom^T R_WB^T u``,
 ``u = R_t (0, 0, -1)``: it sits on the world side of the varying ``R_WB``, so it is NOT a mounting rotation, and is
-separable from ``E`` whenever the orientations are not all about one axis (else ``identifiability()`` names
-``tilt.rx``/``tilt.ry``). With ``b_n = A_n u`` (``A_n = g R_nom^T R_WB^T``) every feature is linear in ``u``: the
-lifted vector ``[w_o; u (x) z_r]`` (``problem.compress_tilted``) keeps the compression exact for any tilt. It is
-estimated (parameters ``{leg}.tilt.rx, .ry`` in rad, between the load's and the mount's) when every recording gives
-the orientation per sample (quaternions); a 1 deg / 0.5 deg tilt left out biases the fit beyond 4 se
-(``tests/test_freeload_tilt.py``). Off by default until the modules that take the parameter vector (diagnosis
-faces, uncertainty, correct) accept the two columns. Recordings that give gravity by ``gravity_body`` only (the
-hexapod model has a tilt per such recording) are taken as exact; a note says so.
+separable from ``E`` whenever the orientations are not all about one axis. With ``b_n = A_n u`` (``A_n = g R_nom^T
+R_WB^T``) every feature is linear in ``u``: the lifted vector ``[w_o; u (x) z_r]`` (``problem.compress_tilted``)
+keeps the compression exact for any tilt. Estimated (parameters ``{leg}.tilt.rx, .ry`` in rad, between the load's
+and the mount's; ``calibration.json`` ``gravity_tilt_rad``) from the recordings that give the orientation per sample
+(quaternions); where gravity spans fewer than three directions in ft (or the eigen-analysis finds the tilt in an
+undetermined direction) it is held at 0, named undetermined (se inf) with a note. A 1 deg / 0.5 deg tilt left out
+biases the fit beyond 4 se (``tests/test_freeload_tilt.py``). ``correct`` and ``export`` apply it to ``qw..qz``
+(not to ``gx..gz``: an accelerometer's gravity), ``plan`` and the accuracy bench bound it.
+
+Tilt per recording (``FreeLoadSettings.recording_tilt``, ``"auto"`` by default; the hexapod model's hanging
+misalignment per orientation): a recording that gives gravity by ``gravity_body`` only has ``b_n = g R_nom^T F_r
+u_r``, ``F_r`` a frame whose ``(0, 0, -1)`` is the nominal direction (``problem.gravity_frame``), ``u_r =
+R_y(ty) R_x(tx) (0, 0, -1)``: two parameters ``{leg}.{recording}.tilt.rx, .ry`` (``recording_tilt_rad``) and the
+same exact lifting, one ``u_r`` block per recording: the samples are compressed per tilt group (the world's, each
+such recording's, the ``gx..gz`` recordings' fixed one) and the NLP sums the groups' squares
+(``nlp.FreeLoadNLP``, ``G`` groups). For one transducer whose every gravity direction comes from ``gravity_body``,
+the tilts and the mounting rotation absorb one another (each recording's gravity in ft is free; the same holds for
+several transducers fitted apart, and would hold for a joint fit up to a common turn of the body): ``"auto"`` finds
+the undetermined directions only the tilts create (``estimate._recording_tilts_held``), holds those recordings'
+tilts at 0 (taken as exact, not reported) and says so in a note naming them. They are determined where something
+else fixes the mount (a recording with the orientation per sample or ``gx..gz``, or ``mount_rotation = false``):
+then a 0.5-1 deg tilt per recording is recovered within 4 se and leaving it out biases
+the fit beyond 4 se (``tests/test_freeload_recording_tilt.py``). ``true`` estimates them regardless (the gauge then
+named undetermined), ``false`` takes them as exact with a note. Each transducer is fitted on its own: the tilt of a
+recording two transducers share is estimated by each.
 """
 
 from __future__ import annotations

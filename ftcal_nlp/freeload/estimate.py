@@ -17,8 +17,8 @@ from ..loads import load_for
 from ..settings import FreeLoadSettings
 from ..solver import identifiability
 from .nlp import nlp_for
-from .problem import (FreeLoadData, compress, compress_tilted, difference_noise, n_lifted, predict, serial_inflation,
-                      tilt_gravity)
+from .problem import (FreeLoadData, compress, compress_tilted, difference_noise, gravity_frame, n_lifted, predict,
+                      serial_inflation, tilt_gravity)
 from .quasistatic import select_quasi_static
 from .result import WRENCH, FreeLoadResult, FreeLoadResults
 
@@ -54,8 +54,14 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
         masks[rec.name] = m
         ys.append(rec.wrench[leg][m])
         gs.append(g * grav[m])
-        # the orientation R_WB (as the stream gives it) where the recording has it: a world tilt acts through it
-        Rw.append(None if rec.quat is None else quat_to_rotation(rec.quat[m]))
+        # the frame gravity is tilted in: R_WB^T (the stream's world) where the recording has the orientation; a frame
+        # of its nominal direction for gravity_body only (a tilt per recording); gx..gz: no tilt (fixed)
+        if rec.quat is not None:
+            Rw.append(("world", "", np.swapaxes(quat_to_rotation(rec.quat[m]), 1, 2)))
+        elif rec.gravity is not None:
+            Rw.append(("fixed", "", gravity_frame(grav[m])))
+        else:
+            Rw.append(("recording", rec.name, np.broadcast_to(gravity_frame(grav[:1])[0], (int(m.sum()), 3, 3))))
         qs.append({j: rec.q[j][m] if j in rec.q else np.zeros(int(m.sum())) for j in joints})
         src.append(np.full(int(m.sum()), i))
         ts.append(rec.t[m])
@@ -81,14 +87,14 @@ def free_load_data(ds: Dataset, leg: str, settings: FreeLoadSettings, load) -> F
     source = np.concatenate(src)
     index = np.concatenate(idx)
     noise0 = difference_noise(y, source, index)
-    tiltable = all(r is not None for r in Rw)
-    if tiltable:   # b = g R_nom^T R_WB^T u: a[n][:, k] = g R_nom^T R_WB^T e_k
-        a = g * np.einsum("nji,nkj->nik", R_nom, np.concatenate(Rw))
-    else:          # b = -a[:, :, 2] at u = (0, 0, -1): no tilt
-        a = np.zeros((n, 3, 3))
-        a[:, :, 2] = -b
+    tiltable = all(k == "world" for k, _, _ in Rw)
+    # b = g R_nom^T F u (F the group's frame, u = (0, 0, -1) untilted): a[n][:, k] = g R_nom^T F e_k
+    a = g * np.einsum("nji,njk->nik", R_nom, np.concatenate([F for _, _, F in Rw]))
+    order = ([("world", "")] if any(k == "world" for k, _, _ in Rw) else []) + [(k, nm) for k, nm, _ in Rw if k == "recording"] \
+        + ([("fixed", "")] if any(k == "fixed" for k, _, _ in Rw) else [])
+    group = np.concatenate([np.full(len(F), order.index((k, nm))) for k, nm, F in Rw])
     return FreeLoadData(leg, y, b, K, R_nom, source, np.concatenate(ts), tuple(names), selection, noise0, masks, q, index,
-                        a, tiltable)
+                        a, tiltable, group, tuple(order))
 
 
 def _lin_map(p: int, mu: np.ndarray) -> np.ndarray:
@@ -109,9 +115,52 @@ def _ridge(A: np.ndarray, weight: float) -> np.ndarray:
     return weight * np.where(dg > 0, dg, fill)
 
 
-def _null_penalty(A: np.ndarray, s: FreeLoadSettings, tilt: bool) -> np.ndarray | None:
-    """``S N N^T S`` over the directions the information ``A`` (local coordinates) leaves undetermined (``nlp.py``)."""
-    keep = np.r_[np.ones(len(A) - 5, bool), np.full(2, tilt), np.full(3, s.mount_rotation)]
+def _keep(p: int, free: np.ndarray, mount: bool) -> np.ndarray:
+    """Local coordinates ``[w_o, theta, tilt per group, delta]`` that are estimated."""
+    return np.r_[np.ones(6 + p, bool), np.repeat(np.asarray(free, bool), 2), np.full(3, mount)]
+
+
+def _local_info(nlp, Qs: list[np.ndarray], x: np.ndarray, E: np.ndarray, p: int, G: int) -> np.ndarray:
+    """Gauss-Newton information ``sum_g J_g^T Q_g J_g`` (9 + p + 2G) in local coordinates, each group's tilt its own
+    two columns (``nlp.jacobian`` per group)."""
+    nl = 9 + p + 2 * G
+    A = np.zeros((nl, nl))
+    for k, Q in enumerate(Qs):
+        J = nlp.jacobian(x[:6], x[6:6 + p], x[6 + p + 2 * k:8 + p + 2 * k], E)
+        idx = np.r_[np.arange(6 + p), 6 + p + 2 * k, 7 + p + 2 * k, np.arange(nl - 3, nl)]
+        A[np.ix_(idx, idx)] += J.T @ Q @ J
+    return A
+
+
+def _null_count(A: np.ndarray, s: FreeLoadSettings, keep: np.ndarray, cand: np.ndarray) -> tuple[int, np.ndarray]:
+    """Undetermined directions of ``A`` over ``keep`` and, per local coordinate in ``cand``, whether one moves it."""
+    ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
+    moved = np.zeros(len(keep), bool)
+    moved[keep] = np.any(np.abs(ident.vectors[:, ~ident.determined]) >= TOUCH_TOL, axis=1)
+    return int((~ident.determined).sum()), moved & cand
+
+
+def _recording_tilts_held(A: np.ndarray, s: FreeLoadSettings, p: int, free: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    """The per-recording tilt groups (``rec``, bool per group) held at 0 under ``recording_tilt = "auto"``: those that
+    create undetermined directions the other parameters (``free`` tilts, offsets, load, mount) do not have."""
+    n0, _ = _null_count(A, s, _keep(p, free & ~rec, s.mount_rotation), np.zeros(len(A), bool))
+    held = np.zeros(len(free), bool)
+    for _ in range(2):
+        trial = free & ~held
+        cand = _keep(p, trial & rec, False) & ~_keep(p, np.zeros(len(free), bool), False)
+        n1, moved = _null_count(A, s, _keep(p, trial, s.mount_rotation), cand)
+        if n1 <= n0:
+            return held
+        touched = moved[6 + p:6 + p + 2 * len(free)].reshape(-1, 2).any(axis=1) & rec
+        held |= touched if touched.any() and _ == 0 else rec
+    return held
+
+
+def _null_penalty(A: np.ndarray, s: FreeLoadSettings, tilt) -> np.ndarray | None:
+    """``S N N^T S`` over the directions the information ``A`` (local coordinates) leaves undetermined (``nlp.py``);
+    ``tilt`` which groups' tilts are free (per group, or one bool for one group)."""
+    G = (len(A) - 9) // 2 if np.ndim(tilt) == 0 else len(tilt)
+    keep = _keep(len(A) - 9 - 2 * G, np.broadcast_to(np.asarray(tilt, bool), (G,)), s.mount_rotation)
     ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
     if ident.determined.all():
         return None
@@ -121,12 +170,14 @@ def _null_penalty(A: np.ndarray, s: FreeLoadSettings, tilt: bool) -> np.ndarray 
     return P
 
 
-def _tilt_undetermined(A: np.ndarray, s: FreeLoadSettings) -> bool:
-    """Whether an undetermined direction of the information ``A`` (local coordinates, tilt free) moves the tilt."""
-    p = len(A) - 11
-    keep = np.r_[np.ones(8 + p, bool), np.full(3, s.mount_rotation)]
-    ident = identifiability(A[np.ix_(keep, keep)], s.rel_eig_tol)
-    return bool(np.any(np.abs(ident.vectors[6 + p:8 + p, ~ident.determined]) >= TOUCH_TOL))
+def _tilt_undetermined(A: np.ndarray, s: FreeLoadSettings, p: int, G: int, k: int) -> bool:
+    """Whether an undetermined direction of the information ``A`` (local coordinates) with group ``k``'s tilt free
+    (the other groups' held) moves that tilt."""
+    free = np.zeros(G, bool)
+    free[k] = True
+    cand = np.zeros(len(A), bool)
+    cand[6 + p + 2 * k:8 + p + 2 * k] = True
+    return bool(_null_count(A, s, _keep(p, free, s.mount_rotation), cand)[1].any())
 
 
 def _describe(u: np.ndarray, names: list[str], ratio: float) -> str:
@@ -172,11 +223,17 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     p = len(load.param_names)
     mu = load.mass_row
     mom = compress(data.y, data.b, data.K)             # at no tilt: the linear start
-    tilt_on = bool(s.gravity_tilt and data.tiltable)
-    free_tilt = tilt_on
-    mom_t = compress_tilted(data.y, data.a, data.K)    # any tilt: the NLP
+    G = len(data.groups)
+    kinds = np.array([k for k, _ in data.groups])
+    world, rec = kinds == "world", kinds == "recording"
+    tilt_on = bool(s.gravity_tilt and world.any())     # the world tilt is a parameter (estimated, or held and named)
+    want = (world & bool(s.gravity_tilt)) | (rec & (s.recording_tilt is not False))
+    free = want.copy()
+    held_recs = np.zeros(G, bool)
+    # any tilt: the NLP, one set of exact moments per group (the world's, each gravity_body recording's, the fixed)
+    moms = [compress_tilted(data.y[data.group == k], data.a[data.group == k], data.K[data.group == k]) for k in range(G)]
     sig = data.noise0 if np.all(np.isfinite(data.noise0)) and np.all(data.noise0 > 0) else None
-    nlp = nlp_for(mu)
+    nlp = nlp_for(mu, G)
     # start: linear least squares at E = I (a little ridge toward the prior pins what it cannot see)
     L = _lin_map(p, mu)
     prior = load.prior()
@@ -192,39 +249,103 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     if prior is None:
         th0 = x_lin[6:]
     E = np.eye(3)
-    x = np.r_[x_lin, 0.0, 0.0, E.ravel(order="F")]
-    x0 = np.r_[np.zeros(6), th0, 0.0, 0.0, np.eye(3).ravel(order="F")]
+    x = np.r_[x_lin, np.zeros(2 * G), E.ravel(order="F")]
+    x0 = np.r_[np.zeros(6), th0, np.zeros(2 * G), np.eye(3).ravel(order="F")]
     what = f"the free load of transducer {leg} ({load.kind}; recordings {list(data.names)})"
     t0 = time.perf_counter()
     iters = 0
+    nt = 6 + p + 2 * G                                   # index of vec(E) in x
     for _ in range(2):  # noise weights, then residual-sd weights
-        Qw, vw, sw = mom_t.weighted(W)
-        Jl = nlp.jacobian(x[:6], x[6:6 + p], x[6 + p:8 + p], E)
-        Al = Jl.T @ Qw @ Jl
-        ridge = np.r_[_ridge(Al[:8 + p, :8 + p], s.prior_weight), np.full(9, _ridge(Al[8 + p:, 8 + p:], s.prior_weight).mean())]
-        if tilt_on and _ == 0:  # a tilt the data leave undetermined stays at 0 (else it wanders along the valley)
-            free_tilt = not (_tilt_undetermined(Al, s) or _orientation_notes(data, leg))
-        x, st = nlp.solve(Qw, vw, mom.n, ridge, x0, x, mount_rotation=s.mount_rotation, tilt=tilt_on and free_tilt, what=what,
-                          null_penalty=_null_penalty(Al, s, tilt_on))
+        Qv = [m.weighted(W) for m in moms]
+        Al = _local_info(nlp, [q[0] for q in Qv], x, E, p, G)
+        ridge = np.r_[_ridge(Al[:nt, :nt], s.prior_weight), np.full(9, _ridge(Al[nt:, nt:], s.prior_weight).mean())]
+        if _ == 0:  # a tilt the data leave undetermined stays at 0 (else it wanders along the valley)
+            for k in np.flatnonzero(world & want):
+                free[k] = not (_tilt_undetermined(Al, s, p, G, k) or _orientation_notes(data, leg))
+            if s.recording_tilt == "auto" and (rec & free).any():
+                held_recs = _recording_tilts_held(Al, s, p, free, rec)
+                free &= ~held_recs
+        x, st = nlp.solve([q[0] for q in Qv], [q[1] for q in Qv], mom.n, ridge, x0, x, mount_rotation=s.mount_rotation,
+                          tilt=free, what=what, null_penalty=_null_penalty(Al, s, free))
         iters += int(st.get("iter_count", 0))
         E = project_to_so3(x[-9:].reshape(3, 3, order="F"))
-        rss = mom_t.rss(nlp.z_tilted(np.r_[x[:8 + p], E.ravel(order="F")]))
-        dof = (6 + p + (3 if s.mount_rotation else 0) + (2 if free_tilt else 0)) / 6.0
+        rss = sum(m.rss(nlp.z_tilted(np.r_[x[:6 + p], x[6 + p + 2 * k:8 + p + 2 * k], E.ravel(order="F")]))
+                  for k, m in enumerate(moms))
+        dof = (6 + p + (3 if s.mount_rotation else 0) + 2 * int(free.sum())) / 6.0
         sig = np.sqrt(np.clip(rss, 1e-300, None) / max(mom.n - dof, 1.0))
         W = 1.0 / sig**2
     solve_time = time.perf_counter() - t0
-    w_o, theta, tilt = x[:6], x[6:6 + p], x[6 + p:8 + p]
-    b_t = np.einsum("nik,k->ni", data.a, tilt_gravity(tilt))          # gravity in ft of the tilted world
-    # information in local coordinates [w_o, theta, delta]; serially correlated residuals (a model error that stays
-    # through a hold) carry less information than white noise: their weight shrinks by the AR(1) inflation
+    w_o, theta, tilts = x[:6], x[6:6 + p], x[6 + p:nt]
+    U = np.stack([tilt_gravity(tilts[2 * k:2 * k + 2]) for k in range(G)])
+    b_t = np.einsum("nik,nk->ni", data.a, U[data.group])            # gravity in ft, each group's tilt
+    # information in local coordinates [w_o, theta, tilts, delta]; serially correlated residuals (a model error that
+    # stays through a hold) carry less information than white noise: their weight shrinks by the AR(1) inflation
     res = data.y - predict(b_t, data.K, theta, mu, E, w_o)
     rho, inflation = serial_inflation(res, data.source, data.index)
-    Qw, _, _ = mom_t.weighted(W / inflation)
-    J = nlp.jacobian(w_o, theta, tilt, E)
-    info = J.T @ Qw @ J
-    keep = np.r_[np.ones(6 + p, bool), np.full(2, free_tilt), np.full(3, s.mount_rotation)]
+    info = _local_info(nlp, [m.weighted(W / inflation)[0] for m in moms], x, E, p, G)
+    keep = _keep(p, free, s.mount_rotation)
+    tilt_names = [[f"{leg}.tilt.r{c}" for c in "xy"] if kd == "world" else [f"{leg}.{nm}.tilt.r{c}" for c in "xy"]
+                  if kd == "recording" else [f"{leg}.fixed.tilt.r{c}" for c in "xy"] for kd, nm in data.groups]
     names = ([f"{leg}.offset.{c}" for c in WRENCH] + [f"{leg}.{n}" for n in load.param_names]
-             + [f"{leg}.tilt.r{c}" for c in "xy"] + [f"{leg}.mount.r{c}" for c in "xyz"])
+             + [n for t in tilt_names for n in t] + [f"{leg}.mount.r{c}" for c in "xyz"])
+    cov, se, null, undetermined, determined, ident = _covariance(info, keep, names, np.r_[w_o, theta, tilts,
+                                                                                          rotation_to_rotvec(E)], s)
+    rms = np.sqrt((res**2).mean(axis=0))
+    if undetermined:
+        log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
+    notes = _leg_notes(data, load, leg, rho, inflation)
+    rec_names = [nm for (kd, nm) in data.groups if kd == "recording"]
+    if rec.any() and s.recording_tilt is False:
+        notes.append(f"{leg}: recordings {rec_names} give gravity by gravity_body only: taken as exact (recording_tilt = "
+                     "false: no tilt per recording is estimated; a rig's tilt there biases the fit)")
+    if held_recs.any():
+        held_names = [nm for (kd, nm), h in zip(data.groups, held_recs) if h]
+        why = ("one transducer's gravity_body recordings: a tilt per recording and its mounting rotation are not "
+               "separable (each recording's gravity direction in ft is free; the mount and the tilts absorb one another)"
+               if s.mount_rotation else "a tilt per recording is not determined by these data")
+        notes.append(f"{leg}: recordings {held_names} give gravity by gravity_body only: {why}; their tilts are taken as "
+                     "exact (held at 0; recording_tilt = \"auto\")")
+    if (rec & free).any():
+        log.info("%s: a tilt per recording estimated for %s", leg, [nm for (kd, nm), f in zip(data.groups, rec & free) if f])
+    if tilt_on and not free[world].all():   # named as undetermined: se inf, held at 0
+        se[6 + p:8 + p] = np.inf
+        undetermined += [f"{leg}.tilt.r{c} (the world tilt of the orientation stream: gravity spans fewer than three "
+                         "directions in ft; held at 0)" for c in "xy"]
+        notes.append(f"{leg}: the world tilt of the orientation stream is not determined by these orientations (all about "
+                     "one axis, or one orientation): held at 0")
+    # the parameters reported: the world tilt where it is one (estimated or named), a recording's where estimated
+    shown = (world & tilt_on) | (rec & free)
+    out = np.r_[np.arange(6 + p), *[np.arange(6 + p + 2 * k, 8 + p + 2 * k) for k in np.flatnonzero(shown)],
+                np.arange(nt, nt + 3)].astype(int)
+    names, cov, se, null = [names[i] for i in out], cov[np.ix_(out, out)], se[out], null[out]
+    tilt = tilts[:2].copy() if tilt_on else None           # the world group comes first
+    rec_tilts = {nm: tilts[2 * k:2 * k + 2].copy() for k, (kd, nm) in enumerate(data.groups) if kd == "recording" and free[k]}
+    for note in notes:
+        log.warning("%s", note)
+    log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,
+             float(mu @ theta), np.degrees(np.linalg.norm(np.r_[E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2),
+             np.array2string(rms, precision=3))
+    return FreeLoadResult(leg, load, w_o.copy(), theta.copy(), E, tuple(names), cov, se, sig, rms, mom.n, data.selection,
+                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null, data.masks,
+                          None if tilt is None else tilt.copy(), rec_tilts)
+
+
+def gravity_spread(b: np.ndarray) -> np.ndarray:
+    """Singular values (3,) of the centred unit gravity directions ``b`` (N, 3) over sqrt(N): the first below
+    ``NARROW`` is one direction, the second a short arc (``_orientation_notes``; the world tilt is held at 0 there)."""
+    u = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.linalg.svd(u - u.mean(axis=0), compute_uv=False) / np.sqrt(len(u))
+
+
+NARROW = 0.02
+
+
+def _covariance(info: np.ndarray, keep: np.ndarray, names: list[str], x: np.ndarray, s: FreeLoadSettings):
+    """``(cov, se, null, undetermined, determined, ident)`` from the information ``info`` over the estimated local
+    coordinates ``keep`` (step 4 of the package docstring): covariance on the determined subspace, se inf for
+    parameters an undetermined direction moves, the directions described, the determined combinations of those
+    parameters (reduced row echelon form) at the estimate ``x`` (local coordinates' values), the null space in the
+    parameters' own units."""
     ident = identifiability(info[np.ix_(keep, keep)], s.rel_eig_tol)
     n_all = len(names)
     cov = np.zeros((n_all, n_all))
@@ -247,7 +368,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         rank = int((sv > 1e-8).sum())
         comp = U[:, rank:]                                          # scaled functionals orthogonal to the null space
         tn = [n for n, t in zip(kn, touched) if t]
-        xk = np.r_[w_o, theta, tilt, rotation_to_rotvec(E)][keep]
+        xk = x[keep]
         Ck = cov[np.ix_(keep, keep)]
         for c in _rref((comp * ident.scale[touched][:, None]).T):   # sparse, readable: a leading 1 per combination
             a = np.zeros(len(kn))
@@ -257,11 +378,12 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
                                "coefficients": {n: float(v) for n, v in zip(tn, a[touched]) if v != 0.0}})
     null = np.zeros((n_all, int((~ident.determined).sum())))
     null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
-    rms = np.sqrt((res**2).mean(axis=0))
-    notes = []
-    if undetermined:
-        log.warning("%s: %d direction(s) not determined by the data (se = inf): %s", leg, len(undetermined), "; ".join(undetermined))
-    notes += _orientation_notes(data, leg)
+    return cov, se, null, undetermined, determined, ident
+
+
+def _leg_notes(data: FreeLoadData, load, leg: str, rho: np.ndarray, inflation: np.ndarray) -> list[str]:
+    """The notes of one transducer's data: its gravity directions, joints that never move, correlated residuals."""
+    notes = _orientation_notes(data, leg)
     for g in getattr(load, "groups", ()):
         if g.joint is not None and np.ptp(data.q.get(g.joint, np.zeros(1))) < _STILL_JOINT_RAD:
             notes.append(f"{leg}: joint '{g.joint}' never moves in the samples used (range "
@@ -271,38 +393,17 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
         notes.append(f"{leg}: residuals correlated from sample to sample (lag-1 correlation {np.array2string(rho, precision=2)} "
                      f"in fx..tz): se widened by {np.array2string(np.sqrt(inflation), precision=2)}; the model misses "
                      "something that stays through a hold (the diagnosis looks for it)")
-    fixed = [r.name for r in ds.hanging if r.hangs_free(leg) and r.gravity is None]
-    if fixed:
-        notes.append(f"{leg}: recordings {fixed} give gravity by gravity_body only: taken as exact (no tilt term per "
-                     "recording is estimated for a free load; a rig's tilt there biases the fit)")
-    if tilt_on and not free_tilt:   # named as undetermined: se inf, held at 0
-        se[6 + p:8 + p] = np.inf
-        undetermined.append(f"{leg}.tilt.rx {leg}.tilt.ry (the world tilt of the orientation stream: gravity spans fewer "
-                            "than three directions in ft; held at 0)")
-        notes.append(f"{leg}: the world tilt of the orientation stream is not determined by these orientations (all about "
-                     "one axis, or one orientation): held at 0")
-    if not tilt_on:  # no tilt term: the parameters as without one
-        out = np.r_[np.arange(6 + p), np.arange(8 + p, 11 + p)]
-        names, cov, se, null, tilt = [names[i] for i in out], cov[np.ix_(out, out)], se[out], null[out], None
-    for note in notes:
-        log.warning("%s", note)
-    log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,
-             float(mu @ theta), np.degrees(np.linalg.norm(np.r_[E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2),
-             np.array2string(rms, precision=3))
-    return FreeLoadResult(leg, load, w_o.copy(), theta.copy(), E, tuple(names), cov, se, sig, rms, mom.n, data.selection,
-                          tuple(undetermined), tuple(determined), notes, iters, solve_time, ident.ratio, null, data.masks,
-                          None if tilt is None else tilt.copy())
+    return notes
 
 
 def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
     """A note when the gravity directions in ft span fewer than three dimensions (all orientations about one
     axis, or one orientation): the eigen-analysis names the parameters; this says why."""
-    u = data.b / np.linalg.norm(data.b, axis=1, keepdims=True)
-    sv = np.linalg.svd(u - u.mean(axis=0), compute_uv=False) / np.sqrt(len(u))
-    if sv[0] < 0.02:
+    sv = gravity_spread(data.b)
+    if sv[0] < NARROW:
         return [f"{leg}: gravity stays within ~1 deg of one direction in ft over all quasi-static samples ({', '.join(data.names)}): "
                 "one orientation cannot separate the offsets from the load; hang it in several"]
-    if sv[1] < 0.02:
+    if sv[1] < NARROW:
         return [f"{leg}: the gravity directions in ft vary along one line only (a short arc: small turns about one axis, "
                 f"{', '.join(data.names)}): what they cannot separate is named as undetermined"]
     return []

@@ -1,10 +1,11 @@
 """The free-load NLP (CasADi SX + IPOPT, ``solver.ipopt``): offsets, load parameters, exact mounting rotation.
 
-Unknowns ``x = [w_o (6), theta (p), tilt (2), E (3x3)]`` (the tilt held at 0 by its bounds unless
-``gravity_tilt``). With the channel moments of ``problem.compress_tilted`` (lifted ``[w_o; u (x) z_r]``,
-``u = R_t (0, 0, -1)``) and weights ``W_c = 1 / sigma_c^2``:
+Unknowns ``x = [w_o (6), theta (p), tilt_1..tilt_G (2 each), E (3x3)]``: one tilt per group of samples (the world
+tilt of the orientation stream, one per ``gravity_body``-only recording, a fixed group), each held at 0 by its
+bounds unless estimated. With the channel moments of ``problem.compress_tilted`` per group (lifted
+``[w_o; u_g (x) z_r]``, ``u_g = R_t,g (0, 0, -1)``) and weights ``W_c = 1 / sigma_c^2``:
 
-    min  1/(2N) [ ||R z(x) - c||^2  +  sum_i r_i (x_i - x0_i)^2  +  e^T P_N e ]
+    min  1/(2N) [ sum_g ||R_g z_g(x) - c_g||^2  +  sum_i r_i (x_i - x0_i)^2  +  e^T P_N e ]
     s.t. E^T E = I   (6 equations),   det E >= 0,
 
 with ``Q_W = U L U^T``, ``R = L^1/2 U^T``, ``c = L^-1/2 U^T v_W`` (the positive
@@ -77,31 +78,34 @@ class FreeLoadNLP:
 
     p: int
     mu: np.ndarray
+    G: int
     solver: ca.Function
     jac: ca.Function
     lifted: ca.Function
     lifted_t: ca.Function
 
     @classmethod
-    def build(cls, mu: np.ndarray) -> "FreeLoadNLP":
+    def build(cls, mu: np.ndarray, G: int = 1) -> "FreeLoadNLP":
         p = len(mu)
         d = n_tilted(p)
         # the solver in MX: the data matrix R (d x d) enters as one matrix-vector product, so building the NLP and
         # its exact Hessian costs milliseconds at any size (SX would expand the d^2 products: seconds at d ~ 200)
-        w_o, theta, E, tilt = ca.MX.sym("w_o", 6), ca.MX.sym("theta", p), ca.MX.sym("E", 3, 3), ca.MX.sym("tilt", 2)
-        Rq, c = ca.MX.sym("R", d, d), ca.MX.sym("c", d)
-        nx = 6 + p + 2 + 9
+        w_o, theta, E, tilt = ca.MX.sym("w_o", 6), ca.MX.sym("theta", p), ca.MX.sym("E", 3, 3), ca.MX.sym("tilt", 2 * G)
+        Rqs, cs = [ca.MX.sym(f"R{k}", d, d) for k in range(G)], [ca.MX.sym(f"c{k}", d) for k in range(G)]
+        nx = 6 + p + 2 * G + 9
+        nl = 9 + p + 2 * G
         r, x0, inv_n = ca.MX.sym("r", nx), ca.MX.sym("x0", nx), ca.MX.sym("inv_n")
-        Pn = ca.MX.sym("Pn", 11 + p, 11 + p)
+        Pn = ca.MX.sym("Pn", nl, nl)
         x = ca.vertcat(w_o, theta, tilt, ca.vec(E))
-        z = _tilted(_lifted_mx(w_o, theta, E, mu), tilt)
-        e = ca.vertcat(w_o - x0[:6], theta - x0[6:6 + p], tilt - x0[6 + p:8 + p],
+        z0 = _lifted_mx(w_o, theta, E, mu)
+        fit = sum(ca.sumsqr(ca.mtimes(Rqs[k], _tilted(z0, tilt[2 * k:2 * k + 2])) - cs[k]) for k in range(G))
+        e = ca.vertcat(w_o - x0[:6], theta - x0[6:6 + p], tilt - x0[6 + p:6 + p + 2 * G],
                        0.5 * ca.vertcat(E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]))
-        obj = 0.5 * inv_n * (ca.sumsqr(ca.mtimes(Rq, z) - c) + ca.dot(r, (x - x0) ** 2) + ca.dot(e, ca.mtimes(Pn, e)))
+        obj = 0.5 * inv_n * (fit + ca.dot(r, (x - x0) ** 2) + ca.dot(e, ca.mtimes(Pn, e)))
         EtE = ca.mtimes(E.T, E) - ca.DM.eye(3)
         g = ca.vertcat(*[EtE[i, k] for i in range(3) for k in range(i, 3)], ca.det(E))
-        P = ca.vertcat(ca.vec(Rq), c, r, x0, inv_n, ca.vec(Pn))
-        solver = ipopt(f"freeload_nlp_p{p}", {"x": x, "p": P, "f": obj, "g": g}, **_IPOPT)
+        P = ca.vertcat(*[ca.vertcat(ca.vec(Rqs[k]), cs[k]) for k in range(G)], r, x0, inv_n, ca.vec(Pn))
+        solver = ipopt(f"freeload_nlp_p{p}_g{G}", {"x": x, "p": P, "f": obj, "g": g}, **_IPOPT)
         w_s, th_s, E_s = ca.SX.sym("w_o", 6), ca.SX.sym("theta", p), ca.SX.sym("E", 3, 3)
         delta, Es, t_s = ca.SX.sym("delta", 3), ca.SX.sym("Es", 3, 3), ca.SX.sym("tilt", 2)
         z_loc = _tilted(_lifted(w_s, th_s, ca.mtimes(Es, ca.SX.eye(3) + skew(delta)), mu), t_s)
@@ -110,7 +114,7 @@ class FreeLoadNLP:
         lifted = ca.Function(f"freeload_z_p{p}", [ca.vertcat(w_s, th_s, ca.vec(E_s))], [_lifted(w_s, th_s, E_s, mu)])
         lifted_t = ca.Function(f"freeload_zt_p{p}", [ca.vertcat(w_s, th_s, t_s, ca.vec(E_s))],
                                [_tilted(_lifted(w_s, th_s, E_s, mu), t_s)])
-        return cls(p, np.asarray(mu, float), solver, jac, lifted, lifted_t)
+        return cls(p, np.asarray(mu, float), G, solver, jac, lifted, lifted_t)
 
     @property
     def lbg(self) -> np.ndarray:
@@ -120,22 +124,30 @@ class FreeLoadNLP:
     def ubg(self) -> np.ndarray:
         return np.r_[np.zeros(6), np.inf]
 
-    def solve(self, Q: np.ndarray, v: np.ndarray, n: int, ridge: np.ndarray, x0: np.ndarray, start: np.ndarray,
-              *, mount_rotation: bool, tilt: bool, what: str, null_penalty: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
-        """The optimum ``x`` and IPOPT's stats; raises :class:`~ftcal_nlp.errors.SolverError` naming ``what``."""
-        lam, U = np.linalg.eigh(Q)
-        ok = lam > 1e-13 * max(lam.max(), 1e-300)
-        R = np.zeros_like(Q)
-        R[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
-        c = np.zeros(len(v))
-        c[: ok.sum()] = (U[:, ok].T @ v) / np.sqrt(lam[ok])
-        Pn = np.zeros((11 + self.p, 11 + self.p)) if null_penalty is None else null_penalty
-        P = np.concatenate([R.ravel(order="F"), c, ridge, x0, [1.0 / n], Pn.ravel(order="F")])
+    def solve(self, Q, v, n: int, ridge: np.ndarray, x0: np.ndarray, start: np.ndarray,
+              *, mount_rotation: bool, tilt, what: str, null_penalty: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+        """The optimum ``x`` and IPOPT's stats; raises :class:`~ftcal_nlp.errors.SolverError` naming ``what``. ``Q``,
+        ``v``: one weighted moment pair per group (a single pair: one group); ``tilt`` (G,) which groups' tilts are
+        free (a bool: all or none)."""
+        Qs, vs = (Q, v) if isinstance(Q, (list, tuple)) else ([Q], [v])
+        parts = []
+        for Qg, vg in zip(Qs, vs):
+            lam, U = np.linalg.eigh(Qg)
+            ok = lam > 1e-13 * max(lam.max(), 1e-300)
+            R = np.zeros_like(Qg)
+            R[: ok.sum()] = np.sqrt(lam[ok])[:, None] * U[:, ok].T
+            c = np.zeros(len(vg))
+            c[: ok.sum()] = (U[:, ok].T @ vg) / np.sqrt(lam[ok])
+            parts += [R.ravel(order="F"), c]
+        nl = 9 + self.p + 2 * self.G
+        Pn = np.zeros((nl, nl)) if null_penalty is None else null_penalty
+        P = np.concatenate(parts + [ridge, x0, [1.0 / n], Pn.ravel(order="F")])
         lbx, ubx = np.full(len(start), -np.inf), np.full(len(start), np.inf)
         if not mount_rotation:  # E held at the nominal (identity)
             lbx[-9:] = ubx[-9:] = np.eye(3).ravel(order="F")
-        if not tilt:  # no tilt of the orientation stream
-            lbx[6 + self.p:8 + self.p] = ubx[6 + self.p:8 + self.p] = 0.0
+        free = np.broadcast_to(np.asarray(tilt, bool), (self.G,))
+        for k in np.flatnonzero(~free):  # a tilt not estimated: held at 0
+            lbx[6 + self.p + 2 * k:8 + self.p + 2 * k] = ubx[6 + self.p + 2 * k:8 + self.p + 2 * k] = 0.0
         sol, st = solve_checked(self.solver, what, x0=start, p=P, lbg=self.lbg, ubg=self.ubg, lbx=lbx, ubx=ubx)
         return np.asarray(sol["x"]).ravel(), st
 
@@ -155,9 +167,9 @@ class FreeLoadNLP:
 _CACHE: dict[tuple, FreeLoadNLP] = {}
 
 
-def nlp_for(mu: np.ndarray) -> FreeLoadNLP:
-    """The NLP for mass row ``mu`` (cached: loads of one shape share it)."""
-    key = tuple(np.asarray(mu, float).tolist())
+def nlp_for(mu: np.ndarray, G: int = 1) -> FreeLoadNLP:
+    """The NLP for mass row ``mu`` and ``G`` tilt groups (cached: loads of one shape share it)."""
+    key = (tuple(np.asarray(mu, float).tolist()), int(G))
     if key not in _CACHE:
-        _CACHE[key] = FreeLoadNLP.build(np.asarray(mu, float))
+        _CACHE[key] = FreeLoadNLP.build(np.asarray(mu, float), int(G))
     return _CACHE[key]

@@ -62,8 +62,10 @@ class FreeLoadData:
     masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
     q: dict[str, np.ndarray] = field(default_factory=dict)       # joint -> (N,) angles of the samples used
     index: np.ndarray | None = None                              # (N,) row of each sample in its recording
-    a: np.ndarray | None = None                                  # (N, 3, 3) b = a u: u the tilted world's gravity
+    a: np.ndarray | None = None                                  # (N, 3, 3) b = a u: u the tilted gravity of the sample's group
     tiltable: bool = False                                       # every recording has the orientation per sample
+    group: np.ndarray | None = None                              # (N,) tilt group of each sample (index into groups)
+    groups: tuple[tuple[str, str], ...] = ()                     # (kind, name): "world" "", "recording" name, "fixed" ""
 
     @property
     def n(self) -> int:
@@ -213,6 +215,18 @@ def compress_tilted(y: np.ndarray, a: np.ndarray, K: np.ndarray, chunk: int = _C
             Q[c][np.ix_(big[c], big[c])] += X.T @ X
             v[c][big[c]] += X.T @ yb[:, c]
     return Moments(Q, v, np.einsum("nc,nc->c", y, y), n)
+
+
+def gravity_frame(gdir: np.ndarray) -> np.ndarray:
+    """Rotations (N, 3, 3) whose third column is ``-gdir`` (N, 3) (unit gravity directions): ``F (0, 0, -1) = gdir``.
+    A recording that gives gravity by ``gravity_body`` only is tilted in this frame: ``u = F R_y(ty) R_x(tx) (0, 0, -1)``
+    (the tilt about two axes normal to its nominal gravity)."""
+    c2 = -np.asarray(gdir, float)
+    c2 = c2 / np.linalg.norm(c2, axis=-1, keepdims=True)
+    h = np.where(np.abs(c2[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    c0 = h - np.sum(h * c2, axis=-1, keepdims=True) * c2
+    c0 /= np.linalg.norm(c0, axis=-1, keepdims=True)
+    return np.stack([c0, np.cross(c2, c0), c2], axis=-1)
 
 
 def tilt_gravity(tilt: np.ndarray) -> np.ndarray:

@@ -1,7 +1,9 @@
 """Results of the free-load estimator, in the results protocol of ``results.py``.
 
 :class:`FreeLoadResult` (one transducer) has ``params`` (labelled: offsets
-``{leg}.offset.fx..tz`` N / N*m; the load's ``{leg}.<param>`` (kg, kg m); the
+``{leg}.offset.fx..tz`` N / N*m; the load's ``{leg}.<param>`` (kg, kg m); where estimated the world tilt of
+the orientation stream ``{leg}.tilt.rx, .ry`` rad (``calibration.json`` ``gravity_tilt_rad``) and the tilt of each
+``gravity_body``-only recording ``{leg}.{recording}.tilt.rx, .ry`` rad (``recording_tilt_rad``); the
 mounting rotation vector ``{leg}.mount.rx..rz`` rad, ``R_true = R_nom expm(r)``),
 ``bse`` (inf where undetermined), ``cov_params()``, ``conf_int()``,
 ``summary()``, and :meth:`FreeLoadResult.identifiability`, the notes naming what
@@ -19,7 +21,7 @@ import pandas as pd
 
 from ..geometry import quat_to_rotation, rotation_to_rotvec
 from ..results import ResultsMixin, StackedResults, Summary, fmt_pm
-from .problem import predict, tilt_gravity
+from .problem import gravity_frame, predict, tilt_gravity
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 
@@ -55,13 +57,14 @@ class FreeLoadResult(ResultsMixin):
     null: np.ndarray | None = None       # (n_params, r) undetermined directions in the parameters' own units
     used: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) samples the fit used
     tilt: np.ndarray | None = None   # world tilt of the orientation stream (rad, about x then y); None: not estimated
+    recording_tilts: dict[str, np.ndarray] = field(default_factory=dict)   # gravity_body recording -> its tilt (rad)
 
     # ------------------------------------------------------------------ results protocol
 
     @property
     def params(self) -> pd.Series:
         tilt = np.zeros(0) if self.tilt is None else self.tilt
-        vals = np.concatenate([self.offset, self.theta, tilt, rotation_to_rotvec(self.rotation)])
+        vals = np.concatenate([self.offset, self.theta, tilt, *self.recording_tilts.values(), rotation_to_rotvec(self.rotation)])
         return pd.Series(vals, index=list(self.names), name="params")
 
     def _bse_array(self) -> np.ndarray:
@@ -94,6 +97,14 @@ class FreeLoadResult(ResultsMixin):
                     "undetermined": list(self.undetermined), "determined_combinations": list(self.determined),
                     "samples_used": int(self.n_used), "selection": self.selection,
                     "residual_rms": self.rms.tolist(), "noise_sd": self.sigma.tolist()})
+        if self.tilt is not None:   # the world tilt of the orientation stream (rad, about x then y; se inf: held at 0)
+            p = len(self.theta)
+            out.update({"gravity_tilt_rad": self.tilt.tolist(), "gravity_tilt_se_rad": self.se[6 + p:8 + p].tolist()})
+        if self.recording_tilts:    # a tilt per gravity_body-only recording (rad, about the axes of its gravity frame)
+            at = {n: i for i, n in enumerate(self.names)}
+            out["recording_tilt_rad"] = {r: t.tolist() for r, t in self.recording_tilts.items()}
+            out["recording_tilt_se_rad"] = {r: [float(self.se[at[f"{self.leg}.{r}.tilt.r{c}"]]) for c in "xy"]
+                                            for r in self.recording_tilts}
         return out
 
     def identifiability(self) -> list[str]:
@@ -116,6 +127,8 @@ class FreeLoadResult(ResultsMixin):
     def predict_recording(self, rec, g: float) -> np.ndarray:
         """Model readings (N, 6) of every sample of recording ``rec`` (NaN where its gravity is unknown)."""
         grav = rec.gravity_directions()
+        if rec.name in self.recording_tilts and rec.quat is None and rec.gravity is None:   # its own tilt
+            grav = np.broadcast_to(gravity_frame(grav[:1])[0] @ tilt_gravity(self.recording_tilts[rec.name]), grav.shape).copy()
         if rec.quat is not None and self.tilt is not None:  # the stream's world is tilted: true g_B = R_WB'^T R_t (0,0,-1)
             grav = np.einsum("nji,j->ni", quat_to_rotation(np.nan_to_num(rec.quat, nan=1.0)), tilt_gravity(self.tilt))
             grav[~np.all(np.isfinite(rec.quat), axis=1)] = np.nan

@@ -39,13 +39,17 @@ def shrinkage_table(d: "DiagnosisResult") -> pd.DataFrame:
     sh = d.shrinkage
     rows = {"held-out RMS, calibrated model": sh["heldout_rms_before"]}
     if d.effect:
-        names = [e["name"] for e in d.effects] if d.free is not None and d.effects else [d.effect]
-        rows[f"held-out RMS with {' + '.join(names)}"] = sh["heldout_rms_after"]
+        rows[f"held-out RMS with {' + '.join(_named(d))}"] = sh["heldout_rms_after"]
     rows["noise floor"] = sh["noise_floor"]
     cols = [f"{c} [{_unit(c)}]" for c in WRENCH_COMPONENTS]
     df = pd.DataFrame({k: [_g(v) for v in np.asarray(r, float)] for k, r in rows.items()}, index=cols).T
     df.index.name = f"{sh.get('kind', 'standing')} recordings"
     return df
+
+
+def _named(d: "DiagnosisResult") -> list[str]:
+    """The effects named, in the order added (one name once: free loads list them per transducer)."""
+    return list(dict.fromkeys(e["name"] for e in d.effects_list())) or ([d.effect] if d.effect else [])
 
 
 def joint_view(d: "DiagnosisResult") -> pd.DataFrame | None:
@@ -91,23 +95,28 @@ def kinds_view(d: "DiagnosisResult") -> pd.DataFrame:
 
 
 def chain_view(d: "DiagnosisResult") -> pd.DataFrame | None:
-    """The effects named in order (free loads): transducer, shape, paired block z, share of the excess then left
-    that it removes, held-out RMS after it (forces, torques), and its parameters with se."""
-    if not d.effects:
+    """The effects named in order (free loads; hexapods when the chain named more than one): transducer, shape,
+    paired block z, share of the excess then left that it removes, held-out RMS after it (forces, torques), and its
+    parameters with se."""
+    effects = d.effects_list()
+    if not effects or (d.free is None and len(effects) < 2):
         return None
     rows = {}
-    for i, e in enumerate(d.effects):
+    for i, e in enumerate(effects):
         pars = "; ".join(f"{k} = {v['value']:.4g}" + (f" {PM} {v['se']:.2g}" if v.get("se") is not None else "")
                          for k, v in list(e.get("parameters", {}).items())[:8])
         more = len(e.get("parameters", {})) - 8
         r = np.asarray(e["heldout_rms_after"], float)
         rows[f"{i + 1}. {e['name']}"] = {
-            "transducer": e.get("transducer", ""), "shape": ", ".join(f"{k} {v}" for k, v in (e.get("shape") or {}).items()) or "-",
-            "paired z": f"{e['paired_z']:.1f}" if "paired_z" in e else "-",
-            "explains [%]": f"{100 * e['explained']:.0f}" if "explained" in e else "-",
+            "transducer": e.get("transducer", ""),
+            "shape": ", ".join(f"{k} {v}" for k, v in (e.get("shape") or e.get("variant") or {}).items()) or "-",
+            "paired z": f"{e['paired_z']:.1f}" if e.get("paired_z") is not None else "-",
+            "explains [%]": f"{100 * e['explained']:.0f}" if e.get("explained") is not None else "-",
             "held-out RMS fx fy fz [N]": " ".join(_g(v) for v in r[:3]), "held-out RMS tx ty tz [N*m]": " ".join(_g(v) for v in r[3:]),
             "parameters": pars + (f"; ... ({more} more in diagnosis.json)" if more > 0 else "")}
     out = pd.DataFrame(rows).T
+    if d.free is None:   # one transducer set: no column for it
+        out = out.drop(columns="transducer")
     out.index.name = "effect (in the order added)"
     return out
 
@@ -221,6 +230,10 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
         sec.add(Figure("diagnosis_dependence.png", dep,
                        "The residual component with the largest gap against the measured variable that explains it best; "
                        f"the grey band is {PM} the noise floor."))
+    cv = chain_view(d)
+    if cv is not None:
+        sec.add(Table("The effects named, in the order added (each after the first scored with those before it in the model, "
+                      "added when its paired held-out test passed, and refit jointly with them and the whole calibration)", cv))
     jv = joint_view(d)
     if jv is not None:
         sec.add(Table(f"Joint refit: the whole calibration refit with {d.effect} (hanging, standing and walking swing "
@@ -250,7 +263,7 @@ def fig_shrinkage(d: "DiagnosisResult", path: Path) -> Path:
     before, after, floor = (np.asarray(sh[k], float) for k in ("heldout_rms_before", "heldout_rms_after", "noise_floor"))
     bars = [(before, "tab:blue", "held-out, calibrated model")]
     if d.effect:
-        bars.append((after, "tab:orange", f"held-out, with {d.effect}"))
+        bars.append((after, "tab:orange", f"held-out, with {' + '.join(_named(d))}"))
     bars.append((floor, "0.6", "noise floor"))
     w = 0.8 / len(bars)
     fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.8))

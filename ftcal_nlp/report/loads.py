@@ -66,6 +66,14 @@ def load_table(res: "CalibrationRun", leg: str) -> pd.DataFrame:
             rows.append((f"group {g}: first moment {ax} [kg mm] ({d['frame']})",
                          fmt_pm(1e3 * d["first_moment_kgm"][i], 1e3 * d["first_moment_se_kgm"][i]),
                          None if gt is None else 1e3 * gt[1][k][i]))
+    if "gravity_tilt_rad" in rep:   # the world tilt of the orientation stream
+        tv, tv_se = np.degrees(rep["gravity_tilt_rad"]), np.degrees(rep["gravity_tilt_se_rad"])
+        for i, ax in enumerate("xy"):
+            rows.append((f"world tilt of the orientation stream {ax} [deg]", fmt_pm(tv[i], tv_se[i]), None))
+    for rec, tv in rep.get("recording_tilt_rad", {}).items():   # a tilt per gravity_body-only recording
+        for i, ax in enumerate("xy"):
+            rows.append((f"tilt of recording {rec} {ax} [deg]",
+                         fmt_pm(np.degrees(tv[i]), np.degrees(rep["recording_tilt_se_rad"][rec][i])), None))
     rv, rv_se = np.degrees(rep["mount_rotvec"]), np.degrees(rep["mount_rotvec_se"])
     for i, ax in enumerate("xyz"):
         rows.append((f"mounting rotation {ax} [deg]", fmt_pm(rv[i], rv_se[i]),

@@ -1,0 +1,219 @@
+"""Several effects on hexapod datasets (issue 23, item 2; ``diagnose/hexchain.py``, ``effects/combined.py``).
+
+* stacked linear faces: one face stacked alone scores exactly as itself; two faces (one per leg, one shared) recover
+  both known coefficients within 4 se, and the rebased score says what the second adds beside the first;
+* the combined standing face: the corrections of two effects add up (numeric check of the augmented residual);
+* the paired block-wise z: large for a real saving, small for noise;
+* end to end on small simulated sessions: two effects injected together are both named in the chain, each with
+  parameters and se and the held-out RMS after it; a single effect is named alone (no false second), and the
+  diagnosis.json / report carry the chain.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ftcal_nlp.diagnose.hexchain import paired_z
+from ftcal_nlp.diagnose.linear_fit import rebase, score_linear
+from ftcal_nlp.diagnose.scores import KindScore
+from ftcal_nlp.diagnose.views import LegSeries
+from ftcal_nlp.effects import EFFECTS, HangingLeg, LinearFace
+from ftcal_nlp.effects.combined import Combined
+from ftcal_nlp.effects.faces import per_leg_face, stack_faces
+
+SD = 0.05
+
+
+def _series(rng, beta_leg: np.ndarray, beta_shared: float, n: int = 2000, K: int = 3):
+    """K legs; the residual is a per-leg cos(phi) on fx (``beta_leg[k]``) plus a shared sin(phi) on fy, plus noise."""
+    legs = []
+    for k in range(K):
+        t = np.arange(n) * 0.01
+        phi = 0.37 * t + k
+        e = rng.normal(0, SD, (n, 6))
+        e[:, 0] += beta_leg[k] * np.cos(phi)
+        e[:, 1] += beta_shared * np.sin(phi)
+        legs.append(HangingLeg(f"L{k}", k, e, t, phi, np.full(n, 0.37), np.zeros(n, int), np.zeros((n, 3)), np.zeros((n, 3)),
+                               np.zeros((n, 3)), 6.0, 9.81, 0.0, np.array([0, 0, 1.0])))
+    return LegSeries(legs, np.full((K, 6), SD), "hanging")
+
+
+def _faces(legs):
+    def cos_fx(l):
+        X = np.zeros((len(l.t), 6, 1))
+        X[:, 0, 0] = np.cos(l.phi)
+        return X
+
+    per = per_leg_face(legs, cos_fx, ("c",))
+    shared = LinearFace([np.concatenate([np.zeros((len(l.t), 1, 1)), np.sin(l.phi)[:, None, None], np.zeros((len(l.t), 4, 1))], axis=1)
+                         for l in legs], ("s",), False)
+    return per, shared
+
+
+def test_one_face_stacked_alone_scores_as_itself():
+    rng = np.random.default_rng(1)
+    series = _series(rng, np.array([0.3, -0.2, 0.5]), 0.0)
+    per, _ = _faces(series.legs)
+    a, ba = score_linear(series, per, folds=5)
+    st = stack_faces([("x", per)], series.legs)
+    b, bb = score_linear(series, st, folds=5)
+    assert st.names == ("x:L0.c", "x:L1.c", "x:L2.c") and st.cols is not None
+    np.testing.assert_allclose(bb, ba, rtol=1e-12)
+    for f in ("z_after", "rss_after", "dof"):
+        assert getattr(b, f) == pytest.approx(getattr(a, f), rel=1e-12), f
+    np.testing.assert_allclose(b.blocks_after, a.blocks_after, rtol=1e-12)
+
+
+def test_two_stacked_faces_recover_both_and_the_second_is_scored_beside_the_first():
+    rng = np.random.default_rng(2)
+    beta_leg, beta_shared = np.array([0.3, -0.2, 0.5]), 0.15
+    series = _series(rng, beta_leg, beta_shared)
+    per, shared = _faces(series.legs)
+    both = stack_faces([("a", per), ("b", shared)], series.legs)
+    sc, beta = score_linear(series, both, folds=5)
+    n = len(series.legs[0].t)
+    se_leg, se_shared = SD / np.sqrt(0.5 * n), SD / np.sqrt(0.5 * 3 * n)
+    assert np.all(np.abs(beta[:3] - beta_leg) < 4 * se_leg) and abs(beta[3] - beta_shared) < 4 * se_shared
+    assert sc.dof == 4
+    first = score_linear(series, stack_faces([("a", per)], series.legs), folds=5)[0]
+    second = rebase(sc, first)
+    # beside the first face the second removes nearly all that is left (a sine of 0.15 against noise of 0.05)
+    assert second.dof == 1 and second.explained > 0.95 and paired_z(second) > 10
+    # on noise the second face adds nothing: z small, no saving
+    noise = _series(np.random.default_rng(3), beta_leg, 0.0)
+    per_n, shared_n = _faces(noise.legs)
+    s1 = score_linear(noise, stack_faces([("a", per_n)], noise.legs), folds=5)[0]
+    s2 = rebase(score_linear(noise, stack_faces([("a", per_n), ("b", shared_n)], noise.legs), folds=5)[0], s1)
+    assert paired_z(s2) < 3 and s2.explained < 0.05
+
+
+def test_paired_z_of_blocks():
+    rng = np.random.default_rng(4)
+    b0 = rng.chisquare(6, 200)
+    k = lambda b1: KindScore("standing", np.ones(6), np.ones(6), np.ones(6), b0.sum(), b1.sum(), 1.0, 1.0, 1200, 1, b0, b1)  # noqa: E731
+    assert paired_z(k(0.5 * b0 * rng.uniform(0.8, 1.2, 200))) > 20
+    assert abs(paired_z(k(b0 * rng.uniform(0.8, 1.2, 200)))) < 3
+    assert np.isnan(paired_z(replace(k(b0), blocks_before=None)))
+
+
+def test_combined_standing_face_adds_the_corrections():
+    import casadi as ca
+
+    from ftcal_nlp.effects import AugContext, pose_symbols
+
+    K = 6
+    legs = tuple(f"L{k}" for k in range(K))
+    ctx = AugContext(legs, [ca.DM(np.zeros(6))] * K, np.stack([np.eye(3)] * K), np.full(K, 6.0), 9.81)
+    drift, casing = EFFECTS["offset_drift"], EFFECTS["casing_load"]
+    both = Combined([drift, casing])
+    assert both.name == "offset_drift+casing_load" and both.shifts_offsets
+    blk = both.standing_params(ctx)
+    m1, m2 = drift.standing_params(ctx).m, casing.standing_params(ctx).m
+    assert blk.m == m1 + m2 and blk.names[0].startswith("offset_drift:") and blk.names[-1].startswith("casing_load:")
+    d, pose = pose_symbols(K)
+    eta = ca.SX.sym("eta", blk.m)
+    c, z, e = both.standing(eta, pose, ctx)
+    c1, _, e1 = drift.standing(eta[:m1], pose, ctx)
+    c2, _, _ = casing.standing(eta[m1:], pose, ctx)
+    f = ca.Function("f", [eta, d], [ca.vertcat(*c, e), ca.vertcat(*[a + b - w for a, b, w in zip(c1, c2, pose.w)], e1)])
+    rng = np.random.default_rng(5)
+    got, want = f(rng.normal(size=blk.m), rng.normal(size=d.numel()))
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-12)
+    # a hanging estimate held in the standing fit moves to the member's place in eta
+    held = both.standing_from_hanging({"casing_load:L2.x_cos": 0.4}, ctx)
+    own = casing.standing_from_hanging({"L2.x_cos": 0.4}, ctx)
+    assert held == {m1 + i: v for i, v in own.items()}
+    assert [m.name for m in both.joint_variants()[0].members] == ["offset_drift", "casing_load"]
+    with pytest.raises(ValueError):
+        Combined([drift, drift])
+
+
+# ----------------------------------------------------------------------------- end to end
+
+SMALL = {"n_poses": 100, "hanging_cycles": 2.0, "walk_cycles": 1.0}
+
+
+def _diagnosis(seed: int, effects: list[tuple[str, float]]):
+    from ftcal_nlp.bench.validate import DEFAULTS, _settings
+    from ftcal_nlp.pipeline import calibrate
+    from ftcal_nlp.sim import SimConfig, simulate
+
+    spec = [{"name": n, "scale": s, "seed": seed} for n, s in effects]
+    sim = simulate(SimConfig.from_dict({**SMALL, "seed": seed, "effects": spec}))
+    return sim, calibrate(sim.dataset, _settings({**DEFAULTS, "folds": 5}, "exact")).diagnosis
+
+
+def test_two_effects_are_both_named_with_parameters(tmp_path):
+    sim, d = _diagnosis(5, [("offset_drift", 4.0), ("casing_load", 1.5)])
+    js = json.loads(json.dumps(d.to_json_dict()))
+    names = [e["name"] for e in js["effects"]]
+    assert d.verdict == "effect" and set(names) == {"offset_drift", "casing_load"}, (names, js.get("chain"))
+    assert js["effect"] == names[0]
+    for e in js["effects"]:
+        assert len(e["heldout_rms_after"]) == 6 and e["parameters"]
+        assert all(v["se"] is None or v["se"] > 0 for v in e["parameters"].values())
+    second = js["effects"][1]
+    assert second["paired_z"] >= 3 and second["explained"] >= 0.5
+    # the chain's end is the shrinkage's after; each link lowers the held-out RMS
+    assert js["shrinkage"]["heldout_rms_after"] == second["heldout_rms_after"]
+    assert np.mean(second["heldout_rms_after"]) < np.mean(js["effects"][0]["heldout_rms_after"])
+    assert js["chain"]["stop"] and js["chain"]["rounds"]
+    # the joint refit of both recovers the casing load's first harmonic on every leg (hanging face) within 4 se
+    pars = d.chain.links[-1].joint.parameters
+    legs = sim.dataset.robot.legs
+    M = next(e for e in sim.config.effects if e.name == "casing_load").matrices(len(legs))
+    z = [(pars[f"hanging:casing_load:{leg}.{a}_{f}"][0] - M[k, i, j]) / pars[f"hanging:casing_load:{leg}.{a}_{f}"][1]
+         for k, leg in enumerate(legs) for i, a in enumerate("xy") for j, f in enumerate(("cos", "sin"))]
+    assert np.all(np.abs(z) < 4), np.round(z, 1)
+    from ftcal_nlp.report.diagnosis import diagnosis_section
+
+    sec = diagnosis_section(d, tmp_path)
+    assert any("in the order added" in t[0] for t in sec.tables)
+
+
+def test_a_single_effect_grows_no_second():
+    _, d = _diagnosis(7, [("casing_load", 1.5)])
+    assert d.effect == "casing_load" and [e["name"] for e in d.effects_list()] == ["casing_load"], d.chain
+
+
+def test_the_stated_test_and_the_joint_check():
+    """``passes``: z, saving and the design gap as stated; ``gap_left`` / ``joint_better`` on joint refits' kinds."""
+    from types import SimpleNamespace
+
+    from ftcal_nlp.diagnose.hexchain import JOINT_MIN, gap_left, joint_better, kind_threshold, passes
+    from ftcal_nlp.diagnose.joint import KindRefit
+
+    rng = np.random.default_rng(6)
+    b0 = rng.chisquare(6, 100) * 3.0
+
+    def ks(b1):
+        return KindScore("standing", np.ones(6), np.ones(6), np.ones(6), b0.sum(), b1.sum(), 1.0, 1.0, 600, 6, b0, b1)
+
+    good = SimpleNamespace(kinds={"standing": ks(b0 / 2.5)}, design=None)
+    assert passes(good, {"standing": 2.0})[0]
+    noise = SimpleNamespace(kinds={"standing": ks(b0 * rng.uniform(0.9, 1.1, 100))}, design=None)
+    ok, why, kind, z = passes(noise, {"standing": 2.0})
+    assert not ok and "paired block-wise z" in why and kind == "standing"
+    tiny = SimpleNamespace(kinds={"standing": ks(b0 - 0.01 * b0.mean())}, design=None)  # significant, not material
+    ok, why, _, _ = passes(tiny, {"standing": 2.0})
+    assert not ok and "floor's variance" in why
+    tilt = SimpleNamespace(kinds={}, design={"delta_bic": -20.0})
+    assert passes(tilt, {"design": 2.0})[:3] == (True, "", "design")
+    assert not passes(SimpleNamespace(kinds={}, design=None), {"standing": 2.0})[0]
+
+    fl = np.full(6, 0.1)
+    refit = lambda **kinds: SimpleNamespace(kinds={k: KindRefit(k, fl, fl * r, fl, 100) for k, r in kinds.items()})  # noqa: E731
+    assert kind_threshold("standing", 100) == pytest.approx(max(0.5, 4 * np.sqrt(2 / 100)))
+    assert gap_left(refit(standing=1.1, hanging=1.2)) == {"hanging": pytest.approx(0.44)}
+    assert gap_left(refit(standing=1.1, hanging=1.2), skip=("hanging",)) == {}
+    cur = refit(standing=2.0, hanging=1.0)
+    assert joint_better(cur, refit(standing=1.2, hanging=1.0), "standing") == (True, "")
+    e1 = (1.0 - JOINT_MIN) * 3.0 + 1.0   # excess just above what the check allows
+    assert not joint_better(cur, refit(standing=np.sqrt(e1 + 0.01), hanging=1.0), "standing")[0]
+    ok, why = joint_better(cur, refit(standing=1.0, hanging=2.0), "standing")
+    assert not ok and "hanging" in why
+    assert joint_better(cur, refit(standing=1.0, hanging=2.0), "standing", skip=("hanging",))[0]
