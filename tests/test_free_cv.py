@@ -5,15 +5,18 @@ per-channel and channel-wise faces; a face tuned per fold (``fit_per_fold``) and
 (effects/free_refine.py) equal a least squares on the stacked rows."""
 
 import numpy as np
+import pytest
 
 from ftcal_nlp.diagnose.free_cv import Design, cv_blocks, fold_of_blocks
 from ftcal_nlp.effects.free_faces import FreeFace
 
 
-def _problem(seed=0, n=600):
+def _problem(seed=0, n=600, shuffled=False):
     rng = np.random.default_rng(seed)
     hold = np.repeat(np.arange(20), n // 20)
     block = cv_blocks(hold, np.zeros(n, int), 5)
+    if shuffled:     # blocks that are not runs of consecutive samples: the design permutes the rows into block order
+        block = rng.permutation(block)
     fold = fold_of_blocks(block, 5, seed)
     w = rng.uniform(0.5, 2.0, 6)
     Jx = np.zeros((n, 6, 9))
@@ -46,8 +49,10 @@ def test_channel_blocks_rebuild_the_dense_columns():
     assert [list(cols) for _, cols, _ in J.channel_blocks()] == [[0, 6, 7, 8], [1, 6, 7, 8], [2, 6, 7, 8], [3], [4], [5]]
 
 
-def test_cross_validation_from_the_block_sums_is_the_direct_least_squares():
-    d, (J, P, C), r, w, fold = _problem()
+@pytest.mark.parametrize("shuffled", [False, True])
+def test_cross_validation_from_the_block_sums_is_the_direct_least_squares(shuffled):
+    d, (J, P, C), r, w, fold = _problem(shuffled=shuffled)
+    assert d._sorted is not shuffled
     cv = d.fit([J, P, C])
     parts = [J, P, C]
     heldout = np.empty_like(r)

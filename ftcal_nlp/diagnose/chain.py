@@ -19,6 +19,13 @@ Without a floor (the data hold no still stretch, e.g. a list of single-row poses
 weights are the free-load fit's residual sd, there is no gap to test and no excess: a candidate is added when
 its paired z passes and it saves at least ``MIN_GAIN_NO_FLOOR`` of the current held-out sum of squares.
 
+A unit may refine its grid's best shape (``free_refine``: tuned on every sample). Its held-out score is then not
+that of the shape tuned on every sample (optimistic) but per fold (``REFINE_PER_FOLD``): each fold's shape is the
+best of the unit's ``free_refine_near`` shapes by the training blocks' residual sum of squares of the current design
+with its face (``Design.train_sse``), and that fold is predicted with it (``Design.fit_per_fold``); the refined shape
+is kept when this beats the grid's held-out score, and the shape tuned on every sample is the face later designs and
+the joint refit use (later candidates are compared with that design, ``Chain.current_design``).
+
 Among the candidates that pass, the best by held-out sum of squares is added, unless one with fewer parameters
 explains at least ``PARSIMONY`` of what the best does: that one goes first (a flexible face can mimic a simpler
 effect, e.g. a creep with a sub-second time constant a clock offset; the flexible one is scored again next

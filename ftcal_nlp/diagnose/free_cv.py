@@ -13,9 +13,10 @@ below ``REL_EIG`` of its largest eigenvalue are left at zero: what the data cann
 Held-out evidence: the samples are cut into blocks (:func:`cv_blocks`: each quasi-static hold with the
 move that follows it; without holds, time blocks), the blocks dealt to ``folds`` folds by a seeded
 permutation; each fold is predicted from the normal equations of the others (``G - G_f, v - v_f``). The
-normal equations are kept per block and channel (:class:`Design`, cached per pair of parts), so a design's
-held-out sums of squares per block (for the paired tests) and per channel (RMS in the readings' units) follow
-without a pass over the samples:
+normal equations are kept per block and channel (:class:`Design`, cached per pair of parts; a face's columns are
+its channel blocks, ``FreeFace.channel_blocks``: each channel's non-zero columns only), so a design's held-out sums
+of squares per block (for the paired tests) and per channel (RMS in the readings' units) follow without a pass over
+the samples:
 
     SSE_bc = s_bc - 2 beta_f' v_bc + beta_f' G_bc beta_f      (block b in fold f, channel c)
 

@@ -31,6 +31,10 @@ not a candidate on free-load data):
   (the free-load model and the effects named so far refit; channels weighted by ``1 / ctx.sigma``, the floor);
   the unit may return a refined shape (e.g. the exact delay by Gauss-Newton, a time constant by a 1-D search),
   which is scored like any grid shape and kept when its held-out residual is smaller.
+* ``free_refine_near(ctx, shape) -> tuple[dict, ...]`` (optional, with ``free_refine``): shapes near the grid's best
+  spanning what ``free_refine`` searches (e.g. creep: taus a half-octave apart within a factor 2). The refined shape's
+  held-out score then tunes the shape per cross-validation fold among these, on the fold's training blocks alone
+  (``diagnose/chain.py``), instead of scoring the shape tuned on every sample (optimistic).
 * ``free_explains`` (class attribute, default the unit's ``explains``): the correlate a residual of this
   effect lies along (``"time"``, ``"motion"``, ``"load"``, ``"joint:<name>"`` via ``"joint"``,
   ``"temperature"``, ``"pose_history"``) - what ``where.explains`` should say when it is named.
