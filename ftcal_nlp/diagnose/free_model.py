@@ -26,7 +26,7 @@ import numpy as np
 from ..data import Dataset
 from ..effects.free_faces import FreeLoadContext, make_context
 from ..freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
-from ..geometry import quat_to_rotation, skew
+from ..geometry import quat_to_rotation
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
 FLOOR_WINDOW_S = 0.5
@@ -100,38 +100,99 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     return ctx, notes
 
 
+#: model_jacobian fills J this many samples at a time (~0.2-0.4 MB a block: its strided column writes stay in cache)
+JACOBIAN_CHUNK = 2048
+
+
 def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
     """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``. In closed form (no call of
     ``predict``): with ``g = E^T b`` and ``s = K theta``, ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``;
     ``E expm([r]x)`` turns ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and
-    ``d t / d r = [s]x [g]x``; with the world tilt (``ctx.extra["a"]``) ``d g / d tilt_k = E^T A_n du/dtilt_k``,
-    ``d f / d tilt_k = (mu.theta) dg``, ``d t / d tilt_k = s x dg``. Blocks are written whole (a column at a time
-    into the last axis is strided)."""
+    ``d t / d r = [s]x [g]x`` (``(i, j)``: ``g_i s_j``, ``-(s.g - s_i g_i)`` on the diagonal); with the world tilt
+    (``ctx.extra["a"]``) ``d g / d tilt_k = E^T A_n du/dtilt_k``, ``d f / d tilt_k = (mu.theta) dg``,
+    ``d t / d tilt_k = s x dg``. ``J`` is filled in place, ``JACOBIAN_CHUNK`` samples at a time (its columns are
+    strided: a block at a time they stay in cache), without (N, 3, 3) temporaries; a tilt group's rows are a slice
+    when they are one run (e.g. one group over every sample), gathered otherwise."""
     b, K = ctx.extra["b"], ctx.extra["K"]
     load, E = fit.load, fit.rotation
     mu = np.asarray(load.mass_row, float)
     theta = np.asarray(fit.theta, float)
+    mt = float(mu @ theta)
     p = len(theta)
     n = ctx.n
     g = b @ E                                                    # (N, 3): (E^T b_n)^T
     Kn = K if K.ndim == 3 else np.broadcast_to(K, (n,) + K.shape)
     s = Kn @ theta                                               # (N, 3) first moment in ft
-    Sg = skew(g)
     tilts = ([] if getattr(fit, "tilt", None) is None else [fit.tilt]) + list(getattr(fit, "recording_tilts", {}).values())
     nt = 2 * len(tilts)
-    J = np.zeros((n, 6, 6 + p + nt + 3))
-    J[:, np.arange(6), np.arange(6)] = 1.0
-    J[:, :3, 6:6 + p] = g[:, :, None] * mu[None, None, :]
-    J[:, 3:, 6:6 + p] = np.cross(Kn, g[:, :, None], axis=1)
+    P = 6 + p + nt + 3
+    groups = []                                                  # (first column, rows, dg (n_k, 3, 2)) per tilt
     for k, tilt in enumerate(tilts):   # each tilt moves the samples of its group only
-        m = ctx.extra["tilt_block"] == k
-        dg = np.einsum("nik,kt,ij->njt", ctx.extra["a"][m], tilt_derivative(tilt), E)     # (n_k, 3, 2): E^T A_n du/dtilt
-        c = 6 + p + 2 * k
-        J[m, :3, c:c + 2] = float(mu @ theta) * dg
-        J[m, 3:, c:c + 2] = np.cross(s[m][:, :, None], dg, axis=1)
-    J[:, :3, 6 + p + nt:] = float(mu @ theta) * Sg
-    J[:, 3:, 6 + p + nt:] = skew(s) @ Sg
+        rows = _rows(ctx.extra["tilt_block"] == k)
+        ak = ctx.extra["a"][rows]
+        nk = len(ak)
+        # dg[n] = E^T A_n du/dtilt (3, 2): two products over the stacked rows
+        aD = (ak.reshape(3 * nk, 3) @ tilt_derivative(tilt)).reshape(nk, 3, 2)
+        dg = (aD.transpose(0, 2, 1).reshape(2 * nk, 3) @ E).reshape(nk, 2, 3).transpose(0, 2, 1)
+        groups.append((6 + p + 2 * k, rows, dg))
+    J = np.empty((n, 6, P))
+    for lo in range(0, n, JACOBIAN_CHUNK):
+        hi = min(n, lo + JACOBIAN_CHUNK)
+        Jc = J[lo:hi]
+        Jc.fill(0.0)
+        _fill_jacobian(Jc, g[lo:hi], s[lo:hi], Kn[lo:hi], mu, mt, p, 6 + p + nt)
+        for c, rows, dg in groups:
+            if isinstance(rows, slice) and rows.start < hi and rows.stop > lo:
+                a0, a1 = max(lo, rows.start), min(hi, rows.stop)
+                _fill_tilt(J[a0:a1, :, c:c + 2], s[a0:a1], dg[a0 - rows.start:a1 - rows.start], mt)
+    for c, rows, dg in groups:
+        if not isinstance(rows, slice):
+            blk = np.empty((len(rows), 6, 2))
+            _fill_tilt(blk, s[rows], dg, mt)
+            J[rows, :, c:c + 2] = blk
     return J, tuple(fit.names)
+
+
+def _rows(mask: np.ndarray) -> slice | np.ndarray:
+    """The rows of ``mask`` as a slice when they are one run (a view, no gathered copy), else their indices."""
+    i = np.flatnonzero(mask)
+    if len(i) and i[-1] - i[0] + 1 == len(i):
+        return slice(int(i[0]), int(i[-1]) + 1)
+    return i
+
+
+def _cross_into(out: np.ndarray, u: np.ndarray, v: np.ndarray) -> None:
+    """``out[:, i, ...] = (u x v)_i`` over axis 1 of ``u`` and ``v`` (broadcast), written in place (``np.cross``'s
+    own products and order: the same numbers, no temporaries of the whole product)."""
+    for i, (j, k) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.multiply(u[:, j], v[:, k], out=out[:, i])
+        out[:, i] -= u[:, k] * v[:, j]
+
+
+def _fill_jacobian(J: np.ndarray, g: np.ndarray, s: np.ndarray, K: np.ndarray, mu: np.ndarray, mt: float, p: int,
+                   r: int) -> None:
+    """The offset, load and mount columns of a zeroed block of rows ``J`` (:func:`model_jacobian`; ``r``: the first
+    mount column)."""
+    n, _, P = J.shape
+    J.reshape(n, 6 * P)[:, : 6 * (P + 1) : P + 1] = 1.0         # the offsets: J[:, c, c] (a strided view)
+    np.multiply(g[:, :, None], mu, out=J[:, :3, 6:6 + p])
+    _cross_into(J[:, 3:, 6:6 + p], K, g[:, :, None])
+    for i, j, sg in ((0, 1, -1), (0, 2, 1), (1, 0, 1), (1, 2, -1), (2, 0, -1), (2, 1, 1)):
+        # d f / d r = (mu.theta) [g]x: entry (i, j) is sg g_k, k the third index; d t / d r = [s]x [g]x: g_i s_j
+        np.multiply(g[:, 3 - i - j], sg * mt, out=J[:, i, r + j])
+        np.multiply(g[:, i], s[:, j], out=J[:, 3 + i, r + j])
+    for i in range(3):                                           # its diagonal: -(s_j g_j + s_k g_k)
+        j, k = (i + 1) % 3, (i + 2) % 3
+        d = J[:, 3 + i, r + i]
+        np.multiply(s[:, j], g[:, j], out=d)
+        d += s[:, k] * g[:, k]
+        np.negative(d, out=d)
+
+
+def _fill_tilt(out: np.ndarray, s: np.ndarray, dg: np.ndarray, mt: float) -> None:
+    """A tilt's two columns (n, 6, 2) of its group's rows: ``(mu.theta) dg`` and ``s x dg``."""
+    np.multiply(dg, mt, out=out[:, :3])
+    _cross_into(out[:, 3:], s[:, :, None], dg)
 
 
 def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:
