@@ -4,7 +4,8 @@ noise floor from held, still stretches of the readings.
 * :func:`context_for`: a :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` of one transducer over every
   ``hanging`` recording in which its load hangs free, ALL samples (moving ones included; samples whose gravity
   direction is unknown, orientation not tracked, are left out and counted);
-* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), tilts (2 each), r (3)]``
+* :func:`model_face` (its channel blocks; :func:`model_jacobian` the dense (N, 6, P) array): ``J_n = d h(x; s_n) / d x``
+  at the fit, ``x = [w_o (6), theta (p), tilts (2 each), r (3)]``
   (the world tilt of the orientation stream and each ``gravity_body``-only recording's tilt, where the fit has them)
   with ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``,
   ``b = A_n u(tilt)``, ``A_n = g R_nom^T F_n``, ``F_n = R_WB^T`` for an orientation stream, the frame of the
@@ -24,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..data import Dataset
-from ..effects.free_faces import FreeLoadContext, make_context
+from ..effects.free_faces import FreeFace, FreeLoadContext, make_context
 from ..freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
 from ..geometry import quat_to_rotation
 
@@ -100,19 +101,16 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     return ctx, notes
 
 
-#: model_jacobian fills J this many samples at a time (~0.2-0.4 MB a block: its strided column writes stay in cache)
-JACOBIAN_CHUNK = 2048
-
-
-def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
-    """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``. In closed form (no call of
-    ``predict``): with ``g = E^T b`` and ``s = K theta``, ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``;
-    ``E expm([r]x)`` turns ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and
-    ``d t / d r = [s]x [g]x`` (``(i, j)``: ``g_i s_j``, ``-(s.g - s_i g_i)`` on the diagonal); with the world tilt
-    (``ctx.extra["a"]``) ``d g / d tilt_k = E^T A_n du/dtilt_k``, ``d f / d tilt_k = (mu.theta) dg``,
-    ``d t / d tilt_k = s x dg``. ``J`` is filled in place, ``JACOBIAN_CHUNK`` samples at a time (its columns are
-    strided: a block at a time they stay in cache), without (N, 3, 3) temporaries; a tilt group's rows are a slice
-    when they are one run (e.g. one group over every sample), gathered otherwise."""
+def model_face(ctx: FreeLoadContext, fit) -> FreeFace:
+    """The model Jacobian ``J_n = d h / d x`` (module docstring) as a :class:`FreeFace` of channel blocks: per
+    channel its columns not identically zero (those :meth:`FreeFace.channel_blocks` finds in the dense ``J``),
+    built straight from the closed form (no mostly-zero (N, 6, P) array); names those of ``fit.names``. With ``g = E^T
+    b`` and ``s = K theta``: ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``; ``E expm([r]x)`` turns
+    ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and ``d t / d r = [s]x [g]x``
+    (``(i, j)``: ``g_i s_j``, ``-(s_j g_j + s_k g_k)`` on the diagonal); with a tilt (``ctx.extra["a"]``)
+    ``d g / d tilt = E^T A_n du/dtilt``, ``d f / d tilt = (mu.theta) dg``, ``d t / d tilt = s x dg`` on its group's
+    samples, zero on the others'. Each block is filled a column at a time as contiguous rows of (m_c, N) and
+    transposed once."""
     b, K = ctx.extra["b"], ctx.extra["K"]
     load, E = fit.load, fit.rotation
     mu = np.asarray(load.mass_row, float)
@@ -121,36 +119,73 @@ def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ..
     p = len(theta)
     n = ctx.n
     g = b @ E                                                    # (N, 3): (E^T b_n)^T
-    Kn = K if K.ndim == 3 else np.broadcast_to(K, (n,) + K.shape)
-    s = Kn @ theta                                               # (N, 3) first moment in ft
+    s = K @ theta                                                # (N, 3) (or (3,)) first moment in ft
+    gT = np.ascontiguousarray(g.T)                               # (3, N) rows: contiguous column writes
+    sT = np.ascontiguousarray(np.broadcast_to(s, (n, 3)).T)
+    KT = np.moveaxis(K, 0, -1) if K.ndim == 3 else K[:, :, None]  # (3, p, N) or (3, p, 1)
     tilts = ([] if getattr(fit, "tilt", None) is None else [fit.tilt]) + list(getattr(fit, "recording_tilts", {}).values())
     nt = 2 * len(tilts)
-    P = 6 + p + nt + 3
-    groups = []                                                  # (first column, rows, dg (n_k, 3, 2)) per tilt
+    r0 = 6 + p + nt
+    groups = []                                                  # (first column, rows, dg (3, 2, n_k), s (3, n_k))
     for k, tilt in enumerate(tilts):   # each tilt moves the samples of its group only
         rows = _rows(ctx.extra["tilt_block"] == k)
         ak = ctx.extra["a"][rows]
         nk = len(ak)
         # dg[n] = E^T A_n du/dtilt (3, 2): two products over the stacked rows
         aD = (ak.reshape(3 * nk, 3) @ tilt_derivative(tilt)).reshape(nk, 3, 2)
-        dg = (aD.transpose(0, 2, 1).reshape(2 * nk, 3) @ E).reshape(nk, 2, 3).transpose(0, 2, 1)
-        groups.append((6 + p + 2 * k, rows, dg))
-    J = np.empty((n, 6, P))
-    for lo in range(0, n, JACOBIAN_CHUNK):
-        hi = min(n, lo + JACOBIAN_CHUNK)
-        Jc = J[lo:hi]
-        Jc.fill(0.0)
-        _fill_jacobian(Jc, g[lo:hi], s[lo:hi], Kn[lo:hi], mu, mt, p, 6 + p + nt)
-        for c, rows, dg in groups:
-            if isinstance(rows, slice) and rows.start < hi and rows.stop > lo:
-                a0, a1 = max(lo, rows.start), min(hi, rows.stop)
-                _fill_tilt(J[a0:a1, :, c:c + 2], s[a0:a1], dg[a0 - rows.start:a1 - rows.start], mt)
-    for c, rows, dg in groups:
-        if not isinstance(rows, slice):
-            blk = np.empty((len(rows), 6, 2))
-            _fill_tilt(blk, s[rows], dg, mt)
-            J[rows, :, c:c + 2] = blk
-    return J, tuple(fit.names)
+        dg = (aD.transpose(0, 2, 1).reshape(2 * nk, 3) @ E).reshape(nk, 2, 3)   # (n_k, t, j)
+        groups.append((6 + p + 2 * k, rows, np.ascontiguousarray(dg.transpose(2, 1, 0)), sT[:, rows]))
+    blocks = []
+    for c in range(6):
+        i, torque = c % 3, c >= 3
+        j, k = (i + 1) % 3, (i + 2) % 3
+        cols = ([c] + [6 + m for m in range(p) if torque or mu[m] != 0] + [cg + t for cg, *_ in groups for t in (0, 1)]
+                + [r0 + m for m in range(3) if torque or m != i])
+        Bt = np.empty((len(cols), n))
+        Bt[0] = 1.0                                              # the offset
+        row = 1
+        for m in range(p):
+            if torque:                                           # (K_m x g)_i, np.cross's products and order
+                np.multiply(KT[j, m], gT[k], out=Bt[row])
+                Bt[row] -= KT[k, m] * gT[j]
+                row += 1
+            elif mu[m] != 0:
+                np.multiply(gT[i], mu[m], out=Bt[row])
+                row += 1
+        for _, rows, dg, sk in groups:
+            for t in (0, 1):
+                out = Bt[row]
+                if not (isinstance(rows, slice) and rows == slice(0, n)):
+                    out[:] = 0.0
+                if torque:                                       # (s x dg)_i
+                    v = sk[j] * dg[k, t]
+                    v -= sk[k] * dg[j, t]
+                    out[rows] = v
+                else:
+                    out[rows] = dg[i, t] * mt
+                row += 1
+        for m in range(3):
+            if torque and m == i:                                # [s]x [g]x diagonal
+                np.multiply(sT[j], gT[j], out=Bt[row])
+                Bt[row] += sT[k] * gT[k]
+                np.negative(Bt[row], out=Bt[row])
+            elif torque:                                         # [s]x [g]x off the diagonal: g_i s_m
+                np.multiply(gT[i], sT[m], out=Bt[row])
+            elif m != i:                                         # (mu.theta) [g]x: +-g of the third index
+                np.multiply(gT[3 - i - m], (1.0 if (m - i) % 3 == 2 else -1.0) * mt, out=Bt[row])
+            else:
+                continue
+            row += 1
+        keep = np.array([True] + [bool(np.any(Bt[q])) for q in range(1, len(cols))])
+        blocks.append((c, np.asarray(cols)[keep], np.ascontiguousarray((Bt if keep.all() else Bt[keep]).T)))
+    return FreeFace(None, tuple(fit.names), blocks=tuple(blocks))
+
+
+def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``(J (N, 6, P), names)``: :func:`model_face` as its dense array (module docstring), columns
+    ``[w_o (6), theta (p), tilts (2 each), r (3)]``, ``names`` those of ``fit.names``."""
+    face = model_face(ctx, fit)
+    return face.X, face.names
 
 
 def _rows(mask: np.ndarray) -> slice | np.ndarray:
@@ -159,40 +194,6 @@ def _rows(mask: np.ndarray) -> slice | np.ndarray:
     if len(i) and i[-1] - i[0] + 1 == len(i):
         return slice(int(i[0]), int(i[-1]) + 1)
     return i
-
-
-def _cross_into(out: np.ndarray, u: np.ndarray, v: np.ndarray) -> None:
-    """``out[:, i, ...] = (u x v)_i`` over axis 1 of ``u`` and ``v`` (broadcast), written in place (``np.cross``'s
-    own products and order: the same numbers, no temporaries of the whole product)."""
-    for i, (j, k) in enumerate(((1, 2), (2, 0), (0, 1))):
-        np.multiply(u[:, j], v[:, k], out=out[:, i])
-        out[:, i] -= u[:, k] * v[:, j]
-
-
-def _fill_jacobian(J: np.ndarray, g: np.ndarray, s: np.ndarray, K: np.ndarray, mu: np.ndarray, mt: float, p: int,
-                   r: int) -> None:
-    """The offset, load and mount columns of a zeroed block of rows ``J`` (:func:`model_jacobian`; ``r``: the first
-    mount column)."""
-    n, _, P = J.shape
-    J.reshape(n, 6 * P)[:, : 6 * (P + 1) : P + 1] = 1.0         # the offsets: J[:, c, c] (a strided view)
-    np.multiply(g[:, :, None], mu, out=J[:, :3, 6:6 + p])
-    _cross_into(J[:, 3:, 6:6 + p], K, g[:, :, None])
-    for i, j, sg in ((0, 1, -1), (0, 2, 1), (1, 0, 1), (1, 2, -1), (2, 0, -1), (2, 1, 1)):
-        # d f / d r = (mu.theta) [g]x: entry (i, j) is sg g_k, k the third index; d t / d r = [s]x [g]x: g_i s_j
-        np.multiply(g[:, 3 - i - j], sg * mt, out=J[:, i, r + j])
-        np.multiply(g[:, i], s[:, j], out=J[:, 3 + i, r + j])
-    for i in range(3):                                           # its diagonal: -(s_j g_j + s_k g_k)
-        j, k = (i + 1) % 3, (i + 2) % 3
-        d = J[:, 3 + i, r + i]
-        np.multiply(s[:, j], g[:, j], out=d)
-        d += s[:, k] * g[:, k]
-        np.negative(d, out=d)
-
-
-def _fill_tilt(out: np.ndarray, s: np.ndarray, dg: np.ndarray, mt: float) -> None:
-    """A tilt's two columns (n, 6, 2) of its group's rows: ``(mu.theta) dg`` and ``s x dg``."""
-    np.multiply(dg, mt, out=out[:, :3])
-    _cross_into(out[:, 3:], s[:, :, None], dg)
 
 
 def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:
