@@ -340,33 +340,7 @@ def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
         if len(i) >= 2:
             if i[-1] - i[0] + 1 == len(i):      # a recording's samples are one run: a slice, no gather
                 i = slice(int(i[0]), int(i[-1]) + 1)
-            out[i] = _gradient(x[i], t[i])
-    return out
-
-
-def _gradient(x: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """``np.gradient(x, t, axis=0)`` (float ``x``, at least 2 rows; edge order 1), its formulas and operation order
-    (the same numbers), without its temporaries of the whole (N, ...) array."""
-    dx = np.diff(t)
-    out = np.empty_like(x)
-    o = out[1:-1]
-    if (dx == dx[0]).all():                               # numpy's uniform spacing
-        h = dx[0]
-        np.subtract(x[2:], x[:-2], out=o)
-        o /= 2.0 * h
-        h0 = hn = h
-    else:
-        dx1, dx2 = dx[:-1], dx[1:]
-        sh = (-1,) + (1,) * (x.ndim - 1)
-        a = (-dx2 / (dx1 * (dx1 + dx2))).reshape(sh)
-        b = ((dx2 - dx1) / (dx1 * dx2)).reshape(sh)
-        c = (dx1 / (dx2 * (dx1 + dx2))).reshape(sh)
-        np.multiply(a, x[:-2], out=o)
-        o += b * x[1:-1]
-        o += c * x[2:]
-        h0, hn = dx[0], dx[-1]
-    out[0] = (x[1] - x[0]) / h0
-    out[-1] = (x[-1] - x[-2]) / hn
+            out[i] = np.gradient(x[i], t[i], axis=0)
     return out
 
 
