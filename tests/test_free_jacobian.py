@@ -1,13 +1,14 @@
 """The free-load diagnosis' model Jacobian in closed form (``diagnose/free_model.model_jacobian``) equals central
 differences of the model readings (``freeload.problem.predict``) in every parameter: offsets, the load's
 parameters, the world tilt of the orientation stream (``b = A_n u(tilt)``, where the fit has it) and the mount
-rotation ``E expm([r]x)``, on a payload and on a URDF leg (per-sample levers), with and without the tilt."""
+rotation ``E expm([r]x)``, on a payload and on a URDF leg (per-sample levers), with and without the tilt; the
+diagnosis' face of it (``model_face``, channel blocks) keeps every column the differences show per channel and no zero one."""
 
 import numpy as np
 import pytest
 
 from ftcal_nlp.data import read_dataset
-from ftcal_nlp.diagnose.free_model import context_for, model_jacobian
+from ftcal_nlp.diagnose.free_model import context_for, model_face, model_jacobian
 from ftcal_nlp.freeload import fit_free_loads
 from ftcal_nlp.freeload.problem import predict, tilt_gravity
 from ftcal_nlp.geometry import rotvec_to_rotation
@@ -54,3 +55,10 @@ def test_the_jacobian_is_the_central_differences(cfg, tilt, tmp_path):
     fd = np.stack(cols, axis=-1)
     # central differences of step 1e-6 on readings of O(10 N): rounding ~1e-16 * 10 / 1e-6 = 1e-9; curvature h^2
     np.testing.assert_allclose(J, fd, rtol=0, atol=1e-7 * max(1.0, np.max(np.abs(fd))))
+    # the face the diagnosis uses (its channel blocks): every column the differences show on a channel, no zero column
+    blocks = {c: (cols, B) for c, cols, B in model_face(ctx, fit).channel_blocks()}
+    shown = np.max(np.abs(fd), axis=0) > 1e-7 * max(1.0, np.max(np.abs(fd)))              # (6, P)
+    for c in range(6):
+        cols, B = blocks[c]
+        assert set(np.flatnonzero(shown[c]).tolist()) <= set(cols.tolist())
+        assert B.flags.c_contiguous and np.all(np.any(B != 0, axis=0))

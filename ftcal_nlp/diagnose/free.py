@@ -32,13 +32,12 @@ import numpy as np
 
 from ..data import Dataset
 from ..effects import Effect, resolve_effects
-from ..effects.free_faces import FreeFace
 from ..effects.free_refine import use_model_face
 from ..settings import DiagnoseSettings
 from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
 from .correlates import EXPLAINED_MIN, CorrelateScore, score_correlates
 from .free_cv import Design, cv_blocks, fold_of_blocks
-from .free_model import context_for, hold_floor, model_jacobian
+from .free_model import context_for, hold_floor, model_face
 from .result import DiagnosisResult
 
 log = logging.getLogger(__name__)
@@ -131,8 +130,8 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
                      "known; the channels are weighted by the free-load fit's residual sd, effects are named by held-out "
                      "significance alone and no gap size can be stated")
     ctx = dataclasses.replace(ctx, sigma=floor)   # what a face's refinement weighs channels by
-    Jx, names = model_jacobian(ctx, fit)
-    J = FreeFace(Jx, names)
+    J = model_face(ctx, fit)      # the model Jacobian as its channel blocks
+    names = J.names
     use_model_face(ctx, J)        # a face's refinement regresses on the same columns (no second Jacobian)
     block = cv_blocks(ctx.hold, ctx.rec, s.folds)
     if int(block.max()) + 1 < s.folds:

@@ -4,7 +4,8 @@ noise floor from held, still stretches of the readings.
 * :func:`context_for`: a :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` of one transducer over every
   ``hanging`` recording in which its load hangs free, ALL samples (moving ones included; samples whose gravity
   direction is unknown, orientation not tracked, are left out and counted);
-* :func:`model_jacobian`: ``J_n = d h(x; s_n) / d x`` at the fit, ``x = [w_o (6), theta (p), tilts (2 each), r (3)]``
+* :func:`model_face` (its channel blocks; :func:`model_jacobian` the dense (N, 6, P) array): ``J_n = d h(x; s_n) / d x``
+  at the fit, ``x = [w_o (6), theta (p), tilts (2 each), r (3)]``
   (the world tilt of the orientation stream and each ``gravity_body``-only recording's tilt, where the fit has them)
   with ``E = E* expm([r]x)`` (``freeload/problem.py``: ``f = M E^T b + f_o``, ``t = (K theta) x (E^T b) + t_o``,
   ``b = A_n u(tilt)``, ``A_n = g R_nom^T F_n``, ``F_n = R_WB^T`` for an orientation stream, the frame of the
@@ -24,9 +25,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..data import Dataset
-from ..effects.free_faces import FreeLoadContext, make_context
+from ..effects.free_faces import FreeFace, FreeLoadContext, make_context
 from ..freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
-from ..geometry import quat_to_rotation, skew
+from ..geometry import quat_to_rotation
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
 FLOOR_WINDOW_S = 0.5
@@ -100,38 +101,99 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     return ctx, notes
 
 
-def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
-    """``(J (N, 6, P), names)`` (module docstring); ``names`` those of ``fit.names``. In closed form (no call of
-    ``predict``): with ``g = E^T b`` and ``s = K theta``, ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``;
-    ``E expm([r]x)`` turns ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and
-    ``d t / d r = [s]x [g]x``; with the world tilt (``ctx.extra["a"]``) ``d g / d tilt_k = E^T A_n du/dtilt_k``,
-    ``d f / d tilt_k = (mu.theta) dg``, ``d t / d tilt_k = s x dg``. Blocks are written whole (a column at a time
-    into the last axis is strided)."""
+def model_face(ctx: FreeLoadContext, fit) -> FreeFace:
+    """The model Jacobian ``J_n = d h / d x`` (module docstring) as a :class:`FreeFace` of channel blocks: per
+    channel its columns not identically zero (those :meth:`FreeFace.channel_blocks` finds in the dense ``J``),
+    built straight from the closed form (no mostly-zero (N, 6, P) array); names those of ``fit.names``. With ``g = E^T
+    b`` and ``s = K theta``: ``d f / d theta_l = mu_l g``, ``d t / d theta_l = K_l x g``; ``E expm([r]x)`` turns
+    ``g`` into ``g + g x r`` to first order, so ``d f / d r = (mu.theta) [g]x`` and ``d t / d r = [s]x [g]x``
+    (``(i, j)``: ``g_i s_j``, ``-(s_j g_j + s_k g_k)`` on the diagonal); with a tilt (``ctx.extra["a"]``)
+    ``d g / d tilt = E^T A_n du/dtilt``, ``d f / d tilt = (mu.theta) dg``, ``d t / d tilt = s x dg`` on its group's
+    samples, zero on the others'. Each block is filled a column at a time as contiguous rows of (m_c, N) and
+    transposed once."""
     b, K = ctx.extra["b"], ctx.extra["K"]
     load, E = fit.load, fit.rotation
     mu = np.asarray(load.mass_row, float)
     theta = np.asarray(fit.theta, float)
+    mt = float(mu @ theta)
     p = len(theta)
     n = ctx.n
     g = b @ E                                                    # (N, 3): (E^T b_n)^T
-    Kn = K if K.ndim == 3 else np.broadcast_to(K, (n,) + K.shape)
-    s = Kn @ theta                                               # (N, 3) first moment in ft
-    Sg = skew(g)
+    s = K @ theta                                                # (N, 3) (or (3,)) first moment in ft
+    gT = np.ascontiguousarray(g.T)                               # (3, N) rows: contiguous column writes
+    sT = np.ascontiguousarray(np.broadcast_to(s, (n, 3)).T)
+    KT = np.moveaxis(K, 0, -1) if K.ndim == 3 else K[:, :, None]  # (3, p, N) or (3, p, 1)
     tilts = ([] if getattr(fit, "tilt", None) is None else [fit.tilt]) + list(getattr(fit, "recording_tilts", {}).values())
     nt = 2 * len(tilts)
-    J = np.zeros((n, 6, 6 + p + nt + 3))
-    J[:, np.arange(6), np.arange(6)] = 1.0
-    J[:, :3, 6:6 + p] = g[:, :, None] * mu[None, None, :]
-    J[:, 3:, 6:6 + p] = np.cross(Kn, g[:, :, None], axis=1)
+    r0 = 6 + p + nt
+    groups = []                                                  # (first column, rows, dg (3, 2, n_k), s (3, n_k))
     for k, tilt in enumerate(tilts):   # each tilt moves the samples of its group only
-        m = ctx.extra["tilt_block"] == k
-        dg = np.einsum("nik,kt,ij->njt", ctx.extra["a"][m], tilt_derivative(tilt), E)     # (n_k, 3, 2): E^T A_n du/dtilt
-        c = 6 + p + 2 * k
-        J[m, :3, c:c + 2] = float(mu @ theta) * dg
-        J[m, 3:, c:c + 2] = np.cross(s[m][:, :, None], dg, axis=1)
-    J[:, :3, 6 + p + nt:] = float(mu @ theta) * Sg
-    J[:, 3:, 6 + p + nt:] = skew(s) @ Sg
-    return J, tuple(fit.names)
+        rows = _rows(ctx.extra["tilt_block"] == k)
+        ak = ctx.extra["a"][rows]
+        nk = len(ak)
+        # dg[n] = E^T A_n du/dtilt (3, 2): two products over the stacked rows
+        aD = (ak.reshape(3 * nk, 3) @ tilt_derivative(tilt)).reshape(nk, 3, 2)
+        dg = (aD.transpose(0, 2, 1).reshape(2 * nk, 3) @ E).reshape(nk, 2, 3)   # (n_k, t, j)
+        groups.append((6 + p + 2 * k, rows, np.ascontiguousarray(dg.transpose(2, 1, 0)), sT[:, rows]))
+    blocks = []
+    for c in range(6):
+        i, torque = c % 3, c >= 3
+        j, k = (i + 1) % 3, (i + 2) % 3
+        cols = ([c] + [6 + m for m in range(p) if torque or mu[m] != 0] + [cg + t for cg, *_ in groups for t in (0, 1)]
+                + [r0 + m for m in range(3) if torque or m != i])
+        Bt = np.empty((len(cols), n))
+        Bt[0] = 1.0                                              # the offset
+        row = 1
+        for m in range(p):
+            if torque:                                           # (K_m x g)_i, np.cross's products and order
+                np.multiply(KT[j, m], gT[k], out=Bt[row])
+                Bt[row] -= KT[k, m] * gT[j]
+                row += 1
+            elif mu[m] != 0:
+                np.multiply(gT[i], mu[m], out=Bt[row])
+                row += 1
+        for _, rows, dg, sk in groups:
+            for t in (0, 1):
+                out = Bt[row]
+                if not (isinstance(rows, slice) and rows == slice(0, n)):
+                    out[:] = 0.0
+                if torque:                                       # (s x dg)_i
+                    v = sk[j] * dg[k, t]
+                    v -= sk[k] * dg[j, t]
+                    out[rows] = v
+                else:
+                    out[rows] = dg[i, t] * mt
+                row += 1
+        for m in range(3):
+            if torque and m == i:                                # [s]x [g]x diagonal
+                np.multiply(sT[j], gT[j], out=Bt[row])
+                Bt[row] += sT[k] * gT[k]
+                np.negative(Bt[row], out=Bt[row])
+            elif torque:                                         # [s]x [g]x off the diagonal: g_i s_m
+                np.multiply(gT[i], sT[m], out=Bt[row])
+            elif m != i:                                         # (mu.theta) [g]x: +-g of the third index
+                np.multiply(gT[3 - i - m], (1.0 if (m - i) % 3 == 2 else -1.0) * mt, out=Bt[row])
+            else:
+                continue
+            row += 1
+        keep = np.array([True] + [bool(np.any(Bt[q])) for q in range(1, len(cols))])
+        blocks.append((c, np.asarray(cols)[keep], np.ascontiguousarray((Bt if keep.all() else Bt[keep]).T)))
+    return FreeFace(None, tuple(fit.names), blocks=tuple(blocks))
+
+
+def model_jacobian(ctx: FreeLoadContext, fit) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``(J (N, 6, P), names)``: :func:`model_face` as its dense array (module docstring), columns
+    ``[w_o (6), theta (p), tilts (2 each), r (3)]``, ``names`` those of ``fit.names``."""
+    face = model_face(ctx, fit)
+    return face.X, face.names
+
+
+def _rows(mask: np.ndarray) -> slice | np.ndarray:
+    """The rows of ``mask`` as a slice when they are one run (a view, no gathered copy), else their indices."""
+    i = np.flatnonzero(mask)
+    if len(i) and i[-1] - i[0] + 1 == len(i):
+        return slice(int(i[0]), int(i[-1]) + 1)
+    return i
 
 
 def hold_floor(ctx: FreeLoadContext) -> tuple[np.ndarray, int]:
