@@ -196,6 +196,7 @@ def test_the_stated_test_and_the_joint_check():
     good = SimpleNamespace(kinds={"standing": ks(b0 / 2.5)}, design=None)
     assert passes(good, {"standing": 2.0})[0]
     noise = SimpleNamespace(kinds={"standing": ks(b0 * rng.uniform(0.9, 1.1, 100))}, design=None)
+    assert not passes(SimpleNamespace(kinds={"walking swing": ks(b0 / 2.5)}, design=None), {"walking swing": 2.0})[0]
     ok, why, kind, z = passes(noise, {"standing": 2.0})
     assert not ok and "paired block-wise z" in why and kind == "standing"
     tiny = SimpleNamespace(kinds={"standing": ks(b0 - 0.01 * b0.mean())}, design=None)  # significant, not material
@@ -208,12 +209,13 @@ def test_the_stated_test_and_the_joint_check():
     fl = np.full(6, 0.1)
     refit = lambda **kinds: SimpleNamespace(kinds={k: KindRefit(k, fl, fl * r, fl, 100) for k, r in kinds.items()})  # noqa: E731
     assert kind_threshold("standing", 100) == pytest.approx(max(0.5, 4 * np.sqrt(2 / 100)))
-    assert gap_left(refit(standing=1.1, hanging=1.2)) == {"hanging": pytest.approx(0.44)}
-    assert gap_left(refit(standing=1.1, hanging=1.2), skip=("hanging",)) == {}
+    # the walking swing kind is no evidence of a gap left (module docstring)
+    assert gap_left(refit(standing=1.1, hanging=1.2, **{"walking swing": 3.0})) == {"hanging": pytest.approx(0.44)}
     cur = refit(standing=2.0, hanging=1.0)
     assert joint_better(cur, refit(standing=1.2, hanging=1.0), "standing") == (True, "")
     e1 = (1.0 - JOINT_MIN) * 3.0 + 1.0   # excess just above what the check allows
     assert not joint_better(cur, refit(standing=np.sqrt(e1 + 0.01), hanging=1.0), "standing")[0]
     ok, why = joint_better(cur, refit(standing=1.0, hanging=2.0), "standing")
     assert not ok and "hanging" in why
-    assert joint_better(cur, refit(standing=1.0, hanging=2.0), "standing", skip=("hanging",))[0]
+    swing = {"walking swing": 1.0}
+    assert joint_better(refit(standing=2.0, hanging=1.0, **swing), refit(standing=1.0, hanging=1.0, **{"walking swing": 9.0}), "standing")[0]

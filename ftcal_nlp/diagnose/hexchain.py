@@ -5,36 +5,40 @@ The first link is the single-effect diagnosis as it stands (``attribute.decide``
 parameters and held-out RMS are unchanged by what follows. Then, while a gap is left:
 
 * **a gap remains** (also what decides whether to look again at all, so that a dataset the first effect explains
-  costs what it did): after the last joint refit some recording kind's held-out excess over its floor,
-  ``mean_c (rms_after_c / floor_c)^2 - 1``, exceeds that kind's gap threshold (``attribute.gap_threshold``:
-  standing 0.5 and four of its sampling se ``sqrt(2 / P)``, hanging 0.1, walking swing 1.0); or, when the error
+  costs what it did): after the last joint refit the held-out excess over the floor of the standing poses or the
+  hanging legs (``EVIDENCE_KINDS``: the calibration's own recordings), ``mean_c (rms_after_c / floor_c)^2 - 1``,
+  exceeds that kind's gap threshold (``attribute.gap_threshold``: standing 0.5 and four of its sampling se
+  ``sqrt(2 / P)``, hanging 0.1); or, when the error
   model frees the transducer rotations and no named effect has a design face, the design check of the joint refit's
   rotations finds a common tilt (``delta_bic < -10``: a motion-capture bias that another effect hid from the first
   step's check);
-* every candidate not yet named that had evidence of its own in the first step (``delta_bic < DBIC_STRONG`` where
-  the gap lay; with a design gap open, those with a design face too) is scored with the named effects in the base model (``attribute.attribute`` with
+* every candidate not yet named is scored with the named effects in the base model (``attribute.attribute`` with
   ``base_effect``: the standing problem with all the named faces plus the candidate's,
   :class:`~ftcal_nlp.effects.combined.Combined`; the hanging and swing faces stacked and cross-validated on the same
   folds; each candidate's variants as in the first step), against the named effects alone;
 * the best candidate by ``delta_bic`` where the gap lies, among those that remove at least ``EXPLAINED_MIN`` of the
   excess the named effects leave (``attribute.explained_fraction``) with ``delta_bic < DBIC_STRONG``, is added when
   it passes the stated held-out test (of candidates within ``BIC_TIE`` of the best, the one that adds the fewest
-  parameters is taken): on the recording kind where it removes most of the excess, the paired
-  comparison of the held-out sums of squares without and with it, block by block (standing: each pose; hanging and
-  walking swing: each fold's time block of each leg), ``d_b = ln(SS0_b / SS1_b)``, has ``mean(d) / se(d) >= Z_MIN``
+  parameters is taken): on the kind of ``EVIDENCE_KINDS`` where it removes most of the excess, the paired
+  comparison of the held-out sums of squares without and with it, block by block (standing: each pose; hanging:
+  each fold's time block of each leg), ``d_b = ln(SS0_b / SS1_b)``, has ``mean(d) / se(d) >= Z_MIN``
   (a candidate named for the design gap alone: the design check's ``delta_bic < DBIC_STRONG`` is its test), and its
   saving is material: at least ``MIN_FLOOR_SHARE`` of the floor's variance on that kind;
 * the named effects and the new one are refit with the whole calibration (``joint.joint_refit`` of the combined
   effect; the new effect's joint variant chosen there, the others kept as chosen): the link's parameters with se
   and the held-out RMS after it on the kind the shrinkage is reported on. The link stands when that joint model
   predicts held-out data better than the one before it: on the test's kind the held-out excess falls by
-  ``JOINT_MIN`` at least, and no kind's excess rises above ``JOINT_WORSE`` x what it was (and its threshold);
+  ``JOINT_MIN`` at least, and no kind's (of ``EVIDENCE_KINDS``) excess rises above ``JOINT_WORSE`` x what it was
+  (and its threshold);
   else the chain stops there (a face that helps beside the named ones' attribution faces can spoil the joint fit).
   A link named for the design gap alone is not judged so (free rotations absorb what it explains).
 
-Once an effect with a design face (a common tilt of the frames: ``mocap_bias``, ``tether_force``) is named, the
-walking swing kind is left out of the gaps, the test and the joint check (``SKIP_AFTER_DESIGN``): the swing legs'
-weights are predicted with the transducer frames that effect turns, so their residual grows with it whatever is left.
+The walking swing kind counts where the gap lies (ranking, the share explained) but is no evidence of its own: the
+joint refit predicts a swing leg's weight by extrapolating the hanging faces (a drift's rate, a crosstalk read as
+tilt while hanging) and with the frames the named effects turn, so what it leaves there is no measure of an effect
+still missing (in the sweep a cable's face took up that remainder as a false second). Once an effect with a design
+face (a common tilt of the frames: ``mocap_bias``, ``tether_force``) is named, it is left out of the gaps too
+(``SKIP_AFTER_DESIGN``).
 
 The chain stops when no gap is left, when the best candidate fails the test, or after ``MAX_EFFECTS`` effects.
 """
@@ -69,6 +73,7 @@ Z_MIN = 3.0              # paired block-wise z of the held-out saving
 EXPLAINED_MIN = 0.5      # share of the excess the named effects leave that the next must remove
 MIN_FLOOR_SHARE = 0.05   # ... and at least this share of the floor's variance on its kind
 MAX_EFFECTS = 3          # the most effects the chain names
+EVIDENCE_KINDS = ("standing", "hanging")   # the calibration's own recordings: where a gap is left and a link's test lies
 SKIP_AFTER_DESIGN = ("walking swing",)   # kinds not looked at once a design-face effect is named (below)
 BIC_TIE = 2.0            # candidates this close in delta BIC are as good: the one with fewer parameters goes first
 JOINT_MIN = 0.25         # the joint refit with the new effect: its kind's held-out excess falls by this share at least
@@ -114,12 +119,12 @@ def kind_threshold(kind: str, n: int) -> float:
     return thr
 
 
-def gap_left(joint: JointRefit, skip=()) -> dict:
-    """The kinds (but ``skip``) whose held-out excess over the floor after the joint refit exceeds their threshold ->
-    the excess."""
+def gap_left(joint: JointRefit) -> dict:
+    """The kinds of ``EVIDENCE_KINDS`` whose held-out excess over the floor after the joint refit exceeds their
+    threshold -> the excess."""
     out = {}
     for kind, k in joint.kinds.items():
-        if kind in skip:
+        if kind not in EVIDENCE_KINDS:
             continue
         ex = excess(k)
         if np.isfinite(ex) and ex > kind_threshold(kind, k.n):
@@ -133,13 +138,13 @@ def excess(k) -> float:
     return float(np.nanmean((k.rms_after / fl) ** 2) - 1.0)
 
 
-def joint_better(cur: JointRefit, new: JointRefit, kind: str, skip=()) -> tuple[bool, str]:
+def joint_better(cur: JointRefit, new: JointRefit, kind: str) -> tuple[bool, str]:
     """Whether the joint refit with the new effect predicts held-out data better than the one before (module
     docstring): on the test's kind its excess falls by ``JOINT_MIN`` at least, and no kind's excess rises above
     ``JOINT_WORSE`` x what it was and its threshold."""
     for k, a in new.kinds.items():
         b = cur.kinds.get(k)
-        if b is None or k in skip:
+        if b is None or k not in EVIDENCE_KINDS:
             continue
         e0, e1 = excess(b), excess(a)
         if k == kind and not e1 <= (1.0 - JOINT_MIN) * e0:
@@ -175,7 +180,7 @@ def paired_z(sc: KindScore) -> float:
 def passes(sc, gap: dict) -> tuple[bool, str, str, float]:
     """Whether candidate ``sc`` (an ``attribute.EffectScore`` against the named effects) passes the module
     docstring's test where the gap lies (``gap``); returns ``(passes, why not, kind, z)``."""
-    kinds = [k for k in gap if k != "design" and k in sc.kinds]
+    kinds = [k for k in gap if k in EVIDENCE_KINDS and k in sc.kinds]
     if not kinds:
         if "design" in gap and sc.design is not None:
             return True, "", "design", float("nan")
@@ -219,16 +224,11 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
     ch = HexChain()
     named = (type(first)(**joint.variant),)
     cur = joint
-    gap1 = gaps(att)
-    # a candidate that explained nothing of the gap on its own (delta BIC >= DBIC_STRONG where it lies) is not
-    # looked at again: what it could explain beside the first effect it would have explained alone too
-    looked_at = {s.effect for s in att.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap1))
-                 and ranking_bic(s, gap1) < DBIC_STRONG}
     while True:
         # the swing legs' weights are predicted with the transducer frames, which a named design-face effect (a common
         # tilt) turns: after one, the swing kind says nothing about what is left (SKIP_AFTER_DESIGN)
         skip = SKIP_AFTER_DESIGN if any(m.design_face for m in named) else ()
-        left = gap_left(cur, skip)
+        left = gap_left(cur)
         design_open = att.design is not None and not any(m.design_face for m in named) and design_gap(cur, robot)
         log.debug("diagnosis: chain after %s: gap left %s, design %s", [m.name for m in named], left, design_open)
         if not left and not design_open:
@@ -238,7 +238,7 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             ch.stop = f"{MAX_EFFECTS} effects named (the most the chain adds)"
             break
         base = Combined(named)
-        cands = [e for e in effects if e.name not in {m.name for m in named} and (e.name in looked_at or (design_open and e.design_face))]
+        cands = [e for e in effects if e.name not in {m.name for m in named}]
         try:
             att2 = attribute(views, cands, model, prior, robot, balance, folds=folds, seed=seed, x_start=x_start, base_effect=base)
         except (SolverError, np.linalg.LinAlgError) as exc:
@@ -272,7 +272,7 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             break
         # a link named for the design gap alone is not judged by the joint refit: free rotations absorb what it
         # explains, and the swing legs' weights, predicted with the tilted frames, say nothing about it
-        good, why = joint_better(cur, j2, kind, SKIP_AFTER_DESIGN if both.design_face else ()) if kind != "design" else (True, "")
+        good, why = joint_better(cur, j2, kind) if kind != "design" else (True, "")
         if not good:
             ch.stop = f"the joint refit with {best.effect} does not predict held-out data better ({why})"
             break
