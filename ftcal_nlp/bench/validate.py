@@ -123,7 +123,7 @@ COMPONENTS = tuple(WRENCH_COMPONENTS)
 def plan(cfg: dict) -> list[dict]:
     """The random design (issue 7): ``index``, ``seed``, ``effect`` (or "none"), ``scale``; datasets cycle
     through ``[none] + effects`` (clean ones as ``clean_share`` asks), shuffled by ``seed``."""
-    effects = _names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
+    effects = config_names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
     n = int(cfg["n_datasets"])
     rng = np.random.default_rng(int(cfg["seed"]))
     n_clean = int(round(cfg["clean_share"] * n))
@@ -146,15 +146,16 @@ HEXAPOD_VARIANTS = tuple(n for n, c in VARIANTS.items() if "hexapod" in applies_
                          and (c.expect not in EFFECTS or c.expect in HEXAPOD_EFFECTS))
 
 
-def _names(value, known: dict, key: str, default=None) -> list[str]:
-    """The names of ``[validation].<key>`` (None: ``default``, or every name of ``known``), checked."""
+def config_names(value, known, key: str, default=None, noun: str = "effect") -> list[str]:
+    """The names of ``[validation].<key>`` (None: ``default``, or every name of ``known``), checked against
+    ``known`` (``noun``: what they name, for the error)."""
     if value is None:
         return list(known if default is None else default)
     if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-        raise ValueError(f"[validation].{key}: expected a list of effect names, got {value!r}")
+        raise ValueError(f"[validation].{key}: expected a list of {noun} names, got {value!r}")
     unknown = [v for v in value if v not in known]
     if unknown:
-        raise ValueError(f"[validation].{key}: unknown effect(s) {unknown}; known effects: {sorted(known)}")
+        raise ValueError(f"[validation].{key}: unknown {noun}(s) {unknown}; known {noun}s: {sorted(known)}")
     return list(value)
 
 
@@ -185,8 +186,8 @@ def sweep_plan(cfg: dict) -> list[dict]:
     own seed, then one clean twin (same seed, no effect) per dataset with an effect. Items: ``index``, ``seed``,
     ``role`` (clean | library | variant | twin), ``effect``, ``size``, ``scale``, ``expect``, ``expect_legs``,
     ``twin`` (the twin's index; twins: the index of their dataset)."""
-    effects = _names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
-    variants = _names(cfg.get("variants"), VARIANTS, "variants", HEXAPOD_VARIANTS)
+    effects = config_names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
+    variants = config_names(cfg.get("variants"), VARIANTS, "variants", HEXAPOD_VARIANTS)
     base = int(cfg["seed"]) * 1000
     rows = [("clean", "none", "", None) for _ in range(int(cfg["n_clean"]))]
     for role, names in (("library", effects), ("variant", variants)):
@@ -656,7 +657,7 @@ def run_items(items: list[dict], c: dict, sim_over: dict, out_dir: str | Path, b
     wall = time.perf_counter() - t0
     rows.to_csv(out / "datasets.csv", index=False)
     if c["design"] == "random":
-        labels = ["none"] + _names(c.get("effects"), EFFECTS, "effects")
+        labels = ["none"] + config_names(c.get("effects"), EFFECTS, "effects")
         M = confusion(rows, labels)
         summary = summarise(rows, wall)
         M.to_csv(out / "confusion.csv")

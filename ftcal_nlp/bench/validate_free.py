@@ -63,6 +63,7 @@ from joblib import Parallel, delayed
 
 from ..effects import EFFECTS, Effect
 from ..settings import CalibrationSettings, DiagnoseSettings
+from .validate import config_names
 
 log = logging.getLogger("ftcal_nlp.bench.validate_free")
 
@@ -105,15 +106,6 @@ def _shape_class(name: str):
 # ============================================================================= config
 
 
-def _list(value, key: str, known: list[str]) -> list:
-    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-        raise ValueError(f"[validation].{key}: expected a list of names, got {value!r}")
-    bad = [v for v in value if v not in known]
-    if bad:
-        raise ValueError(f"[validation].{key}: unknown name(s) {bad}; known: {known}")
-    return list(value)
-
-
 def check_config(cfg: dict) -> tuple[dict, dict]:
     """``(settings, {kind: simulator overrides})`` of a ``[validation]`` table with ``design = "free"``;
     errors name the key."""
@@ -123,17 +115,17 @@ def check_config(cfg: dict) -> tuple[dict, dict]:
     if unknown:
         raise ValueError(f"[validation] (design 'free'): unknown key(s) {unknown}; known keys: {sorted(DEFAULTS) + ['simulate']}")
     c = {**DEFAULTS, **{k: v for k, v in cfg.items() if k != "simulate"}}
-    c["kinds"] = _list(c["kinds"], "kinds", list(KINDS))
+    c["kinds"] = config_names(c["kinds"], list(KINDS), "kinds", noun="kind")
     lib = free_effects()
-    c["effects"] = lib if c["effects"] is None else _list(c["effects"], "effects", lib)
+    c["effects"] = lib if c["effects"] is None else config_names(c["effects"], lib, "effects")
     all_shapes = shapes_of(lib)
-    c["shapes"] = shapes_of(c["effects"]) if c["shapes"] is None else _list(c["shapes"], "shapes", all_shapes)
+    c["shapes"] = shapes_of(c["effects"]) if c["shapes"] is None else config_names(c["shapes"], all_shapes, "shapes", noun="shape")
     if c["pairs"] is None:
         c["pairs"] = [list(p) for p in itertools.combinations(c["effects"], 2)]
     elif not (isinstance(c["pairs"], (list, tuple)) and all(isinstance(p, (list, tuple)) and len(p) == 2 for p in c["pairs"])):
         raise ValueError(f"[validation].pairs: expected a list of [effect, effect] pairs, got {c['pairs']!r}")
     else:
-        c["pairs"] = [_list(list(p), "pairs", lib) for p in c["pairs"]]
+        c["pairs"] = [config_names(list(p), lib, "pairs") for p in c["pairs"]]
         if any(a == b for a, b in c["pairs"]):
             raise ValueError("[validation].pairs: a pair names two different effects")
     if c["sizes"] not in ("realistic", "test"):

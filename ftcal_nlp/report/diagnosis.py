@@ -146,22 +146,33 @@ def fig_free_residual(d: "DiagnosisResult", path: Path) -> Path | None:
         return None
     p = f.plot
     x, y = np.asarray(p["x"], float), np.asarray(p["y"], float)
-    n = len(x)
-    idx = np.random.default_rng(0).choice(n, 6000, replace=False) if n > 6000 else np.arange(n)
     fig, ax = plt.subplots(figsize=(7, 3.8))
     fl = float(p["floor"])
     ax.axhspan(-fl, fl, color="0.8", alpha=0.6, label=f"{PM} noise floor", zorder=0)
-    ax.plot(x[idx], y[idx], ".", ms=2.5, alpha=0.5, color="tab:blue", label="held-out residual")
-    if np.ptp(x) > 0 and n >= 20:
-        edges = np.unique(np.quantile(x, np.linspace(0, 1, 21)))
-        mid = 0.5 * (edges[:-1] + edges[1:])
-        which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(mid) - 1)
-        med = [np.median(y[which == i]) if np.any(which == i) else np.nan for i in range(len(mid))]
-        ax.plot(mid, med, "-", color="tab:red", lw=2, label="binned median")
+    _scatter_binned_median(ax, x, y, n_bins=20)
     unit = _unit(p["component"])
     ax.set_xlabel(p["xlabel"])
     ax.set_ylabel(f"residual {p['component']} ({p['leg']}) [{unit}]")
     ax.set_title(f"{p['leg']}: the residual against {p['correlate']} (verdict {f.verdict})", fontsize=10)
+    return _finish(fig, ax, path)
+
+
+def _scatter_binned_median(ax, x: np.ndarray, y: np.ndarray, n_bins: int, min_count: int = 1) -> None:
+    """The held-out residual against a correlate (at most 6000 points drawn, seeded: a readable scatter of long
+    recordings) and its median in quantile bins of ``x`` (bins with fewer than ``min_count`` samples left blank)."""
+    n = len(x)
+    idx = np.random.default_rng(0).choice(n, 6000, replace=False) if n > 6000 else np.arange(n)
+    ax.plot(x[idx], y[idx], ".", ms=2.5, alpha=0.5, color="tab:blue", label="held-out residual")
+    if np.ptp(x) > 0 and n >= 20:
+        edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
+        mid = 0.5 * (edges[:-1] + edges[1:])
+        which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(mid) - 1)
+        counts = np.bincount(which, minlength=len(mid))
+        med = [np.median(y[which == i]) if counts[i] >= min_count else np.nan for i in range(len(mid))]
+        ax.plot(mid, med, "-", color="tab:red", lw=2, label="binned median")
+
+
+def _finish(fig, ax, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
@@ -292,35 +303,15 @@ def fig_dependence(d: "DiagnosisResult", path: Path) -> Path | None:
         return None
     p = loc.plot
     x, y = np.asarray(p["x"], float), np.asarray(p["y"], float)
-    n = len(x)
-    if n > 6000:  # a readable scatter of long recordings
-        idx = np.random.default_rng(0).choice(n, 6000, replace=False)
-        xs, ys = x[idx], y[idx]
-    else:
-        xs, ys = x, y
     fig, ax = plt.subplots(figsize=(7, 3.8))
     fl = float(p.get("floor", np.nan))
     if np.isfinite(fl):
         ax.axhspan(-fl, fl, color="0.8", alpha=0.6, label=f"{PM} noise floor", zorder=0)
-    ax.plot(xs, ys, ".", ms=2.5, alpha=0.5, color="tab:blue", label="held-out residual")
-    if np.ptp(x) > 0 and n >= 20:
-        edges = np.quantile(x, np.linspace(0, 1, 16))
-        mid, med = [], []
-        for a, b in zip(edges[:-1], edges[1:]):
-            sel = (x >= a) & (x <= b)
-            if sel.sum() >= 3:
-                mid.append(0.5 * (a + b))
-                med.append(np.median(y[sel]))
-        ax.plot(mid, med, "-", color="tab:red", lw=2, label="binned median")
+    _scatter_binned_median(ax, x, y, n_bins=15, min_count=3)
     comp = p.get("component", "")
     unit = _unit(comp) if comp else ""
     leg = f" (leg {p['leg']})" if "leg" in p else ""
     ax.set_xlabel(p.get("xlabel", ""))
     ax.set_ylabel(f"{loc.kind} residual {comp}{leg} [{unit}]")
     ax.set_title(f"Strongest dependence: {loc.top or 'none above the threshold'}", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, ax, path)
