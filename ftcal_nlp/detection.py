@@ -65,7 +65,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import norm
 
-from .diagnose.attribute import GAP_THRESHOLD
+from .diagnose.attribute import kind_threshold
 from .diagnose.standing_fit import AugmentedProblem
 from .effects import StandingData
 from .selection import fold_indices
@@ -154,9 +154,8 @@ class Detection:
 
 
 def threshold(kind: str, n_poses: int) -> float:
-    """The diagnosis' gap threshold of ``kind`` (``attribute.gap_threshold``; standing: ``n = 6 P``)."""
-    thr = GAP_THRESHOLD[kind]
-    return max(thr, 4.0 * np.sqrt(2.0 / max(n_poses, 1))) if kind == "standing" else thr
+    """The diagnosis' gap threshold of ``kind`` (``attribute.kind_threshold``) with ``n_poses`` standing poses."""
+    return kind_threshold(kind, n_poses)
 
 
 def detection_lambda(thr: float, sd0: float, n_eff: float, power: float = POWER) -> float:

@@ -271,9 +271,14 @@ def ranked(att: Attribution) -> list:
 
 
 def gap_threshold(kind: str, score: KindScore) -> float:
+    return kind_threshold(kind, score.n / 6)    # a standing score counts pose x component values
+
+
+def kind_threshold(kind: str, n_poses: float) -> float:
+    """The gap threshold of ``kind``; on the standing poses it rises with the scatter of ``n_poses`` poses' excess."""
     thr = GAP_THRESHOLD.get(kind, 0.25)
     if kind == "standing":
-        thr = max(thr, 4.0 * np.sqrt(2.0 / max(score.n / 6, 1)))
+        thr = max(thr, 4.0 * np.sqrt(2.0 / max(n_poses, 1)))
     return thr
 
 

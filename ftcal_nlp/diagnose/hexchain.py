@@ -56,11 +56,11 @@ from ..effects.combined import Combined
 from ..solver import SolverError
 from .attribute import (
     DBIC_STRONG,
-    GAP_THRESHOLD,
     Attribution,
     attribute,
     explained_fraction,
     gaps,
+    kind_threshold,
     ranking_bic,
 )
 from .joint import JointRefit, joint_refit
@@ -109,14 +109,6 @@ class HexChain:
 
     def to_json_dict(self) -> dict:
         return {"rounds": self.rounds, "stop": self.stop}
-
-
-def kind_threshold(kind: str, n: int) -> float:
-    """The gap threshold of ``kind`` (``attribute.gap_threshold``) with ``n`` standing poses."""
-    thr = GAP_THRESHOLD.get(kind, 0.25)
-    if kind == "standing":
-        thr = max(thr, 4.0 * np.sqrt(2.0 / max(n, 1)))
-    return thr
 
 
 def gap_left(joint: JointRefit) -> dict:
