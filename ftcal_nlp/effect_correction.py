@@ -17,6 +17,14 @@ Correcting a sample is the effect unit's own correction (``Effect.correct`` in
 A body effect (a cable's pull, a mass error, the legs' inertia or moving CoMs) acts on the
 body as a whole: the feet carry what they carry, so per-foot wrenches are unchanged by it;
 this is logged. Nothing here needs the diagnosis.
+
+Several effects (the hexapod chain's last joint refit, ``diagnose/hexchain.py``): ``meta.effect.name`` is
+``"a+b"`` and ``meta.effect.members`` lists each effect as a single effect's block would hold it, its ``eta``
+a slice (``eta_slice``) of the joint ``eta`` whose covariance is the joint ``eta_cov``. Every member is applied
+(``effects.combined.Combined.correct``: the corrections of the recorded samples add up, as the fit had them;
+the members corrected by their standing face are evaluated as one face, so the readings' covariance carries the
+cross-member terms of ``eta_cov``). A block without ``members`` (one effect, as older versions wrote it) is
+applied exactly as before.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ import numpy as np
 
 from .calibration import Calibration
 from .effects import EFFECTS, AugContext, Effect
+from .effects.combined import Combined
 from .effects.injection import HOUR_S
 
 
@@ -36,20 +45,43 @@ def effect_block(cal: Calibration) -> dict | None:
     return b if isinstance(b, dict) and b.get("name") else None
 
 
+def _unit(reg: Mapping[str, Effect], name, variant, key: str, source: str) -> Effect:
+    """The registry's unit ``name`` rebuilt with ``variant`` (``key``: where in the block, for the errors)."""
+    if not isinstance(name, str) or name not in reg:
+        raise ValueError(f"{source}: {key}.name {name!r} is not an effect of the library {sorted(reg)}")
+    variant = variant or {}
+    if not isinstance(variant, dict):
+        raise ValueError(f"{source}: {key}.variant must be a table of keyword arguments of {name}, got {variant!r}")
+    try:
+        return type(reg[name])(**variant) if variant else reg[name]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: {key}.variant {variant!r} does not rebuild {name}: {exc}") from None
+
+
+def _effect(block: dict, source: str, reg: Mapping[str, Effect]) -> Effect:
+    """The block's effect: one unit, or with ``members`` a :class:`Combined` of the members' units (in order)."""
+    if "members" not in block:   # one effect (every version writes this)
+        return _unit(reg, block["name"], block.get("variant"), "meta.effect", source)
+    members = block["members"]
+    if not isinstance(members, list) or not members or not all(isinstance(m, dict) for m in members):
+        raise ValueError(f"{source}: meta.effect.members must be a non-empty list of tables (one per effect), got {members!r}")
+    units = [_unit(reg, m.get("name"), m.get("variant"), f"meta.effect.members[{i}]", source) for i, m in enumerate(members)]
+    joined = "+".join(u.name for u in units)
+    if block["name"] != joined:
+        raise ValueError(f"{source}: meta.effect.name {block['name']!r} does not match its members {joined!r}")
+    try:
+        return Combined(units)
+    except ValueError as exc:
+        raise ValueError(f"{source}: meta.effect.members: {exc}") from None
+
+
 def _context(cal: Calibration, block: dict, source: str, registry: Mapping[str, Effect] | None = None) -> tuple[Effect, AugContext]:
     reg = EFFECTS if registry is None else registry
-    name = block["name"]
-    if name not in reg:
-        raise ValueError(f"{source}: meta.effect.name {name!r} is not an effect of the library {sorted(reg)}")
+    eff = _effect(block, source, reg)
     legs = cal.leg_names
     R_nom = np.asarray(block.get("R_nominal", [cal.legs[k].rotation_to_body for k in legs]), float)
     if R_nom.shape != (len(legs), 3, 3):
         raise ValueError(f"{source}: meta.effect.R_nominal must be ({len(legs)}, 3, 3), got {R_nom.shape}")
-    variant = block.get("variant") or {}
-    try:
-        eff = type(reg[name])(**variant) if variant else reg[name]
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{source}: meta.effect.variant {variant!r} does not rebuild {name}: {exc}") from None
     return eff, AugContext.from_calibration(cal, legs, R_nom)
 
 
@@ -66,7 +98,8 @@ def correct_for_effect(cal: Calibration, w: np.ndarray, phi: np.ndarray, R_WB: n
     covariance of ``eta`` (``meta.effect.eta_cov``; None without it or ``with_cov``); offset drift:
     ``diag((t - t_ref)^2 / 1 h^2 se(D_k)^2)`` (its rates' se, correlations not stored). It enters the
     ground wrenches' se like reading noise (``uncertainty.ground_wrench_se``'s ``offset_cov``). The
-    orientation map of a motion-capture bias is not propagated.
+    orientation map of a motion-capture bias is not propagated. Several effects (``meta.effect.members``):
+    every member's correction (module docstring; ``Combined.correct`` says what the covariance leaves out).
     """
     block = effect_block(cal)
     if block is None:

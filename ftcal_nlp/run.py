@@ -155,11 +155,12 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
         write_corrected(res, folder)
     if res.diagnosis is not None:
         (folder / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
-        if res.diagnosis.joint is not None and res.diagnosis.joint.calibration is not None:
-            # the calibration refit with the named effect: `correct` applies the effect's corrections
+        last = last_joint(res.diagnosis)
+        if last is not None and last.calibration is not None:
+            # the calibration refit with the named effects (the chain's last joint refit): `correct` applies them all
             effect_calibration(res).save(folder / "calibration_with_effect.json")
-            for note in res.diagnosis.joint.notes:
-                log.warning("joint refit with %s: %s", res.diagnosis.effect, note)
+            for note in dict.fromkeys((*res.diagnosis.joint.notes, *last.notes)):
+                log.warning("joint refit with %s: %s", last.effect if note in last.notes else res.diagnosis.effect, note)
     with stage("report", res.timings):
         write_report(res, folder)
     return res
@@ -181,16 +182,31 @@ def _issue_notes(res: CalibrationRun, origin: str | None) -> tuple[str, ...]:
     return (*front, *res.notes, *back)
 
 
+def last_joint(d):
+    """The diagnosis' last joint refit: the hexapod chain's last link's (every named effect fitted together with the
+    calibration, ``diagnose/hexchain.py``), else the named effect's (``d.joint``); None without one."""
+    if d is None or d.joint is None:
+        return None
+    links = d.chain.links if getattr(d, "chain", None) is not None else []
+    return links[-1].joint if links else d.joint
+
+
 def effect_calibration(res: CalibrationRun) -> Calibration:
-    """The calibration refit with the diagnosis' named effect, as ``calibration_with_effect.json`` holds it.
+    """The calibration refit with the diagnosis' named effects, as ``calibration_with_effect.json`` holds it: the
+    last joint refit (:func:`last_joint`; ``meta.effect`` names every effect fitted, ``members`` when several).
 
     The joint fit's own covariance of the calibration parameters is not formed: where the joint
     calibration has the calibration's error model, the calibration's covariance file (same
-    parameters, same data) stands in for it (``meta.covariance_note`` says so), rather than none."""
-    cal = res.diagnosis.joint.calibration
+    parameters, same data) stands in for it (``meta.covariance_note`` says so), rather than none. The
+    effects' parameters carry their own joint covariance (``meta.effect.eta_cov``, cross-effect terms included)."""
+    j = last_joint(res.diagnosis)
+    cal = j.calibration
     if res.uncertainty is not None and cal.model == res.calibration.model:
+        what = "the effect" if "+" not in j.effect else "the effects " + ", ".join(j.effect.split("+"))
         cal = replace(cal, meta={**cal.meta, "covariance_file": COVARIANCE_FILE,
-                                 "covariance_note": "the calibration's, before the joint refit with the effect"})
+                                 "covariance_note": f"the calibration's, before the joint refit with {what}: it leaves out "
+                                                    "the calibration parameters' correlations with the effects' "
+                                                    "(meta.effect.eta_cov holds the effects' own)"})
     return cal
 
 

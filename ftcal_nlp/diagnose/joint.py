@@ -113,10 +113,34 @@ class JointRefit:
                 **({"notes": list(self.notes)} if self.notes else {})}
 
     def effect_block(self) -> dict:
-        """What ``calibration.json`` carries about the effect (``effect_correction.py`` reads it)."""
+        """What ``calibration.json`` carries about the effect (``effect_correction.py`` reads it).
+
+        Several effects fitted together (``effects.combined.Combined``, the hexapod chain's links): the name is
+        ``"a+b"``, ``variant`` per member, ``eta`` / ``eta_cov`` / ``parameters`` the joint ones (names
+        ``<member>:<name>``), and ``members`` lists each member as a single effect's block would hold it: its
+        name, variant, its slice of the joint ``eta`` (``eta_slice`` [start, stop) and the values, ``eta``) and its
+        parameters with se, prefix taken off (hanging ones ``hanging:<name>``)."""
         cov = {} if self.eta_cov is None else {"eta_cov": np.nan_to_num(np.asarray(self.eta_cov, float)).tolist()}
-        return {"name": self.effect, "variant": dict(self.variant), "eta": [float(v) for v in (self.eta if self.eta is not None else [])], "t_ref_s": float(self.t_ref), **cov,
-                "parameters": {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in self.parameters.items()}}
+        eta = [float(v) for v in (self.eta if self.eta is not None else [])]
+        par = lambda d: {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in d.items()}  # noqa: E731
+        out = {"name": self.effect, "variant": dict(self.variant), "eta": eta, "t_ref_s": float(self.t_ref), **cov,
+               "parameters": par(self.parameters)}
+        names = self.effect.split("+")
+        if len(names) > 1 or set(self.variant) == {self.effect}:   # a Combined: its variant is per member
+            # each member's standing parameters are the contiguous run of names "<member>:..." in eta's order
+            # (``Combined.standing_params``); the offset shift ("dw_o.*", ``Effect.shifts_offsets``) follows them
+            standing = [n for n in self.parameters if not n.startswith("hanging:")]
+            members, c0 = [], 0
+            for m in names:
+                own = {n: v for n, v in self.parameters.items()
+                       if (n[len("hanging:"):] if n.startswith("hanging:") else n).startswith(m + ":")}
+                m_eta = sum(1 for n in standing if n.startswith(m + ":")) if eta else 0
+                members.append({"name": m, "variant": dict(self.variant.get(m, {})), "eta_slice": [c0, c0 + m_eta],
+                                "eta": eta[c0 : c0 + m_eta],
+                                "parameters": par({n.replace(m + ":", "", 1): v for n, v in own.items()})})
+                c0 += m_eta
+            out["members"] = members
+        return out
 
 
 # ----------------------------------------------------------------------------- hanging

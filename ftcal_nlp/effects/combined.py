@@ -17,7 +17,25 @@ the next candidate are fitted together with the calibration. :class:`Combined` m
 * hanging, walking swing: the members' linear faces side by side (:func:`~.faces.stack_faces`);
 * ``standing_from_hanging``: each member's, its indices moved to its place in ``eta``;
 * the joint refit's variants: the last member's ``joint_variants`` (the members before it come as the chain's
-  joint refits chose them).
+  joint refits chose them);
+* the correction for ``correct`` (:meth:`Combined.correct`, a block with ``members``: ``diagnose/joint.py``,
+  ``JointRefit.effect_block``): the same first-order sum the fit used, each member's correction evaluated on the
+  recorded samples (not on the readings another member corrected),
+
+      w' = w + sum_i (w'_i - w),   R_WB' = R_WB Z_1^T .. Z_n^T (up to the order of the maps: only a motion-capture
+      bias has one),
+
+  which is exactly the fitted model (the fitted parameters are those of the sum). Applying the members in sequence,
+  ``c_2(c_1(w))``, is the same where the corrections after the first are shifts that do not depend on the readings
+  (a casing load, an offset drift), and differs by the products of the corrections where they do (a gain or
+  crosstalk matrix, a chassis flex or a nonlinearity applied to readings a casing load corrected: second-order
+  terms the fit did not have). The members whose correction is their standing face (``correction.corrects_by_face``: sensor effects
+  with a hexapod face) are evaluated together as one face, so the covariance of the corrected readings
+  ``J Sigma_eta J^T`` uses the joint ``eta_cov`` with its cross-member terms; the others (an offset drift's rates,
+  a motion-capture bias on the orientations, body effects: nothing per foot) apply their own correction with their
+  block (``correction.member_block``), and their covariances add: the drift rates' correlations with the standing
+  face's ``eta`` are not stored (they come from the hanging regression); a motion-capture bias leaves the readings
+  as they are (no term is left out), its orientation map is not propagated.
 """
 
 from __future__ import annotations
@@ -25,6 +43,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from .correction import correct_by_face, corrects_by_face, joint_eta_cov, member_block
 from .faces import ParamBlock, stack_faces
 from .unit import Effect
 
@@ -151,6 +170,47 @@ class Combined(Effect):
                     mine[pre + rest[len(m.name) + 1:]] = v
             out.append(mine)
         return out
+
+    # ---- the correction for `correct`
+    def correct(self, cal, block: dict, ctx, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t_h: np.ndarray, *,
+                with_cov: bool = True, source: str = "calibration"):
+        """``(w', R_WB', cov)`` corrected for every member (module docstring) with the parameters of ``block`` (a block
+        with ``members``, one per member in order)."""
+        members = block.get("members")
+        if not isinstance(members, (list, tuple)) or len(members) != len(self.members):
+            raise ValueError(f"{source}: meta.effect.members must list the {len(self.members)} effects of {self.name!r}, "
+                             f"got {members!r}")
+        subs = [member_block(block, i, source) for i in range(len(self.members))]
+        for i, (m, sb) in enumerate(zip(self.members, subs)):
+            if sb["name"] != m.name:
+                raise ValueError(f"{source}: meta.effect.members[{i}].name is {sb['name']!r}, expected {m.name!r} "
+                                 f"(meta.effect.name {self.name!r})")
+            p = m.standing_params(ctx)
+            need = p.m if p is not None else 0
+            if block.get("eta") and len(sb["eta"]) != need:
+                raise ValueError(f"{source}: meta.effect.members[{i}].eta has {len(sb['eta'])} values, {m.name} needs {need}")
+        face = [i for i, m in enumerate(self.members) if corrects_by_face(m)]
+        w_out, R_out, cov = w, R_WB, None
+        if face:
+            # one face for the face members: their corrections add up (``standing``) and eta_cov's cross terms enter J Sigma J^T
+            idx = np.concatenate([np.arange(*block["members"][i]["eta_slice"]) for i in face]).astype(int)
+            sub = {"eta": np.concatenate([np.asarray(subs[i]["eta"], float) for i in face]).tolist()}
+            if with_cov and "eta_cov" in block:
+                C = joint_eta_cov(block, int(idx.max()) + 1 if len(idx) else 0, source)
+                sub["eta_cov"] = C[np.ix_(idx, idx)].tolist()
+            unit = self.members[face[0]] if len(face) == 1 else Combined([self.members[i] for i in face])
+            w_out, R_out, cov = correct_by_face(unit, cal, sub, ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
+        for i, m in enumerate(self.members):
+            if i in face:
+                continue
+            wi, Ri, ci = m.correct(cal, subs[i], ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
+            if wi is not w:
+                w_out = w_out + (np.asarray(wi, float) - w)
+            if Ri is not R_WB:   # R_i = R_WB Z_i^T: compose Z_i^T = R_WB^T R_i
+                R_out = np.einsum("nij,njk->nik", R_out, np.einsum("nji,njk->nik", R_WB, Ri))
+            if ci is not None:
+                cov = ci if cov is None else cov + ci
+        return w_out, R_out, cov
 
     def __repr__(self) -> str:
         return f"<effects {self.name}>"

@@ -15,6 +15,11 @@ same CasADi expressions the diagnosis fitted are evaluated over all samples at o
 in blocks of ``CHUNK`` samples (the standing features are a few hundred columns per
 sample). A unit whose correction is something else (an offset drift's rates, a body
 effect's "nothing per foot") overrides ``Effect.correct``.
+
+Several effects fitted together (``combined.Combined``, a block with ``members``): each member's block
+(:func:`member_block`) is a single effect's, its ``eta`` the member's slice of the joint one; the members whose
+correction is their standing face (:func:`corrects_by_face`) are evaluated together as one face, so that the
+covariance ``J Sigma_eta J^T`` takes the joint ``eta_cov`` with its cross-member terms (``Combined.correct``).
 """
 
 from __future__ import annotations
@@ -83,3 +88,52 @@ def sample_features(cal, ctx: AugContext, w, phi, R_WB, t_h) -> np.ndarray:
     rcom = np.stack([cal.legs[k].com(phi[:, i]) for i, k in enumerate(ctx.legs)], axis=1)
     n_vert = np.einsum("kji,j->ki", ctx.R_nominal, np.array([0.0, 0.0, 1.0]))
     return StandingData(w, R_WB[:, 2, :], remove_yaw(R_WB), t_h, w, phi, np.nan_to_num(rcom), n_vert).features()
+
+
+def corrects_by_face(effect) -> bool:
+    """Whether ``effect``'s correction is its standing face evaluated on the samples (a sensor effect with a hexapod
+    face that keeps ``Effect.correct``), so that it can be evaluated together with others (``Combined.correct``)."""
+    from .unit import Effect
+
+    return effect.kind == "sensor" and "hexapod" in effect.diagnosed_on and type(effect).correct is Effect.correct
+
+
+#: the keys of a block that are the joint fit's, replaced by the member's own in :func:`member_block`
+JOINT_KEYS = ("name", "variant", "eta", "eta_cov", "parameters", "members")
+
+
+def member_block(block: dict, i: int, source: str = "calibration") -> dict:
+    """Member ``i`` of a block of several effects (``meta.effect.members[i]``) as a single effect's block: the block's
+    shared keys (``t_ref_s``, ``R_nominal``), the member's name, variant, parameters, its ``eta`` and the diagonal block
+    of ``eta_cov`` of its ``eta_slice``. Checks the slice against the joint ``eta`` (a ValueError naming the key)."""
+    mb = block["members"][i]
+    key = f"meta.effect.members[{i}]"
+    if not isinstance(mb, dict) or not isinstance(mb.get("name"), str):
+        raise ValueError(f"{source}: {key} must be a table with a name (the effect's), got {mb!r}")
+    eta_all = np.asarray(block.get("eta", []), float)
+    sl = mb.get("eta_slice")
+    if not (isinstance(sl, (list, tuple)) and len(sl) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in sl)
+            and 0 <= sl[0] <= sl[1] <= len(eta_all)):
+        raise ValueError(f"{source}: {key}.eta_slice must be [start, stop] within meta.effect.eta ({len(eta_all)} values), got {sl!r}")
+    eta = np.asarray(mb.get("eta", eta_all[sl[0]:sl[1]].tolist()), float)
+    if eta.shape != (sl[1] - sl[0],) or not np.array_equal(eta, eta_all[sl[0]:sl[1]]):
+        raise ValueError(f"{source}: {key}.eta must be meta.effect.eta[{sl[0]}:{sl[1]}] ({sl[1] - sl[0]} values), got "
+                         f"{eta.size} values{' that differ from them' if eta.size == sl[1] - sl[0] else ''}")
+    out = {k: v for k, v in block.items() if k not in JOINT_KEYS}
+    out.update({k: v for k, v in mb.items() if k != "eta_slice"})
+    out["eta"] = eta.tolist()
+    out.setdefault("variant", {})
+    out.setdefault("parameters", {})
+    if "eta_cov" in block:
+        C = joint_eta_cov(block, len(eta_all), source)
+        out["eta_cov"] = C[sl[0]:sl[1], sl[0]:sl[1]].tolist()
+    return out
+
+
+def joint_eta_cov(block: dict, m: int, source: str = "calibration") -> np.ndarray:
+    """``meta.effect.eta_cov`` checked square with at least ``m`` rows (a ValueError naming the key)."""
+    C = np.asarray(block["eta_cov"], float)
+    if C.ndim != 2 or C.shape[0] != C.shape[1] or C.shape[0] < m:
+        raise ValueError(f"{source}: meta.effect.eta_cov must be square with at least {m} rows (the members' parameters "
+                         f"first), got {C.shape}")
+    return C
