@@ -307,3 +307,8 @@ def test_the_chains_calibration_corrects_a_walk_closer_to_the_truth(tmp_path):
     z_foot, z_total = _paired_z(*foot), _paired_z(*total)
     rms = lambda f: np.sqrt((f**2).reshape(len(f), -1, 3).mean(axis=(0, 1)))   # noqa: E731
     assert z_foot >= Z_MIN and z_total >= Z_MIN, (z_foot, z_total, rms(f0), rms(f1), rms(t0), rms(t1))
+    # the report says what the file holds
+    from ftcal_nlp.report.diagnosis import diagnosis_section
+
+    caps = [t[0] for t in diagnosis_section(d, tmp_path).tables]
+    assert any("holds the chain's last joint refit" in c and all(n in c for n in ("offset_drift", "casing_load")) for c in caps), caps

@@ -247,8 +247,12 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
                       "added when its paired held-out test passed, and refit jointly with them and the whole calibration)", cv))
     jv = joint_view(d)
     if jv is not None:
+        links = d.chain.links if d.chain is not None else []
+        held = (f"`calibration_with_effect.json`, which `correct` applies, holds the chain's last joint refit: "
+                f"{', '.join([d.effect] + [lk.name for lk in links])} fitted together with the calibration" if links else
+                "`calibration_with_effect.json`, which `correct` applies")
         sec.add(Table(f"Joint refit: the whole calibration refit with {d.effect} (hanging, standing and walking swing "
-                      "together, cross-validated; `calibration_with_effect.json`, which `correct` applies)", jv))
+                      f"together, cross-validated; {held})", jv))
         for line in d.joint.notes:
             sec.add(Text(line))
     sec.add(Table("Candidate effects, best first", ranking_view(d)))
