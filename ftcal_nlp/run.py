@@ -201,12 +201,17 @@ def effect_calibration(res: CalibrationRun) -> Calibration:
     effects' parameters carry their own joint covariance (``meta.effect.eta_cov``, cross-effect terms included)."""
     j = last_joint(res.diagnosis)
     cal = j.calibration
+    what = "the effect" if "+" not in j.effect else "the effects " + ", ".join(j.effect.split("+"))
     if res.uncertainty is not None and cal.model == res.calibration.model:
-        what = "the effect" if "+" not in j.effect else "the effects " + ", ".join(j.effect.split("+"))
         cal = replace(cal, meta={**cal.meta, "covariance_file": COVARIANCE_FILE,
                                  "covariance_note": f"the calibration's, before the joint refit with {what}: it leaves out "
                                                     "the calibration parameters' correlations with the effects' "
                                                     "(meta.effect.eta_cov holds the effects' own)"})
+    elif res.uncertainty is not None:
+        # another error model: the calibration's covariance is of other parameters; say why none is named
+        cal = replace(cal, meta={**cal.meta, "covariance_note": (
+            f"none: the joint refit with {what} chose the error model {cal.model!r}, the calibration's covariance file is "
+            f"of {res.calibration.model!r}; standard errors carry the sensor noise and meta.effect.eta_cov only")})
     return cal
 
 
