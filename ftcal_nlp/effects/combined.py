@@ -29,8 +29,9 @@ the next candidate are fitted together with the calibration. :class:`Combined` m
   ``c_2(c_1(w))``, is the same where the corrections after the first are shifts that do not depend on the readings
   (a casing load, an offset drift), and differs by the products of the corrections where they do (a gain or
   crosstalk matrix, a chassis flex or a nonlinearity applied to readings a casing load corrected: second-order
-  terms the fit did not have). The members whose correction is their standing face (``correction.corrects_by_face``: sensor effects
-  with a hexapod face) are evaluated together as one face, so the covariance of the corrected readings
+  terms the fit did not have). The members whose correction is their standing face
+  (``correction.corrects_by_face``: sensor effects with a hexapod face) are evaluated together as one face, so the
+  covariance of the corrected readings
   ``J Sigma_eta J^T`` uses the joint ``eta_cov`` with its cross-member terms; the others (an offset drift's rates,
   a motion-capture bias on the orientations, body effects: nothing per foot) apply their own correction with their
   block (``correction.member_block``), and their covariances add: the drift rates' correlations with the standing
