@@ -82,6 +82,7 @@ class PayloadCalibration:
     undetermined: np.ndarray | None = None
     null: np.ndarray | None = None
     tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
+    effects: object = None            # the named effects (freeload/effects_correction.FreeEffects); None: none
 
     joints: tuple[str, ...] = ()
 
@@ -110,6 +111,7 @@ class UrdfLoadCalibration:
     undetermined: np.ndarray | None = None
     null: np.ndarray | None = None
     tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
+    effects: object = None            # the named effects (freeload/effects_correction.FreeEffects); None: none
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -317,13 +319,29 @@ def predicted_load(p: PayloadCalibration, g_B: np.ndarray, dgB: np.ndarray | Non
 
 
 def contact_wrench(p: PayloadCalibration | UrdfLoadCalibration, w_m: np.ndarray, g_B: np.ndarray,
-                   q: dict[str, np.ndarray] | None = None, R_WB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   q: dict[str, np.ndarray] | None = None, R_WB: np.ndarray | None = None, *, t: np.ndarray | None = None,
+                   quat: np.ndarray | None = None, temperature: np.ndarray | None = None,
+                   where: str = "recording") -> tuple[np.ndarray, np.ndarray]:
     """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6), gravity ``g_B``,
     joint angles ``q`` (joint -> (N,); URDF loads) and the orientations ``R_WB`` (N, 3, 3) ``g_B`` came from
-    (None: ``gx..gz``; a calibration's world tilt acts through them)."""
-    model, J = p.predict(g_B, {} if q is None else q, R_WB)
-    var = calibration_variance(p, J) + p.sigma**2
-    return w_m - model, np.sqrt(np.clip(var, 0.0, None))
+    (None: ``gx..gz``; a calibration's world tilt acts through them). A calibration with named effects
+    (``p.effects``, ``calibration_with_effect.json``) corrects the readings for them first
+    (``freeload/effects_correction.py``: needs the samples' times ``t``, and where the effects ask for them the
+    orientation ``quat`` (N, 4) and the ``temperature`` (N,)); the se then carry the effects' parameters."""
+    q = {} if q is None else q
+    model, J = p.predict(g_B, q, R_WB)
+    if p.effects is None:
+        var = calibration_variance(p, J) + p.sigma**2
+        return w_m - model, np.sqrt(np.clip(var, 0.0, None))
+    from .freeload import effects_correction as fe
+
+    if t is None:
+        raise ValueError("contact_wrench: a calibration with effects needs the samples' times t")
+    g_t = tilted_gravity(p, g_B, R_WB)[0]
+    ctx = fe.context(p, p.effects, np.asarray(t, float), w_m, model, g_t, quat, q, temperature)
+    yc, parts = fe.correct_readings(p, p.effects, ctx, where)
+    var = fe.joint_variance(J, p.effects, parts) + p.sigma**2
+    return yc - model, np.sqrt(np.clip(var, 0.0, None))
 
 
 def calibration_variance(p: PayloadCalibration | UrdfLoadCalibration, J: np.ndarray, tol: float = 1e-3) -> np.ndarray:
@@ -387,12 +405,28 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
     qk = {j: v[keep] for j, v in q.items()}
     out: dict[str, np.ndarray] = {"t": df["t"].to_numpy(float)[keep]}
     ses: dict[str, np.ndarray] = {}
+    quat = None
+    if R_WB is not None:
+        quat = df[list(QUAT_COLUMNS)].to_numpy(float)[keep]
+        quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
     for i, k in enumerate(legs):
-        wc, se = contact_wrench(cal_legs[k], w[keep, 6 * i: 6 * i + 6], g_B[keep], qk, None if R_WB is None else R_WB[keep])
+        p = cal_legs[k]
+        temp = _temperature(df, k, keep, out["t"], where) if p.effects is not None else None
+        wc, se = contact_wrench(p, w[keep, 6 * i: 6 * i + 6], g_B[keep], qk, None if R_WB is None else R_WB[keep],
+                                t=out["t"], quat=quat, temperature=temp, where=where)
         for j, c in enumerate(WRENCH_COMPONENTS):
             out[f"{k}_{c}"] = wc[:, j]
             ses[f"{k}_{c}_se"] = se[:, j]
     return pd.DataFrame({**out, **ses})
+
+
+def _temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:
+    """Transducer ``leg``'s temperature (rows ``keep``) from ``{leg}_temp_C`` or ``temp_C`` (``data.py``'s reading:
+    gaps interpolated in t, units checked), or None without either column."""
+    from .data import TEMP_COMMON, TEMP_SUFFIX, _temperatures
+
+    cols = [c for c in (f"{leg}{TEMP_SUFFIX}", TEMP_COMMON) if c in df.columns]
+    return _temperatures(df, cols, keep, t, [leg], where, Path(where)).get(leg) if cols else None
 
 
 def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration | UrdfLoadCalibration] | None:
@@ -412,9 +446,13 @@ def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration |
     for k, l in legs.items():
         if l.get("load_kind") == "urdf_subtree":
             out[k] = urdf_from_json(l, k, g, cal_path, cc)
+            x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
         else:
-            block = None if cc is None else cc.block(payload_param_names(k, "gravity_tilt_rad" in l))
+            x_names = payload_param_names(k, "gravity_tilt_rad" in l)
+            block = None if cc is None else cc.block(x_names)
             out[k] = payload_from_json(l, k, g, str(cal_path), block)
+        out[k] = _with_effects(out[k], d.get("meta", {}), l, x_names, cc, str(cal_path))
+    _check_effect_legs(d.get("meta", {}), out, str(cal_path))
     diag = [k for k, c in out.items() if not c.full_cov]
     if diag:
         log.info("%s: se of %s from the stored standard errors (correlations between parameters not stored: left out)",
@@ -423,6 +461,30 @@ def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration |
         log.info("%s: se of %s from the full covariance of %s", cal_path, [k for k in out if k not in diag],
                  d["meta"]["covariance_file"])
     return out
+
+
+def _with_effects(p, meta: dict, entry: dict, x_names: list[str], cc, where: str):
+    """``p`` with the named effects of ``meta.effect`` for its transducer (``calibration_with_effect.json`` of a
+    free-load run, ``freeload/effects_correction.py``) and their joint covariance; ``p`` itself without any."""
+    from dataclasses import replace
+
+    from .freeload.effects_correction import free_effects_of, with_covariance
+
+    fx = free_effects_of(meta, p.leg, where, getattr(p, "R_B_ft", None), entry)
+    if fx is None:
+        return p
+    und = np.zeros(len(x_names), bool) if p.undetermined is None else np.asarray(p.undetermined, bool)
+    return replace(p, effects=with_covariance(fx, p.cov, und, x_names, cc if p.full_cov else None))
+
+
+def _check_effect_legs(meta: dict, cal_legs: dict, where: str) -> None:
+    """Every transducer ``meta.effect.legs`` names is one of the calibration's."""
+    eff = meta.get("effect") if isinstance(meta, dict) else None
+    legs = eff.get("legs") if isinstance(eff, dict) and eff.get("kind") == "free_load" else None
+    bad = [k for k in (legs or {}) if k not in cal_legs]
+    if bad:
+        raise DataFormatError(f"{where}: meta.effect.legs names {bad}, not transducers of the calibration {list(cal_legs)}",
+                              path=where, column="meta.effect.legs")
 
 
 def _covariance_file(cal_path: Path, meta: dict):

@@ -161,6 +161,8 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
             effect_calibration(res).save(folder / "calibration_with_effect.json")
             for note in dict.fromkeys((*res.diagnosis.joint.notes, *last.notes)):
                 log.warning("joint refit with %s: %s", last.effect if note in last.notes else res.diagnosis.effect, note)
+        elif res.free_loads is not None:
+            write_free_effect_calibration(res, folder)
     with stage("report", res.timings):
         write_report(res, folder)
     return res
@@ -213,6 +215,21 @@ def effect_calibration(res: CalibrationRun) -> Calibration:
             f"none: the joint refit with {what} chose the error model {cal.model!r}, the calibration's covariance file is "
             f"of {res.calibration.model!r}; standard errors carry the sensor noise and meta.effect.eta_cov only")})
     return cal
+
+
+def write_free_effect_calibration(res: CalibrationRun, folder: Path) -> None:
+    """A free-load run whose diagnosis named effects: ``calibration_with_effect.json`` (the free-load calibration refit
+    jointly with the chain's effects, ``meta.effect``: every transducer's members, their parameters and the session's
+    reference) and its joint covariance file (``freeload/effects_correction.py``); nothing when none was named."""
+    from .freeload.effects_correction import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, effect_calibration as free_effects
+
+    out = free_effects(res)
+    if out is None:
+        return
+    cal, cov = out
+    cal.save(folder / "calibration_with_effect.json")
+    cov.save(folder / EFFECT_COVARIANCE_FILE)
+    log.info("calibration_with_effect.json: the free loads refit with %s (correct applies them)", cal.meta["effect"]["name"])
 
 
 def write_corrected(res: CalibrationRun, folder: Path) -> None:

@@ -255,6 +255,7 @@ class JointFit:
     s2: float
     resid: np.ndarray
     betas: tuple = ()          # per effect its parameter vector (face column order)
+    G: np.ndarray | None = None  # the weighted normal matrix over [dx, betas] (cov = s2 G^+: the file `correct` reads)
 
     def wrench(self, steps: list[Candidate], i: int = 0) -> np.ndarray:
         """The fitted wrench (N, 6) of the ``i``-th named effect."""
@@ -280,4 +281,4 @@ def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoad
         out.append({n: (float(v), float(e)) for n, v, e in zip(s.face.names, beta[sl], se[sl])})
         betas.append(beta[sl])
         c0 += s.face.k
-    return JointFit(out, beta[:J.k], se[:J.k], s2, cv.resid, tuple(betas))
+    return JointFit(out, beta[:J.k], se[:J.k], s2, cv.resid, tuple(betas), G)

@@ -444,4 +444,6 @@ def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:
     """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span (N, degree)."""
     from .faces import legendre_time
 
-    return legendre_time(ctx.t, float(ctx.t.min()), float(ctx.t.max()), range(1, degree + 1))
+    # a correction on a new recording keeps the calibration session's span (ctx.extra["t_span"]: freeload/effects_correction.py)
+    lo, hi = ctx.extra.get("t_span", (float(ctx.t.min()), float(ctx.t.max())))
+    return legendre_time(ctx.t, float(lo), float(hi), range(1, degree + 1))

@@ -223,7 +223,7 @@ class OffsetDrift(Effect):
             return None
         basis, labels = session_time_basis(ctx, d), [f"P{j}" for j in range(1, d + 1)]
         if shape.get("step"):
-            t_s = change_point(ctx)
+            t_s = ctx.extra["change_point_s"] if "change_point_s" in ctx.extra else change_point(ctx)   # a new recording: the calibration's
             if t_s is None:
                 return None
             basis = np.concatenate([basis, (ctx.t >= t_s).astype(float)[:, None]], axis=1)

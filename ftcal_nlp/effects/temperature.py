@@ -134,7 +134,7 @@ class Temperature(Effect):
         for r in np.unique(ctx.rec):
             i = ctx.rec == r
             Tl[i] = lowpass(ctx.t[i], ctx.temperature[i], lag)
-        dT = Tl - Tl.mean()
+        dT = Tl - ctx.extra.get("temperature_mean_C", Tl.mean())   # a new recording: the calibration's mean (effects_correction)
         return np.stack([dT**j for j in range(1, degree + 1)], axis=1)
 
     def free_refine(self, ctx, shape, resid):
