@@ -17,7 +17,8 @@ The file holds
   member ``{"name", "shape", "labels", "beta", "parameters": {label: {"value", "se"}}}`` in chain order, and the
   ``reference`` a face computes from the whole calibration session that a new recording cannot: ``t_span_s`` (the
   session span a time polynomial is scaled to), ``change_point_s`` (offset_drift's step), ``temperature_mean_C``
-  (the lagged temperature's mean a temperature face is centred on);
+  (the lagged temperature's mean a temperature face is centred on); ``position_m`` the ft origin in B (an inertial
+  face's lever, from ``robot.toml``);
 * the covariance file ``calibration_with_effect_cov.npz`` (``meta.covariance_file``): per transducer the joint
   covariance of ``[x, beta_1 .. beta_m]``, ``C = s^2 G^+`` (``G`` the joint refit's weighted normal matrix, ``s^2`` its
   weighted residual variance with the AR(1) inflation), the directions ``G`` leaves undetermined in ``null``;
@@ -216,9 +217,10 @@ def _json_num(v: float):
     return float(v) if np.isfinite(v) else None
 
 
-def members_json(members, reference: dict, floor) -> dict:
-    """A transducer's entry of ``meta.effect.legs``."""
-    return {"members": [{"name": m.name, "shape": m.shape, "labels": list(m.labels), "beta": [float(b) for b in m.beta],
+def members_json(members, reference: dict, floor, position_m=None) -> dict:
+    """A transducer's entry of ``meta.effect.legs`` (``position_m``: the ft origin in B, an inertial face's lever)."""
+    return {**({} if position_m is None else {"position_m": [float(v) for v in position_m]}),
+            "members": [{"name": m.name, "shape": m.shape, "labels": list(m.labels), "beta": [float(b) for b in m.beta],
                          "parameters": {lab: {"value": float(b), "se": _json_num(e)}
                                         for lab, b, e in zip(m.labels, m.beta, m.se)}} for m in members],
             "reference": reference, "noise_floor": [float(x) for x in floor]}
@@ -249,7 +251,7 @@ def effect_calibration(res):
         legs[k], (C, und, null) = refit_result(fit, ld)
         members = _members(ld)
         ctx, _ = context_for(res.dataset, k, fit)
-        blocks[k] = members_json(members, reference_of(ctx, members), legs[k].sigma)
+        blocks[k] = members_json(members, reference_of(ctx, members), legs[k].sigma, ctx.extra.get("position_m"))
         parts.append((list(fit.names) + beta_names(k, members), C, und, null))
     P = sum(len(n) for n, *_ in parts)
     cov, und_all = np.zeros((P, P)), np.zeros(P, bool)
@@ -282,7 +284,7 @@ def _fail(where: str, key: str, what: str) -> DataFormatError:
 def free_effects_of(meta: dict, leg: str, where: str, R_B_ft: np.ndarray, entry: dict) -> FreeEffects | None:
     """The named effects of transducer ``leg`` in a calibration's ``meta`` (None: none named for it), checked: every
     member a library unit with a free face, ``beta`` and ``labels`` of one length, finite numbers. ``entry``: the leg's
-    ``calibration.json`` entry (its ``mount_rotation`` and ft origin)."""
+    ``calibration.json`` entry (its ``mount_rotation``)."""
     from ..effects import EFFECTS, Effect
 
     block = meta.get("effect") if isinstance(meta, dict) else None
@@ -326,7 +328,9 @@ def free_effects_of(meta: dict, leg: str, where: str, R_B_ft: np.ndarray, entry:
     if not isinstance(ref, dict):
         raise _fail(where, f"legs.{leg}.reference", "expected a table (t_span_s, ...)")
     E = np.asarray(entry.get("mount_rotation", np.eye(3)), float)
-    pos = entry.get("position_from_com_m")
+    pos = lb.get("position_m")
+    if pos is not None and (np.shape(pos) != (3,) or not np.all(np.isfinite(np.asarray(pos, float)))):
+        raise _fail(where, f"legs.{leg}.position_m", f"expected 3 finite numbers (m), got {pos!r}")
     return FreeEffects(leg, tuple(out), dict(ref), E, None if pos is None else np.asarray(pos, float))
 
 
