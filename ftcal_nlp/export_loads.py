@@ -197,7 +197,15 @@ cc -O2 -fPIC -shared {name}.c -o lib{name}.so -lm
 
 
 def write_c(cals: dict, out_dir: str | Path, name: str, source: str) -> ExportedFiles:
-    """Write ``{name}.c``, ``{name}.h`` and ``USAGE.md`` into ``out_dir``."""
+    """Write ``{name}.c``, ``{name}.h`` and ``USAGE.md`` into ``out_dir``. A calibration with named effects
+    (``calibration_with_effect.json``) is an error: the C function is the per-sample load model, the effects'
+    corrections need a recording's history (``freeload/effects_correction.py``)."""
+    named = {k: [m.name for m in c.effects.members] for k, c in cals.items() if getattr(c, "effects", None) is not None}
+    if named:
+        raise DataFormatError(f"{source}: meta.effect names {named}: export compiles the per-sample load model only, and "
+                              "these effects' corrections need each recording's history (re-sampling, relaxation filters, "
+                              "the session's clock); `correct` applies them. Export the run's calibration.json for the "
+                              "load model alone", path=source, column="meta.effect")
     f = correction_function(cals, name)
     return write_generated(f, name, Path(out_dir), _wrapper_source(f, name, len(cals), len(joint_order(cals))),
                            usage_note(cals, name, source))

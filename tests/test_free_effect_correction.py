@@ -237,3 +237,14 @@ def test_a_time_polynomial_keeps_the_calibration_session_span():
     P1 = legendre_time(t, 1000.0, 1200.0, [1])[:, 0]
     np.testing.assert_allclose(plain - corrected, P1[:, None] * beta[None], rtol=0, atol=1e-12)
     np.testing.assert_allclose(se, 0.01, rtol=1e-12)   # no parameter uncertainty given: the noise alone
+
+
+def test_export_of_a_calibration_with_effects_is_an_error(payload, tmp_path):
+    # the C function is the per-sample load model: the effects would be dropped silently
+    from ftcal_nlp.export_loads import write_c
+
+    folder, _ = payload
+    with pytest.raises(DataFormatError) as exc:
+        write_c(payload_calibrations(folder / "out" / "calibration_with_effect.json"), tmp_path, "ftc",
+                "calibration_with_effect.json")
+    assert "meta.effect" in str(exc.value) and "clock_offset" in str(exc.value) and "calibration.json" in str(exc.value)
