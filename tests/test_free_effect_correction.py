@@ -248,3 +248,34 @@ def test_export_of_a_calibration_with_effects_is_an_error(payload, tmp_path):
         write_c(payload_calibrations(folder / "out" / "calibration_with_effect.json"), tmp_path, "ftc",
                 "calibration_with_effect.json")
     assert "meta.effect" in str(exc.value) and "clock_offset" in str(exc.value) and "calibration.json" in str(exc.value)
+
+
+def test_se_of_the_corrected_wrench_match_the_spread_of_refits(tmp_path):
+    # 20 calibrations of one rig (a linear drift: on the face) correct one noise-free probe recording; the sd of the
+    # corrected wrench over them matches the se's calibration part sqrt(se^2 - sigma^2), which carries the joint
+    # covariance of the load parameters and beta (pooled per channel; 1 +- 3 / sqrt(2 (R - 1)) for R refits)
+    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.freeload.effects_correction import COVARIANCE_FILE, effect_calibration
+    from ftcal_nlp.pipeline import calibrate
+    from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+
+    rig = {**RIG, "effects": ({"name": "offset_drift_ramp", "scale": 20.0},)}
+    probe = simulate_payload(PayloadConfig(seed=999, n_orientations=6, hold_s=6.0, move_s=3.0, noise_force_N=0.0,
+                                           noise_torque_Nm=0.0, **rig)).frame
+    settings = replace(CalibrationSettings(), diagnose=DiagnoseSettings(enabled=True))
+    err, se_cal = [], []
+    R = 20
+    for s in range(100, 100 + R):
+        sim = simulate_payload(PayloadConfig(seed=s, n_orientations=12, hold_s=6.0, move_s=3.0, **rig))
+        res = calibrate(read_dataset(write_free_load(sim, tmp_path / f"d{s}")), settings)
+        cal, cc = effect_calibration(res)
+        cal.save(tmp_path / f"c{s}.json")
+        cc.save(tmp_path / COVARIANCE_FILE)
+        df = contact_frame(payload_calibrations(tmp_path / f"c{s}.json"), probe, "probe")
+        sigma = np.asarray(cal.legs["wrist"].load["noise_sd"])
+        err.append(df[[f"wrist_{c}" for c in WRENCH]].to_numpy())
+        se_cal.append(np.sqrt(df[[f"wrist_{c}_se" for c in WRENCH]].to_numpy() ** 2 - sigma**2))
+    err, se_cal = np.array(err), np.array(se_cal)
+    ratio = np.sqrt((err.std(axis=0, ddof=1) ** 2).mean(axis=0) / (se_cal**2).mean(axis=(0, 1)))
+    tol = 3.0 / np.sqrt(2 * (R - 1))
+    assert np.all(np.abs(ratio - 1.0) < tol), ratio
