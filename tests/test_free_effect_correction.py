@@ -8,6 +8,7 @@ the session's reference keeps the calibration's; bad blocks and missing columns 
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 from dataclasses import replace
 
@@ -219,7 +220,7 @@ def test_joint_limit_contact_needs_its_joint_column(urdf, tmp_path):
     assert "q_r_knee" in str(exc.value) and "joint_limit_contact" in str(exc.value)
 
 
-def test_a_time_polynomial_keeps_the_calibration_session_span():
+def test_a_time_polynomial_keeps_the_calibration_session_span(caplog):
     # offset_drift's Legendre P1 over the calibration's span, not the new recording's own: exact
     n = 200
     t = np.linspace(1100.0, 1150.0, n)
@@ -237,6 +238,10 @@ def test_a_time_polynomial_keeps_the_calibration_session_span():
     P1 = legendre_time(t, 1000.0, 1200.0, [1])[:, 0]
     np.testing.assert_allclose(plain - corrected, P1[:, None] * beta[None], rtol=0, atol=1e-12)
     np.testing.assert_allclose(se, 0.01, rtol=1e-12)   # no parameter uncertainty given: the noise alone
+    # a recording on another clock (outside the session's span): extrapolated, and said so
+    with caplog.at_level(logging.WARNING):
+        contact_wrench(replace(p, effects=fx), w, g_B, t=t - 1100.0, where="other_clock.csv")
+    assert "outside the calibration session's span" in caplog.text and "other_clock.csv" in caplog.text
 
 
 def test_export_of_a_calibration_with_effects_is_an_error(payload, tmp_path):

@@ -52,7 +52,8 @@ Without the covariance file the stored se serve (diagonal: correlations left out
 An effect that needs a signal the new recording lacks is an error naming the column: ``temperature`` (``{X}_temp_C``
 or ``temp_C``), ``joint_limit_contact`` (``q_<joint>``), ``inertial_load`` (``qw..qz``: a rate of turn needs the
 orientation). A face that is zero on the recording (no change of load for creep, no joint near its stop) corrects
-nothing. A calibration without ``meta.effect`` is corrected as before.
+nothing. A time polynomial (``offset_drift``) is evaluated on the session's clock: samples outside the session's span
+are named in a warning (extrapolated there). A calibration without ``meta.effect`` is corrected as before.
 """
 
 from __future__ import annotations
@@ -373,6 +374,24 @@ def _require(fx: FreeEffects, ctx, where: str) -> None:
                                   f"rows needed, got {ctx.n}", path=where, column="t")
 
 
+#: samples this far (share of the session's span) outside it are named: a time polynomial extrapolated
+SPAN_MARGIN = 0.01
+
+
+def _check_span(fx: FreeEffects, ctx, where: str) -> None:
+    """A warning when a time polynomial (offset_drift) is evaluated outside the calibration session's span: the
+    recording must share the session's clock, and beyond the span the polynomial is extrapolated."""
+    if not any(m.name == "offset_drift" for m in fx.members) or "t_span_s" not in fx.reference:
+        return
+    lo, hi = (float(v) for v in fx.reference["t_span_s"])
+    pad = SPAN_MARGIN * (hi - lo)
+    out = int(np.sum((ctx.t < lo - pad) | (ctx.t > hi + pad)))
+    if out:
+        log.warning("%s: %d of %d samples lie outside the calibration session's span t = %.6g..%.6g s: the offset_drift "
+                    "polynomial of %s is extrapolated there (the recording must share the session's clock)",
+                    where, out, ctx.n, lo, hi, fx.leg)
+
+
 def context(p, fx: FreeEffects, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_B: np.ndarray,
             quat: np.ndarray | None, q: dict, temperature: np.ndarray | None):
     """The new recording's :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` (module docstring): ``p`` its
@@ -418,6 +437,7 @@ def correct_readings(p, fx: FreeEffects, ctx, where: str = "recording") -> tuple
     from ..effects import EFFECTS
 
     _require(fx, ctx, where)
+    _check_span(fx, ctx, where)
     y = ctx.y
     yc = y.copy()
     parts, c0 = [], 0
