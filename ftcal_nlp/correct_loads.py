@@ -43,6 +43,11 @@ The parameters ``theta = [M_G, H_G]`` per group come from ``urdf_groups`` (mass,
 With the covariance file, an output is undetermined (se inf) only where its derivative has a component along an
 undetermined direction (``null``): a joint that never moved at calibration leaves the split of the links it
 carries undetermined, but not the wrench at the angles it held.
+
+A ``calibration_with_effect.json`` of a free-load run (``meta.effect.kind = "free_load"``) names effects per
+transducer: the readings are corrected for them first and the se carry their parameters' joint covariance
+(``freeload/effects_correction.py``: what the file holds, the correction, what the se leave out); a calibration
+without ``meta.effect`` is corrected as above.
 """
 
 from __future__ import annotations
@@ -470,7 +475,7 @@ def _with_effects(p, meta: dict, entry: dict, x_names: list[str], cc, where: str
 
     from .freeload.effects_correction import free_effects_of, with_covariance
 
-    fx = free_effects_of(meta, p.leg, where, getattr(p, "R_B_ft", None), entry)
+    fx = free_effects_of(meta, p.leg, where, entry)
     if fx is None:
         return p
     und = np.zeros(len(x_names), bool) if p.undetermined is None else np.asarray(p.undetermined, bool)

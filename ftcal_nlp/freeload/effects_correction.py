@@ -282,7 +282,7 @@ def _fail(where: str, key: str, what: str) -> DataFormatError:
     return DataFormatError(f"{where}: meta.effect.{key}: {what}", path=where, column=f"meta.effect.{key}")
 
 
-def free_effects_of(meta: dict, leg: str, where: str, R_B_ft: np.ndarray, entry: dict) -> FreeEffects | None:
+def free_effects_of(meta: dict, leg: str, where: str, entry: dict) -> FreeEffects | None:
     """The named effects of transducer ``leg`` in a calibration's ``meta`` (None: none named for it), checked: every
     member a library unit with a free face, ``beta`` and ``labels`` of one length, finite numbers. ``entry``: the leg's
     ``calibration.json`` entry (its ``mount_rotation``)."""
