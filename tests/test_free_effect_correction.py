@@ -204,6 +204,11 @@ def test_an_effect_without_its_column_is_an_error(payload, tmp_path):
     dT = rec["temp_C"].to_numpy() - 29.0
     for c in WRENCH:
         np.testing.assert_allclose(base[f"wrist_{c}"] - with_t[f"wrist_{c}"], 0.01 * dT, rtol=0, atol=1e-12)
+    # a recording held at one temperature: still (T - the calibration's mean) x beta, an offset
+    rec["temp_C"] = 31.5
+    with_t = contact_frame(payload_calibrations(path), rec, "fresh.csv")
+    for c in WRENCH:
+        np.testing.assert_allclose(base[f"wrist_{c}"] - with_t[f"wrist_{c}"], 0.01 * 2.5, rtol=0, atol=1e-12)
 
 
 def test_joint_limit_contact_needs_its_joint_column(urdf, tmp_path):

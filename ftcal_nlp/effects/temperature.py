@@ -120,7 +120,7 @@ class Temperature(Effect):
 
     def free_face(self, ctx, shape):
         T = ctx.temperature
-        if T is None or not np.all(np.isfinite(T)) or np.ptp(T) <= 0:
+        if T is None or not np.all(np.isfinite(T)) or (np.ptp(T) <= 0 and "temperature_mean_C" not in ctx.extra):
             return None
         basis = self._basis(ctx, float(shape["lag_s"]), int(shape["degree"]))
         d = basis.shape[1]

@@ -32,7 +32,8 @@ context is rebuilt (``effects.free_faces.make_context``: its time, readings, the
 
     y_c = y + sum_i (c_i - y),          w_contact = y_c - h(x; s_n)
 
-every member evaluated on the same context, as fitted. Why the sum and not a composition in chain order: the joint
+every member evaluated on the same context, as fitted (the faces built from the model readings take them at the
+refit ``x* + dx``, where the diagnosis took them at ``x*``: a second-order difference, ``dx`` times ``beta``). Why the sum and not a composition in chain order: the joint
 fit is a sum of faces, each built from the same recorded context; for a unit whose correction is its face's
 subtraction (the default ``y - X beta``) the sum is exactly ``y - sum_i X_i beta_i``, the fitted model; a unit that
 overrides it (``clock_offset``: the readings re-sampled ``delay_s`` later) replaces its linearised face by the exact
