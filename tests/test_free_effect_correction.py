@@ -125,22 +125,28 @@ def test_urdf_leg_fresh_recording_corrected_to_the_noise(urdf):
     assert np.all((ratio > 0.9) & (ratio < 1.1)), ratio
 
 
-@pytest.mark.parametrize("effects,name", [
-    (({"name": "offset_drift_ramp", "scale": 20.0},), "offset_drift"),   # a time polynomial: the session's span
-    (({"name": "temperature"},), "temperature"),                          # the lagged temperature's session mean
-    (({"name": "inertial_load"},), "inertial_load"),                      # the lever from robot.toml's position_m
+@pytest.mark.parametrize("kind,effects,name", [
+    ("payload", ({"name": "offset_drift_ramp", "scale": 20.0},), "offset_drift"),   # a time polynomial: the session's span
+    ("payload", ({"name": "temperature"},), "temperature"),                          # the lagged temperature's session mean
+    ("payload", ({"name": "inertial_load"},), "inertial_load"),                      # the lever from robot.toml's position_m
+    ("urdf", ({"name": "joint_limit_contact"},), "joint_limit_contact"),             # the joint and its URDF limits
 ])
-def test_other_payload_effects_correct_a_fresh_recording(effects, name, tmp_path):
+def test_other_effects_correct_a_fresh_recording(kind, effects, name, tmp_path):
     rig = {**RIG, "effects": effects}
-    sim = lambda seed: simulate_payload(PayloadConfig(seed=seed, n_orientations=12, hold_s=6.0, move_s=3.0, **rig))  # noqa: E731
+    if kind == "payload":
+        sim = lambda seed: simulate_payload(PayloadConfig(seed=seed, n_orientations=12, hold_s=6.0, move_s=3.0, **rig))  # noqa: E731
+        leg, recording, noise = "wrist", "wrist.csv", np.array([0.02] * 3 + [0.0006] * 3)
+    else:
+        sim = lambda seed: simulate_urdf_leg(UrdfLegConfig(seed=seed, n_orientations=6, poses_per_orientation=3, hold_s=4.0,  # noqa: E731
+                                                           move_s=2.0, mass_spread=0.0, com_spread_mm=0.0, **rig))
+        leg, recording, noise = "r_leg", "leg.csv", np.array([0.05] * 3 + [0.003] * 3)
     folder, out = _run(tmp_path, sim(31), sim(32))
-    noise = np.array([0.02] * 3 + [0.0006] * 3)
-    cols = [f"wrist_{c}" for c in WRENCH]
+    cols = [f"{leg}_{c}" for c in WRENCH]
     e_fx, e_0 = out["calibration_with_effect.json"][cols].to_numpy(), out["calibration.json"][cols].to_numpy()
     eff = json.loads((folder / "out" / "calibration_with_effect.json").read_text())["meta"]["effect"]
     assert eff["name"] == name
     assert np.all(np.sqrt((e_fx**2).mean(0)) / noise < 1.5) and _paired_z(e_0, e_fx, noise) >= 4.0
-    ratio = _in_sample(folder, "wrist", "wrist.csv")
+    ratio = _in_sample(folder, leg, recording)
     assert np.all((ratio > 0.9) & (ratio < 1.1)), ratio
 
 
