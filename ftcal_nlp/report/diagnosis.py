@@ -204,7 +204,9 @@ def free_diagnosis_section(d: "DiagnosisResult", folder: Path) -> Section:
     _add_shrinkage(sec, d, folder, "the free-load model" + (", after the named effects," if d.effect else ""))
     cv = chain_view(d)
     if cv is not None:
-        sec.add(Table("The effects named, in the order added (each refit jointly with those before it)", cv))
+        sec.add(Table("The effects named, in the order added (each refit jointly with those before it; "
+                      "`calibration_with_effect.json`, which `correct` applies to a new recording, holds the free loads "
+                      "refit jointly with all of them)", cv))
     co = correlates_view(d)
     if co is not None:
         sec.add(Table("Where the gap lies: the share of the held-out excess each correlate explains", co))
