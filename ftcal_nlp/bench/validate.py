@@ -437,7 +437,7 @@ def single_library(rows: pd.DataFrame) -> pd.DataFrame:
 
 def sweep_summary(rows: pd.DataFrame, scores: pd.DataFrame, wall_s: float, tolerance: float) -> dict:
     """Counts of the sweep (issue 13's table): each ``[right, n]``, plus the misses that explain them."""
-    sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "shrink_ok", "effect"])
+    sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "right_leg", "shrink_ok", "effect", "named"])
     lib = sc[sc["role"] == "library"]
     shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(EFFECTS))]
     outside = sc[sc["expect"] == EXPECT_UNEXPLAINED]
