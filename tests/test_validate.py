@@ -343,3 +343,26 @@ def test_a_sweep_of_pairs_alone_is_summarised():
     s = sweep_summary(rows, sc, 1.0, 1.5)
     assert s["pairs"] == (1, 1) and s["false_second"] == (0, 0) and s["library"] == (0, 0)
     assert "both named | 1/1" in validation_table(rows, sc, s)
+
+
+def test_a_dataset_rejected_naming_its_leg_counts_as_placed():
+    """An input check that refuses a dataset with an error naming the faulty leg's column (``rejected``) has placed a
+    fault outside the library on its leg; one naming another leg, or no column, has not (an error)."""
+    from ftcal_nlp.bench.validate import REJECTED, rejected_leg, sweep_summary, validation_table
+    from ftcal_nlp.errors import DataFormatError
+
+    legs = ("FL", "ML", "HL", "FR", "MR", "HR")
+    assert rejected_leg(DataFormatError("x", column="FR_fz"), legs) == "FR"
+    assert rejected_leg(DataFormatError("x", column="t"), legs) is None and rejected_leg(DataFormatError("x"), legs) is None
+
+    def row(i, legs_named, named):
+        return {"index": i, "seed": i, "role": "variant", "effect": "leg_axis_flipped", "expect": "unexplained",
+                "expect_legs": "FR", "named": named, "legs": legs_named, "verdict": named, "kind_key": "standing",
+                "twin": None, "time_s": 1.0, "effects": "", "size": "lo", "scale": 1.0}
+
+    rows = pd.DataFrame([row(0, "FR", REJECTED), row(1, "MR", REJECTED)])
+    sc = score(rows, 1.5)
+    assert list(sc["right"]) == [True, False]
+    s = sweep_summary(rows, sc, 1.0, 1.5)
+    assert s["outside"] == (1, 2) and s["finished"] == (2, 2)
+    assert "leg_axis_flipped lo (FR) rejected by the input check naming its leg" in validation_table(rows, sc, s)
