@@ -319,3 +319,26 @@ def test_legs_left_out_of_robot_toml_are_found_before_fitting(tmp_path, capsys, 
     line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
     assert re.search(r"standing\.parquet: standing, .*carry a median 0\.5\d .*of the weight of the body without legs.*expected 1 "
                      r"within 0\.8\.\.1\.25.*a leg that bears weight missing from robot\.toml \(legs = \['FL', 'ML', 'HL', 'FR'\]\)", line), line
+
+
+@pytest.mark.parametrize("leg", ["FR", "ML"])   # the two legs that bear most in the sample (12.6 N, 6.4 N)
+def test_a_mis_signed_channel_of_one_leg_is_named(leg, tmp_path, capsys, monkeypatch):
+    """One leg's force channel along the up axis mis-signed in every file (the validation's ``leg_axis_flipped``): the
+    standing share falls below 0.8; reversing that column's sign is what brings it back, so the error names it."""
+    from ftcal_nlp.data import read_dataset
+
+    robot = read_dataset(require_sample() / "dataset.toml", kinds=()).robot
+    R = robot.nominal_rotations()[robot.legs.index(leg)]
+    axis = "xyz"[int(np.argmax(np.abs(R[2])))]   # the sensor axis nearest B's z (up when standing level)
+    column = f"{leg}_f{axis}"
+
+    def flip(df):
+        df[column] = -df[column]
+
+    monkeypatch.setitem(CASES, f"_flip_{leg}", _every_file(flip))
+    broken_sample(require_sample(), tmp_path / "data", f"_flip_{leg}")
+    line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
+    assert re.search(rf"standing\.parquet: standing, .*carry a median 0\.\d+ of the weight .*expected 1 within 0\.8\.\.1\.25, and "
+                     rf"[01]\.\d+ with the sign of column {column} \(the axis of leg {leg} nearest the up axis\) reversed: is "
+                     rf"{column} mis-signed", line), line
+    assert not (tmp_path / "out").exists()

@@ -219,3 +219,34 @@ def test_the_stated_test_and_the_joint_check():
     assert not ok and "hanging" in why
     swing = {"walking swing": 1.0}
     assert joint_better(refit(standing=2.0, hanging=1.0, **swing), refit(standing=1.0, hanging=1.0, **{"walking swing": 9.0}), "standing")[0]
+
+
+def test_held_out_evidence_where_the_joint_refit_left_its_gap():
+    """``held_out_evidence``: candidates with paired z >= Z_MIN and a material saving on a kind the joint refit left a
+    gap on, largest z first; noise, immaterial savings, other kinds, failed or excluded candidates are not tried."""
+    from types import SimpleNamespace
+
+    from ftcal_nlp.diagnose.hexchain import Z_MIN, held_out_evidence
+
+    rng = np.random.default_rng(8)
+    b0 = rng.chisquare(6, 100) * 3.0
+
+    def ks(b1):
+        return KindScore("standing", np.ones(6), np.ones(6), np.ones(6), b0.sum(), b1.sum(), 1.0, 1.0, 600, 6, b0, b1)
+
+    def cand(name, kinds, status="ok"):
+        return SimpleNamespace(effect=name, kinds=kinds, status=status, model_effect=object())
+
+    strong = cand("a", {"standing": ks(b0 / 3.0 * rng.uniform(0.8, 1.2, 100))})
+    weaker = cand("b", {"standing": ks(b0 / 1.3 * rng.uniform(0.8, 1.2, 100))})
+    noise = cand("c", {"standing": ks(b0 * rng.uniform(0.9, 1.1, 100))})
+    tiny = cand("d", {"standing": ks(b0 - 0.01 * b0.mean())})
+    elsewhere = cand("e", {"hanging": ks(b0 / 3.0)})
+    failed = cand("f", {"standing": ks(b0 / 3.0)}, status="failed: x")
+    att = SimpleNamespace(scores=[weaker, noise, tiny, elsewhere, failed, strong])
+    got = held_out_evidence(att, {"standing": 7.7}, set())
+    assert [t[0].effect for t in got] == ["a", "b"] and all(t[1] == "standing" and t[2] >= Z_MIN and t[3] == "held-out" for t in got)
+    assert got[0][2] > got[1][2]
+    assert [t[0].effect for t in held_out_evidence(att, {"standing": 7.7}, {"a"})] == ["b"]
+    assert held_out_evidence(att, {"hanging": 1.0}, set())[0][0].effect == "e"
+    assert held_out_evidence(att, {}, set()) == []

@@ -329,3 +329,40 @@ def test_pairs_in_the_plan_and_their_rows_of_the_table():
     table = validation_table(rows, sc, s)
     assert "both named | 1/2 (robot_mass+mocap_bias: `robot_mass`) | >= 80% |" in table
     assert "a false second named | 1/3 (offset_drift hi: `offset_drift` then `hysteresis`) | <= 10% |" in table
+
+
+def test_a_sweep_of_pairs_alone_is_summarised():
+    """A sweep of pairs only (no single effect, no clean dataset) is counted, not a KeyError on the empty scores."""
+    from ftcal_nlp.bench.validate import sweep_summary, validation_table
+
+    rows = pd.DataFrame([{"index": 0, "seed": 0, "role": "pair", "effect": "offset_drift+casing_load",
+                          "expect": "offset_drift+casing_load", "expect_legs": "", "named": "casing_load", "legs": "",
+                          "verdict": "effect", "kind_key": "standing", "twin": None, "time_s": 1.0,
+                          "effects": "casing_load offset_drift", "size": "hi", "scale": None}])
+    sc = score(rows, 1.5)
+    s = sweep_summary(rows, sc, 1.0, 1.5)
+    assert s["pairs"] == (1, 1) and s["false_second"] == (0, 0) and s["library"] == (0, 0)
+    assert "both named | 1/1" in validation_table(rows, sc, s)
+
+
+def test_a_dataset_rejected_naming_its_leg_counts_as_placed():
+    """An input check that refuses a dataset with an error naming the faulty leg's column (``rejected``) has placed a
+    fault outside the library on its leg; one naming another leg, or no column, has not (an error)."""
+    from ftcal_nlp.bench.validate import REJECTED, rejected_leg, sweep_summary, validation_table
+    from ftcal_nlp.errors import DataFormatError
+
+    legs = ("FL", "ML", "HL", "FR", "MR", "HR")
+    assert rejected_leg(DataFormatError("x", column="FR_fz"), legs) == "FR"
+    assert rejected_leg(DataFormatError("x", column="t"), legs) is None and rejected_leg(DataFormatError("x"), legs) is None
+
+    def row(i, legs_named, named):
+        return {"index": i, "seed": i, "role": "variant", "effect": "leg_axis_flipped", "expect": "unexplained",
+                "expect_legs": "FR", "named": named, "legs": legs_named, "verdict": named, "kind_key": "standing",
+                "twin": None, "time_s": 1.0, "effects": "", "size": "lo", "scale": 1.0}
+
+    rows = pd.DataFrame([row(0, "FR", REJECTED), row(1, "MR", REJECTED)])
+    sc = score(rows, 1.5)
+    assert list(sc["right"]) == [True, False]
+    s = sweep_summary(rows, sc, 1.0, 1.5)
+    assert s["outside"] == (1, 2) and s["finished"] == (2, 2)
+    assert "leg_axis_flipped lo (FR) rejected by the input check naming its leg" in validation_table(rows, sc, s)

@@ -87,6 +87,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 
 from ..data import WRENCH_COMPONENTS
+from ..errors import DataFormatError
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, applies_to
@@ -115,6 +116,7 @@ PAIRS = (("offset_drift", "casing_load"), ("robot_mass", "mocap_bias"), ("gain_c
          ("casing_load", "tether_force"), ("offset_drift", "leg_inertia"), ("hysteresis", "robot_mass"),
          ("chassis_flex", "casing_load"), ("sensor_nonlinearity", "offset_drift"), ("tether_force", "offset_drift"))
 COMPONENTS = tuple(WRENCH_COMPONENTS)
+REJECTED = "rejected"   # ``named`` of a dataset an input check refused naming a leg's column (run_one)
 
 
 # ============================================================================= plans
@@ -266,9 +268,18 @@ def _diagnosis_fields(d) -> dict:
     return row
 
 
+def rejected_leg(exc: DataFormatError, legs) -> str | None:
+    """The leg an input check's error names by its column (``{leg}_fz``: ``checks.leg_sign_fixes_it``), or None."""
+    col = getattr(exc, "column", None) or ""
+    leg = col.split("_")[0] if "_" in col else ""
+    return leg if leg in legs else None
+
+
 def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
     """Simulate one dataset and put it through :func:`ftcal_nlp.calibrate` with the diagnosis on; returns its row.
-    A failure is recorded in the row (``named`` "error"), never raised: it is a finding of the validation."""
+    A failure is recorded in the row (``named`` "error"), never raised: it is a finding of the validation; a dataset
+    an input check refuses with an error naming a leg's column is ``named`` "rejected" with that leg (a fault outside
+    the library found before the calibration: a mis-signed channel)."""
     t0 = time.perf_counter()
     lab = item["effect"]
     # an effect whose gap exists only under the report's fixed-CoM balance (moving_com) is exact physics: no injector
@@ -278,11 +289,20 @@ def run_one(item: dict, cfg: dict, sim_over: dict) -> dict:
         spec = [{"name": n, "scale": float(v), "seed": item["seed"]} for n, v in zip(lab.split("+"), str(item["scales"]).split())]
     balance = "report" if report else "exact"
     row = {**item, "balance": balance}
+    sim = None
     try:
         sim = simulate(SimConfig.from_dict({**sim_over, "seed": item["seed"], "effects": spec}))
         run = calibrate(sim.dataset, _settings(cfg, balance))
         row.update(_diagnosis_fields(run.diagnosis))
         row["calib_s"] = sum(v for k, v in run.timings.items() if k != "diagnosis")
+    except DataFormatError as exc:
+        leg = rejected_leg(exc, sim.dataset.robot.legs if sim is not None else ())
+        if leg is None:
+            log.exception("dataset %s (%s) failed", item["index"], lab)
+            row.update(verdict="error", named="error", error=f"{type(exc).__name__}: {exc}")
+        else:   # the input check refused the dataset and named the leg's column: the fault found, not a crash
+            log.info("dataset %s (%s): rejected by an input check naming %s", item["index"], lab, exc.column)
+            row.update(verdict=REJECTED, named=REJECTED, legs=leg, error=f"{type(exc).__name__}: {exc}")
     except Exception as exc:  # one failed dataset is a finding of the validation, not a reason to stop it
         log.exception("dataset %s (%s) failed", item["index"], lab)
         row.update(verdict="error", named="error", error=f"{type(exc).__name__}: {exc}")
@@ -437,7 +457,7 @@ def single_library(rows: pd.DataFrame) -> pd.DataFrame:
 
 def sweep_summary(rows: pd.DataFrame, scores: pd.DataFrame, wall_s: float, tolerance: float) -> dict:
     """Counts of the sweep (issue 13's table): each ``[right, n]``, plus the misses that explain them."""
-    sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "shrink_ok", "effect"])
+    sc = scores if len(scores) else pd.DataFrame(columns=["role", "expect", "right", "right_leg", "shrink_ok", "effect", "named"])
     lib = sc[sc["role"] == "library"]
     shape = sc[(sc["role"] == "variant") & sc["expect"].isin(list(EFFECTS))]
     outside = sc[sc["expect"] == EXPECT_UNEXPLAINED]
@@ -546,6 +566,10 @@ def validation_table(rows: pd.DataFrame, scores: pd.DataFrame, summary: dict) ->
     add("clean data called clean", s["clean"], cdetail, _goal(s["clean"][1]))
     if s["outside"][1]:
         det = f"`unexplained` {_frac(s['outside_unexplained'])}, right leg {_frac(s['outside_right_leg'])}"
+        rej = outside[outside["named"] == REJECTED]
+        if len(rej):
+            det += "; " + ", ".join(f"{r['effect']} {r.get('size') or ''} ({r['legs']}) rejected by the input check naming its leg"
+                                    for _, r in rej.iterrows())
         m = _misses(outside, show_legs=True)
         add("outside the library: `unexplained`, or placed on the right leg", s["outside"], det + (f"; misses: {m}" if m else ""),
             _goal(s["outside"][1]))

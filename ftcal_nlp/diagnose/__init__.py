@@ -14,11 +14,13 @@ Map of the package (``diagnose(...)``, ``diagnose_run(run)`` in ``core.py`` run 
 * ``localise.py``: where the residual lies (legs, components) and what it follows.
 * ``perleg.py``: per-leg checks that need no effect library (a free linear map per leg,
   each leg's weight refit on its swing phases).
-* ``joint.py``: the named effect refit with the whole calibration (``calibration_with_effect.json``).
+* ``joint.py``: the named effect(s) refit with the whole calibration (``calibration_with_effect.json`` holds the
+  chain's last joint refit).
 * ``hexchain.py``: several effects (issue 23): while a gap is left after the joint refit, the remaining candidates
   are scored with the named effects in the base model (``attribute(..., base_effect=Combined(named))``,
-  ``effects/combined.py``), the best is added when it passes a stated paired fold-wise held-out test, and refit
-  jointly with the named ones; ``effects`` in ``diagnosis.json`` lists the chain.
+  ``effects/combined.py``), the best is added when it passes a stated paired fold-wise held-out test and the joint
+  refit with the named ones predicts better (else up to two candidates by their held-out evidence where the joint
+  refit left its gap are tried so); ``effects`` in ``diagnosis.json`` lists the chain.
 * ``result.py``: :class:`DiagnosisResult` (``diagnosis.json`` content, summary); ``report/`` renders it.
 * ``core.py``: ``diagnose`` and ``diagnose_run``: views -> attribution -> localisation -> joint refit -> chain -> result.
 
