@@ -251,11 +251,13 @@ class FreeLoadContext:
         d = np.diff(self.t)[np.diff(self.rec) == 0]
         return float(np.median(d)) if d.size else 1.0
 
-    def relaxation(self, tau: float) -> np.ndarray:
+    def relaxation(self, tau: float, negated: bool = False) -> np.ndarray:
         """``pred - lowpass_tau(pred)`` (N, 6), each recording apart (``signals.relaxation``: what of each change of the
-        model readings is still to relax): the column every relaxation face (creep) is built of. The recordings' rows
-        and their channel-major copies of ``pred`` are found once (a face's grid and its refinement ask for it many
-        times); the result is a channel-major array seen as (N, 6) (a channel's column is contiguous)."""
+        model readings is still to relax): the column every relaxation face (creep) is built of; ``negated``: its
+        negative ``lowpass_tau(pred) - pred`` (creep's columns: exactly the negation, formed as that difference), the
+        cached array itself (read-only), otherwise a new array. The recordings' rows and their channel-major copies of
+        ``pred`` are found once (a face's grid and its refinement ask for it many times); the result is a channel-major
+        array seen as (N, 6) (a channel's column is contiguous)."""
         from .signals import relaxation
 
         c = self.extra.get("_relaxation")
@@ -269,22 +271,21 @@ class FreeLoadContext:
                                              [_clock(self.t[i]) for i in rows])
         done = c[5]               # the last few time constants' results (a grid's pairs reuse its single ones)
         tau = float(tau)
-        if tau in done:
-            return done[tau]
-        out = np.empty((6, self.n))
-        for i, xt, clock in zip(c[3], c[4], c[6]):
-            if xt.shape[1] <= 1:
-                out[:, i] = relaxation(self.t[i], xt.T, tau).T
-            elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
-                _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock)
-            else:
-                out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock)
-        out = out.T
-        out.flags.writeable = False
-        if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
-            del done[next(iter(done))]
-        done[tau] = out
-        return out
+        if tau not in done:
+            out = np.empty((6, self.n))
+            for i, xt, clock in zip(c[3], c[4], c[6]):
+                if xt.shape[1] <= 1:
+                    out[:, i] = -relaxation(self.t[i], xt.T, tau).T
+                elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
+                    _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock, negated=True)
+                else:
+                    out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock, negated=True)
+            out = out.T
+            out.flags.writeable = False
+            if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
+                del done[next(iter(done))]
+            done[tau] = out
+        return done[tau] if negated else -done[tau]
 
     def select(self, mask: np.ndarray) -> "FreeLoadContext":
         """The context restricted to the samples of ``mask`` (derived quantities as computed on all)."""
@@ -307,10 +308,11 @@ def _clock(t: np.ndarray) -> tuple[bool, np.ndarray]:
 
 
 def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | None = None,
-                clock: tuple | None = None) -> np.ndarray:
+                clock: tuple | None = None, negated: bool = False) -> np.ndarray:
     """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt`` (into ``out`` (c, n) if given): the same
     recurrence filtered along each channel's contiguous row (faster than along axis 0; bit-identical); an irregular
-    clock or ``tau == 0``: ``signals.relaxation`` itself. ``clock``: :func:`_clock` of ``t`` if known."""
+    clock or ``tau == 0``: ``signals.relaxation`` itself. ``clock``: :func:`_clock` of ``t`` if known. ``negated``: its
+    negative (``lowpass - x``, the same differences the other way round: exactly the negation)."""
     from scipy.signal import lfilter
 
     from .signals import relaxation
@@ -318,6 +320,8 @@ def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | Non
     regular, dt1 = _clock(t) if clock is None else clock
     if tau <= 0 or not regular:
         r = relaxation(t, xt.T, tau).T
+        if negated:
+            r = -r
         if out is not None:
             out[...] = r
         return r
@@ -326,8 +330,12 @@ def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | Non
     # row gives the same outputs (a causal filter), and the relaxation is formed in place, without the low-pass array
     y = lfilter([a0], [1.0, -(1.0 - a0)], xt, axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
     out = np.empty_like(xt) if out is None else out
-    out[:, 0] = xt[:, 0] - xt[:, 0]
-    np.subtract(xt[:, 1:], y[:, :-1], out=out[:, 1:])
+    if negated:
+        out[:, 0] = -(xt[:, 0] - xt[:, 0])
+        np.subtract(y[:, :-1], xt[:, 1:], out=out[:, 1:])
+    else:
+        out[:, 0] = xt[:, 0] - xt[:, 0]
+        np.subtract(xt[:, 1:], y[:, :-1], out=out[:, 1:])
     return out
 
 
