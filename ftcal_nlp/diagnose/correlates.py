@@ -23,7 +23,8 @@ residual's channel with the largest gap against it is what the report plots.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -100,7 +101,13 @@ class CorrelateScore:
     heldout_rms: np.ndarray
     x: np.ndarray
     xlabel: str
-    wrench: np.ndarray        # (N, 6) the correlate's fitted wrench (all samples)
+    face: FreeFace = field(repr=False)
+    beta: np.ndarray = field(repr=False)   # the face's coefficients in the all-sample fit
+
+    @cached_property
+    def wrench(self) -> np.ndarray:
+        """(N, 6) the correlate's fitted wrench (all samples; formed on demand: only the top correlate's is used)."""
+        return self.face.wrench(self.beta)
 
 
 def score_correlates(design: Design, J: FreeFace, base: CVFit, ctx: FreeLoadContext,
@@ -114,5 +121,5 @@ def score_correlates(design: Design, J: FreeFace, base: CVFit, ctx: FreeLoadCont
     for name, (face, x, label) in correlate_faces(ctx).items():
         cv = design.fit(X0 + [face])
         design.forget(face)
-        out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label, face.wrench(cv.beta[-face.k:])))
+        out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label, face, cv.beta[-face.k:]))
     return sorted(out, key=lambda s: -s.explained)
