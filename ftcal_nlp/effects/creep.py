@@ -103,7 +103,8 @@ def _relaxation_columns(ctx, taus) -> FreeFace:
     """Per tau each channel's own relaxation (``creep_term(t, pred, 1, (tau,))`` per recording): a channel-wise face
     whose columns are tau-major, as the dense (N, 6, 6 x taus) array of one diagonal block per tau was (the
     refinement's columns)."""
-    xs = [ctx.relaxation(float(tau), negated=True) for tau in taus]    # (N, 6) views of cached channel-major arrays
+    # (N, 6) views of channel-major arrays; a trial's time constants are not kept in the context's cache (used once)
+    xs = [ctx.relaxation(float(tau), negated=True, keep=False) for tau in taus]
     m = len(xs)
     if m == 1:     # each channel's column is a contiguous row of the cached array: used in place, no copy
         blocks = tuple((c, np.array([c]), xs[0][:, c:c + 1]) for c in range(6))
@@ -144,19 +145,21 @@ class Creep(Effect):
         tau = float(shape["tau_s"])
         tau2 = shape.get("tau2_s")
         taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
-        NR = [ctx.relaxation(tk, negated=True) for tk in taus]   # the columns -R: creep_term(t, pred, 1, (tk,)) per recording
-        if not _nonzero(NR[0]):
+        NR0 = ctx.relaxation(tau, negated=True)   # the columns -R: creep_term(t, pred, 1, (tk,)) per recording
+        if not _nonzero(NR0):
             return None
         # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array), written in place into
         # one (6, 2, N) array (one allocation; a channel's two columns contiguous rows): -R0, and
-        # (-R2 - -R1) / (2 DLN) (the central difference in ln tau), or -R1 (the second relaxation)
+        # (-R2 - -R1) / (2 DLN) (the central difference in ln tau), or -R1 (the second relaxation); a derivative's two
+        # neighbours are filtered into the face's own column and one temporary (not kept in the context's cache)
         slab = np.empty((6, 2, ctx.n))
-        slab[:, 0] = NR[0].T
+        slab[:, 0] = NR0.T
         if tau2 is None:
-            np.subtract(NR[2].T, NR[1].T, out=slab[:, 1])
+            ctx.relaxation_into(taus[1], slab[:, 1])
+            np.subtract(ctx.relaxation(taus[2], negated=True, keep=False).T, slab[:, 1], out=slab[:, 1])
             slab[:, 1] /= 2 * self.DLN
         else:
-            slab[:, 1] = NR[1].T
+            slab[:, 1] = ctx.relaxation(taus[1], negated=True).T
         bases = [slab[c].T for c in range(6)]     # (N, 2) column-major views
         second_name = "creep_dlntau" if tau2 is None else "creep2"
         names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.{second_name} [1]"))

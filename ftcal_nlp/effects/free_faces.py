@@ -251,15 +251,48 @@ class FreeLoadContext:
         d = np.diff(self.t)[np.diff(self.rec) == 0]
         return float(np.median(d)) if d.size else 1.0
 
-    def relaxation(self, tau: float, negated: bool = False) -> np.ndarray:
+    def relaxation(self, tau: float, negated: bool = False, keep: bool = True) -> np.ndarray:
         """``pred - lowpass_tau(pred)`` (N, 6), each recording apart (``signals.relaxation``: what of each change of the
         model readings is still to relax): the column every relaxation face (creep) is built of; ``negated``: its
         negative ``lowpass_tau(pred) - pred`` (creep's columns: exactly the negation, formed as that difference), the
-        cached array itself (read-only), otherwise a new array. The recordings' rows and their channel-major copies of
-        ``pred`` are found once (a face's grid and its refinement ask for it many times); the result is a channel-major
-        array seen as (N, 6) (a channel's column is contiguous)."""
+        cached array itself (read-only), otherwise a new array. ``keep``: cache a new result (False: a time constant
+        asked for once, e.g. a refinement's trial or a derivative's neighbour, is not kept: the cache's memory is
+        fresh memory, paid for in page faults). The recordings' rows and their channel-major copies of ``pred`` are
+        found once (a face's grid and its refinement ask for it many times); the result is a channel-major array seen
+        as (N, 6) (a channel's column is contiguous)."""
+        done = self._relaxation_cache()[5]     # the last few time constants' results (a grid's pairs reuse its single ones)
+        tau = float(tau)
+        if tau in done:
+            out = done[tau]
+        else:
+            out = self.relaxation_into(tau, np.empty((6, self.n))).T
+            out.flags.writeable = False
+            if keep:
+                if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
+                    del done[next(iter(done))]
+                done[tau] = out
+        return out if negated else -out
+
+    def relaxation_into(self, tau: float, out: np.ndarray) -> np.ndarray:
+        """The negated relaxation (:meth:`relaxation` with ``negated``) written into ``out`` (6, N) (channel-major; e.g.
+        a face's column block), from the cache when it holds ``tau``; returns ``out``."""
+        c = self._relaxation_cache()
+        tau = float(tau)
+        if tau in c[5]:
+            out[...] = c[5][tau].T
+            return out
         from .signals import relaxation
 
+        for i, xt, clock in zip(c[3], c[4], c[6]):
+            if xt.shape[1] <= 1:
+                out[:, i] = -relaxation(self.t[i], xt.T, tau).T
+            elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
+                _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock, negated=True)
+            else:
+                out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock, negated=True)
+        return out
+
+    def _relaxation_cache(self) -> tuple:
         c = self.extra.get("_relaxation")
         # the cache is this context's (``select`` and ``dataclasses.replace`` share ``extra``): same arrays or rebuilt
         if c is None or c[0] is not self.t or c[1] is not self.rec or c[2] is not self.pred:
@@ -269,23 +302,7 @@ class FreeLoadContext:
             c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
                                              [np.ascontiguousarray(self.pred[i].T) for i in rows], {},
                                              [_clock(self.t[i]) for i in rows])
-        done = c[5]               # the last few time constants' results (a grid's pairs reuse its single ones)
-        tau = float(tau)
-        if tau not in done:
-            out = np.empty((6, self.n))
-            for i, xt, clock in zip(c[3], c[4], c[6]):
-                if xt.shape[1] <= 1:
-                    out[:, i] = -relaxation(self.t[i], xt.T, tau).T
-                elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
-                    _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock, negated=True)
-                else:
-                    out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock, negated=True)
-            out = out.T
-            out.flags.writeable = False
-            if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
-                del done[next(iter(done))]
-            done[tau] = out
-        return done[tau] if negated else -done[tau]
+        return c
 
     def select(self, mask: np.ndarray) -> "FreeLoadContext":
         """The context restricted to the samples of ``mask`` (derived quantities as computed on all)."""
