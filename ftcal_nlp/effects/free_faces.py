@@ -360,12 +360,23 @@ def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
     """``dx/dt`` by central differences within each recording (one-sided at its ends), any trailing shape."""
     x = np.asarray(x, float)
     out = np.zeros_like(x)
+    for i in recording_rows(rec):
+        if (i.stop - i.start if isinstance(i, slice) else len(i)) >= 2:
+            out[i] = np.gradient(x[i], t[i], axis=0)
+    return out
+
+
+def recording_rows(rec: np.ndarray) -> list:
+    """Each recording's rows in recording order (``np.unique(rec)``): a slice when they are one run, else their indices.
+    Samples in recording order (non-decreasing ``rec``, recording after recording): the runs' bounds, no search."""
+    rec = np.asarray(rec)
+    if len(rec) and np.all(rec[1:] >= rec[:-1]):
+        b = np.r_[0, np.flatnonzero(rec[1:] != rec[:-1]) + 1, len(rec)]
+        return [slice(int(b[k]), int(b[k + 1])) for k in range(len(b) - 1)]
+    out = []
     for r in np.unique(rec):
         i = np.flatnonzero(rec == r)
-        if len(i) >= 2:
-            if i[-1] - i[0] + 1 == len(i):      # a recording's samples are one run: a slice, no gather
-                i = slice(int(i[0]), int(i[-1]) + 1)
-            out[i] = np.gradient(x[i], t[i], axis=0)
+        out.append(slice(int(i[0]), int(i[-1]) + 1) if i[-1] - i[0] + 1 == len(i) else i)
     return out
 
 
@@ -466,7 +477,15 @@ def make_context(leg: str, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_ft:
 
 
 def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:
-    """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span (N, degree)."""
+    """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span (N, degree); each
+    ``P_j`` formed once per context (the drift face's degrees and the time correlate share them)."""
     from .faces import legendre_time
 
-    return legendre_time(ctx.t, float(ctx.t.min()), float(ctx.t.max()), range(1, degree + 1))
+    c = ctx.extra.get("_legendre")
+    if c is None or c[0] is not ctx.t:
+        c = ctx.extra["_legendre"] = (ctx.t, float(ctx.t.min()), float(ctx.t.max()), {})
+    cols = c[3]
+    for j in range(1, degree + 1):
+        if j not in cols:
+            cols[j] = legendre_time(ctx.t, c[1], c[2], [j])[:, 0]
+    return np.stack([cols[j] for j in range(1, degree + 1)], axis=1) if degree > 0 else np.zeros((ctx.n, 0))
