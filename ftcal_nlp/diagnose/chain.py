@@ -223,6 +223,7 @@ def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[E
         X0 = [J] + [s.face for s in ch.steps]
         named = {s.effect.name for s in ch.steps}
         cands = [score(design, X0, cur, ctx, e, memo, floor_known) for e in effects if e.name not in named]
+        ctx.forget_relaxations()   # the faces keep their columns; the next round's trials are new time constants
         cands.sort(key=lambda c: (c.cv is None, c.cv.sse if c.cv is not None else 0.0))
         ch.rounds.append(cands)
         ok = [c for c in cands if c.cv is not None]

@@ -279,6 +279,14 @@ class Design:
             if self._perm.pop(id(B), None) is not None:
                 self._keep.pop(("B", id(B)), None)
 
+    def release(self) -> None:
+        """Drop every cached sum and the parts kept for them (the diagnosis is done: its results hold the faces they
+        need; a design's fits still form their residuals on demand from their own parts)."""
+        self._gram.clear()
+        self._vec.clear()
+        self._perm.clear()
+        self._keep.clear()
+
     # ---- predictions (on demand)
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
         return sum(p.wrench(beta[off[i]:off[i + 1]], rows) for i, p in enumerate(parts))

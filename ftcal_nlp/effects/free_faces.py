@@ -292,6 +292,11 @@ class FreeLoadContext:
                 out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock, negated=True)
         return out
 
+    def forget_relaxations(self) -> None:
+        """Drop the cached relaxations (the faces built of them hold their own columns): the chain's later rounds
+        reuse its faces, not these arrays."""
+        self.extra.pop("_relaxation", None)
+
     def _relaxation_cache(self) -> tuple:
         c = self.extra.get("_relaxation")
         # the cache is this context's (``select`` and ``dataclasses.replace`` share ``extra``): same arrays or rebuilt
