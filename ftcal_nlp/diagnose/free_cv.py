@@ -371,11 +371,13 @@ class Design:
         vb, sb = vbc.sum(axis=1), self._s.sum(axis=1)
         G, v, s = Gb.sum(axis=0), vb.sum(axis=0), float(sb.sum())
         out = np.full(self.folds, np.inf)
-        for f in range(self.folds):
+        folds = list(range(self.folds))
+        Gf = np.stack([G - Gb[np.flatnonzero(self.block_fold == f)].sum(axis=0) for f in folds])
+        vf = np.stack([v - vb[np.flatnonzero(self.block_fold == f)].sum(axis=0) for f in folds])
+        b = solve_many(Gf, vf)         # every fold's training fit, one eigen-decomposition call (solve's arithmetic)
+        for f in folds:
             bs = np.flatnonzero(self.block_fold == f)
-            Gf, vf = G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0)
-            b = solve(Gf, vf)
-            out[f] = s - float(sb[bs].sum()) - 2 * vf @ b + b @ Gf @ b
+            out[f] = s - float(sb[bs].sum()) - 2 * vf[f] @ b[f] + b[f] @ Gf[f] @ b[f]
         return out
 
     def fit_per_fold(self, parts, fold_faces: list, whole: CVFit) -> CVFit:
