@@ -25,6 +25,8 @@ the samples:
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 #: eigenvalues of the scaled normal matrix below this fraction of the largest are undetermined directions
@@ -128,14 +130,25 @@ class CVFit:
     @property
     def heldout(self) -> np.ndarray:
         if self._heldout is None:
+            self._check_kept()
             self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta, self._fold_parts)
         return self._heldout
 
     @property
     def resid(self) -> np.ndarray:
         if self._resid is None:
+            self._check_kept()
             self._resid = self._design.r - self._design.model(self._parts, self._off, self.beta)
         return self._resid
+
+    def _check_kept(self) -> None:
+        if self._parts is None:
+            raise RuntimeError("this cross-validated fit was released with its design (Design.release): its numbers are "
+                               "kept, its residuals can no longer be formed")
+
+    def _release(self) -> None:
+        """Keep the numbers, drop the parts and the residuals formed (the design is being released)."""
+        self._parts = self._fold_parts = self._heldout = self._resid = None
 
 
 class Design:
@@ -174,10 +187,12 @@ class Design:
         self._vec: dict = {}
         self._perm: dict = {}   # basis id -> its rows in block order
         self._keep: dict = {}   # parts (and bases) by id, so that an id is not reused while its sums are cached
+        self._n = len(self.r)
+        self._fits = weakref.WeakSet()   # the fits made, released with the design
 
     @property
     def n(self) -> int:
-        return len(self.r)
+        return self._n
 
     def weighted(self, X: np.ndarray) -> np.ndarray:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
@@ -280,12 +295,16 @@ class Design:
                 self._keep.pop(("B", id(B)), None)
 
     def release(self) -> None:
-        """Drop every cached sum and the parts kept for them (the diagnosis is done: its results hold the faces they
-        need; a design's fits still form their residuals on demand from their own parts)."""
+        """Drop every cached sum, the parts kept for them, the residual arrays and, in every fit made, its parts and
+        residuals (the diagnosis is done: its results keep their numbers, not the columns: hundreds of MB on 10^5
+        samples otherwise kept alive by the result); a released fit's ``heldout``/``resid`` not formed before raise."""
         self._gram.clear()
         self._vec.clear()
         self._perm.clear()
         self._keep.clear()
+        for f in list(self._fits):
+            f._release()
+        self.r = self.rw = self._rp = self._rrT = None
 
     # ---- predictions (on demand)
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
@@ -361,7 +380,9 @@ class Design:
         beta = sol[-1]
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)
-        return CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
+        out = CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
+        self._fits.add(out)
+        return out
 
     def train_sse(self, parts) -> np.ndarray:
         """(folds,) the weighted residual sum of squares of the design of ``parts`` fitted on each fold's training
@@ -405,6 +426,7 @@ class Design:
         out = CVFit(self, whole._parts, whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
                     sse_bc.sum(axis=0) / self.w2, whole.rss)
         out._fold_parts = fparts
+        self._fits.add(out)
         return out
 
 
