@@ -18,6 +18,8 @@ def test_diagnosis_ratio_rows_on_small_problems(tmp_path):
     assert np.all(t.without_s > 0) and np.all(t.with_s > 0) and np.all(t.diagnosis_s > 0)
     np.testing.assert_allclose(t.ratio, t.diagnosis_s / t.without_s)
     np.testing.assert_allclose(t.ratio_whole, t.with_s / t.without_s)
+    assert np.all(t.without_cpu_s > 0) and np.all(t.diagnosis_cpu_s > 0)          # CPU time beside the wall clock
+    np.testing.assert_allclose(t.ratio_cpu, t.diagnosis_cpu_s / t.without_cpu_s)
     assert np.all(t.target == DIAGNOSIS_RATIO_TARGET)
     assert set(t.verdict) <= {"none", "effect", "unexplained"}   # the diagnosis ran on both kinds
     # the payload of ~5000 samples (the load-speed bench's schedule), clean and with the two effects

@@ -113,3 +113,21 @@ def test_the_refinements_normal_equations_are_the_stacked_least_squares():
         coef, *_ = np.linalg.lstsq(A.reshape(len(b), -1), b, rcond=None)
         np.testing.assert_allclose(sse(face), np.sum((b - A.reshape(len(b), -1) @ coef) ** 2), rtol=1e-10)
         np.testing.assert_allclose(sse(face.X), sse(face), rtol=1e-12)      # the dense columns: the same
+
+
+def test_a_released_design_keeps_its_fits_numbers_not_their_columns():
+    # Design.release (the end of a diagnosis): the cached sums and the fits' parts are dropped, their numbers stay, a
+    # residual formed before stays, one not formed raises (rather than being formed from nothing)
+    d, (J, P, C), r, w, fold = _problem()
+    cv, cv2 = d.fit([J, P]), d.fit([J, C])
+    resid = cv.resid.copy()
+    rms, sse, beta = cv.rms().copy(), cv.sse, cv.beta.copy()
+    kept = cv.resid
+    d.release()
+    assert not d._gram and not d._vec and not d._keep
+    np.testing.assert_array_equal(cv.rms(), rms)
+    assert cv.sse == sse and np.array_equal(cv.beta, beta) and np.array_equal(kept, resid)
+    with pytest.raises(RuntimeError, match="released"):
+        _ = cv2.heldout
+    with pytest.raises(RuntimeError, match="released"):
+        _ = cv.resid

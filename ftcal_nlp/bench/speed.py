@@ -356,8 +356,9 @@ def diagnosis_ratio_datasets(settings: DiagnosisRatioSettings, tmp: Path) -> dic
 def run_diagnosis_ratio(settings: DiagnosisRatioSettings = DiagnosisRatioSettings(), progress: bool = True) -> dict:
     """Wall time of :func:`ftcal_nlp.calibrate` with the diagnosis on against the same call with it off (the run's
     default settings otherwise), per problem: ``times`` (DataFrame: problem, injected (effects), samples, without_s, with_s,
-    diagnosis_s (its stage clock), ratio = diagnosis_s / without_s (the target's), ratio_whole = with_s / without_s, target,
-    verdict, effects, repeats)."""
+    diagnosis_s (its stage clock), ratio = diagnosis_s / without_s (the target's), ratio_whole = with_s / without_s, and the
+    same on CPU time (``time.process_time``: what other jobs on a shared machine do not inflate): without_cpu_s,
+    diagnosis_cpu_s, ratio_cpu; target, verdict, effects, repeats)."""
     from tqdm import tqdm
 
     rows = []
@@ -368,14 +369,16 @@ def run_diagnosis_ratio(settings: DiagnosisRatioSettings = DiagnosisRatioSetting
             off = replace(on, diagnose=DiagnoseSettings(enabled=False))
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                _, w_off, _, _, _ = _time_calibrate(ds, off, settings.repeats)
-                run, w_on, _, sw, _ = _time_calibrate(ds, on, settings.repeats)
+                _, w_off, c_off, _, _ = _time_calibrate(ds, off, settings.repeats)
+                run, w_on, _, sw, sc = _time_calibrate(ds, on, settings.repeats)
             d = run.diagnosis
             n = int(sum(r.n for r in ds.hanging) + sum(r.n for r in ds.standing) + sum(r.n for r in getattr(ds, "walking", ())))
             without, with_, diag = float(np.median(w_off)), float(np.median(w_on)), float(np.median(sw.get("diagnosis", [np.nan])))
+            without_cpu, diag_cpu = float(np.median(c_off)), float(np.median(sc.get("diagnosis", [np.nan])))
             injected = " + ".join(settings.payload_effects) if problem == "payload_effects" else ""
             rows.append({"problem": problem, "injected": injected, "samples": n, "without_s": without, "with_s": with_, "diagnosis_s": diag,
-                         "ratio": diag / without, "ratio_whole": with_ / without, "target": DIAGNOSIS_RATIO_TARGET,
+                         "ratio": diag / without, "ratio_whole": with_ / without, "without_cpu_s": without_cpu,
+                         "diagnosis_cpu_s": diag_cpu, "ratio_cpu": diag_cpu / without_cpu, "target": DIAGNOSIS_RATIO_TARGET,
                          "verdict": None if d is None else d.verdict,
                          "effects": "" if d is None else " ".join(e["name"] for e in (d.effects or [])),
                          "repeats": len(w_on)})

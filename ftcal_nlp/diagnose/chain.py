@@ -223,6 +223,7 @@ def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[E
         X0 = [J] + [s.face for s in ch.steps]
         named = {s.effect.name for s in ch.steps}
         cands = [score(design, X0, cur, ctx, e, memo, floor_known) for e in effects if e.name not in named]
+        ctx.forget_relaxations()   # the faces keep their columns; the next round's trials are new time constants
         cands.sort(key=lambda c: (c.cv is None, c.cv.sse if c.cv is not None else 0.0))
         ch.rounds.append(cands)
         ok = [c for c in cands if c.cv is not None]
@@ -264,7 +265,10 @@ class JointFit:
 
 def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:
     """The joint refit (module docstring)."""
-    cv = design.fit([J] + [s.face for s in steps])
+    parts = [J] + [s.face for s in steps]
+    cv = steps[-1].design_cv if steps else None
+    if cv is None or len(cv._parts) != len(parts) or any(a is not b for a, b in zip(cv._parts, parts)):
+        cv = design.fit(parts)    # else the chain's own fit of these parts (the same sums: the same numbers)
     G, beta = cv.G, cv.beta
     rw = cv.resid * design.w
     m, k = rw.size, cv.k

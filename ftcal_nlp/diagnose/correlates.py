@@ -23,7 +23,9 @@ residual's channel with the largest gap against it is what the report plots.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -100,7 +102,14 @@ class CorrelateScore:
     heldout_rms: np.ndarray
     x: np.ndarray
     xlabel: str
-    wrench: np.ndarray        # (N, 6) the correlate's fitted wrench (all samples)
+    face: FreeFace | None = field(repr=False)   # kept for the best correlate only (its wrench), else None
+    beta: np.ndarray = field(repr=False)         # the face's coefficients in the all-sample fit
+
+    @cached_property
+    def wrench(self) -> np.ndarray | None:
+        """(N, 6) the correlate's fitted wrench (all samples), formed on demand; the best correlate's only (the one
+        ``where`` may use), None for the others."""
+        return None if self.face is None else self.face.wrench(self.beta)
 
 
 def score_correlates(design: Design, J: FreeFace, base: CVFit, ctx: FreeLoadContext,
@@ -114,5 +123,6 @@ def score_correlates(design: Design, J: FreeFace, base: CVFit, ctx: FreeLoadCont
     for name, (face, x, label) in correlate_faces(ctx).items():
         cv = design.fit(X0 + [face])
         design.forget(face)
-        out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label, face.wrench(cv.beta[-face.k:])))
-    return sorted(out, key=lambda s: -s.explained)
+        out.append(CorrelateScore(name, float((base.sse - cv.sse) / excess), cv.rms(), x, label, face, cv.beta[-face.k:]))
+    out = sorted(out, key=lambda s: -s.explained)
+    return out[:1] + [dataclasses.replace(s, face=None) for s in out[1:]]   # no face kept but the best's

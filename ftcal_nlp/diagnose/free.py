@@ -192,6 +192,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
         c = int(np.argmax(res.std(axis=0) / floor))
         plot = {"x": show.x, "y": res[:, c], "xlabel": show.xlabel, "component": WRENCH[c], "floor": float(floor[c]),
                 "correlate": show.name, "leg": leg}
+    design.release()   # the cached sums and every face tried (hundreds of MB on 10^5 samples) are not kept with the result
     return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
                             int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known, tuple(names),
                             tuple(float(v) for v in fit.params), added)

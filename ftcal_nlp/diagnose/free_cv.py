@@ -25,6 +25,8 @@ the samples:
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 #: eigenvalues of the scaled normal matrix below this fraction of the largest are undetermined directions
@@ -76,6 +78,20 @@ def solve(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (U[:, keep] @ ((U[:, keep].T @ (v / d)) / lam[keep])) / d
 
 
+def solve_many(G: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """:func:`solve` of each ``G[i]`` (m, k, k) and ``v[i]`` (m, k): the same arithmetic, one eigen-decomposition call
+    for the stack (a design's folds and its all-sample fit)."""
+    d = np.sqrt(np.clip(np.diagonal(G, axis1=1, axis2=2), 0.0, None))
+    d = np.where(d > 0, d, 1.0)
+    lam, U = np.linalg.eigh(G / (d[:, :, None] * d[:, None, :]))
+    out = np.empty(v.shape)
+    for i in range(len(G)):
+        keep = lam[i] > REL_EIG * max(lam[i].max(), 1e-300)
+        Uk = U[i][:, keep]
+        out[i] = (Uk @ ((Uk.T @ (v[i] / d[i])) / lam[i][keep])) / d[i]
+    return out
+
+
 def pinv(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(G^+, undetermined)``: the inverse on the determined subspace and, per parameter, whether it has a component
     (above ``TOUCH``) along a direction the data leave undetermined (its se is then infinite, not the 0 of ``G^+``)."""
@@ -114,14 +130,25 @@ class CVFit:
     @property
     def heldout(self) -> np.ndarray:
         if self._heldout is None:
+            self._check_kept()
             self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta, self._fold_parts)
         return self._heldout
 
     @property
     def resid(self) -> np.ndarray:
         if self._resid is None:
+            self._check_kept()
             self._resid = self._design.r - self._design.model(self._parts, self._off, self.beta)
         return self._resid
+
+    def _check_kept(self) -> None:
+        if self._parts is None:
+            raise RuntimeError("this cross-validated fit was released with its design (Design.release): its numbers are "
+                               "kept, its residuals can no longer be formed")
+
+    def _release(self) -> None:
+        """Keep the numbers, drop the parts and the residuals formed (the design is being released)."""
+        self._parts = self._fold_parts = self._heldout = self._resid = None
 
 
 class Design:
@@ -160,10 +187,12 @@ class Design:
         self._vec: dict = {}
         self._perm: dict = {}   # basis id -> its rows in block order
         self._keep: dict = {}   # parts (and bases) by id, so that an id is not reused while its sums are cached
+        self._n = len(self.r)
+        self._fits = weakref.WeakSet()   # the fits made, released with the design
 
     @property
     def n(self) -> int:
-        return len(self.r)
+        return self._n
 
     def weighted(self, X: np.ndarray) -> np.ndarray:
         """(N*6, k) weighted rows of face columns ``X`` (N, 6, k)."""
@@ -199,7 +228,7 @@ class Design:
             # matrix product per block (b's basis read once, not once per channel)
             H, where = self._hcat(a)
             Pb = self._P(b.basis)
-            T = np.stack([H[sl].T @ Pb[sl] for sl in self._sl])                   # (B, sum m_c, mb)
+            T = self._per_block(H, Pb)                                           # (B, sum m_c, mb)
             mb = b.basis.shape[1]
             bch = {c: i for i, c in enumerate(b.channels)}
             return [(c, cols_a, np.arange(bch[c] * mb, (bch[c] + 1) * mb), self.w2[c] * T[:, rows])
@@ -216,7 +245,7 @@ class Design:
             key = (id(Ba), id(Bb))
             if key not in done:
                 Pa, Pb = self._P(Ba), self._P(Bb)
-                done[key] = np.stack([Pa[sl].T @ Pb[sl] for sl in self._sl])           # (B, ma, mb)
+                done[key] = self._per_block(Pa, Pb)                                   # (B, ma, mb)
             out.append((c, cols_a, cols_b, self.w2[c] * done[key]))
         return out
 
@@ -226,7 +255,15 @@ class Design:
         for c, cols, B in a.channel_blocks():
             P = self._P(B)
             rc = self._rrT[c]
-            out[:, c, cols] = np.stack([P[sl].T @ rc[sl] for sl in self._sl])
+            out[:, c, cols] = self._per_block(P, rc)
+        return out
+
+    def _per_block(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """``(nb, ma[, mb])``: per block the product ``A_b^T B_b`` of its rows of ``A`` (N, ma) and ``B`` (N, mb) or (N,),
+        each written straight into its slot (no list of small arrays to stack)."""
+        out = np.empty((self.nb, A.shape[1]) + B.shape[1:])
+        for b, sl in enumerate(self._sl):
+            np.matmul(A[sl].T, B[sl], out=out[b])
         return out
 
     def _blocks(self, a, b) -> list:
@@ -256,6 +293,18 @@ class Design:
         for _, _, B in part.channel_blocks():
             if self._perm.pop(id(B), None) is not None:
                 self._keep.pop(("B", id(B)), None)
+
+    def release(self) -> None:
+        """Drop every cached sum, the parts kept for them, the residual arrays and, in every fit made, its parts and
+        residuals (the diagnosis is done: its results keep their numbers, not the columns: hundreds of MB on 10^5
+        samples otherwise kept alive by the result); a released fit's ``heldout``/``resid`` not formed before raise."""
+        self._gram.clear()
+        self._vec.clear()
+        self._perm.clear()
+        self._keep.clear()
+        for f in list(self._fits):
+            f._release()
+        self.r = self.rw = self._rp = self._rrT = None
 
     # ---- predictions (on demand)
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
@@ -315,17 +364,25 @@ class Design:
         k = int(off[-1])
         vb = vbc.sum(axis=1)                                        # (B, k)
         G, v = Gb.sum(axis=0), vb.sum(axis=0)
-        fold_beta = np.zeros((self.folds, k))
-        for f in range(self.folds):
+        # every fold's normal equations (all blocks less the fold's) and the all-sample ones, solved as one stack
+        has = [f for f in range(self.folds) if np.any(self.block_fold == f)]
+        Gs = np.empty((len(has) + 1, k, k))
+        vs = np.empty((len(has) + 1, k))
+        for i, f in enumerate(has):
             bs = np.flatnonzero(self.block_fold == f)
-            if len(bs):
-                fold_beta[f] = solve(G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0))
+            Gs[i], vs[i] = G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0)
+        Gs[-1], vs[-1] = G, v
+        sol = solve_many(Gs, vs)
+        fold_beta = np.zeros((self.folds, k))
+        fold_beta[has] = sol[:-1]
         Bb = fold_beta[self.block_fold]                             # (B, k): each block's fold's coefficients
         sse_bc = self._s - 2 * np.einsum("bck,bk->bc", vbc, Bb) + self._quadratic(terms, Bb)
-        beta = solve(G, v)
+        beta = sol[-1]
         rss = float(self._s.sum() - 2 * v @ beta + beta @ G @ beta)
         sse_bc = np.clip(sse_bc, 0.0, None)
-        return CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
+        out = CVFit(self, parts, off, fold_beta, beta, G, sse_bc.sum(axis=1), sse_bc.sum(axis=0) / self.w2, rss)
+        self._fits.add(out)
+        return out
 
     def train_sse(self, parts) -> np.ndarray:
         """(folds,) the weighted residual sum of squares of the design of ``parts`` fitted on each fold's training
@@ -335,11 +392,13 @@ class Design:
         vb, sb = vbc.sum(axis=1), self._s.sum(axis=1)
         G, v, s = Gb.sum(axis=0), vb.sum(axis=0), float(sb.sum())
         out = np.full(self.folds, np.inf)
-        for f in range(self.folds):
+        folds = list(range(self.folds))
+        Gf = np.stack([G - Gb[np.flatnonzero(self.block_fold == f)].sum(axis=0) for f in folds])
+        vf = np.stack([v - vb[np.flatnonzero(self.block_fold == f)].sum(axis=0) for f in folds])
+        b = solve_many(Gf, vf)         # every fold's training fit, one eigen-decomposition call (solve's arithmetic)
+        for f in folds:
             bs = np.flatnonzero(self.block_fold == f)
-            Gf, vf = G - Gb[bs].sum(axis=0), v - vb[bs].sum(axis=0)
-            b = solve(Gf, vf)
-            out[f] = s - float(sb[bs].sum()) - 2 * vf @ b + b @ Gf @ b
+            out[f] = s - float(sb[bs].sum()) - 2 * vf[f] @ b[f] + b[f] @ Gf[f] @ b[f]
         return out
 
     def fit_per_fold(self, parts, fold_faces: list, whole: CVFit) -> CVFit:
@@ -367,6 +426,7 @@ class Design:
         out = CVFit(self, whole._parts, whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
                     sse_bc.sum(axis=0) / self.w2, whole.rss)
         out._fold_parts = fparts
+        self._fits.add(out)
         return out
 
 

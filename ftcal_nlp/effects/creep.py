@@ -103,11 +103,23 @@ def _relaxation_columns(ctx, taus) -> FreeFace:
     """Per tau each channel's own relaxation (``creep_term(t, pred, 1, (tau,))`` per recording): a channel-wise face
     whose columns are tau-major, as the dense (N, 6, 6 x taus) array of one diagonal block per tau was (the
     refinement's columns)."""
-    xs = [-ctx.relaxation(float(tau)) for tau in taus]    # (N, 6) views of channel-major arrays
+    # (N, 6) views of channel-major arrays; a trial's time constants are not kept in the context's cache (used once)
+    xs = [ctx.relaxation(float(tau), negated=True, keep=False) for tau in taus]
     m = len(xs)
-    # column-major channel blocks (a channel's relaxations are contiguous rows of a (m, N) array)
-    return FreeFace(None, tuple(f"x{j}" for j in range(6 * m)),
-                    blocks=tuple((c, np.arange(m) * 6 + c, np.stack([x[:, c] for x in xs], axis=0).T) for c in range(6)))
+    if m == 1:     # each channel's column is a contiguous row of the cached array: used in place, no copy
+        blocks = tuple((c, np.array([c]), xs[0][:, c:c + 1]) for c in range(6))
+    else:          # column-major channel blocks: a channel's relaxations are contiguous rows of one (6, m, N) array
+        slab = np.empty((6, m, ctx.n))
+        for j, x in enumerate(xs):
+            slab[:, j] = x.T
+        blocks = tuple((c, np.arange(m) * 6 + c, slab[c].T) for c in range(6))
+    return FreeFace(None, tuple(f"x{j}" for j in range(6 * m)), blocks=blocks)
+
+
+def _nonzero(x: np.ndarray) -> bool:
+    """Whether any element of ``x`` is non-zero and not NaN (``np.any(np.abs(x) > 0)`` without its temporaries)."""
+    flat = x.T.reshape(-1) if x.T.flags.c_contiguous else x.reshape(-1)
+    return bool(flat.size) and bool(np.fmax.reduce(flat) > 0 or np.fmin.reduce(flat) < 0)
 
 
 class Creep(Effect):
@@ -133,21 +145,22 @@ class Creep(Effect):
         tau = float(shape["tau_s"])
         tau2 = shape.get("tau2_s")
         taus = (tau, tau * np.exp(-self.DLN), tau * np.exp(self.DLN)) if tau2 is None else (tau, float(tau2))
-        R = [ctx.relaxation(tk) for tk in taus]   # the columns are -R: creep_term(t, pred, 1, (tk,)) per recording
-        if not np.any(np.abs(R[0]) > 0):
+        NR0 = ctx.relaxation(tau, negated=True)   # the columns -R: creep_term(t, pred, 1, (tk,)) per recording
+        if not _nonzero(NR0):
             return None
-        # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array), written in place:
-        # -R0, and (-R2 - -R1) / (2 DLN) = (R1 - R2) / (2 DLN) exactly (or -R1, the second relaxation)
-        bases = []
-        for c in range(6):
-            B = np.empty((2, ctx.n)).T       # column-major: each column written (and later read) contiguously
-            np.negative(R[0][:, c], out=B[:, 0])
-            if tau2 is None:
-                np.subtract(R[1][:, c], R[2][:, c], out=B[:, 1])
-                B[:, 1] /= 2 * self.DLN
-            else:
-                np.negative(R[1][:, c], out=B[:, 1])
-            bases.append(B)
+        # each channel's own two columns (a channel-wise face: no mostly-zero (N, 6, 12) array), written in place into
+        # one (6, 2, N) array (one allocation; a channel's two columns contiguous rows): -R0, and
+        # (-R2 - -R1) / (2 DLN) (the central difference in ln tau), or -R1 (the second relaxation); a derivative's two
+        # neighbours are filtered into the face's own column and one temporary (not kept in the context's cache)
+        slab = np.empty((6, 2, ctx.n))
+        slab[:, 0] = NR0.T
+        if tau2 is None:
+            ctx.relaxation_into(taus[1], slab[:, 1])
+            np.subtract(ctx.relaxation(taus[2], negated=True, keep=False).T, slab[:, 1], out=slab[:, 1])
+            slab[:, 1] /= 2 * self.DLN
+        else:
+            slab[:, 1] = ctx.relaxation(taus[1], negated=True).T
+        bases = [slab[c].T for c in range(6)]     # (N, 2) column-major views
         second_name = "creep_dlntau" if tau2 is None else "creep2"
         names = tuple(n for c in WRENCH for n in (f"{c}.creep [1]", f"{c}.{second_name} [1]"))
         return FreeFace.channelwise(bases, names, dict(shape))

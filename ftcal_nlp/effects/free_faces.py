@@ -251,13 +251,53 @@ class FreeLoadContext:
         d = np.diff(self.t)[np.diff(self.rec) == 0]
         return float(np.median(d)) if d.size else 1.0
 
-    def relaxation(self, tau: float) -> np.ndarray:
+    def relaxation(self, tau: float, negated: bool = False, keep: bool = True) -> np.ndarray:
         """``pred - lowpass_tau(pred)`` (N, 6), each recording apart (``signals.relaxation``: what of each change of the
-        model readings is still to relax): the column every relaxation face (creep) is built of. The recordings' rows
-        and their channel-major copies of ``pred`` are found once (a face's grid and its refinement ask for it many
-        times); the result is a channel-major array seen as (N, 6) (a channel's column is contiguous)."""
+        model readings is still to relax): the column every relaxation face (creep) is built of; ``negated``: its
+        negative ``lowpass_tau(pred) - pred`` (creep's columns: exactly the negation, formed as that difference), the
+        cached array itself (read-only), otherwise a new array. ``keep``: cache a new result (False: a time constant
+        asked for once, e.g. a refinement's trial or a derivative's neighbour, is not kept: the cache's memory is
+        fresh memory, paid for in page faults). The recordings' rows and their channel-major copies of ``pred`` are
+        found once (a face's grid and its refinement ask for it many times); the result is a channel-major array seen
+        as (N, 6) (a channel's column is contiguous)."""
+        done = self._relaxation_cache()[5]     # the last few time constants' results (a grid's pairs reuse its single ones)
+        tau = float(tau)
+        if tau in done:
+            out = done[tau]
+        else:
+            out = self.relaxation_into(tau, np.empty((6, self.n))).T
+            out.flags.writeable = False
+            if keep:
+                if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
+                    del done[next(iter(done))]
+                done[tau] = out
+        return out if negated else -out
+
+    def relaxation_into(self, tau: float, out: np.ndarray) -> np.ndarray:
+        """The negated relaxation (:meth:`relaxation` with ``negated``) written into ``out`` (6, N) (channel-major; e.g.
+        a face's column block), from the cache when it holds ``tau``; returns ``out``."""
+        c = self._relaxation_cache()
+        tau = float(tau)
+        if tau in c[5]:
+            out[...] = c[5][tau].T
+            return out
         from .signals import relaxation
 
+        for i, xt, clock in zip(c[3], c[4], c[6]):
+            if xt.shape[1] <= 1:
+                out[:, i] = -relaxation(self.t[i], xt.T, tau).T
+            elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
+                _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock, negated=True)
+            else:
+                out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock, negated=True)
+        return out
+
+    def forget_relaxations(self) -> None:
+        """Drop the cached relaxations (the faces built of them hold their own columns): the chain's later rounds
+        reuse its faces, not these arrays."""
+        self.extra.pop("_relaxation", None)
+
+    def _relaxation_cache(self) -> tuple:
         c = self.extra.get("_relaxation")
         # the cache is this context's (``select`` and ``dataclasses.replace`` share ``extra``): same arrays or rebuilt
         if c is None or c[0] is not self.t or c[1] is not self.rec or c[2] is not self.pred:
@@ -267,24 +307,7 @@ class FreeLoadContext:
             c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
                                              [np.ascontiguousarray(self.pred[i].T) for i in rows], {},
                                              [_clock(self.t[i]) for i in rows])
-        done = c[5]               # the last few time constants' results (a grid's pairs reuse its single ones)
-        tau = float(tau)
-        if tau in done:
-            return done[tau]
-        out = np.empty((6, self.n))
-        for i, xt, clock in zip(c[3], c[4], c[6]):
-            if xt.shape[1] <= 1:
-                out[:, i] = relaxation(self.t[i], xt.T, tau).T
-            elif isinstance(i, slice):          # a recording's run of samples: filtered straight into its columns
-                _relax_rows(self.t[i], xt, tau, out=out[:, i], clock=clock)
-            else:
-                out[:, i] = _relax_rows(self.t[i], xt, tau, clock=clock)
-        out = out.T
-        out.flags.writeable = False
-        if len(done) >= max(4, int(RELAXATION_CACHE_BYTES // max(out.nbytes, 1))):
-            del done[next(iter(done))]
-        done[tau] = out
-        return out
+        return c
 
     def select(self, mask: np.ndarray) -> "FreeLoadContext":
         """The context restricted to the samples of ``mask`` (derived quantities as computed on all)."""
@@ -307,10 +330,11 @@ def _clock(t: np.ndarray) -> tuple[bool, np.ndarray]:
 
 
 def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | None = None,
-                clock: tuple | None = None) -> np.ndarray:
+                clock: tuple | None = None, negated: bool = False) -> np.ndarray:
     """``signals.relaxation(t, xt.T, tau).T`` of channel-major (c, n) ``xt`` (into ``out`` (c, n) if given): the same
     recurrence filtered along each channel's contiguous row (faster than along axis 0; bit-identical); an irregular
-    clock or ``tau == 0``: ``signals.relaxation`` itself. ``clock``: :func:`_clock` of ``t`` if known."""
+    clock or ``tau == 0``: ``signals.relaxation`` itself. ``clock``: :func:`_clock` of ``t`` if known. ``negated``: its
+    negative (``lowpass - x``, the same differences the other way round: exactly the negation)."""
     from scipy.signal import lfilter
 
     from .signals import relaxation
@@ -318,6 +342,8 @@ def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | Non
     regular, dt1 = _clock(t) if clock is None else clock
     if tau <= 0 or not regular:
         r = relaxation(t, xt.T, tau).T
+        if negated:
+            r = -r
         if out is not None:
             out[...] = r
         return r
@@ -326,8 +352,12 @@ def _relax_rows(t: np.ndarray, xt: np.ndarray, tau: float, out: np.ndarray | Non
     # row gives the same outputs (a causal filter), and the relaxation is formed in place, without the low-pass array
     y = lfilter([a0], [1.0, -(1.0 - a0)], xt, axis=1, zi=((1.0 - a0) * xt[:, 0])[:, None])[0]
     out = np.empty_like(xt) if out is None else out
-    out[:, 0] = xt[:, 0] - xt[:, 0]
-    np.subtract(xt[:, 1:], y[:, :-1], out=out[:, 1:])
+    if negated:
+        out[:, 0] = -(xt[:, 0] - xt[:, 0])
+        np.subtract(y[:, :-1], xt[:, 1:], out=out[:, 1:])
+    else:
+        out[:, 0] = xt[:, 0] - xt[:, 0]
+        np.subtract(xt[:, 1:], y[:, :-1], out=out[:, 1:])
     return out
 
 
@@ -335,12 +365,23 @@ def rate(x: np.ndarray, t: np.ndarray, rec: np.ndarray) -> np.ndarray:
     """``dx/dt`` by central differences within each recording (one-sided at its ends), any trailing shape."""
     x = np.asarray(x, float)
     out = np.zeros_like(x)
+    for i in recording_rows(rec):
+        if (i.stop - i.start if isinstance(i, slice) else len(i)) >= 2:
+            out[i] = np.gradient(x[i], t[i], axis=0)
+    return out
+
+
+def recording_rows(rec: np.ndarray) -> list:
+    """Each recording's rows in recording order (``np.unique(rec)``): a slice when they are one run, else their indices.
+    Samples in recording order (non-decreasing ``rec``, recording after recording): the runs' bounds, no search."""
+    rec = np.asarray(rec)
+    if len(rec) and np.all(rec[1:] >= rec[:-1]):
+        b = np.r_[0, np.flatnonzero(rec[1:] != rec[:-1]) + 1, len(rec)]
+        return [slice(int(b[k]), int(b[k + 1])) for k in range(len(b) - 1)]
+    out = []
     for r in np.unique(rec):
         i = np.flatnonzero(rec == r)
-        if len(i) >= 2:
-            if i[-1] - i[0] + 1 == len(i):      # a recording's samples are one run: a slice, no gather
-                i = slice(int(i[0]), int(i[-1]) + 1)
-            out[i] = np.gradient(x[i], t[i], axis=0)
+        out.append(slice(int(i[0]), int(i[-1]) + 1) if i[-1] - i[0] + 1 == len(i) else i)
     return out
 
 
@@ -441,9 +482,18 @@ def make_context(leg: str, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_ft:
 
 
 def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:
-    """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span (N, degree)."""
+    """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span (N, degree); each
+    ``P_j`` formed once per context (the drift face's degrees and the time correlate share them)."""
     from .faces import legendre_time
 
     # a correction on a new recording keeps the calibration session's span (ctx.extra["t_span"]: freeload/effects_correction.py)
-    lo, hi = ctx.extra.get("t_span", (float(ctx.t.min()), float(ctx.t.max())))
-    return legendre_time(ctx.t, float(lo), float(hi), range(1, degree + 1))
+    span = ctx.extra.get("t_span")
+    c = ctx.extra.get("_legendre")
+    if c is None or c[0] is not ctx.t:
+        lo, hi = span if span is not None else (float(ctx.t.min()), float(ctx.t.max()))
+        c = ctx.extra["_legendre"] = (ctx.t, float(lo), float(hi), {})
+    cols = c[3]
+    for j in range(1, degree + 1):
+        if j not in cols:
+            cols[j] = legendre_time(ctx.t, c[1], c[2], [j])[:, 0]
+    return np.stack([cols[j] for j in range(1, degree + 1)], axis=1) if degree > 0 else np.zeros((ctx.n, 0))

@@ -163,19 +163,28 @@ def _mul(A: list, B: list, n: int) -> list:
 
 def rigid_face(w: np.ndarray, alpha: np.ndarray, p: np.ndarray, shape: dict | None = None) -> FreeFace:
     """:func:`rigid_regressor` as a channel-wise :class:`FreeFace` (each channel's columns not identically zero),
-    formed entry by entry from the 3 x 3 and 3 x 6 blocks (no (N, 3, k) stacks, no (N, 6, 9) array)."""
+    formed entry by entry from the 3 x 3 and 3 x 6 blocks (no (N, 3, k) stacks, no (N, 6, 9) array); a torque
+    channel's entries are formed when its block is (a few (N,) arrays alive at a time, not the whole regressor's:
+    fresh memory is paid for in page faults)."""
     n = len(w)
     W = _skew_entries(w)
     WW = _mul(W, W, n)
     A = _skew_entries(alpha)
     F = [[-(WW[i][j] if A[i][j] is None else A[i][j] + WW[i][j]) for j in range(3)] for i in range(3)]
-    T = _mul(_skew_entries(np.broadcast_to(np.asarray(p, float), (n, 3)).copy()), F, n)          # p x f; -p x f below
-    WL = _mul(W, _inertia_entries(w), n)
+    del WW
+    P = _skew_entries(np.broadcast_to(np.asarray(p, float), (n, 3)).copy())
+    Lw = _inertia_entries(w)
     La = _inertia_entries(alpha)
-    R = [[-(WL[i][j] if La[i][j] is None else La[i][j] + WL[i][j]) for j in range(6)] for i in range(3)]
     blocks = []
     for c in range(6):
-        cols = F[c] if c < 3 else [-v for v in T[c - 3]] + R[c - 3]
+        if c < 3:
+            cols = F[c]
+        else:
+            i = c - 3
+            T = _mul([P[i]], F, n)[0]                                     # p x f (row i); -p x f below
+            WL = _mul([W[i]], Lw, n)[0]
+            R = [-(WL[j] if La[i][j] is None else La[i][j] + WL[j]) for j in range(6)]
+            cols = [-v for v in T] + R
         nz = [j for j, v in enumerate(cols) if np.any(v != 0)]
         if nz:
             blocks.append((c, np.array(nz), np.stack([cols[j] for j in nz], axis=0).T))   # column-major: no strided copy
