@@ -97,6 +97,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs
+from .errors import MisSignedChannel
 from .geometry import quat_to_rotation, rotation_to_rotvec, skew
 from .robot import Robot
 
@@ -369,11 +370,11 @@ def check_on_ground(rec: Recording, robot: Robot, offsets: np.ndarray, leg_weigh
         fix = leg_sign_fixes_it(R, F, up, body, legs)
         if fix is not None:
             leg, column, was, now = fix
-            raise DataFormatError(
+            raise MisSignedChannel(
                 f"{src}: standing, the readings less {whose} offsets carry a median {was:.2f} of the weight of the body "
                 f"without legs ({body:.4g} N) along the quaternion's up axis; expected 1 within {LOAD_SHARE[0]:g}.."
                 f"{LOAD_SHARE[1]:g}, and {now:.2f} with the sign of column {column} (the axis of leg {leg} nearest the up "
-                f"axis) reversed: is {column} mis-signed, or {leg}'s rotation in robot.toml wrong?", column=column)
+                f"axis) reversed: is {column} mis-signed, or {leg}'s rotation in robot.toml wrong?", leg=leg, column=column)
         raise DataFormatError(
             f"{src}: standing, the readings less {whose} offsets (columns {{leg}}_fx..{{leg}}_fz) carry a median {along:.2f} "
             f"({lo:.2f}..{hi:.2f}, 10th..90th percentile) of the weight of the body without legs ({body:.4g} N) along the "

@@ -42,6 +42,15 @@ class DataFormatError(FtcalError, ValueError):
         self.column = column
 
 
+class MisSignedChannel(DataFormatError):
+    """A standing recording whose load share one leg's channel, sign reversed, brings back (``checks.py``):
+    ``column`` names that channel (``{leg}_f{x,y,z}``) and ``leg`` the leg."""
+
+    def __init__(self, message: str, *, leg: str, column: str, path: str | Path | None = None):
+        super().__init__(message, path=path, column=column)
+        self.leg = leg
+
+
 class ConfigError(FtcalError, ValueError):
     """A config file is invalid; the message names the file, the key and what was expected."""
 

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.diagnose.joint import JointRefit
+from ftcal_nlp.diagnose.joint import JointRefit, combined_members
 from ftcal_nlp.effect_correction import apply_effect, correct_for_effect
 from ftcal_nlp.effects import EFFECTS, AugContext
 from ftcal_nlp.effects.combined import Combined
@@ -72,7 +72,7 @@ def _joint_block(units, truth: Calibration, R_nom: np.ndarray, seed: int) -> tup
         params.update({f"hanging:offset_drift:{k}.{c}/h": (float(rng.normal()), float(rng.uniform(0.1, 0.3)))
                        for k in truth.leg_names for c in WRENCH})
     params.update({n: (float(v), float(s)) for n, v, s in zip(names, eta, se)})
-    jr = JointRefit(both.name, {}, None, params, eta, T_REF, (), both.variant, cov)
+    jr = JointRefit(both.name, {}, None, params, eta, T_REF, (), both.variant, cov, combined_members(both, ctx, params))
     return {**jr.effect_block(), "R_nominal": R_nom.tolist()}, eta, cov
 
 
@@ -102,6 +102,27 @@ def test_the_block_lists_every_member_with_its_slice(tiny):
     assert c0 == len(eta) - 6          # the offset shift follows the members' parameters
     assert block["members"][1]["parameters"][f"hanging:{truth.leg_names[2]}.fz/h"]["se"] > 0
     assert "members" not in JointRefit("casing_load", {}, None, {}, eta[:4], 0.0).effect_block()   # one effect: as before
+    # a single effect is one whatever its variant looks like (no guess from the name)
+    assert "members" not in JointRefit("casing_load", {}, None, {}, eta[:4], 0.0, variant={"casing_load": {}}).effect_block()
+
+
+def test_a_parameter_the_poses_do_not_determine_leaves_the_components_it_moves_without_a_finite_se(tiny):
+    """``eta_undetermined``: the components a face moves through an undetermined parameter get an infinite variance;
+    the others keep ``J Sigma J^T`` (the pseudo-inverse's rows of that parameter are no variance)."""
+    truth, R_nom = tiny
+    units = [EFFECTS["gain_crosstalk"], EFFECTS["casing_load"]]
+    block, _, _ = _joint_block(units, truth, R_nom, 4)
+    w, phi, R, t = _samples(4, len(truth.leg_names), N=5)
+    _, _, cov0 = correct_for_effect(_with(truth, block), 30.0 * w, phi, R, t)
+    J = _finite_jacobian(truth, block, 30.0 * w, phi, R, t)
+    j = int(np.argmax(np.abs(J).sum(axis=(0, 1, 2))))     # a parameter that moves some components
+    und = [False] * len(block["eta"])
+    und[j] = True
+    _, _, cov1 = correct_for_effect(_with(truth, {**block, "eta_undetermined": und}), 30.0 * w, phi, R, t)
+    moved = np.abs(J[..., j]) > 0
+    diag1, diag0 = np.diagonal(cov1, axis1=2, axis2=3), np.diagonal(cov0, axis1=2, axis2=3)
+    assert moved.any() and (~moved).any()
+    assert np.all(np.isinf(diag1[moved])) and np.array_equal(diag1[~moved], diag0[~moved])
 
 
 def test_shifts_and_the_mocap_bias_applied_at_once_equal_the_members_in_sequence(tiny):

@@ -338,7 +338,11 @@ def test_a_mis_signed_channel_of_one_leg_is_named(leg, tmp_path, capsys, monkeyp
     monkeypatch.setitem(CASES, f"_flip_{leg}", _every_file(flip))
     broken_sample(require_sample(), tmp_path / "data", f"_flip_{leg}")
     line = _one_error(run_main([str(_config(tmp_path))]), capsys.readouterr().err)
-    assert re.search(rf"standing\.parquet: standing, .*carry a median 0\.\d+ of the weight .*expected 1 within 0\.8\.\.1\.25, and "
-                     rf"[01]\.\d+ with the sign of column {column} \(the axis of leg {leg} nearest the up axis\) reversed: is "
-                     rf"{column} mis-signed", line), line
+    m = re.search(rf"standing\.parquet: standing, .*carry a median (\d\.\d+) of the weight .*expected 1 within 0\.8\.\.1\.25, and "
+                  rf"(\d\.\d+) with the sign of column {column} \(the axis of leg {leg} nearest the up axis\) reversed: is "
+                  rf"{column} mis-signed", line)
+    assert m, line
+    from ftcal_nlp.checks import LOAD_SHARE
+    was, now = float(m.group(1)), float(m.group(2))
+    assert was < LOAD_SHARE[0] and LOAD_SHARE[0] <= now <= LOAD_SHARE[1] and abs(now - 1) < abs(was - 1), (was, now)
     assert not (tmp_path / "out").exists()

@@ -349,11 +349,14 @@ def test_a_dataset_rejected_naming_its_leg_counts_as_placed():
     """An input check that refuses a dataset with an error naming the faulty leg's column (``rejected``) has placed a
     fault outside the library on its leg; one naming another leg, or no column, has not (an error)."""
     from ftcal_nlp.bench.validate import REJECTED, rejected_leg, sweep_summary, validation_table
-    from ftcal_nlp.errors import DataFormatError
+    from ftcal_nlp.errors import DataFormatError, MisSignedChannel
 
     legs = ("FL", "ML", "HL", "FR", "MR", "HR")
-    assert rejected_leg(DataFormatError("x", column="FR_fz"), legs) == "FR"
-    assert rejected_leg(DataFormatError("x", column="t"), legs) is None and rejected_leg(DataFormatError("x"), legs) is None
+    assert rejected_leg(MisSignedChannel("x", leg="FR", column="FR_fz"), legs) == "FR"
+    # another input error naming a leg's column (a temperature, a unit) is no fault found
+    assert rejected_leg(DataFormatError("x", column="FR_temp_C"), legs) is None
+    assert rejected_leg(DataFormatError("x", column="FR_fz"), legs) is None and rejected_leg(DataFormatError("x"), legs) is None
+    assert rejected_leg(MisSignedChannel("x", leg="XX", column="XX_fz"), legs) is None
 
     def row(i, legs_named, named):
         return {"index": i, "seed": i, "role": "variant", "effect": "leg_axis_flipped", "expect": "unexplained",

@@ -87,7 +87,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 
 from ..data import WRENCH_COMPONENTS
-from ..errors import DataFormatError
+from ..errors import DataFormatError, MisSignedChannel
 from ..pipeline import calibrate
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, applies_to
@@ -269,9 +269,9 @@ def _diagnosis_fields(d) -> dict:
 
 
 def rejected_leg(exc: DataFormatError, legs) -> str | None:
-    """The leg an input check's error names by its column (``{leg}_fz``: ``checks.leg_sign_fixes_it``), or None."""
-    col = getattr(exc, "column", None) or ""
-    leg = col.split("_")[0] if "_" in col else ""
+    """The leg of a mis-signed channel the input check named (``errors.MisSignedChannel``, ``checks.leg_sign_fixes_it``),
+    or None: any other input error is an error of the run, not the fault found."""
+    leg = getattr(exc, "leg", None) if isinstance(exc, MisSignedChannel) else None
     return leg if leg in legs else None
 
 

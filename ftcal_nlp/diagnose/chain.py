@@ -267,7 +267,7 @@ def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoad
     """The joint refit (module docstring)."""
     parts = [J] + [s.face for s in steps]
     cv = steps[-1].design_cv if steps else None
-    if cv is None or len(cv._parts) != len(parts) or any(a is not b for a, b in zip(cv._parts, parts)):
+    if cv is None or cv._parts is None or len(cv._parts) != len(parts) or any(a is not b for a, b in zip(cv._parts, parts)):
         cv = design.fit(parts)    # else the chain's own fit of these parts (the same sums: the same numbers)
     G, beta = cv.G, cv.beta
     rw = cv.resid * design.w

@@ -278,9 +278,12 @@ def _chain_statement(chain, shrink) -> list[str]:
     out = []
     for link in chain.links:
         a = np.asarray(link.rms_after, float)
+        how = (f"it removes {100 * link.explained:.0f} % of the excess the effects before it left" if link.via == "ranking" else
+               f"found by its held-out evidence where the joint refit left a gap the ranking did not see; the joint refit "
+               f"with it removes {100 * link.explained:.0f} % of that kind's excess")
         out.append(f"Then {link.name}: refit with the effects before it, the held-out {shrink['kind']} RMS is "
                    + " ".join(f"{v:.3g}" for v in a) + f" (paired block-wise z {link.z:.1f} on the {link.kind} recordings; "
-                   f"it removes {100 * link.explained:.0f} % of the excess the effects before it left).")
+                   f"{how}).")
     out.append(f"The chain of effects stopped: {chain.stop}.")
     return out
 

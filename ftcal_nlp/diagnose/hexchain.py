@@ -101,6 +101,7 @@ class Link:
     joint: JointRefit
     parameters: dict
     rms_after: np.ndarray
+    via: str = "ranking"   # how the link was found: "ranking" (the stated test) or "held-out" (:func:`held_out_evidence`)
 
     @property
     def name(self) -> str:
@@ -275,13 +276,13 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             break
         gap = {k: v for k, v in gaps(att2).items() if k not in skip}
         ch.rounds.append(_round(att2, gap))
-        tries, stop = [], ""
+        tries, why_not = [], []
         ok = [s for s in att2.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap)) and ranking_bic(s, gap) < DBIC_STRONG
               and explained_fraction(s, gap) >= EXPLAINED_MIN] if gap else []
         if not gap:
-            stop = "with the named effects in the model no gap above the floor is left"
+            why_not.append("with the named effects in the model no gap above the floor is left")
         elif not ok:
-            stop = (f"no candidate removes {100 * EXPLAINED_MIN:g} % of the excess the named effects leave with "
+            why_not.append(f"no candidate removes {100 * EXPLAINED_MIN:g} % of the excess the named effects leave with "
                     f"delta BIC < {DBIC_STRONG:g}")
         else:
             best = min(ok, key=lambda s: (ranking_bic(s, gap), s.delta_bic))
@@ -293,7 +294,7 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             if passes_:
                 tries.append((best, kind, z, "ranking"))
             else:
-                stop = f"the next candidate, {best.effect}, adds nothing significant on held-out data ({why})"
+                why_not.append(f"the next candidate, {best.effect}, adds nothing significant on held-out data ({why})")
         tries += held_out_evidence(att2, left, {t[0].effect for t in tries})[:JOINT_TRIES]
         link = None
         for sc, kind, z, via in tries:
@@ -301,7 +302,7 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             try:
                 j2 = joint_refit(views, both, model, prior, calibration, robot, balance, folds=folds, seed=seed, x_start=x_start)
             except (SolverError, np.linalg.LinAlgError) as exc:
-                stop = f"the joint refit with {both.name} failed: {exc}"
+                why_not.append(f"the joint refit with {both.name} failed: {exc}")
                 _mark(ch.rounds[-1], sc.effect, via, f"failed: {exc}")
                 continue
             # a link named for the design gap alone is not judged by the joint refit: free rotations absorb what it
@@ -309,18 +310,23 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             good, why = joint_better(cur, j2, kind) if kind != "design" else (True, "")
             _mark(ch.rounds[-1], sc.effect, via, "better" if good else why)
             if good:
-                link = (sc, kind, z, both, j2)
+                link = (sc, kind, z, both, j2, via)
                 break
-            stop = f"the joint refit with {sc.effect} does not predict held-out data better ({why})"
+            why_not.append(f"the joint refit with {sc.effect} does not predict held-out data better ({why})")
         if link is None:
-            ch.stop = stop
+            ch.stop = "; ".join(why_not)
             break
-        best, kind, z, both, j2 = link
+        best, kind, z, both, j2, via = link
         named = rebuild(both.members, j2.variant)
         mine = Combined(named).member_parameters(j2.parameters)[-1]
         pk = primary if primary in j2.kinds else next(iter(j2.kinds), None)
         after = j2.kinds[pk].rms_after if pk is not None else np.full(6, np.nan)
-        ch.links.append(Link(named[-1], kind, z, float(explained_fraction(best, gap)), float(ranking_bic(best, gap)), j2, mine, after))
-        log.info("diagnosis: chain adds %s (z %.1f on %s, explains %.0f %%)", best.effect, z, kind, 100 * explained_fraction(best, gap))
+        if via == "ranking":
+            explained, dbic = float(explained_fraction(best, gap)), float(ranking_bic(best, gap))
+        else:   # the attribution saw no gap there: the share is what the joint refit removed of the kind's excess
+            e0, e1 = excess(cur.kinds[kind]), excess(j2.kinds[kind])
+            explained, dbic = (1.0 - e1 / e0 if e0 > 0 else 0.0), float(ranking_bic(best, {kind: left[kind]}))
+        ch.links.append(Link(named[-1], kind, z, explained, dbic, j2, mine, after, via))
+        log.info("diagnosis: chain adds %s (%s: z %.1f on %s, explains %.0f %%)", best.effect, via, z, kind, 100 * explained)
         cur = j2
     return ch

@@ -53,6 +53,7 @@ from ..calibration import Calibration
 from ..geometry import rotvec_to_rotation, skew
 from ..selection import fold_indices
 from ..solver import SolverError
+from ..effects.combined import Combined
 from ..effects.faces import AugContext, HangingLeg
 from ..effects.unit import Effect
 from .linear_fit import RIDGE, recalibrate, score_linear, time_folds
@@ -106,6 +107,8 @@ class JointRefit:
     notes: tuple = ()
     variant: dict = field(default_factory=dict)
     eta_cov: np.ndarray | None = None
+    members: tuple = ()          # several effects (a Combined): per member (name, variant, eta slice, parameters)
+    eta_undetermined: np.ndarray | None = None   # (len(eta),) bool: an eta entry the standing poses do not determine
 
     def to_json_dict(self) -> dict:
         return {"effect": self.effect, "variant": dict(self.variant), "kinds": {k: v.to_json_dict() for k, v in self.kinds.items()},
@@ -119,28 +122,29 @@ class JointRefit:
         ``"a+b"``, ``variant`` per member, ``eta`` / ``eta_cov`` / ``parameters`` the joint ones (names
         ``<member>:<name>``), and ``members`` lists each member as a single effect's block would hold it: its
         name, variant, its slice of the joint ``eta`` (``eta_slice`` [start, stop) and the values, ``eta``) and its
-        parameters with se, prefix taken off (hanging ones ``hanging:<name>``)."""
+        parameters with se, prefix taken off (hanging ones ``hanging:<name>``), as ``Combined.split`` and
+        ``Combined.member_parameters`` give them. ``eta_undetermined`` (when any): the ``eta`` entries the standing
+        poses do not determine (se inf), whose ``eta_cov`` rows are the pseudo-inverse's, not a variance: a
+        correction they enter has no finite se (``effects/correction.py``)."""
         cov = {} if self.eta_cov is None else {"eta_cov": np.nan_to_num(np.asarray(self.eta_cov, float)).tolist()}
         eta = [float(v) for v in (self.eta if self.eta is not None else [])]
         par = lambda d: {n: {"value": float(v), "se": float(s) if np.isfinite(s) else None} for n, (v, s) in d.items()}  # noqa: E731
         out = {"name": self.effect, "variant": dict(self.variant), "eta": eta, "t_ref_s": float(self.t_ref), **cov,
                "parameters": par(self.parameters)}
-        names = self.effect.split("+")
-        if len(names) > 1 or set(self.variant) == {self.effect}:   # a Combined: its variant is per member
-            # each member's standing parameters are the contiguous run of names "<member>:..." in eta's order
-            # (``Combined.standing_params``); the offset shift ("dw_o.*", ``Effect.shifts_offsets``) follows them
-            standing = [n for n in self.parameters if not n.startswith("hanging:")]
-            members, c0 = [], 0
-            for m in names:
-                own = {n: v for n, v in self.parameters.items()
-                       if (n[len("hanging:"):] if n.startswith("hanging:") else n).startswith(m + ":")}
-                m_eta = sum(1 for n in standing if n.startswith(m + ":")) if eta else 0
-                members.append({"name": m, "variant": dict(self.variant.get(m, {})), "eta_slice": [c0, c0 + m_eta],
-                                "eta": eta[c0 : c0 + m_eta],
-                                "parameters": par({n.replace(m + ":", "", 1): v for n, v in own.items()})})
-                c0 += m_eta
-            out["members"] = members
+        if self.eta_undetermined is not None and np.any(self.eta_undetermined):
+            out["eta_undetermined"] = [bool(u) for u in self.eta_undetermined]
+        if self.members:
+            out["members"] = [{"name": n, "variant": dict(v), "eta_slice": [sl.start, sl.stop], "eta": eta[sl.start : sl.stop],
+                               "parameters": par(pm)} for n, v, sl, pm in self.members]
         return out
+
+
+def combined_members(effect: Effect, actx: AugContext, params: dict) -> tuple:
+    """Per member of a :class:`Combined` ``effect`` ``(name, variant, its slice of eta, its parameters)``, as
+    ``Combined.split`` and ``Combined.member_parameters`` give them (``JointRefit.members``); () for one effect."""
+    if not isinstance(effect, Combined):
+        return ()
+    return tuple((m.name, dict(m.variant), sl, pm) for m, sl, pm in zip(effect.members, effect.split(actx), effect.member_parameters(params)))
 
 
 # ----------------------------------------------------------------------------- hanging
@@ -398,7 +402,8 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}
     prior_j = shifted_prior(prior, d_off, d_mg)
     cal = shifted_prior(calibration, d_off, d_mg)
-    eta = eta_cov = None
+    eta = eta_cov = eta_und = None
+    members: tuple = ()
     R_new = off_new = None
     best = None
     sv = views.standing
@@ -442,6 +447,8 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
                 params[n] = (float(v), float(s))
             eta = prob.eta(x)
             eta_cov = np.asarray(fit.cov, float)[prob.n_model :, prob.n_model :]   # held parameters: rows of zeros
+            eta_und = ~np.isfinite(np.asarray(fit.effect_bse, float)) if len(fit.effect_bse) == len(eta) else None
+            members = combined_members(effect, prob.actx, params)
             R_new, p_new, off_new = prob.transforms(x)
             new_legs = {}
             for k, leg in enumerate(legs):
@@ -463,7 +470,8 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
         notes.append(f"the joint model predicts the {', '.join(worse)} recordings worse than the calibration alone: the "
                      f"effect's face does not follow the data there; correcting with calibration_with_effect.json is not advised")
     cal = replace(cal, model=m_used if sv is not None and best is not None else cal.model)
-    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes), dict(effect.variant), eta_cov)
+    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes), dict(effect.variant), eta_cov,
+                     members, eta_und)
     meta = dict(cal.meta)
     meta["effect"] = {**out.effect_block(), "R_nominal": np.asarray(robot.nominal_rotations(), float).tolist()}
     return replace(out, calibration=replace(cal, meta=meta))

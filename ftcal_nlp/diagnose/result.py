@@ -141,7 +141,8 @@ class DiagnosisResult:
             out.append({"name": link.name, "variant": dict(link.unit.variant),
                         "parameters": {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in link.parameters.items()},
                         "heldout_rms_after": _lst(link.rms_after), "explains": link.unit.explains, "kind": link.kind,
-                        "paired_z": float(link.z) if np.isfinite(link.z) else None, "explained": float(link.explained)})
+                        "paired_z": float(link.z) if np.isfinite(link.z) else None, "explained": float(link.explained),
+                        "found_by": link.via})
         return out
 
     def summary(self) -> str:

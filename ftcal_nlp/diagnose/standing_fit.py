@@ -90,6 +90,7 @@ class AugmentedProblem:
         offsets = list(spec.offsets) if spec.offsets is not None else [ca.DM(prior.legs[k].offset) for k in legs]
         m = np.array([prior.legs[k].leg_weight_N for k in legs])
         actx = AugContext(legs, offsets, robot.nominal_rotations(), m, prior.g)
+        self.actx = actx   # the effect's context (``Combined.split``: each member's slice of eta)
         block = effect.standing_params(actx) if effect is not None else None
         shift = effect is not None and effect.shifts_offsets
         if shift:  # the offset shift: a constant wrench in B (``Effect.shifts_offsets``, effects/unit.py)

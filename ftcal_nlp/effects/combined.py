@@ -199,6 +199,8 @@ class Combined(Effect):
             if with_cov and "eta_cov" in block:
                 C = joint_eta_cov(block, int(idx.max()) + 1 if len(idx) else 0, source)
                 sub["eta_cov"] = C[np.ix_(idx, idx)].tolist()
+                if "eta_undetermined" in block:
+                    sub["eta_undetermined"] = [bool(block["eta_undetermined"][j]) for j in idx]
             unit = self.members[face[0]] if len(face) == 1 else Combined([self.members[i] for i in face])
             w_out, R_out, cov = correct_by_face(unit, cal, sub, ctx, w, phi, R_WB, t_h, with_cov=with_cov, source=source)
         for i, m in enumerate(self.members):

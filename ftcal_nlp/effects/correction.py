@@ -42,6 +42,7 @@ def correct_by_face(effect, cal, block: dict, ctx: AugContext, w: np.ndarray, ph
     eta = face_eta(effect, ctx, block, source)
     m = len(eta)
     C = face_eta_cov(block, m, source) if with_cov else None
+    und = face_undetermined(block, m, source) if C is not None else None
     d, pose = pose_symbols(K)
     e = ca.SX.sym("eta", m)
     c, zmap, _ = effect.standing(e, pose, ctx)
@@ -60,6 +61,12 @@ def correct_by_face(effect, cal, block: dict, ctx: AugContext, w: np.ndarray, ph
         if cov is not None:
             J = np.asarray(res[2], float).reshape(6 * K, n, m).transpose(1, 0, 2).reshape(n, K, 6, m)   # samples side by side
             cov[s] = np.einsum("nkam,mq,nkbq->nkab", J, C, J)
+            if und is not None:   # a component an undetermined parameter moves has no finite variance
+                touched = np.abs(J[..., und]).max(-1) > 0
+                ii = np.arange(6)
+                diag = cov[s][:, :, ii, ii]
+                diag[touched] = np.inf
+                cov[s][:, :, ii, ii] = diag
     return w_new, R_new, cov
 
 
@@ -83,6 +90,19 @@ def face_eta_cov(block: dict, m: int, source: str) -> np.ndarray | None:
     return C[:m, :m]      # the offset shift that follows the face's parameters is the calibration's, not the effect's
 
 
+def face_undetermined(block: dict, m: int, source: str) -> np.ndarray | None:
+    """Which of the face's ``m`` parameters the standing poses do not determine (``meta.effect.eta_undetermined``;
+    None when none is, or the block predates the key)."""
+    u = block.get("eta_undetermined")
+    if u is None:
+        return None
+    u = np.asarray(u)
+    if u.ndim != 1 or u.dtype != bool or len(u) < m:
+        raise ValueError(f"{source}: meta.effect.eta_undetermined must be a list of booleans, one per meta.effect.eta "
+                         f"value (at least {m}), got {block['eta_undetermined']!r}")
+    return u[:m] if u[:m].any() else None
+
+
 def sample_features(cal, ctx: AugContext, w, phi, R_WB, t_h) -> np.ndarray:
     """The standing features of every sample (``StandingData.features``; the previous pose is the sample itself)."""
     rcom = np.stack([cal.legs[k].com(phi[:, i]) for i, k in enumerate(ctx.legs)], axis=1)
@@ -99,7 +119,7 @@ def corrects_by_face(effect) -> bool:
 
 
 #: the keys of a block that are the joint fit's, replaced by the member's own in :func:`member_block`
-JOINT_KEYS = ("name", "variant", "eta", "eta_cov", "parameters", "members")
+JOINT_KEYS = ("name", "variant", "eta", "eta_cov", "eta_undetermined", "parameters", "members")
 
 
 def member_block(block: dict, i: int, source: str = "calibration") -> dict:
@@ -127,6 +147,8 @@ def member_block(block: dict, i: int, source: str = "calibration") -> dict:
     if "eta_cov" in block:
         C = joint_eta_cov(block, len(eta_all), source)
         out["eta_cov"] = C[sl[0]:sl[1], sl[0]:sl[1]].tolist()
+    if "eta_undetermined" in block:
+        out["eta_undetermined"] = list(block["eta_undetermined"])[sl[0]:sl[1]]
     return out
 
 

@@ -482,16 +482,17 @@ def make_context(leg: str, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_ft:
 
 
 def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:
-    """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span (N, degree); each
+    """Legendre ``P_1..P_degree`` of the session time scaled to [-1, 1] over the context's span, or the calibration
+    session's (``ctx.extra["t_span"]``, a correction of a new recording) (N, degree); each
     ``P_j`` formed once per context (the drift face's degrees and the time correlate share them)."""
     from .faces import legendre_time
 
     # a correction on a new recording keeps the calibration session's span (ctx.extra["t_span"]: freeload/effects_correction.py)
     span = ctx.extra.get("t_span")
+    lo, hi = (float(v) for v in span) if span is not None else (float(ctx.t.min()), float(ctx.t.max()))
     c = ctx.extra.get("_legendre")
-    if c is None or c[0] is not ctx.t:
-        lo, hi = span if span is not None else (float(ctx.t.min()), float(ctx.t.max()))
-        c = ctx.extra["_legendre"] = (ctx.t, float(lo), float(hi), {})
+    if c is None or c[0] is not ctx.t or c[1:3] != (lo, hi):   # the cache is of one clock over one span
+        c = ctx.extra["_legendre"] = (ctx.t, lo, hi, {})
     cols = c[3]
     for j in range(1, degree + 1):
         if j not in cols:

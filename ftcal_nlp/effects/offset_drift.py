@@ -21,7 +21,7 @@ Model faces (``t_h`` hours since hanging):
              on a grid of tau (the joint refit keeps the best held-out); walking swing: the rate
 
 Free loads (``free_faces.py``): ``P_1..P_d`` of the session time per channel over the free-load
-recordings, ``d`` in 1, 2, 3, 5, 8 or ``P_1`` plus a step at the change point of the hold medians (the shape, chosen by held-out residual); corrected as ``y - X beta``.
+recordings, ``d`` in 1, 2, 3, 5, 8 or ``P_1`` plus a step at the change point of the hold medians (the shape, chosen by held-out residual); corrected as ``y - X beta`` (a new recording: the calibration's change point and session span, ``ctx.extra``).
 
 Correction: the offsets follow the joint fit's per-leg rates, ``w_o,k(t) = w_o,k + D_k (t - t_ref) / 1 h``
 (a straight line: it holds only near the session; ``--track-offsets`` follows drift), with

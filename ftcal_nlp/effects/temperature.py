@@ -21,7 +21,8 @@ Off-face shape (the validation sweep; a correct diagnosis still says ``temperatu
                     ``lag_s`` (30 s, between the face's grid points): ``w_m = w + a_k (lowpass_30s(T_k) - 25)``
 
 Free face (``free_faces.py``): per channel ``(T_lag - Tbar)`` (and ``(T_lag - Tbar)^2``) with
-``T_lag = lowpass_lag(T)`` (each recording apart), ``Tbar`` the mean over the samples; parameters
+``T_lag = lowpass_lag(T)`` (each recording apart), ``Tbar`` the mean over the samples (on a new recording the
+calibration's, ``ctx.extra["temperature_mean_C"]``: then a recording held at one temperature is corrected too); parameters
 ``<c>.dT [N/degC]`` (and ``<c>.dT2 [N/degC^2]``; torques N*m); shapes: the degree (1, 2) and the
 thermal lag (0, 20, 60 s), chosen by held-out residual, then the lag refined by a bounded search
 (``free_refine``, ``free_refine.py``). None without a temperature.
