@@ -64,6 +64,7 @@ import pandas as pd
 from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
 from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
+from .loads.base import calibration_variance
 
 log = logging.getLogger(__name__)
 
@@ -347,20 +348,6 @@ def contact_wrench(p: PayloadCalibration | UrdfLoadCalibration, w_m: np.ndarray,
     yc, parts = fe.correct_readings(p, p.effects, ctx, where)
     var = fe.joint_variance(J, p.effects, parts) + p.sigma**2
     return yc - model, np.sqrt(np.clip(var, 0.0, None))
-
-
-def calibration_variance(p: PayloadCalibration | UrdfLoadCalibration, J: np.ndarray, tol: float = 1e-3) -> np.ndarray:
-    """``diag(J C J^T)`` (N, 6): the calibration's part of the variance. Inf where ``J`` has a component along an
-    undetermined direction (``p.null``, relative size over ``tol``, as ``loads.base.se_of``) or, without the
-    directions, where it touches an undetermined parameter at all."""
-    var = np.einsum("nij,jk,nik->ni", J, p.cov, J)
-    if p.null is not None and p.null.size:
-        nn = p.null / np.linalg.norm(p.null, axis=0, keepdims=True)
-        along = np.abs(J @ nn).max(axis=-1)
-        var = np.where(along > tol * np.linalg.norm(J, axis=-1), np.inf, var)
-    elif p.undetermined is not None and p.undetermined.any():
-        var = np.where(np.abs(J[:, :, p.undetermined]).max(axis=-1) > 0, np.inf, var)
-    return var
 
 
 def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) -> dict[str, np.ndarray]:

@@ -30,7 +30,7 @@ the next candidate are fitted together with the calibration. :class:`Combined` m
   (a casing load, an offset drift), and differs by the products of the corrections where they do (a gain or
   crosstalk matrix, a chassis flex or a nonlinearity applied to readings a casing load corrected: second-order
   terms the fit did not have). The members whose correction is their standing face
-  (``correction.corrects_by_face``: sensor effects with a hexapod face) are evaluated together as one face, so the
+  (``unit.corrects_by_face``: sensor effects with a hexapod face) are evaluated together as one face, so the
   covariance of the corrected readings
   ``J Sigma_eta J^T`` uses the joint ``eta_cov`` with its cross-member terms; the others (an offset drift's rates,
   a motion-capture bias on the orientations, body effects: nothing per foot) apply their own correction with their
@@ -44,9 +44,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .correction import correct_by_face, corrects_by_face, joint_eta_cov, member_block
+from .correction import correct_by_face, joint_eta_cov, member_block
 from .faces import ParamBlock, stack_faces
-from .unit import Effect
+from .unit import Effect, corrects_by_face
 
 SEP = ":"
 

@@ -18,7 +18,7 @@ effect's "nothing per foot") overrides ``Effect.correct``.
 
 Several effects fitted together (``combined.Combined``, a block with ``members``): each member's block
 (:func:`member_block`) is a single effect's, its ``eta`` the member's slice of the joint one; the members whose
-correction is their standing face (:func:`corrects_by_face`) are evaluated together as one face, so that the
+correction is their standing face (``unit.corrects_by_face``) are evaluated together as one face, so that the
 covariance ``J Sigma_eta J^T`` takes the joint ``eta_cov`` with its cross-member terms (``Combined.correct``).
 """
 
@@ -81,13 +81,9 @@ def face_eta(effect, ctx: AugContext, block: dict, source: str) -> np.ndarray:
 
 
 def face_eta_cov(block: dict, m: int, source: str) -> np.ndarray | None:
-    """The covariance of the face's ``m`` parameters from ``meta.effect.eta_cov`` (None: not stored)."""
-    if "eta_cov" not in block:
-        return None
-    C = np.asarray(block["eta_cov"], float)
-    if C.ndim != 2 or C.shape[0] != C.shape[1] or C.shape[0] < m:
-        raise ValueError(f"{source}: meta.effect.eta_cov must be square with at least {m} rows (the face's parameters first), got {C.shape}")
-    return C[:m, :m]      # the offset shift that follows the face's parameters is the calibration's, not the effect's
+    """The covariance of the face's ``m`` parameters from ``meta.effect.eta_cov`` (None: not stored); the offset shift
+    that follows the face's parameters is the calibration's, not the effect's."""
+    return None if "eta_cov" not in block else joint_eta_cov(block, m, source)[:m, :m]
 
 
 def face_undetermined(block: dict, m: int, source: str) -> np.ndarray | None:
@@ -108,14 +104,6 @@ def sample_features(cal, ctx: AugContext, w, phi, R_WB, t_h) -> np.ndarray:
     rcom = np.stack([cal.legs[k].com(phi[:, i]) for i, k in enumerate(ctx.legs)], axis=1)
     n_vert = np.einsum("kji,j->ki", ctx.R_nominal, np.array([0.0, 0.0, 1.0]))
     return StandingData(w, R_WB[:, 2, :], remove_yaw(R_WB), t_h, w, phi, np.nan_to_num(rcom), n_vert).features()
-
-
-def corrects_by_face(effect) -> bool:
-    """Whether ``effect``'s correction is its standing face evaluated on the samples (a sensor effect with a hexapod
-    face that keeps ``Effect.correct``), so that it can be evaluated together with others (``Combined.correct``)."""
-    from .unit import Effect
-
-    return effect.kind == "sensor" and "hexapod" in effect.diagnosed_on and type(effect).correct is Effect.correct
 
 
 #: the keys of a block that are the joint fit's, replaced by the member's own in :func:`member_block`

@@ -129,12 +129,18 @@ class Temperature(Effect):
                  for c in range(6) for j in range(1, d + 1)]
         return FreeFace(None, tuple(names), dict(shape), basis=basis, channels=tuple(range(6)))
 
-    def _basis(self, ctx, lag: float, degree: int) -> np.ndarray:
-        """``(T_lag - Tbar)^j``, j = 1..degree (N, degree), the temperature lagged within each recording."""
+    @staticmethod
+    def lagged(ctx, lag: float) -> np.ndarray:
+        """``T_lag`` (N,): the temperature lagged by ``lag`` s within each recording."""
         Tl = np.empty(ctx.n)
         for r in np.unique(ctx.rec):
             i = ctx.rec == r
             Tl[i] = lowpass(ctx.t[i], ctx.temperature[i], lag)
+        return Tl
+
+    def _basis(self, ctx, lag: float, degree: int) -> np.ndarray:
+        """``(T_lag - Tbar)^j``, j = 1..degree (N, degree), the temperature lagged within each recording."""
+        Tl = self.lagged(ctx, lag)
         dT = Tl - ctx.extra.get("temperature_mean_C", Tl.mean())   # a new recording: the calibration's mean (effects_correction)
         return np.stack([dT**j for j in range(1, degree + 1)], axis=1)
 

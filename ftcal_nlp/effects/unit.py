@@ -176,3 +176,9 @@ class Effect:
 
     def __repr__(self) -> str:
         return f"<effect {self.name}>"
+
+
+def corrects_by_face(effect: Effect) -> bool:
+    """Whether ``effect``'s correction is its standing face evaluated on the samples (a sensor effect with a hexapod
+    face that keeps ``Effect.correct``), so that it can be evaluated together with others (``Combined.correct``)."""
+    return effect.kind == "sensor" and "hexapod" in effect.diagnosed_on and type(effect).correct is Effect.correct

@@ -67,6 +67,7 @@ import numpy as np
 
 from ..errors import DataFormatError
 from ..geometry import rotvec_to_rotation
+from ..loads.base import calibration_variance
 
 log = logging.getLogger(__name__)
 
@@ -174,7 +175,8 @@ def refit_result(fit, leg_diag):
     floor = np.asarray(leg_diag.floor, float) if leg_diag.floor_known else np.asarray(fit.sigma, float)
     names = [s.effect.name for s in leg_diag.chain.steps]
     note = (f"{fit.leg}: refit jointly with {', '.join(names)} on every sample (one Gauss-Newton step from the "
-            "free-load fit; diagnose/chain.py joint_fit)")
+            "free-load fit; diagnose/chain.py joint_fit); se and covariance are the joint refit's, the descriptions "
+            "of undetermined directions the free-load fit's, its determined combinations not recomputed (left out)")
     out = replace(fit, offset=np.asarray(fit.offset, float) + dx[:6], theta=np.asarray(fit.theta, float) + dx[6: 6 + p],
                   rotation=np.asarray(fit.rotation, float) @ rotvec_to_rotation(dx[P - 3:]), tilt=tilt,
                   recording_tilts=rec_tilts, cov=C[:P, :P].copy(), se=se, null=Nx if Nx.shape[1] else None,
@@ -196,14 +198,10 @@ def reference_of(ctx, members) -> dict:
 
 
 def lagged_temperature(ctx, lag: float) -> np.ndarray:
-    """The temperature lagged by ``lag`` s within each recording (as the temperature face lags it)."""
-    from ..effects.signals import lowpass
+    """The temperature lagged by ``lag`` s within each recording, as the temperature face lags it (the same function)."""
+    from ..effects.temperature import Temperature
 
-    out = np.empty(ctx.n)
-    for r in np.unique(ctx.rec):
-        i = ctx.rec == r
-        out[i] = lowpass(ctx.t[i], ctx.temperature[i], lag)
-    return out
+    return Temperature.lagged(ctx, lag)
 
 
 def _members(leg_diag) -> tuple[Member, ...]:
@@ -489,8 +487,7 @@ def derivative_rows(parts: list, k: int, rows: slice) -> np.ndarray:
 
 def joint_variance(J: np.ndarray, fx: FreeEffects, parts: list) -> np.ndarray:
     """``diag([J_x, -D] C [J_x, -D]^T)`` (N, 6) (module docstring), in blocks of ``CHUNK`` rows; inf where the row
-    has a component along an undetermined direction (``correct_loads.calibration_variance``)."""
-    from ..correct_loads import calibration_variance
+    has a component along an undetermined direction (``loads.base.calibration_variance``)."""
 
     n = len(J)
     out = np.empty((n, 6))

@@ -78,3 +78,18 @@ def se_of(cov: np.ndarray, J: np.ndarray, null: np.ndarray | None = None, tol: f
         along = np.abs(J @ nn).max(axis=1)
         out[along > tol * np.linalg.norm(J, axis=1)] = np.inf
     return out
+
+
+def calibration_variance(p, J: np.ndarray, tol: float = 1e-3) -> np.ndarray:
+    """``diag(J C J^T)`` (N, 6): the calibration's part of the variance of a correction (``p`` a free-load
+    calibration: ``cov``, ``null``, ``undetermined``; ``correct_loads``, ``freeload/effects_correction.py``). Inf where ``J`` has a component along an
+    undetermined direction (``p.null``, relative size over ``tol``, as :func:`se_of`) or, without the
+    directions, where it touches an undetermined parameter at all."""
+    var = np.einsum("nij,jk,nik->ni", J, p.cov, J)
+    if p.null is not None and p.null.size:
+        nn = p.null / np.linalg.norm(p.null, axis=0, keepdims=True)
+        along = np.abs(J @ nn).max(axis=-1)
+        var = np.where(along > tol * np.linalg.norm(J, axis=-1), np.inf, var)
+    elif p.undetermined is not None and p.undetermined.any():
+        var = np.where(np.abs(J[:, :, p.undetermined]).max(axis=-1) > 0, np.inf, var)
+    return var
