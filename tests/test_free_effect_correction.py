@@ -295,3 +295,18 @@ def test_se_of_the_corrected_wrench_match_the_spread_of_refits(tmp_path):
     ratio = np.sqrt((err.std(axis=0, ddof=1) ** 2).mean(axis=0) / (se_cal**2).mean(axis=(0, 1)))
     tol = 3.0 / np.sqrt(2 * (R - 1))
     assert np.all(np.abs(ratio - 1.0) < tol), ratio
+
+
+def test_a_list_of_single_row_poses_is_not_corrected_for_stream_effects(payload):
+    """A clock offset re-samples the stream and creep relaxes between changes of load: a recording of one row per pose
+    (no hold of two samples) cannot be corrected for them (an error naming column t), while calibration.json still
+    corrects it."""
+    folder, _ = payload
+    rec = pd.read_csv(folder / "fresh.csv")
+    dt = float(np.median(np.diff(rec["t"])))
+    poses = rec.iloc[:: int(round(9.0 / dt))].reset_index(drop=True)   # one row per hold + move period (9 s)
+    with pytest.raises(DataFormatError) as exc:
+        contact_frame(payload_calibrations(folder / "out" / "calibration_with_effect.json"), poses, "poses.csv")
+    assert exc.value.column == "t" and "single-row poses" in str(exc.value) and "clock_offset" in str(exc.value)
+    out = contact_frame(payload_calibrations(folder / "out" / "calibration.json"), poses, "poses.csv")
+    assert len(out) == len(poses)

@@ -391,6 +391,27 @@ def _check_span(fx: FreeEffects, ctx, where: str) -> None:
                     where, out, ctx.n, lo, hi, fx.leg)
 
 
+#: effects whose correction follows the readings' own clock between changes of load: a clock offset re-samples the
+#: stream, creep relaxes after each change, the inertial wrench differentiates the orientation over time
+STREAM_EFFECTS = ("clock_offset", "creep", "inertial_load")
+
+
+def _check_stream(fx: FreeEffects, ctx, where: str) -> None:
+    """An error when a recording without a hold of two samples or more (a list of single-row poses, its clock one
+    tick per pose) is to be corrected for an effect that follows the stream's clock (``STREAM_EFFECTS``): re-sampling
+    0.5 s later would mix two poses, and there is no relaxation between rows that are not a stream."""
+    need = [m.name for m in fx.members if m.name in STREAM_EFFECTS]
+    if not need:
+        return
+    ids, counts = np.unique(ctx.hold[ctx.hold >= 0], return_counts=True)
+    if not np.any(counts >= 2):
+        raise DataFormatError(
+            f"{where}: column t: the recording has no hold of two samples or more (a list of single-row poses?), but "
+            f"{fx.leg}'s calibration corrects for {', '.join(need)}, which follow the readings' own clock between changes "
+            f"of load (median sample interval here {ctx.dt:.3g} s): correct a stream recorded as the calibration's was, "
+            "or correct this one with calibration.json", column="t")
+
+
 def context(p, fx: FreeEffects, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_B: np.ndarray,
             quat: np.ndarray | None, q: dict, temperature: np.ndarray | None):
     """The new recording's :class:`~ftcal_nlp.effects.free_faces.FreeLoadContext` (module docstring): ``p`` its
@@ -437,6 +458,7 @@ def correct_readings(p, fx: FreeEffects, ctx, where: str = "recording") -> tuple
 
     _require(fx, ctx, where)
     _check_span(fx, ctx, where)
+    _check_stream(fx, ctx, where)
     y = ctx.y
     yc = y.copy()
     parts, c0 = [], 0
