@@ -35,6 +35,7 @@ import numpy as np
 
 from .calibration import Calibration
 from .effects import EFFECTS, AugContext, Effect
+from .errors import DataFormatError
 from .effects.combined import Combined
 from .effects.injection import HOUR_S
 
@@ -48,14 +49,14 @@ def effect_block(cal: Calibration) -> dict | None:
 def _unit(reg: Mapping[str, Effect], name, variant, key: str, source: str) -> Effect:
     """The registry's unit ``name`` rebuilt with ``variant`` (``key``: where in the block, for the errors)."""
     if not isinstance(name, str) or name not in reg:
-        raise ValueError(f"{source}: {key}.name {name!r} is not an effect of the library {sorted(reg)}")
+        raise DataFormatError(f"{source}: {key}.name {name!r} is not an effect of the library {sorted(reg)}")
     variant = variant or {}
     if not isinstance(variant, dict):
-        raise ValueError(f"{source}: {key}.variant must be a table of keyword arguments of {name}, got {variant!r}")
+        raise DataFormatError(f"{source}: {key}.variant must be a table of keyword arguments of {name}, got {variant!r}")
     try:
         return type(reg[name])(**variant) if variant else reg[name]
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{source}: {key}.variant {variant!r} does not rebuild {name}: {exc}") from None
+        raise DataFormatError(f"{source}: {key}.variant {variant!r} does not rebuild {name}: {exc}") from None
 
 
 def _effect(block: dict, source: str, reg: Mapping[str, Effect]) -> Effect:
@@ -64,15 +65,15 @@ def _effect(block: dict, source: str, reg: Mapping[str, Effect]) -> Effect:
         return _unit(reg, block["name"], block.get("variant"), "meta.effect", source)
     members = block["members"]
     if not isinstance(members, list) or not members or not all(isinstance(m, dict) for m in members):
-        raise ValueError(f"{source}: meta.effect.members must be a non-empty list of tables (one per effect), got {members!r}")
+        raise DataFormatError(f"{source}: meta.effect.members must be a non-empty list of tables (one per effect), got {members!r}")
     units = [_unit(reg, m.get("name"), m.get("variant"), f"meta.effect.members[{i}]", source) for i, m in enumerate(members)]
     joined = "+".join(u.name for u in units)
     if block["name"] != joined:
-        raise ValueError(f"{source}: meta.effect.name {block['name']!r} does not match its members {joined!r}")
+        raise DataFormatError(f"{source}: meta.effect.name {block['name']!r} does not match its members {joined!r}")
     try:
         return Combined(units)
     except ValueError as exc:
-        raise ValueError(f"{source}: meta.effect.members: {exc}") from None
+        raise DataFormatError(f"{source}: meta.effect.members: {exc}") from None
 
 
 def _context(cal: Calibration, block: dict, source: str, registry: Mapping[str, Effect] | None = None) -> tuple[Effect, AugContext]:
@@ -81,7 +82,7 @@ def _context(cal: Calibration, block: dict, source: str, registry: Mapping[str, 
     legs = cal.leg_names
     R_nom = np.asarray(block.get("R_nominal", [cal.legs[k].rotation_to_body for k in legs]), float)
     if R_nom.shape != (len(legs), 3, 3):
-        raise ValueError(f"{source}: meta.effect.R_nominal must be ({len(legs)}, 3, 3), got {R_nom.shape}")
+        raise DataFormatError(f"{source}: meta.effect.R_nominal must be ({len(legs)}, 3, 3), got {R_nom.shape}")
     return eff, AugContext.from_calibration(cal, legs, R_nom)
 
 

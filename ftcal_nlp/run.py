@@ -221,9 +221,9 @@ def write_free_effect_calibration(res: CalibrationRun, folder: Path) -> None:
     """A free-load run whose diagnosis named effects: ``calibration_with_effect.json`` (the free-load calibration refit
     jointly with the chain's effects, ``meta.effect``: every transducer's members, their parameters and the session's
     reference) and its joint covariance file (``freeload/effects_correction.py``); nothing when none was named."""
-    from .freeload.effects_correction import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, effect_calibration as free_effects
+    from .freeload.effects_correction import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, free_effect_calibration
 
-    out = free_effects(res)
+    out = free_effect_calibration(res)
     if out is None:
         return
     cal, cov = out

@@ -271,7 +271,7 @@ def test_se_of_the_corrected_wrench_match_the_spread_of_refits(tmp_path):
     # corrected wrench over them matches the se's calibration part sqrt(se^2 - sigma^2), which carries the joint
     # covariance of the load parameters and beta (pooled per channel; 1 +- 3 / sqrt(2 (R - 1)) for R refits)
     from ftcal_nlp.data import read_dataset
-    from ftcal_nlp.freeload.effects_correction import COVARIANCE_FILE, effect_calibration
+    from ftcal_nlp.freeload.effects_correction import COVARIANCE_FILE, free_effect_calibration
     from ftcal_nlp.pipeline import calibrate
     from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
 
@@ -284,7 +284,7 @@ def test_se_of_the_corrected_wrench_match_the_spread_of_refits(tmp_path):
     for s in range(100, 100 + R):
         sim = simulate_payload(PayloadConfig(seed=s, n_orientations=12, hold_s=6.0, move_s=3.0, **rig))
         res = calibrate(read_dataset(write_free_load(sim, tmp_path / f"d{s}")), settings)
-        cal, cc = effect_calibration(res)
+        cal, cc = free_effect_calibration(res)
         cal.save(tmp_path / f"c{s}.json")
         cc.save(tmp_path / COVARIANCE_FILE)
         df = contact_frame(payload_calibrations(tmp_path / f"c{s}.json"), probe, "probe")

@@ -45,6 +45,7 @@ import casadi as ca
 import numpy as np
 
 from .correction import correct_by_face, joint_eta_cov, member_block
+from ..errors import DataFormatError
 from .faces import ParamBlock, stack_faces
 from .unit import Effect, corrects_by_face
 
@@ -179,17 +180,17 @@ class Combined(Effect):
         with ``members``, one per member in order)."""
         members = block.get("members")
         if not isinstance(members, (list, tuple)) or len(members) != len(self.members):
-            raise ValueError(f"{source}: meta.effect.members must list the {len(self.members)} effects of {self.name!r}, "
+            raise DataFormatError(f"{source}: meta.effect.members must list the {len(self.members)} effects of {self.name!r}, "
                              f"got {members!r}")
         subs = [member_block(block, i, source) for i in range(len(self.members))]
         for i, (m, sb) in enumerate(zip(self.members, subs)):
             if sb["name"] != m.name:
-                raise ValueError(f"{source}: meta.effect.members[{i}].name is {sb['name']!r}, expected {m.name!r} "
+                raise DataFormatError(f"{source}: meta.effect.members[{i}].name is {sb['name']!r}, expected {m.name!r} "
                                  f"(meta.effect.name {self.name!r})")
             p = m.standing_params(ctx)
             need = p.m if p is not None else 0
             if block.get("eta") and len(sb["eta"]) != need:
-                raise ValueError(f"{source}: meta.effect.members[{i}].eta has {len(sb['eta'])} values, {m.name} needs {need}")
+                raise DataFormatError(f"{source}: meta.effect.members[{i}].eta has {len(sb['eta'])} values, {m.name} needs {need}")
         face = [i for i, m in enumerate(self.members) if corrects_by_face(m)]
         w_out, R_out, cov = w, R_WB, None
         if face:

@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 
 from ..geometry import remove_yaw
+from ..errors import DataFormatError
 from .faces import AugContext, StandingData, pose_symbols
 
 CHUNK = 4096        # samples per block of the effect's correction
@@ -76,7 +77,7 @@ def face_eta(effect, ctx: AugContext, block: dict, source: str) -> np.ndarray:
     m = block_p.m if block_p is not None else 0
     eta = np.asarray(block.get("eta", []), float)[:m]
     if len(eta) != m:
-        raise ValueError(f"{source}: meta.effect.eta has {len(eta)} values, {effect.name} needs {m}")
+        raise DataFormatError(f"{source}: meta.effect.eta has {len(eta)} values, {effect.name} needs {m}")
     return eta
 
 
@@ -94,7 +95,7 @@ def face_undetermined(block: dict, m: int, source: str) -> np.ndarray | None:
         return None
     u = np.asarray(u)
     if u.ndim != 1 or u.dtype != bool or len(u) < m:
-        raise ValueError(f"{source}: meta.effect.eta_undetermined must be a list of booleans, one per meta.effect.eta "
+        raise DataFormatError(f"{source}: meta.effect.eta_undetermined must be a list of booleans, one per meta.effect.eta "
                          f"value (at least {m}), got {block['eta_undetermined']!r}")
     return u[:m] if u[:m].any() else None
 
@@ -113,19 +114,19 @@ JOINT_KEYS = ("name", "variant", "eta", "eta_cov", "eta_undetermined", "paramete
 def member_block(block: dict, i: int, source: str = "calibration") -> dict:
     """Member ``i`` of a block of several effects (``meta.effect.members[i]``) as a single effect's block: the block's
     shared keys (``t_ref_s``, ``R_nominal``), the member's name, variant, parameters, its ``eta`` and the diagonal block
-    of ``eta_cov`` of its ``eta_slice``. Checks the slice against the joint ``eta`` (a ValueError naming the key)."""
+    of ``eta_cov`` of its ``eta_slice``. Checks the slice against the joint ``eta`` (a DataFormatError naming the key)."""
     mb = block["members"][i]
     key = f"meta.effect.members[{i}]"
     if not isinstance(mb, dict) or not isinstance(mb.get("name"), str):
-        raise ValueError(f"{source}: {key} must be a table with a name (the effect's), got {mb!r}")
+        raise DataFormatError(f"{source}: {key} must be a table with a name (the effect's), got {mb!r}")
     eta_all = np.asarray(block.get("eta", []), float)
     sl = mb.get("eta_slice")
     if not (isinstance(sl, (list, tuple)) and len(sl) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in sl)
             and 0 <= sl[0] <= sl[1] <= len(eta_all)):
-        raise ValueError(f"{source}: {key}.eta_slice must be [start, stop] within meta.effect.eta ({len(eta_all)} values), got {sl!r}")
+        raise DataFormatError(f"{source}: {key}.eta_slice must be [start, stop] within meta.effect.eta ({len(eta_all)} values), got {sl!r}")
     eta = np.asarray(mb.get("eta", eta_all[sl[0]:sl[1]].tolist()), float)
     if eta.shape != (sl[1] - sl[0],) or not np.array_equal(eta, eta_all[sl[0]:sl[1]]):
-        raise ValueError(f"{source}: {key}.eta must be meta.effect.eta[{sl[0]}:{sl[1]}] ({sl[1] - sl[0]} values), got "
+        raise DataFormatError(f"{source}: {key}.eta must be meta.effect.eta[{sl[0]}:{sl[1]}] ({sl[1] - sl[0]} values), got "
                          f"{eta.size} values{' that differ from them' if eta.size == sl[1] - sl[0] else ''}")
     out = {k: v for k, v in block.items() if k not in JOINT_KEYS}
     out.update({k: v for k, v in mb.items() if k != "eta_slice"})
@@ -141,9 +142,9 @@ def member_block(block: dict, i: int, source: str = "calibration") -> dict:
 
 
 def joint_eta_cov(block: dict, m: int, source: str = "calibration") -> np.ndarray:
-    """``meta.effect.eta_cov`` checked square with at least ``m`` rows (a ValueError naming the key)."""
+    """``meta.effect.eta_cov`` checked square with at least ``m`` rows (a DataFormatError naming the key)."""
     C = np.asarray(block["eta_cov"], float)
     if C.ndim != 2 or C.shape[0] != C.shape[1] or C.shape[0] < m:
-        raise ValueError(f"{source}: meta.effect.eta_cov must be square with at least {m} rows (the members' parameters "
+        raise DataFormatError(f"{source}: meta.effect.eta_cov must be square with at least {m} rows (the members' parameters "
                          f"first), got {C.shape}")
     return C

@@ -2,7 +2,7 @@
 item 3): what ``calibration_with_effect.json`` holds for payloads and URDF loads (``DATA_FORMAT.md`` section 5) and
 what ``correct`` applies.
 
-**Written** by a run whose free-load diagnosis named effects (:func:`effect_calibration`). Per transducer, the chain's
+**Written** by a run whose free-load diagnosis named effects (:func:`free_effect_calibration`). Per transducer, the chain's
 joint refit (``diagnose/chain.joint_fit``): the free-load model linearised around its fit ``x*`` and every named
 effect's face, fitted together on every sample (weights ``1 / floor``)::
 
@@ -226,7 +226,7 @@ def members_json(members, reference: dict, floor, position_m=None) -> dict:
             "reference": reference, "noise_floor": [float(x) for x in floor]}
 
 
-def effect_calibration(res):
+def free_effect_calibration(res):
     """``(Calibration, CalibrationCovariance)`` of ``calibration_with_effect.json`` and its covariance file for a
     free-load run ``res`` (``CalibrationRun``) whose diagnosis named effects; None when it named none."""
     from ..diagnose.free_model import context_for
