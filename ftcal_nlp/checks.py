@@ -367,9 +367,10 @@ def check_on_ground(rec: Recording, robot: Robot, offsets: np.ndarray, leg_weigh
     if rec.kind == "standing" and not LOAD_SHARE[0] <= along <= LOAD_SHARE[1]:
         a = np.einsum("ni,ni->n", S_B, up) / body
         lo, hi = np.percentile(a, [10, 90])
-        fix = leg_sign_fixes_it(R, F, up, body, legs)
+        fix = leg_sign_fixes_it(R, F, S_B, up, body, legs)
         if fix is not None:
-            leg, column, was, now = fix
+            leg, column, now = fix
+            was = along
             raise MisSignedChannel(
                 f"{src}: standing, the readings less {whose} offsets carry a median {was:.2f} of the weight of the body "
                 f"without legs ({body:.4g} N) along the quaternion's up axis; expected 1 within {LOAD_SHARE[0]:g}.."
@@ -386,21 +387,19 @@ def check_on_ground(rec: Recording, robot: Robot, offsets: np.ndarray, leg_weigh
     check_quaternion(rec, S_B, ok)
 
 
-def leg_sign_fixes_it(R: np.ndarray, F: np.ndarray, up: np.ndarray, body: float, legs) -> tuple[str, str, float, float] | None:
+def leg_sign_fixes_it(R: np.ndarray, F: np.ndarray, S_B: np.ndarray, up: np.ndarray, body: float, legs) -> tuple[str, str, float] | None:
     """The one leg whose force axis nearest the up axis, sign reversed, brings the standing load share into
-    ``LOAD_SHARE`` (closest to 1 of those that do), or None: ``(leg, column, share as read, share with it
-    reversed)``. ``R`` (K, 3, 3) sensor to B, ``F`` (N, K, 3) the readings less offsets, ``up`` (N, 3) in B. A
-    mis-signed channel of one leg makes that leg pull the body down by what it carries (a sum 0.64 of the body
-    weight, 1.00 with the channel's sign reversed)."""
-    along = lambda S: float(np.median(np.einsum("ni,ni->n", S, up)) / body)   # noqa: E731
-    S = np.einsum("kij,nkj->ni", R, F)
+    ``LOAD_SHARE`` (closest to 1 of those that do), or None: ``(leg, column, share with it reversed)``. ``R``
+    (K, 3, 3) sensor to B, ``F`` (N, K, 3) the readings less offsets, ``S_B`` (N, 3) their sum in B, ``up`` (N, 3)
+    in B. A mis-signed channel of one leg makes that leg pull the body down by what it carries (a sum 0.64 of the
+    body weight, 1.00 with the channel's sign reversed)."""
     best = None
     for i, k in enumerate(legs):
         axis = int(np.argmax(np.abs(np.median(up @ R[i], axis=0))))   # up in the leg's sensor frame: R_k^T up
-        S_f = S - 2.0 * R[i][:, axis][None, :] * F[:, i, axis][:, None]
-        a = along(S_f)
-        if LOAD_SHARE[0] <= a <= LOAD_SHARE[1] and (best is None or abs(a - 1) < abs(best[3] - 1)):
-            best = (k, f"{k}_f{'xyz'[axis]}", along(S), a)
+        S_f = S_B - 2.0 * R[i][:, axis][None, :] * F[:, i, axis][:, None]
+        a = float(np.median(np.einsum("ni,ni->n", S_f, up)) / body)
+        if LOAD_SHARE[0] <= a <= LOAD_SHARE[1] and (best is None or abs(a - 1) < abs(best[2] - 1)):
+            best = (k, f"{k}_f{'xyz'[axis]}", a)
     return best
 
 

@@ -94,6 +94,8 @@ from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, applies_to
 from ..sim import SimConfig, simulate
 from ..sim.effects import EFFECTS as INJECTORS
 from ..sim.variants import VARIANTS
+from .sweep_names import config_names
+from .validate_free import run_free_validation
 
 log = logging.getLogger("ftcal_nlp.bench.validate")
 
@@ -146,19 +148,6 @@ def plan(cfg: dict) -> list[dict]:
 HEXAPOD_EFFECTS = tuple(n for n, u in EFFECTS.items() if "hexapod" in u.diagnosed_on)
 HEXAPOD_VARIANTS = tuple(n for n, c in VARIANTS.items() if "hexapod" in applies_to(n)
                          and (c.expect not in EFFECTS or c.expect in HEXAPOD_EFFECTS))
-
-
-def config_names(value, known, key: str, default=None, noun: str = "effect") -> list[str]:
-    """The names of ``[validation].<key>`` (None: ``default``, or every name of ``known``), checked against
-    ``known`` (``noun``: what they name, for the error)."""
-    if value is None:
-        return list(known if default is None else default)
-    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-        raise ValueError(f"[validation].{key}: expected a list of {noun} names, got {value!r}")
-    unknown = [v for v in value if v not in known]
-    if unknown:
-        raise ValueError(f"[validation].{key}: unknown {noun}(s) {unknown}; known {noun}s: {sorted(known)}")
-    return list(value)
 
 
 def effect_sizes(name: str, sizes: str) -> tuple[tuple[str, float], tuple[str, float]]:
@@ -712,8 +701,6 @@ def run_validation(cfg: dict, out_dir: str | Path) -> dict:
     sub-table) and write its outputs into ``out_dir``; returns the summary. ``design = "free"``: the free-load
     sweep of issue 23 (:mod:`.validate_free`)."""
     if cfg.get("design") == "free":
-        from .validate_free import run_free_validation
-
         return run_free_validation(cfg, out_dir)
     c, sim_over = check_config(cfg)
     items = sweep_plan(c) if c["design"] == "sweep" else plan(c)

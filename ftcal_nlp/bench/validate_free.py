@@ -63,7 +63,7 @@ from joblib import Parallel, delayed
 
 from ..effects import EFFECTS, Effect
 from ..settings import CalibrationSettings, DiagnoseSettings
-from .validate import config_names
+from .sweep_names import config_names
 
 log = logging.getLogger("ftcal_nlp.bench.validate_free")
 

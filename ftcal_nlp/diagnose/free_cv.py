@@ -69,13 +69,8 @@ def fold_of_blocks(block: np.ndarray, folds: int, seed: int) -> np.ndarray:
 
 
 def solve(G: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``G^+ v`` on the determined subspace (module docstring)."""
-    d = np.sqrt(np.clip(np.diag(G), 0.0, None))
-    d = np.where(d > 0, d, 1.0)
-    Gs = G / np.outer(d, d)
-    lam, U = np.linalg.eigh(Gs)
-    keep = lam > REL_EIG * max(lam.max(), 1e-300)
-    return (U[:, keep] @ ((U[:, keep].T @ (v / d)) / lam[keep])) / d
+    """``G^+ v`` on the determined subspace (module docstring): :func:`solve_many` of one."""
+    return solve_many(G[None], v[None])[0]
 
 
 def solve_many(G: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -92,16 +87,30 @@ def solve_many(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+def _scaled_eigh(G: np.ndarray):
+    """``G`` scaled to a unit diagonal and decomposed: ``(d, zero, lam, U, keep)``, the scales (1 where the diagonal
+    is 0, ``zero``), the eigenpairs and the eigenvalues kept (above ``REL_EIG`` of the largest)."""
+    d = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    zero = d == 0
+    d = np.where(zero, 1.0, d)
+    lam, U = np.linalg.eigh(G / np.outer(d, d))
+    return d, zero, lam, U, lam > REL_EIG * max(lam.max(), 1e-300)
+
+
 def pinv(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(G^+, undetermined)``: the inverse on the determined subspace and, per parameter, whether it has a component
     (above ``TOUCH``) along a direction the data leave undetermined (its se is then infinite, not the 0 of ``G^+``)."""
-    d = np.sqrt(np.clip(np.diag(G), 0.0, None))
-    zero = d == 0
-    d = np.where(d > 0, d, 1.0)
-    lam, U = np.linalg.eigh(G / np.outer(d, d))
-    keep = lam > REL_EIG * max(lam.max(), 1e-300)
+    d, zero, lam, U, keep = _scaled_eigh(G)
     touched = zero | (np.abs(U[:, ~keep]) > TOUCH).any(axis=1)
     return (U[:, keep] / lam[keep]) @ U[:, keep].T / np.outer(d, d), touched
+
+
+def null_directions(G: np.ndarray) -> np.ndarray:
+    """The directions (P, r) ``G`` leaves undetermined, in the parameters' own units, unit length: the eigenvectors
+    :func:`pinv` drops and the parameters with a zero diagonal."""
+    d, zero, lam, U, keep = _scaled_eigh(G)
+    N = np.concatenate([U[:, ~keep] / d[:, None], np.eye(len(G))[:, zero]], axis=1)
+    return N / np.linalg.norm(N, axis=0, keepdims=True) if N.size else N
 
 
 class CVFit:

@@ -124,25 +124,10 @@ def beta_names(leg: str, members) -> list[str]:
 
 # ---------------------------------------------------------------------------------------------- written by a run
 
-def _null_directions(G: np.ndarray) -> np.ndarray:
-    """The directions (P, r) the weighted normal matrix ``G`` leaves undetermined, in the parameters' own units (the
-    eigenvectors ``free_cv.pinv`` drops, of ``G`` scaled to a unit diagonal)."""
-    from ..diagnose.free_cv import REL_EIG
-
-    d = np.sqrt(np.clip(np.diag(G), 0.0, None))
-    zero = d == 0
-    ds = np.where(zero, 1.0, d)
-    lam, U = np.linalg.eigh(G / np.outer(ds, ds))
-    drop = lam <= REL_EIG * max(lam.max(), 1e-300)
-    N = U[:, drop] / ds[:, None]
-    N = np.concatenate([N, np.eye(len(G))[:, zero]], axis=1)
-    return N / np.linalg.norm(N, axis=0, keepdims=True) if N.size else N
-
-
 def joint_covariance(jf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(C, undetermined, null)`` of the joint refit ``jf`` (``chain.JointFit``) over ``[dx, beta_1 .. beta_m]``:
     ``C = s^2 G^+`` (finite: zero rows where undetermined), as ``chain.joint_fit``'s se."""
-    from ..diagnose.free_cv import pinv
+    from ..diagnose.free_cv import null_directions, pinv
 
     if jf.G is None:
         raise ValueError("the joint refit carries no normal matrix (chain.JointFit.G)")
@@ -150,7 +135,7 @@ def joint_covariance(jf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     C = Gi * jf.s2
     C[und, :] = 0.0
     C[:, und] = 0.0
-    return C, und, _null_directions(jf.G)
+    return C, und, null_directions(jf.G)
 
 
 def refit_result(fit, leg_diag):
