@@ -33,7 +33,7 @@ from .attribute import (
     gap_threshold,
     ranking_bic,
 )
-from .hexchain import run_chain
+from .hexchain import Z_MIN, run_chain
 from .joint import joint_refit
 from .perleg import perleg_checks
 from .localise import (
@@ -156,6 +156,8 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     if joint is not None:   # several effects: look again while a gap is left (hexchain.py)
         chain = run_chain(views, att, by_name[effect].model_effect or resolve_effects([effect], registry)[0], joint, effects, model,
                           prior, calibration, robot, balance, primary, folds=s.folds, seed=s.seed, x_start=x_start)
+        if chain.first is not None:   # a swap took the ranking's first out: the first named is the chain's
+            effect, joint = chain.first.name, chain.first.joint
         if chain.links and primary in chain.links[-1].joint.kinds:   # the shrinkage: after every named effect
             after = chain.links[-1].joint.kinds[primary].rms_after
     shrink = {"heldout_rms_before": before, "heldout_rms_after": after, "noise_floor": floor, "kind": KIND_NAMES.get(primary, primary),
@@ -169,7 +171,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
     statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + _chain_statement(chain, shrink) + list(evidence_notes)
-    effect_fit = by_name[effect].fit if verdict == "effect" else None
+    effect_fit = by_name[effect].fit if verdict == "effect" and (chain is None or chain.first is None) else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
                            str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit, perleg,
                            views.standing.floor_parts.get("noise_model") if views.standing is not None else None, joint,
@@ -276,12 +278,22 @@ def _chain_statement(chain, shrink) -> list[str]:
     if chain is None or not chain.rounds:
         return []
     out = []
-    for link in chain.links:
+    for sw in chain.swaps:
+        e0, e1 = sw["excess_before"].get(sw["kind"], float("nan")), sw["excess_after"].get(sw["kind"], float("nan"))
+        how = "" if sw["paired_z"] >= Z_MIN else " with fewer parameters"
+        out.append(f"With the others named, {sw['in']} in place of {sw['out']} predicts held-out data better{how} (excess over "
+                   f"the floor {e0:.3g} -> {e1:.3g} on the {sw['kind']} recordings, paired block-wise z {sw['paired_z']:.1f}): "
+                   f"{sw['out']} is swapped out.")
+    for link in ([chain.first] if chain.first is not None else []) + chain.links:
         a = np.asarray(link.rms_after, float)
         how = (f"it removes {100 * link.explained:.0f} % of the excess the effects before it left" if link.via == "ranking" else
+               f"swapped in for another named effect; it removes {100 * link.explained:.0f} % of that kind's excess the "
+               f"chain had left" if link.via == "swap" else
                f"found by its held-out evidence where the joint refit left a gap the ranking did not see; the joint refit "
                f"with it removes {100 * link.explained:.0f} % of that kind's excess")
-        out.append(f"Then {link.name}: refit with the effects before it, the held-out {shrink['kind']} RMS is "
+        lead = (f"First {link.name} (after the swap): refit alone" if link is chain.first else
+                f"Then {link.name}: refit with the effects before it")
+        out.append(f"{lead}, the held-out {shrink['kind']} RMS is "
                    + " ".join(f"{v:.3g}" for v in a) + f" (paired block-wise z {link.z:.1f} on the {link.kind} recordings; "
                    f"{how}).")
     out.append(f"The chain of effects stopped: {chain.stop}.")

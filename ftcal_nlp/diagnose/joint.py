@@ -72,13 +72,18 @@ GN_SAMPLES = 20000      # ... taken on about this many hanging samples (every n-
 
 @dataclass(frozen=True)
 class KindRefit:
-    """One recording kind under the joint refit: held-out RMS (6,) before / after, floor (6,), samples."""
+    """One recording kind under the joint refit: held-out RMS (6,) before / after, floor (6,), samples.
+
+    ``blocks``: the held-out sum of squares after, in floor units, block by block (standing: each pose; hanging: each
+    fold's time block of each leg), so that two joint refits on the same folds can be compared pairwise
+    (``hexchain.swap_better``); None where not kept (the swing legs)."""
 
     kind: str
     rms_before: np.ndarray
     rms_after: np.ndarray
     floor: np.ndarray
     n: int
+    blocks: np.ndarray | None = None
 
     def to_json_dict(self) -> dict:
         return {"heldout_rms_before": [float(v) for v in self.rms_before], "heldout_rms_after": [float(v) for v in self.rms_after],
@@ -311,29 +316,31 @@ def hanging_joint(series: LegSeries, face_fn, folds: int, before: np.ndarray | N
         scale = max(np.trace(A_tot[np.ix_(active, active)]) / max(len(active), 1), 1e-300)
         reg = RIDGE * scale * np.eye(n_tot)
         ss = np.zeros(6)
+        blocks = np.zeros((folds, len(parts)))   # floor units, per fold and leg (KindRefit.blocks)
         for f in range(folds):
             beta = np.zeros(n_tot)
             Af, bf = A_tot - A[f] + reg, b_tot - b[f]
             beta[active] = np.linalg.solve(Af[np.ix_(active, active)], bf[active])
-            for idx, Afl, bfl, yy, s in parts:
+            for i, (idx, Afl, bfl, yy, s) in enumerate(parts):
                 bl = beta[idx]
                 ssf = yy[f] - 2 * bfl[f] @ bl + np.einsum("m,cmn,n->c", bl, Afl[f], bl)
                 ss += ssf * s**2
+                blocks[f, i] = ssf.sum()
         beta = np.zeros(n_tot)
         M = (A_tot + reg)[np.ix_(active, active)]
         beta[active] = np.linalg.solve(M, b_tot[active])
         cov = np.full((n_tot, n_tot), np.nan)
         cov[np.ix_(active, active)] = np.linalg.inv(M)
-        return ss, beta, cov
+        return ss, beta, cov, blocks.ravel()
 
     n_all = series.n
     if before is None:
         A0, b0, p0, qn, n0 = _normal_equations(legs0, None, fidx, folds, fl, False)
         before = np.sqrt(cv(A0, b0, p0, np.arange(n0), n0)[0] / series.n)
     A1, b1, p1, qn, n_tot = _normal_equations(legs, face, fidx, folds, fl, True)
-    ss1, beta, cov = cv(A1, b1, p1, np.arange(n_tot), n_tot)
+    ss1, beta, cov, blocks = cv(A1, b1, p1, np.arange(n_tot), n_tot)
     floor = np.sqrt(np.mean(np.square(series.floor[[l.k for l in legs]]), axis=0))
-    kind = KindRefit(series.kind, before, np.sqrt(ss1 / n_all), floor, n_all)
+    kind = KindRefit(series.kind, before, np.sqrt(ss1 / n_all), floor, n_all, blocks)
     params = {}
     if face is not None:
         # floor-standardised regression: the parameters' covariance is (X^T X)^-1 up to the
@@ -442,7 +449,9 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             floor = sv.floor
             if sv.refloor is not None:
                 floor = sv.refloor(r_in, max(fit.rank - base_dof, 0))
-            kinds["standing"] = KindRefit("standing", np.sqrt((held0**2).mean(0)), np.sqrt((held1**2).mean(0)), floor, sv.P)
+            # the blocks in the calibration's floor (the same for every joint refit, so two of them compare pose by pose)
+            blocks = ((held1 / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum(axis=1)
+            kinds["standing"] = KindRefit("standing", np.sqrt((held0**2).mean(0)), np.sqrt((held1**2).mean(0)), floor, sv.P, blocks)
             for n, v, s in zip(fit.effect_params.index, fit.effect_params, fit.effect_bse):
                 params[n] = (float(v), float(s))
             eta = prob.eta(x)

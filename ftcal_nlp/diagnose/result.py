@@ -136,7 +136,14 @@ class DiagnosisResult:
         first_after = self.shrinkage["heldout_rms_after"]
         if links and self.joint is not None and self.shrinkage.get("kind_key") in self.joint.kinds:
             first_after = self.joint.kinds[self.shrinkage["kind_key"]].rms_after   # the shrinkage is the chain's end
+        first = self.chain.first if self.chain is not None else None
+        if first is not None:   # a swap took the ranking's first out: the first named is the chain's (hexchain.py)
+            pars = {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in first.parameters.items()}
         out = [{"name": self.effect, "parameters": pars, "heldout_rms_after": _lst(first_after), "explains": self.where.get("explains")}]
+        if first is not None:
+            out[0].update({"variant": dict(first.unit.variant), "explains": first.unit.explains, "kind": first.kind,
+                           "paired_z": float(first.z) if np.isfinite(first.z) else None, "explained": float(first.explained),
+                           "found_by": first.via})
         for link in links:
             out.append({"name": link.name, "variant": dict(link.unit.variant),
                         "parameters": {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in link.parameters.items()},

@@ -110,6 +110,7 @@ def chain_view(d: "DiagnosisResult") -> pd.DataFrame | None:
         rows[f"{i + 1}. {e['name']}"] = {
             "transducer": e.get("transducer", ""),
             "shape": ", ".join(f"{k} {v}" for k, v in (e.get("shape") or e.get("variant") or {}).items()) or "-",
+            "found by": e.get("found_by") or ("the ranking" if i == 0 else "-"),
             "paired z": f"{e['paired_z']:.1f}" if e.get("paired_z") is not None else "-",
             "explains [%]": f"{100 * e['explained']:.0f}" if e.get("explained") is not None else "-",
             "held-out RMS fx fy fz [N]": " ".join(_g(v) for v in r[:3]), "held-out RMS tx ty tz [N*m]": " ".join(_g(v) for v in r[3:]),
