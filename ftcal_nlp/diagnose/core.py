@@ -171,7 +171,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
     statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + _chain_statement(chain, shrink) + list(evidence_notes)
-    effect_fit = by_name[effect].fit if verdict == "effect" and (chain is None or chain.first is None) else None
+    effect_fit = by_name[effect].fit if verdict == "effect" and effect in by_name else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
                            str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit, perleg,
                            views.standing.floor_parts.get("noise_model") if views.standing is not None else None, joint,
@@ -274,28 +274,36 @@ def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[s
 
 
 def _chain_statement(chain, shrink) -> list[str]:
-    """The links after the first and why the chain stopped (when it looked again)."""
+    """The effects the chain named (in the order they stand), the swaps it made and why it stopped (when it looked
+    again)."""
     if chain is None or not chain.rounds:
         return []
     out = []
-    for sw in chain.swaps:
-        e0, e1 = sw["excess_before"].get(sw["kind"], float("nan")), sw["excess_after"].get(sw["kind"], float("nan"))
-        how = "" if sw["paired_z"] >= Z_MIN else " with fewer parameters"
-        out.append(f"With the others named, {sw['in']} in place of {sw['out']} predicts held-out data better{how} (excess over "
-                   f"the floor {e0:.3g} -> {e1:.3g} on the {sw['kind']} recordings, paired block-wise z {sw['paired_z']:.1f}): "
-                   f"{sw['out']} is swapped out.")
     for link in ([chain.first] if chain.first is not None else []) + chain.links:
         a = np.asarray(link.rms_after, float)
-        how = (f"it removes {100 * link.explained:.0f} % of the excess the effects before it left" if link.via == "ranking" else
-               f"swapped in for another named effect; it removes {100 * link.explained:.0f} % of that kind's excess the "
-               f"chain had left" if link.via == "swap" else
-               f"found by its held-out evidence where the joint refit left a gap the ranking did not see; the joint refit "
-               f"with it removes {100 * link.explained:.0f} % of that kind's excess")
-        lead = (f"First {link.name} (after the swap): refit alone" if link is chain.first else
-                f"Then {link.name}: refit with the effects before it")
-        out.append(f"{lead}, the held-out {shrink['kind']} RMS is "
-                   + " ".join(f"{v:.3g}" for v in a) + f" (paired block-wise z {link.z:.1f} on the {link.kind} recordings; "
-                   f"{how}).")
+        if link is chain.first:
+            lead, how = (f"First {link.name} (the ranking's first was swapped out): refit alone",
+                         f"it explains {100 * link.explained:.0f} % of the gap on its own in the first ranking")
+        else:
+            lead = f"Then {link.name}: refit with the effects before it"
+            how = (f"it removes {100 * link.explained:.0f} % of the excess the effects before it left" if link.via == "ranking" else
+                   f"swapped in for another named effect; it removes {100 * link.explained:.0f} % of that kind's excess the "
+                   f"chain had left" if link.via == "swap" else
+                   f"found by its held-out evidence where the joint refit left a gap the ranking did not see; the joint refit "
+                   f"with it removes {100 * link.explained:.0f} % of that kind's excess")
+        if link.beside:
+            how += f"; tested beside {', '.join(link.beside)}"
+        z = f"{link.z:.1f}" if np.isfinite(link.z) else "n/a"
+        out.append(f"{lead}, the held-out {shrink['kind']} RMS is " + " ".join(f"{v:.3g}" for v in a)
+                   + f" (paired block-wise z {z} on the {link.kind or 'first'} recordings; {how}).")
+    for sw in chain.swaps:
+        e0, e1 = sw["excess_before"].get(sw["kind"], float("nan")), sw["excess_after"].get(sw["kind"], float("nan"))
+        z = sw["paired_z"]
+        how = "" if z is not None and z >= Z_MIN else " with fewer parameters"
+        out.append(f"With {', '.join(n for n in sw['named_before'] if n != sw['out'])} named, {sw['in']} in place of "
+                   f"{sw['out']} predicts held-out data better{how} (excess over the floor {e0:.3g} -> {e1:.3g} on the "
+                   f"{sw['kind']} recordings, paired block-wise z {'n/a' if z is None else f'{z:.1f}'}): {sw['out']} is "
+                   f"swapped out.")
     out.append(f"The chain of effects stopped: {chain.stop}.")
     return out
 

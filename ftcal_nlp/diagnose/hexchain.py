@@ -2,7 +2,8 @@
 calibration (``joint.py``), look again; the free-load counterpart is ``chain.py``.
 
 The first link is the single-effect diagnosis as it stands (``attribute.decide``, ``joint.joint_refit``): its name,
-parameters and held-out RMS are unchanged by what follows. Then, while a gap is left:
+parameters and held-out RMS are unchanged by what follows unless a swap (below) takes it out. Then, while a gap is
+left:
 
 * **a gap remains** (also what decides whether to look again at all, so that a dataset the first effect explains
   costs what it did): after the last joint refit the held-out excess over the floor of the standing poses or the
@@ -107,8 +108,9 @@ MAX_SWAPS = 2            # the most swaps of a named effect for another (module 
 
 @dataclass(frozen=True)
 class Link:
-    """One effect after the first: its unit (the variant the joint refit chose), the test's numbers, the joint refit
-    of every named effect together, its own parameters ``{name: (value, se)}`` and the held-out RMS after it."""
+    """One named effect: its unit (the variant the joint refit chose), the test's numbers, the joint refit of it with
+    the effects before it, its own parameters ``{name: (value, se)}`` and the held-out RMS after it. ``beside``: the
+    effects in the model when its test was taken, when they are not those before it now (a swap took one out)."""
 
     unit: Effect
     kind: str
@@ -118,7 +120,8 @@ class Link:
     joint: JointRefit
     parameters: dict
     rms_after: np.ndarray
-    via: str = "ranking"   # how the link was found: "ranking" (the stated test) or "held-out" (:func:`held_out_evidence`)
+    via: str = "ranking"   # "ranking" (the stated test), "held-out" (:func:`held_out_evidence`) or "swap" (:func:`try_swaps`)
+    beside: tuple = ()
 
     @property
     def name(self) -> str:
@@ -127,7 +130,8 @@ class Link:
 
 @dataclass
 class HexChain:
-    """The links after the first, every round's candidates (dicts), and why the chain stopped."""
+    """The links after the first, every round's candidates (dicts), the swaps, and why the chain stopped; ``first``
+    the first effect's link when a swap took the ranking's first out (its test: the first attribution's)."""
 
     links: list = field(default_factory=list)
     rounds: list = field(default_factory=list)
@@ -277,6 +281,8 @@ def swap_better(cur: JointRefit, alt: JointRefit, left: dict) -> tuple[bool, str
     falls by ``JOINT_MIN`` at least and no kind's rises), and either the paired block-wise z (``cur`` -> ``alt``) is
     ``Z_MIN`` at least or ``alt`` spends fewer parameters (nothing is added that a test would have to justify).
     Returns ``(better, kind, z)``: the kind of the largest z among those that pass (else the largest z at all)."""
+    if any(k in EVIDENCE_KINDS and k not in alt.kinds for k in cur.kinds):   # a failed part of the refit
+        return False, "", float("nan")
     fewer = n_parameters(alt) < n_parameters(cur)
     out = (False, "", float("nan"))
     for kind in left:
@@ -296,11 +302,12 @@ def evidence_excess(j: JointRefit) -> float:
 
 
 def n_parameters(j: JointRefit) -> int:
-    """The parameters a joint refit spent on its effects (standing and hanging faces)."""
-    return len(j.parameters)
+    """The parameters a joint refit spent on its effects and the data determine (finite, non-zero se: a standing-face
+    parameter held at its hanging estimate has none, an undetermined one an infinite se)."""
+    return int(sum(1 for _, se in j.parameters.values() if np.isfinite(se) and se > 0))
 
 
-def choose_swap(passing: list, kind_of_best: str | None = None):
+def choose_swap(passing: list):
     """Of the swaps that pass (``(i, unit, joint, kind, z)``), the best by the summed excess (:func:`evidence_excess`);
     of those it does not beat on held-out data (paired block-wise z < ``Z_MIN`` on the best's kind), the one that spends
     the fewest parameters (as the ranking's ``BIC_TIE``: a robot mass and a cable both take up a mass error)."""
@@ -308,7 +315,8 @@ def choose_swap(passing: list, kind_of_best: str | None = None):
         return None
     best = min(passing, key=lambda t: evidence_excess(t[2]))
     kind = best[3]
-    tied = [t for t in passing if t is best or not (blocks_z(t[2].kinds[kind].blocks, best[2].kinds[kind].blocks) >= Z_MIN)]
+    ref = best[2].kinds[kind].blocks
+    tied = [t for t in passing if t is best or (kind in t[2].kinds and not blocks_z(t[2].kinds[kind].blocks, ref) >= Z_MIN)]
     return min(tied, key=lambda t: (n_parameters(t[2]), evidence_excess(t[2])))
 
 
@@ -321,6 +329,8 @@ def try_swaps(views: Views, named: tuple, cur: JointRefit, left: dict, units: di
     rows, passing = [], []
     have = {m.name for m in named}
     for i, m in enumerate(named):
+        if m.design_face:   # named for a common tilt of the frames, which the kinds of the gap do not see
+            continue
         rest = named[:i] + named[i + 1 :]
         for name, c in units.items():
             if name in have or name in exclude:
@@ -348,7 +358,9 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
     tries); ``primary``: the kind the shrinkage is reported on."""
     ch = HexChain()
     named = (type(first)(**joint.variant),)
-    tests: dict = {}          # name -> (kind, z, explained, delta_bic, via) of every effect named after the first
+    # name -> (kind, z, explained, delta_bic, via, the names in the model when tested) of every effect named after the first
+    tests: dict = {}
+    refits = {(named[0].name,): joint}   # the joint refits made, by the names fitted (what a rebuild reuses)
     swapped_out: set = set()
     units = {sc.effect: sc.model_effect for sc in att.scores if sc.status == "ok" and sc.model_effect is not None}
     kw = dict(folds=folds, seed=seed, x_start=x_start)
@@ -372,8 +384,10 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
                               ch, why_not, **kw)
         if link is not None:
             best, kind, z, both, j2, via, explained, dbic = link
+            before = _names(named)
             named = rebuild(both.members, j2.variant)
-            tests[named[-1].name] = (kind, z, explained, dbic, via)
+            tests[named[-1].name] = (kind, z, explained, dbic, via, before)
+            refits[_names(named)] = j2
             ch.links.append(_link(named, j2, primary, tests))
             log.info("diagnosis: chain adds %s (%s: z %.1f on %s, explains %.0f %%)", best.effect, via, z, kind, 100 * explained)
             cur = j2
@@ -386,52 +400,79 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
                 out = named[i]
                 e0 = {k: float(excess(v)) for k, v in cur.kinds.items() if k in EVIDENCE_KINDS}
                 e1 = {k: float(excess(v)) for k, v in j2.kinds.items() if k in EVIDENCE_KINDS}
-                ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": float(z), "excess_before": e0,
-                                 "excess_after": e1, "tried": rows})
+                ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": float(z) if np.isfinite(z) else None,
+                                 "excess_before": e0, "excess_after": e1, "named_before": list(_names(named)), "tried": rows})
                 swapped_out.add(out.name)
                 tests.pop(out.name, None)
-                ex0, ex1 = excess(cur.kinds[kind]), excess(j2.kinds[kind])
-                tests[unit.name] = (kind, z, 1.0 - ex1 / ex0 if ex0 > 0 else 0.0, float("nan"), "swap")
-                named = rebuild(named[:i] + named[i + 1 :] + (unit,), j2.variant)
+                rest = named[:i] + named[i + 1 :]
+                tests[unit.name] = (kind, z, 1.0 - e1[kind] / e0[kind] if e0[kind] > 0 else 0.0, float("nan"), "swap", _names(rest))
+                named = rebuild(rest + (unit,), j2.variant)
+                refits[_names(named)] = j2
                 log.info("diagnosis: chain swaps %s for %s (z %.1f on %s)", out.name, unit.name, z, kind)
                 cur = j2
-                ch.links = []   # rebuilt below, once the chain ends
                 continue
             why_not.append(f"no named effect replaced by another candidate predicts held-out data better ({len(rows)} tried)")
         ch.stop = "; ".join(why_not)
         break
     if ch.swaps:
-        _rebuild_links(ch, views, named, joint, cur, tests, primary, model, prior, calibration, robot, balance, **kw)
+        if named[0].name != joint.effect:   # the ranking's first swapped out: the new first's test is the first attribution's
+            tests[named[0].name] = first_test(att, named[0].name)
+        _rebuild_links(ch, views, named, joint.effect, refits, tests, primary, model, prior, calibration, robot, balance, **kw)
     return ch
 
 
-def _link(named: tuple, j: JointRefit, primary: str | None, tests: dict) -> Link:
-    """The link of ``named[-1]``: ``j`` is the joint refit of all of ``named``."""
-    kind, z, explained, dbic, via = tests[named[-1].name]
-    mine = Combined(named).member_parameters(j.parameters)[-1] if len(named) > 1 else dict(j.parameters)
+def _names(named: tuple) -> tuple:
+    return tuple(m.name for m in named)
+
+
+def first_test(att: Attribution, name: str) -> tuple:
+    """The first attribution's numbers for ``name`` as a test tuple (kind, z, explained, delta_bic, "ranking", ()):
+    where the first gap lies, the kind it explains most of."""
+    gap = gaps(att)
+    sc = next((s for s in att.scores if s.effect == name), None)
+    kinds = [k for k in gap if sc is not None and k in sc.kinds]
+    if not kinds:
+        return ("", float("nan"), 0.0, float("nan"), "ranking", ())
+    kind = max(kinds, key=lambda k: sc.kinds[k].explained)
+    return (kind, paired_z(sc.kinds[kind]), float(explained_fraction(sc, gap)), float(ranking_bic(sc, gap)), "ranking", ())
+
+
+def _link(named: tuple, j: JointRefit, primary: str | None, tests: dict, mine: dict | None = None) -> Link:
+    """The link of ``named[-1]``: ``j`` is the joint refit of all of ``named`` (``mine``: its parameters, when ``j`` is
+    a larger refit's)."""
+    kind, z, explained, dbic, via, before = tests[named[-1].name]
+    if mine is None:
+        mine = Combined(named).member_parameters(j.parameters)[-1] if len(named) > 1 else dict(j.parameters)
     pk = primary if primary in j.kinds else next(iter(j.kinds), None)
     after = j.kinds[pk].rms_after if pk is not None else np.full(6, np.nan)
-    return Link(named[-1], kind, z, explained, dbic, j, mine, after, via)
+    beside = tuple(before) if tuple(before) != _names(named[:-1]) else ()
+    return Link(named[-1], kind, z, explained, dbic, j, mine, after, via, beside)
 
 
-def _rebuild_links(ch: HexChain, views: Views, named: tuple, joint: JointRefit, cur: JointRefit, tests: dict,
+def _rebuild_links(ch: HexChain, views: Views, named: tuple, first_name: str, refits: dict, tests: dict,
                    primary: str | None, model: Any, prior, calibration, robot, balance: str, **kw) -> None:
     """After a swap, the links again as nested joint refits of the effects in the order they stand (each refit with
-    those before it); the first effect's own refit when the swap took the ranking's first out (``ch.first``)."""
+    those before it; a refit already made is reused); ``ch.first`` when the swap took the ranking's first
+    (``first_name``) out. A refit that fails leaves that link with the whole chain's joint refit, and says so in
+    ``ch.stop``."""
     links = []
+    whole = refits[_names(named)]
     for k in range(1, len(named) + 1):
         sub = named[:k]
-        if k == len(named):
-            j = cur
-        elif k == 1 and named[0].name == joint.effect:
-            j = joint
-        else:
-            j = joint_refit(views, sub[0] if k == 1 else Combined(sub), model, prior, calibration, robot, balance, **kw)
+        j, mine = refits.get(_names(sub)), None
+        if j is None:
+            try:
+                j = joint_refit(views, sub[0] if k == 1 else Combined(sub), model, prior, calibration, robot, balance, **kw)
+            except (SolverError, np.linalg.LinAlgError) as exc:
+                ch.stop += f"; the joint refit of {'+'.join(_names(sub))} failed ({exc}): its link shows the whole chain's"
+                j, mine = whole, Combined(named).member_parameters(whole.parameters)[k - 1]
+            else:
+                sub = (type(sub[0])(**j.variant),) if k == 1 else rebuild(sub, j.variant)
         if k == 1:
-            if named[0].name != joint.effect:
-                ch.first = _link(sub, j, primary, tests)
+            if named[0].name != first_name:
+                ch.first = _link(sub, j, primary, tests, mine)
             continue
-        links.append(_link(sub, j, primary, tests))
+        links.append(_link(sub, j, primary, tests, mine))
     ch.links = links
 
 

@@ -74,8 +74,9 @@ GN_SAMPLES = 20000      # ... taken on about this many hanging samples (every n-
 class KindRefit:
     """One recording kind under the joint refit: held-out RMS (6,) before / after, floor (6,), samples.
 
-    ``blocks``: the held-out sum of squares after, in floor units, block by block (standing: each pose; hanging: each
-    fold's time block of each leg), so that two joint refits on the same folds can be compared pairwise
+    ``blocks``: the held-out sum of squares after, in floor units, block by block (standing: each pose, in the
+    calibration's floor ``views.standing.floor``, the same for every joint refit, not the refit's own ``floor``;
+    hanging: each fold's time block of each leg), so that two joint refits on the same folds can be compared pairwise
     (``hexchain.swap_better``); None where not kept (the swing legs)."""
 
     kind: str

@@ -53,7 +53,7 @@ class DiagnosisResult:
     joint: Any = None       # the joint refit with the named effect (joint.JointRefit) or None
     effects: list | None = None  # the chain of named effects (free loads, ``chain.py``); None: the single named effect
     free: dict | None = None     # free loads: transducer -> free.FreeLegDiagnosis
-    chain: Any = None            # hexapods: the links after the first effect (hexchain.HexChain) or None
+    chain: Any = None            # hexapods: the chain after the first effect, swaps included (hexchain.HexChain) or None
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:
@@ -123,7 +123,10 @@ class DiagnosisResult:
         (value, se) and the held-out RMS after it. Hexapod datasets: the first is the single-effect diagnosis' (the
         standing face's parameters, the held-out RMS after its joint refit on the shrinkage's kind); the links the
         chain added after it (``hexchain.py``) carry the joint refit of every effect named so far: the link's own
-        parameters, the held-out RMS after it, the paired z and the share of the excess it removed."""
+        parameters, the held-out RMS after it, the paired z and the share of the excess it removed. After a swap
+        (``hexchain.try_swaps``) the swapped-out effect is gone and the swapped-in one is last; when it took the
+        ranking's first out, the first is the next that stands (its attribution's parameters, its refit alone), and
+        a link tested beside effects that are no longer before it says which (``tested_beside``)."""
         if self.effects is not None:
             return list(self.effects)
         if self.effect is None:
@@ -136,12 +139,10 @@ class DiagnosisResult:
         first_after = self.shrinkage["heldout_rms_after"]
         if links and self.joint is not None and self.shrinkage.get("kind_key") in self.joint.kinds:
             first_after = self.joint.kinds[self.shrinkage["kind_key"]].rms_after   # the shrinkage is the chain's end
-        first = self.chain.first if self.chain is not None else None
-        if first is not None:   # a swap took the ranking's first out: the first named is the chain's (hexchain.py)
-            pars = {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in first.parameters.items()}
         out = [{"name": self.effect, "parameters": pars, "heldout_rms_after": _lst(first_after), "explains": self.where.get("explains")}]
-        if first is not None:
-            out[0].update({"variant": dict(first.unit.variant), "explains": first.unit.explains, "kind": first.kind,
+        first = self.chain.first if self.chain is not None else None
+        if first is not None:   # a swap took the ranking's first out: the first attribution's numbers for the new first
+            out[0].update({"variant": dict(first.unit.variant), "kind": first.kind or None,
                            "paired_z": float(first.z) if np.isfinite(first.z) else None, "explained": float(first.explained),
                            "found_by": first.via})
         for link in links:
@@ -149,7 +150,7 @@ class DiagnosisResult:
                         "parameters": {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in link.parameters.items()},
                         "heldout_rms_after": _lst(link.rms_after), "explains": link.unit.explains, "kind": link.kind,
                         "paired_z": float(link.z) if np.isfinite(link.z) else None, "explained": float(link.explained),
-                        "found_by": link.via})
+                        "found_by": link.via, **({"tested_beside": list(link.beside)} if link.beside else {})})
         return out
 
     def summary(self) -> str:

@@ -118,6 +118,8 @@ def chain_view(d: "DiagnosisResult") -> pd.DataFrame | None:
     out = pd.DataFrame(rows).T
     if d.free is None:   # one transducer set: no column for it
         out = out.drop(columns="transducer")
+    else:                # the free-load chain has one way to name an effect
+        out = out.drop(columns="found by")
     out.index.name = "effect (in the order added)"
     return out
 
@@ -247,7 +249,8 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
     cv = chain_view(d)
     if cv is not None:
         sec.add(Table("The effects named, in the order added (each after the first scored with those before it in the model, "
-                      "added when its paired held-out test passed, and refit jointly with them and the whole calibration)", cv))
+                      "added when its paired held-out test passed, and refit jointly with them and the whole calibration; "
+                      "a swapped-out effect is gone, the one swapped in for it last)", cv))
     jv = joint_view(d)
     if jv is not None:
         links = d.chain.links if d.chain is not None else []
