@@ -297,7 +297,7 @@ def _chain_statement(chain, shrink) -> list[str]:
         out.append(f"{lead}, the held-out {shrink['kind']} RMS is " + " ".join(f"{v:.3g}" for v in a)
                    + f" (paired block-wise z {z} on the {link.kind or 'first'} recordings; {how}).")
     for sw in chain.swaps:
-        e0, e1 = sw["excess_before"].get(sw["kind"], float("nan")), sw["excess_after"].get(sw["kind"], float("nan"))
+        e0, e1 = (float("nan") if e.get(sw["kind"]) is None else e[sw["kind"]] for e in (sw["excess_before"], sw["excess_after"]))
         z = sw["paired_z"]
         how = "" if z is not None and z >= Z_MIN else " with fewer parameters"
         out.append(f"With {', '.join(n for n in sw['named_before'] if n != sw['out'])} named, {sw['in']} in place of "

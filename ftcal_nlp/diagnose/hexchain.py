@@ -343,7 +343,7 @@ def try_swaps(views: Views, named: tuple, cur: JointRefit, left: dict, units: di
                 continue
             good, kind, z = swap_better(cur, j, left)
             rows.append({"out": m.name, "in": name, "kind": kind or None, "paired_z": float(z) if np.isfinite(z) else None,
-                         "excess": {k: float(excess(v)) for k, v in j.kinds.items() if k in EVIDENCE_KINDS},
+                         "excess": {k: _finite(excess(v)) for k, v in j.kinds.items() if k in EVIDENCE_KINDS},
                          "outcome": "better" if good else "not better"})
             if good:
                 passing.append((i, c, j, kind, z))
@@ -398,14 +398,15 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             if sw is not None:
                 i, unit, j2, kind, z = sw
                 out = named[i]
-                e0 = {k: float(excess(v)) for k, v in cur.kinds.items() if k in EVIDENCE_KINDS}
-                e1 = {k: float(excess(v)) for k, v in j2.kinds.items() if k in EVIDENCE_KINDS}
+                e0 = {k: _finite(excess(v)) for k, v in cur.kinds.items() if k in EVIDENCE_KINDS}
+                e1 = {k: _finite(excess(v)) for k, v in j2.kinds.items() if k in EVIDENCE_KINDS}
                 ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": float(z) if np.isfinite(z) else None,
                                  "excess_before": e0, "excess_after": e1, "named_before": list(_names(named)), "tried": rows})
                 swapped_out.add(out.name)
                 tests.pop(out.name, None)
                 rest = named[:i] + named[i + 1 :]
-                tests[unit.name] = (kind, z, 1.0 - e1[kind] / e0[kind] if e0[kind] > 0 else 0.0, float("nan"), "swap", _names(rest))
+                ex0, ex1 = excess(cur.kinds[kind]), excess(j2.kinds[kind])
+                tests[unit.name] = (kind, z, 1.0 - ex1 / ex0 if ex0 > 0 else 0.0, float("nan"), "swap", _names(rest))
                 named = rebuild(rest + (unit,), j2.variant)
                 refits[_names(named)] = j2
                 log.info("diagnosis: chain swaps %s for %s (z %.1f on %s)", out.name, unit.name, z, kind)
@@ -419,6 +420,11 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             tests[named[0].name] = first_test(att, named[0].name)
         _rebuild_links(ch, views, named, joint.effect, refits, tests, primary, model, prior, calibration, robot, balance, **kw)
     return ch
+
+
+def _finite(v: float) -> float | None:
+    """``v`` for diagnosis.json: None when not finite (strict JSON has no NaN)."""
+    return float(v) if np.isfinite(v) else None
 
 
 def _names(named: tuple) -> tuple:
