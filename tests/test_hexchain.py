@@ -337,3 +337,44 @@ def test_a_swap_names_the_pair_the_greedy_first_step_aliased():
     v, se = d.chain.links[-1].parameters["dM [0.1 kg]"]
     err = sim.dataset.robot.mass_kg - sim.true_robot.mass_kg
     assert abs(0.1 * v - err) < 4 * 0.1 * se, (0.1 * v, 0.1 * se, err)
+
+
+def test_the_rebuild_after_a_swap_reuses_refits_and_reports_a_failed_one(monkeypatch):
+    """``_rebuild_links``: nested refits in the order the effects stand, a refit already made reused (no solve), the
+    new first's link when the ranking's first was swapped out, a link tested beside an effect since swapped out says
+    so (``beside``); a prefix refit that fails leaves the whole chain's refit on that link and is said in ``stop``."""
+    from types import SimpleNamespace
+
+    from ftcal_nlp.diagnose import hexchain as H
+    from ftcal_nlp.diagnose.joint import KindRefit
+    from ftcal_nlp.solver import SolverError
+
+    a, b, c = EFFECTS["hysteresis"], EFFECTS["robot_mass"], EFFECTS["offset_drift"]
+    fl = np.full(6, 0.1)
+
+    def refit(rms, **pars):
+        return SimpleNamespace(kinds={"standing": KindRefit("standing", fl * 3, fl * rms, fl, 100, np.ones(100))},
+                               parameters=pars, effect="x", variant={})
+
+    whole = refit(1.0, **{"hysteresis:h": (1.0, 0.1), "robot_mass:dM [0.1 kg]": (-2.0, 0.01), "offset_drift:d": (3.0, 0.3)})
+    ab = refit(1.5, **{"hysteresis:h": (1.1, 0.1), "robot_mass:dM [0.1 kg]": (-2.1, 0.01)})
+    tests = {"hysteresis": ("standing", 8.1, 0.78, -50.0, "held-out", ("gain_crosstalk",)),
+             "robot_mass": ("standing", 2.8, 1.04, float("nan"), "swap", ("hysteresis",)),
+             "offset_drift": ("standing", 5.0, 0.6, -30.0, "ranking", ("hysteresis", "robot_mass"))}
+    refits = {("hysteresis", "robot_mass"): ab, ("hysteresis", "robot_mass", "offset_drift"): whole}
+
+    def fails(*args, **kw):
+        raise SolverError("IPOPT: Maximum_Iterations_Exceeded", "Maximum_Iterations_Exceeded")
+
+    monkeypatch.setattr(H, "joint_refit", fails)
+    ch = H.HexChain(stop="no gap above the floor is left after the joint refit")
+    H._rebuild_links(ch, None, (a, b, c), "gain_crosstalk", refits, tests, "standing", None, None, None, None, "exact")
+    # the first alone was never refit and its refit fails: the whole chain's, its own parameters taken out of it
+    assert ch.first is not None and ch.first.name == "hysteresis" and ch.first.joint is whole
+    assert ch.first.parameters == {"h": (1.0, 0.1)} and ch.first.beside == ("gain_crosstalk",)
+    assert "the joint refit of hysteresis failed" in ch.stop and "Maximum_Iterations" in ch.stop
+    # the others reuse the refits made: robot_mass on hysteresis + robot_mass, offset_drift on the whole
+    assert [lk.name for lk in ch.links] == ["robot_mass", "offset_drift"]
+    assert ch.links[0].joint is ab and ch.links[0].parameters == {"dM [0.1 kg]": (-2.1, 0.01)} and ch.links[0].via == "swap"
+    assert ch.links[0].beside == () and ch.links[1].joint is whole and ch.links[1].beside == ()
+    np.testing.assert_allclose(ch.links[0].rms_after, fl * 1.5)
