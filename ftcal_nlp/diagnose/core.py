@@ -297,13 +297,12 @@ def _chain_statement(chain, shrink) -> list[str]:
         out.append(f"{lead}, the held-out {shrink['kind']} RMS is " + " ".join(f"{v:.3g}" for v in a)
                    + f" (paired block-wise z {z} on the {link.kind or 'first'} recordings; {how}).")
     for sw in chain.swaps:
-        e0, e1 = (float("nan") if e.get(sw["kind"]) is None else e[sw["kind"]] for e in (sw["excess_before"], sw["excess_after"]))
-        z = sw["paired_z"]
+        e0, e1, z = sw["excess_before"].get(sw["kind"]), sw["excess_after"].get(sw["kind"]), sw["paired_z"]
+        g = lambda v, f=".3g": "n/a" if v is None else format(v, f)  # noqa: E731  (diagnosis.json holds None, not NaN)
         how = "" if z is not None and z >= Z_MIN else " with fewer parameters"
         out.append(f"With {', '.join(n for n in sw['named_before'] if n != sw['out'])} named, {sw['in']} in place of "
-                   f"{sw['out']} predicts held-out data better{how} (excess over the floor {e0:.3g} -> {e1:.3g} on the "
-                   f"{sw['kind']} recordings, paired block-wise z {'n/a' if z is None else f'{z:.1f}'}): {sw['out']} is "
-                   f"swapped out.")
+                   f"{sw['out']} predicts held-out data better{how} (excess over the floor {g(e0)} -> {g(e1)} on the "
+                   f"{sw['kind']} recordings, paired block-wise z {g(z, '.1f')}): {sw['out']} is swapped out.")
     out.append(f"The chain of effects stopped: {chain.stop}.")
     return out
 

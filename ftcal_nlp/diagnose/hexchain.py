@@ -270,9 +270,23 @@ def _mark(round_: list, effect: str, via: str, outcome: str) -> None:
             row["joint_refit"] = {"via": via, "outcome": outcome}
 
 
-def rebuild(members: tuple, variant: dict) -> tuple:
-    """The members as the joint refit chose them (``Combined.variant``: ``{name: variant}``)."""
-    return tuple(type(m)(**variant.get(m.name, m.variant)) for m in members)
+def rebuild(members: tuple, joint: JointRefit) -> tuple:
+    """The members as ``joint`` chose their variants (a :class:`Combined`'s ``variant`` is ``{name: variant}``, one
+    effect's its own keywords)."""
+    if len(members) == 1 and not joint.members:
+        return (type(members[0])(**joint.variant),)
+    return tuple(type(m)(**joint.variant.get(m.name, m.variant)) for m in members)
+
+
+def evidence_excesses(j: JointRefit) -> dict:
+    """Per kind of ``EVIDENCE_KINDS`` the held-out excess of ``j`` (None when not finite: what diagnosis.json holds)."""
+    return {k: _finite(excess(v)) for k, v in j.kinds.items() if k in EVIDENCE_KINDS}
+
+
+def removed_share(cur: JointRefit, new: JointRefit, kind: str) -> float:
+    """The share of ``kind``'s held-out excess after ``cur`` that ``new`` removes (0 without an excess)."""
+    e0, e1 = excess(cur.kinds[kind]), excess(new.kinds[kind])
+    return 1.0 - e1 / e0 if e0 > 0 else 0.0
 
 
 def swap_better(cur: JointRefit, alt: JointRefit, left: dict) -> tuple[bool, str, float]:
@@ -342,8 +356,8 @@ def try_swaps(views: Views, named: tuple, cur: JointRefit, left: dict, units: di
                 rows.append({"out": m.name, "in": name, "outcome": f"failed: {exc}"})
                 continue
             good, kind, z = swap_better(cur, j, left)
-            rows.append({"out": m.name, "in": name, "kind": kind or None, "paired_z": float(z) if np.isfinite(z) else None,
-                         "excess": {k: _finite(excess(v)) for k, v in j.kinds.items() if k in EVIDENCE_KINDS},
+            rows.append({"out": m.name, "in": name, "kind": kind or None, "paired_z": _finite(z),
+                         "excess": evidence_excesses(j),
                          "outcome": "better" if good else "not better"})
             if good:
                 passing.append((i, c, j, kind, z))
@@ -357,7 +371,7 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
     attribution scored); ``joint``: its joint refit; ``att``: the first attribution (its design check, the units a swap
     tries); ``primary``: the kind the shrinkage is reported on."""
     ch = HexChain()
-    named = (type(first)(**joint.variant),)
+    named = rebuild((first,), joint)
     # name -> (kind, z, explained, delta_bic, via, the names in the model when tested) of every effect named after the first
     tests: dict = {}
     refits = {(named[0].name,): joint}   # the joint refits made, by the names fitted (what a rebuild reuses)
@@ -385,7 +399,7 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
         if link is not None:
             best, kind, z, both, j2, via, explained, dbic = link
             before = _names(named)
-            named = rebuild(both.members, j2.variant)
+            named = rebuild(both.members, j2)
             tests[named[-1].name] = (kind, z, explained, dbic, via, before)
             refits[_names(named)] = j2
             ch.links.append(_link(named, j2, primary, tests))
@@ -398,16 +412,14 @@ def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, 
             if sw is not None:
                 i, unit, j2, kind, z = sw
                 out = named[i]
-                e0 = {k: _finite(excess(v)) for k, v in cur.kinds.items() if k in EVIDENCE_KINDS}
-                e1 = {k: _finite(excess(v)) for k, v in j2.kinds.items() if k in EVIDENCE_KINDS}
-                ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": float(z) if np.isfinite(z) else None,
-                                 "excess_before": e0, "excess_after": e1, "named_before": list(_names(named)), "tried": rows})
+                ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": _finite(z),
+                                 "excess_before": evidence_excesses(cur), "excess_after": evidence_excesses(j2),
+                                 "named_before": list(_names(named)), "tried": rows})
                 swapped_out.add(out.name)
                 tests.pop(out.name, None)
                 rest = named[:i] + named[i + 1 :]
-                ex0, ex1 = excess(cur.kinds[kind]), excess(j2.kinds[kind])
-                tests[unit.name] = (kind, z, 1.0 - ex1 / ex0 if ex0 > 0 else 0.0, float("nan"), "swap", _names(rest))
-                named = rebuild(rest + (unit,), j2.variant)
+                tests[unit.name] = (kind, z, removed_share(cur, j2, kind), float("nan"), "swap", _names(rest))
+                named = rebuild(rest + (unit,), j2)
                 refits[_names(named)] = j2
                 log.info("diagnosis: chain swaps %s for %s (z %.1f on %s)", out.name, unit.name, z, kind)
                 cur = j2
@@ -473,7 +485,7 @@ def _rebuild_links(ch: HexChain, views: Views, named: tuple, first_name: str, re
                 ch.stop += f"; the joint refit of {'+'.join(_names(sub))} failed ({exc}): its link shows the whole chain's"
                 j, mine = whole, Combined(named).member_parameters(whole.parameters)[k - 1]
             else:
-                sub = (type(sub[0])(**j.variant),) if k == 1 else rebuild(sub, j.variant)
+                sub = rebuild(sub, j)
         if k == 1:
             if named[0].name != first_name:
                 ch.first = _link(sub, j, primary, tests, mine)
@@ -535,7 +547,6 @@ def _next_link(views: Views, att: Attribution, named: tuple, cur: JointRefit, le
         if via == "ranking":
             explained, dbic = float(explained_fraction(sc, gap)), float(ranking_bic(sc, gap))
         else:   # the attribution saw no gap there: the share is what the joint refit removed of the kind's excess
-            e0, e1 = excess(cur.kinds[kind]), excess(j2.kinds[kind])
-            explained, dbic = (1.0 - e1 / e0 if e0 > 0 else 0.0), float(ranking_bic(sc, {kind: left[kind]}))
+            explained, dbic = removed_share(cur, j2, kind), float(ranking_bic(sc, {kind: left[kind]}))
         return sc, kind, z, both, j2, via, explained, dbic
     return None

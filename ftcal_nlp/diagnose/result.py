@@ -142,15 +142,11 @@ class DiagnosisResult:
         out = [{"name": self.effect, "parameters": pars, "heldout_rms_after": _lst(first_after), "explains": self.where.get("explains")}]
         first = self.chain.first if self.chain is not None else None
         if first is not None:   # a swap took the ranking's first out: the first attribution's numbers for the new first
-            out[0].update({"variant": dict(first.unit.variant), "kind": first.kind or None,
-                           "paired_z": float(first.z) if np.isfinite(first.z) else None, "explained": float(first.explained),
-                           "found_by": first.via})
+            out[0].update(_test_fields(first))
         for link in links:
-            out.append({"name": link.name, "variant": dict(link.unit.variant),
-                        "parameters": {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None} for n, (v, e) in link.parameters.items()},
-                        "heldout_rms_after": _lst(link.rms_after), "explains": link.unit.explains, "kind": link.kind,
-                        "paired_z": float(link.z) if np.isfinite(link.z) else None, "explained": float(link.explained),
-                        "found_by": link.via, **({"tested_beside": list(link.beside)} if link.beside else {})})
+            out.append({"name": link.name, "parameters": {n: {"value": float(v), "se": float(e) if np.isfinite(e) else None}
+                                                          for n, (v, e) in link.parameters.items()},
+                        "heldout_rms_after": _lst(link.rms_after), "explains": link.unit.explains, **_test_fields(link)})
         return out
 
     def summary(self) -> str:
@@ -201,6 +197,13 @@ class DiagnosisResult:
             rows.append(row)
             names.append(kind)
         return pd.DataFrame(rows, index=pd.Index(names, name="recordings"))
+
+
+def _test_fields(link) -> dict:
+    """An ``effects`` entry's fields from a chain link (``hexchain.Link``): its variant and the test that named it."""
+    return {"variant": dict(link.unit.variant), "kind": link.kind or None,
+            "paired_z": float(link.z) if np.isfinite(link.z) else None, "explained": float(link.explained),
+            "found_by": link.via, **({"tested_beside": list(link.beside)} if link.beside else {})}
 
 
 def _unit(component: str) -> str:
