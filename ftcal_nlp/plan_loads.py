@@ -61,7 +61,9 @@ class FreeLoadPlanError(ConfigError):
 @dataclass(frozen=True)
 class LoadPlan:
     """One transducer's predicted se: ``bound`` (``crb_loads.LoadBound``), ``kind``, ``n_samples``, ``n_holds``
-    (None for a dataset), ``noise`` (6,), ``undetermined`` (names of parameters in a dropped direction)."""
+    (None for a dataset), ``noise`` (6,) the per-sample sd, ``undetermined`` (names of parameters in a dropped
+    direction), ``widening`` (6,) the run's se factor for serially correlated residuals already in ``bound``
+    (a pilot's; None: white noise assumed) and ``lag1`` the correlation it comes from."""
 
     transducer: str
     kind: str
@@ -71,6 +73,8 @@ class LoadPlan:
     n_holds: int | None = None
     undetermined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    widening: np.ndarray | None = None      # (6,) se factor per channel for serially correlated residuals (pilot)
+    lag1: np.ndarray | None = None          # (6,) the pilot residuals' lag-1 correlation behind it
 
     def se(self) -> dict[str, float | None]:
         """Predicted se per parameter (SI; mount: rad), None where undetermined."""
@@ -116,8 +120,20 @@ class LoadPlan:
 
     def to_json_dict(self) -> dict:
         return {"load_kind": self.kind, "samples": self.n_samples, "holds": self.n_holds, "noise_sd": self.noise.tolist(),
+                "serial_widening": None if self.widening is None else self.widening.tolist(),
+                "lag1_correlation": None if self.lag1 is None else self.lag1.tolist(),
                 "groups": {k: {"se": v, "unit": u} for k, (v, u) in self.groups().items()},
                 "se": self.se(), "undetermined": list(self.bound.unidentified), "notes": list(self.notes)}
+
+    def widening_text(self) -> str:
+        """One line on the serial-correlation widening the se carry (or that they assume white noise)."""
+        if self.widening is None:
+            return ("white noise assumed (no pilot): the run widens se where residuals stay correlated through a hold; "
+                    "plan a pilot dataset to carry that")
+        w = np.array2string(self.widening, precision=2)
+        r = np.array2string(self.lag1, precision=2)
+        return (f"se widened as the run widens them for serially correlated residuals: x{w} in fx..tz (the pilot fit's "
+                f"residuals, lag-1 correlation {r}; freeload.problem.serial_inflation)")
 
 
 @dataclass(frozen=True)
@@ -140,6 +156,7 @@ class FreeLoadPlan:
             for g, (v, u) in p.groups().items():
                 lines.append(f"  {g:<28s} {'not determined' if v is None else f'{v:.3g}'} {'' if v is None else u}")
             lines += [f"  not determined: {n}" for n in p.bound.unidentified]
+            lines.append(f"  noise: {p.widening_text()}")
             lines += [f"  note: {n}" for n in p.notes]
         return "\n".join(lines)
 
@@ -154,11 +171,30 @@ def _undetermined(bound: crb_loads.LoadBound, tol: float = 1e-3) -> tuple[str, .
 
 
 def _plan(leg: str, kind: str, bound: crb_loads.LoadBound, n: int, noise: np.ndarray, holds: int | None,
-          notes: tuple[str, ...] = ()) -> LoadPlan:
+          notes: tuple[str, ...] = (), serial: tuple[np.ndarray, np.ndarray] | None = None) -> LoadPlan:
     und = _undetermined(bound)
     for line in bound.unidentified:
         log.warning("%s: not determined by this protocol: %s", leg, line)
-    return LoadPlan(leg, kind, bound, n, np.asarray(noise, float), holds, und, notes)
+    lag1, widening = (None, None) if serial is None else serial
+    return LoadPlan(leg, kind, bound, n, np.asarray(noise, float), holds, und, notes, widening, lag1)
+
+
+def pilot_widening(ds, leg: str, fit) -> tuple[np.ndarray, np.ndarray]:
+    """``(rho, factor)`` (6,) each: the lag-1 correlation of the pilot fit's residuals and the se factor the run
+    applies for it (``sqrt`` of ``freeload.problem.serial_inflation``, the estimator's own function, on the same
+    residuals: the samples the fit used, numbered by recording and row as the estimator numbers them)."""
+    from .freeload.problem import serial_inflation
+
+    res, src, idx = [], [], []
+    for i, rec in enumerate(r for r in ds.hanging if r.hangs_free(leg)):
+        m = fit.used.get(rec.name)
+        if m is None or not m.any():
+            continue
+        res.append(rec.wrench[leg][m] - fit.predict_recording(rec, ds.robot.g)[m])
+        src.append(np.full(int(m.sum()), i))
+        idx.append(np.flatnonzero(m))
+    rho, inflation = serial_inflation(np.concatenate(res), np.concatenate(src), np.concatenate(idx))
+    return rho, np.sqrt(inflation)
 
 
 # ----------------------------------------------------------------------------- a pilot dataset
@@ -173,6 +209,9 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
     for leg in ds.free_load_legs:
         fit = fit_free_load(ds, leg, settings)
         recs = [r for r in ds.hanging if r.name in fit.used]
+        # the run weighs each channel by 1 / (sd^2 inflation): the bound at the same weights is the run's se
+        serial = pilot_widening(ds, leg, fit)
+        sigma = fit.sigma * serial[1]
         g_B = np.concatenate([ds.robot.g * r.gravity_directions()[fit.used[r.name]] for r in recs])
         mount = bool(np.all(np.isfinite(fit.se[-3:]) | np.isinf(fit.se[-3:])))   # NaN: the mount was not estimated
         rv = rotation_to_rotvec(fit.rotation)
@@ -197,7 +236,7 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
             g_ft = g_B @ R
             m = float(fit.theta[0])
-            bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, fit.sigma, mount=mount, offset=fit.offset,
+            bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, sigma, mount=mount, offset=fit.offset,
                                             tilt_dirs=None if dB is None else np.einsum("ji,njt->nit", R, dB))
         else:
             tree, link = ds.robot.tree, ds.robot.transducers[leg].link
@@ -208,14 +247,14 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             dg = None if dB is None else np.stack([crb_loads.urdf_gravity_in_ft(tree, link, q, dB[:, :, k], rv)
                                                    for k in range(2)], axis=2)
             bodies = {l: (b.mass_kg, b.com_m) for l, b in tree.bodies.items()}
-            bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, fit.sigma, mount=mount, offset=fit.offset,
+            bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, sigma, mount=mount, offset=fit.offset,
                                          tilt_dirs=dg)[0]
             notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
                       "rotation's rows)",)
         if fit.recording_tilts:   # estimated by the fit, not in the bound: the bound is a little optimistic there
             notes += (f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and not "
                       "in the bound (taken as known here)",)
-        loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes)
+        loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes, serial)
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
 
 
