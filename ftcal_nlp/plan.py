@@ -400,9 +400,12 @@ def load_input(path: str | Path | None, protocol_file: str | Path | None = None)
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     from .cli import add_common, guarded, parse, setup
 
-    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.plan", description=__doc__.splitlines()[0])
-    ap.add_argument("input", nargs="?", help="protocol TOML, robot.toml, or a pilot dataset.toml (default: the default protocol)")
-    ap.add_argument("--protocol", help="protocol TOML whose keys change those of the input (with a robot.toml or a pilot)")
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.plan", description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=FREE_LOAD_HELP)
+    ap.add_argument("input", nargs="?", help="protocol TOML, robot.toml, or a pilot dataset.toml (default: the default "
+                    "hexapod protocol)")
+    ap.add_argument("--protocol", help="protocol TOML: with a hexapod robot.toml or pilot, keys that change its protocol; "
+                    "with a section-5 robot.toml, the holds to plan (below)")
     add_common(ap, output_help="plan file (default plan.json)", output_default="plan.json", old_force=("--overwrite",),
                force_help="overwrite the output")
     ap.add_argument("--search", action="store_true", help="search the shortest protocol meeting [targets]")
@@ -413,9 +416,36 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     return guarded(lambda: _main(args), extra=(ValueError,))
 
 
-def free_load_input(path: str | Path | None):
-    """``("dataset", Dataset)`` for a section-5 dataset with free loads, ``("protocol", table)`` for a protocol
-    whose ``[protocol]`` has a free-load ``kind``, else None (a hexapod plan)."""
+FREE_LOAD_HELP = """free loads (DATA_FORMAT.md section 5: wrist payloads, URDF loads, arms):
+  plan dataset.toml                    a recorded pilot: each load fitted, the bound at its estimate on its samples,
+                                       with its noise and the widening the run applies to serially correlated residuals
+  plan robot.toml --protocol HOLDS.toml   the robot's transducers held as HOLDS.toml says
+  plan HOLDS.toml                      the same, HOLDS.toml's [protocol] naming robot = "robot.toml"
+HOLDS.toml:
+  [protocol]
+  transducer = "wrist"                 # default: every transducer of the robot.toml
+  orientations = [[1, 0, 0, 0], ...]   # held orientations of B in W (qw, qx, qy, qz); or n_orientations, seed
+  # or holds = [{quat = [qw, qx, qy, qz], q = {joint = rad}}, ...]: joint poses (URDF loads, arms); joints a hold does
+  # not name are at 0; gravity_body = [0, 0, -1] (a fixed level base) for holds without quat
+  hold_s = 5.0, rate_hz = 100.0, noise_force_N = 0.05, noise_torque_Nm = 0.003, mocap_jitter_deg = 0.0
+  mass_kg = 1.0, com_m = [0, 0, 0.05]  # a rigid payload's expected mass and CoM in ft (a URDF load: the URDF's bodies)
+  mount = true, gravity_tilt = true    # the mounting rotation and the world tilt estimated, as the run does
+  (ftcal_nlp/plan_loads.py: the bound, the undetermined parameters named; white noise unless planned from a pilot)"""
+FREE_LOAD_KEYS = ("holds", "orientations", "n_orientations", "transducer", "gravity_body", "robot")
+
+
+def _is_free_robot(d: dict) -> bool:
+    """A robot.toml that describes free loads (``DATA_FORMAT.md`` section 5): a URDF or a transducer ``link``, or no
+    ``mass_kg`` (a hexapod's robot.toml has it: section 2)."""
+    tables = d.get("transducers") if isinstance(d.get("transducers"), dict) else {}
+    return "mass_kg" not in d or "urdf" in d or any(isinstance(t, dict) and "link" in t for t in tables.values())
+
+
+def free_load_input(path: str | Path | None, protocol_file: str | Path | None = None):
+    """``("dataset", Dataset, None)`` for a section-5 dataset with free loads, ``("protocol", table, None)`` for a
+    protocol whose ``[protocol]`` has a free-load ``kind`` or names a ``robot``, ``("robot", table, robot.toml)`` for
+    a section-5 robot.toml with ``--protocol`` holds; else None (a hexapod plan). A section-5 robot.toml without
+    ``--protocol`` is an error saying what to add."""
     if path is None:
         return None
     path = Path(path)
@@ -424,20 +454,45 @@ def free_load_input(path: str | Path | None):
         from .data import read_dataset
 
         ds = read_dataset(path)
-        return ("dataset", ds) if ds.free_load_legs else None
+        return ("dataset", ds, None) if ds.free_load_legs else None
+    if "legs" in d and "transducers" in d:   # a robot.toml
+        over = _read_toml(Path(protocol_file)) if protocol_file else {}
+        over = over.get("protocol", over)
+        if protocol_file and (_is_free_robot(d) or any(k in over for k in FREE_LOAD_KEYS) or over.get("kind") in ("payload", "urdf")):
+            return ("robot", over, path)
+        if not protocol_file and _is_free_robot(d):
+            raise PlanError(
+                f"{path}: a robot description (transducers {list(d['legs'])}) and no holds to plan: add a protocol of "
+                f"holds, 'plan {path} --protocol HOLDS.toml' with HOLDS.toml holding [protocol] orientations = [[qw, qx, "
+                "qy, qz], ...] (a payload's held orientations of B in W) or holds = [{quat = [qw, qx, qy, qz], q = {joint "
+                "= rad, ...}}, ...] (joint poses of a URDF load or arm; gravity_body = [0, 0, -1] for a fixed level base "
+                "instead of quat), hold_s, rate_hz, noise_force_N, noise_torque_Nm; or a protocol file whose [protocol] "
+                f"names robot = \"{path.name}\"; or plan a recorded pilot, 'plan dataset.toml' (plan --help)",
+                path=path, key="protocol")
+        return None
     table = d.get("protocol", d)
-    return ("protocol", table) if isinstance(table, dict) and "kind" in table else None
+    if isinstance(table, dict) and ("kind" in table or "robot" in table):
+        return ("protocol", table, None)
+    return None
 
 
 def _free_load_main(args, out: Path, what) -> int:
     from .plan_loads import plan_from_dataset, plan_from_protocol
 
-    for opt, name in ((args.search, "--search"), (args.detect, "--detect"), (args.protocol, "--protocol")):
+    for opt, name in ((args.search, "--search"), (args.detect, "--detect")):
         if opt:
             raise PlanError(f"{name} plans a hexapod session (hanging turns and standing poses, the hexapod diagnosis' "
                             f"detection sizes); {args.input} is a free load: it takes no {name}", key=name)
-    kind, obj = what
-    plan = plan_from_dataset(obj) if kind == "dataset" else plan_from_protocol(obj, Path(args.input))
+    kind, obj, robot = what
+    if args.protocol and kind != "robot":
+        raise PlanError(f"--protocol: {args.input} is a {'pilot dataset (planned on its own samples and noise)' if kind == 'dataset' else 'protocol already'}; "
+                        "to plan other holds give the robot: plan ROBOT.toml --protocol HOLDS.toml", key="--protocol")
+    if kind == "dataset":
+        plan = plan_from_dataset(obj)
+    elif kind == "robot":
+        plan = plan_from_protocol(obj, Path(args.protocol), robot_path=robot)
+    else:
+        plan = plan_from_protocol(obj, Path(args.input))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(plan.to_json_dict(), indent=1, default=float))
     print(plan.text())
@@ -449,7 +504,7 @@ def _main(args) -> int:
     out = Path(args.output)
     if out.exists() and not args.force:
         raise OutputError(f"{out} exists; pass --force to overwrite", path=out)
-    what = free_load_input(args.input)
+    what = free_load_input(args.input, args.protocol)
     if what is not None:
         return _free_load_main(args, out, what)
     protocol, pilot = load_input(args.input, args.protocol)

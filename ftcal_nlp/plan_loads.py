@@ -291,13 +291,14 @@ def _quats(v, where: str, key: str) -> np.ndarray:
 
 
 KNOWN = {"payload": {"kind", "orientations", "n_orientations", "seed", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
-                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "gravity_tilt", "g"},
-         "urdf": {"kind", "robot", "transducer", "holds", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
-                  "mocap_jitter_deg", "mount", "gravity_tilt", "g"}}
+                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "gravity_tilt", "g"}}
 
 
-def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
-    """The plan of a protocol of held orientations (module docstring); ``d`` the ``[protocol]`` table of ``path``."""
+def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> FreeLoadPlan:
+    """The plan of a protocol of held orientations (module docstring); ``d`` the ``[protocol]`` table of ``path``;
+    with a robot.toml (``robot_path``, or the table's ``robot``, or ``kind = "urdf"``) :func:`plan_from_robot`."""
+    if robot_path is not None or "robot" in d or d.get("kind") == "urdf":
+        return plan_from_robot(d, path, robot_path)
     where = f"{path} [protocol]"
     kind = d.get("kind")
     if kind not in PROTOCOL_KINDS:
@@ -318,66 +319,244 @@ def plan_from_protocol(d: dict, path: Path) -> FreeLoadPlan:
     tilt = d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
     if not isinstance(tilt, bool):
         raise FreeLoadPlanError(f"{where}: key 'gravity_tilt' must be true or false, got {tilt!r}", key="gravity_tilt")
-    if kind == "payload":
-        if "orientations" in d:
-            quats = _quats(d["orientations"], where, "orientations")
-        else:
-            n = d.get("n_orientations", 14)
-            if not isinstance(n, int) or n < 1:
-                raise FreeLoadPlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
-            q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
-            quats = q / np.linalg.norm(q, axis=1, keepdims=True)
-        m = _num(d, "mass_kg", 1.0, where)
-        com = np.asarray(d.get("com_m", [0.0, 0.0, 0.05]), float)
-        if com.shape != (3,):
-            raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
-        rpy = np.asarray(d.get("rotation_rpy", [0.0, 0.0, 0.0]), float)
-        if rpy.shape != (3,):
-            raise FreeLoadPlanError(f"{where}: key 'rotation_rpy' must be 3 numbers (rad), got {d.get('rotation_rpy')!r}",
-                                    key="rotation_rpy")
-        R_nom = rotvec_to_rotation(rpy[2] * np.eye(3)[2]) @ rotvec_to_rotation(rpy[1] * np.eye(3)[1]) @ rotvec_to_rotation(rpy[0] * np.eye(3)[0])
-        g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
-        g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
-        dg = np.repeat(np.einsum("ji,njt->nit", R_nom, crb_loads.tilt_directions(quat_to_rotation(quats), g)), n_per, axis=0)
-        held = tilt and _tilt_held(g_ft)
-        bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
-                                        tilt_dirs=dg if tilt and not held else None)
-        plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ())
-        proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
-        return FreeLoadPlan(f"protocol {path}", {"payload": plan}, proto)
-    # a URDF load
-    from .data import read_robot
-
-    if "robot" not in d or "transducer" not in d or "holds" not in d:
-        missing = [k for k in ("robot", "transducer", "holds") if k not in d]
-        raise FreeLoadPlanError(f"{where}: kind = 'urdf' needs key(s) {missing} (robot.toml with urdf and the transducer's link, "
-                                "the transducer, the holds)", key=missing[0])
-    robot = read_robot(path.parent / str(d["robot"]))
-    leg = str(d["transducer"])
-    if robot.tree is None or leg not in robot.transducers or robot.transducers[leg].link is None:
-        raise FreeLoadPlanError(f"{where}: key 'transducer' = {leg!r}: {d['robot']} must name a urdf and a [transducers.{leg}] "
-                                "link", key="transducer")
-    holds = d["holds"]
-    if not isinstance(holds, list) or not holds or not all(isinstance(h, dict) and "quat" in h for h in holds):
-        raise FreeLoadPlanError(f"{where}: key 'holds' must be a list of tables {{quat = [qw, qx, qy, qz], q = {{joint = rad}}}}",
-                                key="holds")
-    quats = _quats([h["quat"] for h in holds], where, "holds.quat")
-    movable = set(robot.tree.movable)
-    bad = sorted({j for h in holds for j in h.get("q", {}) if j not in movable})
-    if bad:
-        raise FreeLoadPlanError(f"{where}: key 'holds': joint(s) {bad} are not movable joints of the URDF (movable: "
-                                f"{sorted(movable)})", key="holds")
-    q = {j: np.repeat([float(h.get("q", {}).get(j, 0.0)) for h in holds], n_per) for j in robot.tree.movable}
-    g_B = np.repeat(-g * quat_to_rotation(quats)[:, 2, :], n_per, axis=0)
-    link = robot.transducers[leg].link
-    g_ft = crb_loads.urdf_gravity_in_ft(robot.tree, link, q, g_B)
-    dB = np.repeat(crb_loads.tilt_directions(quat_to_rotation(quats), g), n_per, axis=0)
+    if "orientations" in d:
+        quats = _quats(d["orientations"], where, "orientations")
+    else:
+        n = d.get("n_orientations", 14)
+        if not isinstance(n, int) or n < 1:
+            raise FreeLoadPlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
+        q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
+        quats = q / np.linalg.norm(q, axis=1, keepdims=True)
+    m = _num(d, "mass_kg", 1.0, where)
+    com = np.asarray(d.get("com_m", [0.0, 0.0, 0.05]), float)
+    if com.shape != (3,):
+        raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
+    rpy = np.asarray(d.get("rotation_rpy", [0.0, 0.0, 0.0]), float)
+    if rpy.shape != (3,):
+        raise FreeLoadPlanError(f"{where}: key 'rotation_rpy' must be 3 numbers (rad), got {d.get('rotation_rpy')!r}",
+                                key="rotation_rpy")
+    R_nom = rotvec_to_rotation(rpy[2] * np.eye(3)[2]) @ rotvec_to_rotation(rpy[1] * np.eye(3)[1]) @ rotvec_to_rotation(rpy[0] * np.eye(3)[0])
+    g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
+    g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
+    dg = np.repeat(np.einsum("ji,njt->nit", R_nom, crb_loads.tilt_directions(quat_to_rotation(quats), g)), n_per, axis=0)
     held = tilt and _tilt_held(g_ft)
-    dg = (np.stack([crb_loads.urdf_gravity_in_ft(robot.tree, link, q, dB[:, :, k]) for k in range(2)], axis=2)
-          if tilt and not held else None)
-    bodies = {l: (b.mass_kg, b.com_m) for l, b in robot.tree.bodies.items()}
-    bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter,
-                                 tilt_dirs=dg)[0]
-    plan = _plan(leg, "urdf_subtree", bound, len(g_ft), sigma, len(holds),
-                 ((TILT_HELD,) if held else ()) + ("evaluated at the URDF's nominal bodies",))
-    return FreeLoadPlan(f"protocol {path}", {leg: plan}, {"kind": kind, "holds": len(holds), "samples_per_hold": n_per})
+    bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
+                                    tilt_dirs=dg if tilt and not held else None)
+    plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ())
+    proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
+    return FreeLoadPlan(f"protocol {path}", {"payload": plan}, proto)
+
+
+# ----------------------------------------------------------------------------- a robot.toml and its holds
+
+
+ROBOT_KEYS = {"kind", "robot", "transducer", "holds", "orientations", "n_orientations", "seed", "gravity_body", "hold_s",
+              "rate_hz", "noise_force_N", "noise_torque_Nm", "mocap_jitter_deg", "mass_kg", "com_m", "mount", "gravity_tilt",
+              "g"}
+HOLD_KEYS = {"quat", "q"}
+DEFAULT_MASS_KG, DEFAULT_COM_M = 1.0, (0.0, 0.0, 0.05)
+
+
+@dataclass(frozen=True)
+class Holds:
+    """The holds of a protocol: ``quat`` (H, 4) (NaN rows: no orientation, gravity from ``gravity_body``),
+    ``q`` joint -> (H,) angles (joints a hold does not name at 0), ``gravity_body`` (3,) unit or None."""
+
+    quat: np.ndarray
+    q: dict[str, np.ndarray]
+    gravity_body: np.ndarray | None
+
+    @property
+    def tracked(self) -> np.ndarray:
+        return np.all(np.isfinite(self.quat), axis=1)
+
+    def gravity_B(self, g: float) -> np.ndarray:
+        """Gravity (H, 3) in B: ``R_WB^T (0, 0, -g)`` for a hold with its orientation, else ``g gravity_body``."""
+        out = np.empty((len(self.quat), 3))
+        t = self.tracked
+        out[t] = -g * quat_to_rotation(self.quat[t])[:, 2, :]
+        if (~t).any():
+            out[~t] = g * self.gravity_body
+        return out
+
+    def tilt_B(self, g: float) -> np.ndarray:
+        """``d g_B / d tilt`` (H, 3, 2) of the world tilt: zero for holds without an orientation (the estimator
+        tilts only the orientation stream's world)."""
+        out = np.zeros((len(self.quat), 3, 2))
+        t = self.tracked
+        out[t] = crb_loads.tilt_directions(quat_to_rotation(self.quat[t]), g)
+        return out
+
+
+def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
+    """The holds of ``d`` (``holds``, ``orientations`` or ``n_orientations``), checked against ``robot``."""
+    given = [k for k in ("holds", "orientations", "n_orientations") if k in d]
+    if len(given) > 1:
+        raise FreeLoadPlanError(f"{where}: keys {given} both give the holds; keep one", key=given[1])
+    if not given:
+        raise FreeLoadPlanError(
+            f"{where}: no holds: add key 'holds' = [{{quat = [qw, qx, qy, qz], q = {{joint = rad, ...}}}}, ...] (each hold's "
+            "orientation of B in W and joint angles; without quat, gravity_body = [0, 0, -1] for a fixed level base), "
+            "or 'orientations' = [[qw, qx, qy, qz], ...], or 'n_orientations' (drawn on SO(3) with 'seed')", key="holds")
+    if "orientations" in d:
+        quat = _quats(d["orientations"], where, "orientations")
+        poses = [{}] * len(quat)
+    elif "n_orientations" in d:
+        n = d["n_orientations"]
+        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+            raise FreeLoadPlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
+        q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
+        quat, poses = q / np.linalg.norm(q, axis=1, keepdims=True), [{}] * n
+    else:
+        holds = d["holds"]
+        if not isinstance(holds, list) or not holds or not all(isinstance(h, dict) for h in holds):
+            raise FreeLoadPlanError(f"{where}: key 'holds' must be a non-empty list of tables {{quat = [qw, qx, qy, qz], "
+                                    "q = {joint = rad, ...}}", key="holds")
+        for i, h in enumerate(holds):
+            extra = sorted(set(h) - HOLD_KEYS)
+            if extra:
+                raise FreeLoadPlanError(f"{where}: holds[{i}]: unknown key(s) {extra}; a hold takes {sorted(HOLD_KEYS)}", key="holds")
+            if "q" in h and not (isinstance(h["q"], dict) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                                  for v in h["q"].values())):
+                raise FreeLoadPlanError(f"{where}: holds[{i}].q must be a table {{joint = rad, ...}}, got {h['q']!r}", key="holds")
+        quat = np.full((len(holds), 4), np.nan)
+        with_quat = [i for i, h in enumerate(holds) if "quat" in h]
+        if with_quat:
+            quat[with_quat] = _quats([holds[i]["quat"] for i in with_quat], where, "holds.quat")
+        poses = [h.get("q", {}) for h in holds]
+    gb = None
+    if "gravity_body" in d:
+        gb = np.asarray(d["gravity_body"], float) if isinstance(d["gravity_body"], list) else np.zeros(0)
+        if gb.shape != (3,) or not np.all(np.isfinite(gb)) or np.linalg.norm(gb) < 1e-9:
+            raise FreeLoadPlanError(f"{where}: key 'gravity_body' must be 3 numbers (the direction of gravity in B, pointing "
+                                    f"down), got {d['gravity_body']!r}", key="gravity_body")
+        gb = gb / np.linalg.norm(gb)
+    missing = np.flatnonzero(~np.all(np.isfinite(quat), axis=1))
+    if missing.size and gb is None:
+        raise FreeLoadPlanError(f"{where}: holds {missing.tolist()} have no 'quat': give each hold's orientation, or "
+                                "gravity_body = [0, 0, -1] (a fixed, level base: the joint angles give the orientation)",
+                                key="gravity_body")
+    named = sorted({j for h in poses for j in h})
+    if named:
+        no_link = [k for k in legs if robot.transducers[k].link is None]
+        if robot.tree is None or no_link:
+            raise FreeLoadPlanError(f"{where}: key 'holds' names joints {named}, but {'the robot.toml has no urdf' if robot.tree is None else f'transducer(s) {no_link} have no link'}: "
+                                    "joint poses move a load only through the URDF ([transducers.X] link = ...)", key="holds")
+        bad = [j for j in named if j not in set(robot.tree.movable)]
+        if bad:
+            raise FreeLoadPlanError(f"{where}: key 'holds': joint(s) {bad} are not movable joints of the URDF (movable: "
+                                    f"{sorted(robot.tree.movable)})", key="holds")
+    joints = robot.tree.movable if robot.tree is not None else ()
+    q = {j: np.array([float(h.get(j, 0.0)) for h in poses]) for j in joints}
+    return Holds(quat, q, gb)
+
+
+def _robot_path(d: dict, path: Path, robot_path: Path | None, where: str) -> Path:
+    if robot_path is None:
+        if "robot" not in d:
+            raise FreeLoadPlanError(f"{where}: key 'robot' missing: the robot.toml (DATA_FORMAT.md sections 2 and 5) whose "
+                                    "transducers the holds plan, relative to this file", key="robot")
+        return path.parent / str(d["robot"])
+    if "robot" in d and (path.parent / str(d["robot"])).resolve() != Path(robot_path).resolve():
+        raise FreeLoadPlanError(f"{where}: key 'robot' = {d['robot']!r}, but the command line gives {robot_path}: give the "
+                                "robot once", key="robot")
+    return Path(robot_path)
+
+
+def _load_kind(robot, leg: str) -> tuple[str, bool]:
+    """``(kind, through_urdf)``: ``urdf_subtree`` where links with mass hang below the transducer's link, else a
+    ``rigid_payload`` (its gravity through the URDF where the transducer has a link: an arm whose URDF leaves the
+    tool out, ``DATA_FORMAT.md`` section 5)."""
+    from .loads import groups_below
+
+    link = robot.transducers[leg].link
+    if link is None:
+        return "rigid_payload", False
+    return ("urdf_subtree", True) if groups_below(robot.tree, link) else ("rigid_payload", True)
+
+
+def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> FreeLoadPlan:
+    """The plan of a section-5 ``robot.toml``'s transducers held through a protocol's holds (module docstring);
+    ``d`` the ``[protocol]`` table of ``path``, ``robot_path`` the robot.toml when the command line gives it (else
+    the table's ``robot``, relative to ``path``)."""
+    from .data import read_robot
+    from .settings import FreeLoadSettings
+
+    where = f"{path} [protocol]"
+    unknown = sorted(set(d) - ROBOT_KEYS)
+    if unknown:
+        hint = " (the nominal rotation is the robot.toml's [transducers.X] rotation)" if "rotation_rpy" in unknown else ""
+        raise FreeLoadPlanError(f"{where}: unknown key(s) {unknown}{hint}; known keys with a robot.toml: {sorted(ROBOT_KEYS)}",
+                                key=unknown[0])
+    rpath = _robot_path(d, path, robot_path, where)
+    robot = read_robot(rpath)
+    if "transducer" in d:
+        leg = d["transducer"]
+        if leg not in robot.legs:
+            raise FreeLoadPlanError(f"{where}: key 'transducer' = {leg!r}: not a transducer of {rpath} (legs = "
+                                    f"{list(robot.legs)})", key="transducer")
+        legs = (leg,)
+    else:
+        legs = tuple(robot.legs)
+    kinds = {k: _load_kind(robot, k) for k in legs}
+    if "kind" in d:
+        want = {"payload": "rigid_payload", "urdf": "urdf_subtree"}.get(d["kind"])
+        wrong = [k for k, (kd, _) in kinds.items() if kd != want]
+        if want is None or wrong:
+            raise FreeLoadPlanError(f"{where}: key 'kind' = {d['kind']!r}, but {rpath} makes the load of {wrong or legs} "
+                                    f"{sorted({kinds[k][0] for k in (wrong or legs)})} (a link with massive links below it: a "
+                                    "URDF load; else a rigid payload); leave 'kind' out", key="kind")
+    holds = _read_holds(d, where, robot, legs)
+    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
+    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
+    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
+    g = _num(d, "g", robot.g, where)
+    for key, default in (("mount", True), ("gravity_tilt", FreeLoadSettings().gravity_tilt)):
+        if not isinstance(d.get(key, default), bool):
+            raise FreeLoadPlanError(f"{where}: key '{key}' must be true or false, got {d[key]!r}", key=key)
+    mount, tilt = d.get("mount", True), d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
+    payloads = [k for k, (kd, _) in kinds.items() if kd == "rigid_payload"]
+    if not payloads and ("mass_kg" in d or "com_m" in d):
+        raise FreeLoadPlanError(f"{where}: keys 'mass_kg' / 'com_m' give a rigid payload's expected mass and CoM; the load of "
+                                f"{list(legs)} is the URDF's bodies below the link (they are the expected load)", key="mass_kg")
+    m = _num(d, "mass_kg", DEFAULT_MASS_KG, where)
+    com = np.asarray(d.get("com_m", DEFAULT_COM_M), float)
+    if com.shape != (3,):
+        raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
+    rep = lambda a: np.repeat(a, n_per, axis=0)   # noqa: E731  every sample of a hold alike (white noise)
+    g_B, dB = rep(holds.gravity_B(g)), rep(holds.tilt_B(g))
+    q = {j: rep(v) for j, v in holds.q.items()}
+    on_stream = rep(holds.tracked)
+    loads = {}
+    for leg in legs:
+        kind, through_urdf = kinds[leg]
+        link = robot.transducers[leg].link
+        if through_urdf:
+            to_ft = lambda v: crb_loads.urdf_gravity_in_ft(robot.tree, link, q, v)   # noqa: E731
+        else:
+            R_nom = np.asarray(robot.transducers[leg].rotation, float)
+            to_ft = lambda v: v @ R_nom   # noqa: E731  R_nom^T g_B per row
+        g_ft = to_ft(g_B)
+        held = tilt and on_stream.any() and _tilt_held(g_ft[on_stream])
+        dg = np.stack([to_ft(dB[:, :, k]) for k in range(2)], axis=2) if tilt and on_stream.any() and not held else None
+        notes = ((TILT_HELD,) if held else ())
+        if not on_stream.all():
+            notes += ("holds without an orientation take gravity from gravity_body: the run estimates a tilt per such "
+                      "recording where the data fix it; not in the bound (taken as known here)",)
+        if kind == "rigid_payload":
+            bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter, tilt_dirs=dg)
+            if "mass_kg" not in d or "com_m" not in d:
+                notes += (f"evaluated at mass_kg = {m:g} kg, com_m = {com.tolist()} m (protocol keys; default where not "
+                          "given): the CoM's and mount's se scale with the tool's mass and lever",)
+            if through_urdf:
+                notes += (f"no link with mass below '{link}' in the URDF: a rigid payload whose gravity comes through the "
+                          "URDF's joint angles",)
+        else:
+            bodies = {lk: (b.mass_kg, b.com_m) for lk, b in robot.tree.bodies.items()}
+            bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter,
+                                         tilt_dirs=dg)[0]
+            notes += ("evaluated at the URDF's nominal bodies",)
+        loads[leg] = _plan(leg, kind, bound, len(g_ft), sigma, len(holds.quat), notes)
+    proto = {"robot": str(rpath), "holds": len(holds.quat), "samples_per_hold": n_per,
+             "noise_sd": sigma.tolist(), "transducers": list(legs)}
+    return FreeLoadPlan(f"protocol {path}, robot {rpath}", loads, proto)

@@ -117,7 +117,7 @@ def test_plan_of_a_urdf_leg_dataset_names_what_the_fit_names(tmp_path) -> None:
     ({"kind": "payload", "hold": 3}, r"unknown key\(s\) \['hold'\]"),
     ({"kind": "payload", "orientations": [[0, 0, 0]]}, r"key 'orientations' must be a list of \[qw, qx, qy, qz\]"),
     ({"kind": "payload", "com_m": [0.1]}, r"key 'com_m' must be 3 numbers"),
-    ({"kind": "urdf", "holds": []}, r"kind = 'urdf' needs key\(s\) \['robot', 'transducer'\]"),
+    ({"kind": "urdf", "holds": []}, r"key 'robot' missing: the robot.toml"),
 ])
 def test_protocol_errors_name_the_key(table, pattern, tmp_path) -> None:
     from ftcal_nlp.errors import ConfigError
