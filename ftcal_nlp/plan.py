@@ -48,10 +48,13 @@ calibration as the truth, scaled by ``sqrt(pilot poses / planned poses)``; the
 hanging groups and the total CoM use the simulator's BigAnt-like geometry with
 the pilot's mass and noise.
 
-Free loads (``DATA_FORMAT.md`` section 5: a section-5 dataset, or a protocol TOML whose ``[protocol]`` has
-``kind = "payload"`` or ``"urdf"``): :mod:`ftcal_nlp.plan_loads` predicts the se of the load parameters
-from ``crb_loads`` and names what the orientations leave undetermined; ``--search`` and the detection sizes
-are the hexapod's (an error with a free load, saying so).
+Free loads (``DATA_FORMAT.md`` section 5): a section-5 pilot dataset, a section-5 ``robot.toml`` with
+``--protocol HOLDS.toml``, or a protocol TOML whose ``[protocol]`` names a ``robot`` (or has ``kind = "payload"``):
+:mod:`ftcal_nlp.plan_loads` predicts the se of the load parameters from ``crb_loads`` (from a pilot, widened
+as the run widens them for serially correlated residuals) and names what the holds leave undetermined. A
+robot.toml is a free-load one when it has a ``urdf``, a transducer ``link`` or no ``mass_kg`` (a hexapod's has
+it, section 2), or when ``--protocol`` gives holds; alone it is an error saying what to add. ``--search`` and the
+detection sizes are the hexapod's (an error with a free load, saying so).
 """
 
 from __future__ import annotations

@@ -1,37 +1,53 @@
 """Plan a free-load calibration (``DATA_FORMAT.md`` section 5): the standard error each load parameter will have.
 
-``python -m ftcal_nlp plan DATASET.toml`` (a section-5 dataset) or ``plan PROTOCOL.toml`` (a protocol of held
-orientations, ``[protocol] kind = "payload"`` or ``"urdf"``) dispatches here from ``plan.py``.
+Three ways in (``plan.py`` dispatches; ``plan --help`` shows them):
+
+* ``plan DATASET.toml``: a recorded pilot (a section-5 manifest);
+* ``plan ROBOT.toml --protocol HOLDS.toml``: a section-5 ``robot.toml`` (as the run reads it: rigid payloads, URDF
+  loads with ``urdf`` and ``[transducers.X] link``, arms) and a protocol of holds;
+* ``plan HOLDS.toml`` whose ``[protocol]`` names ``robot = "robot.toml"`` (relative to it): the same. (A
+  ``[protocol] kind = "payload"`` without a robot keeps ``rotation_rpy`` for the nominal rotation.)
+
+A robot.toml alone is an error that says what to add: the robot fixes what the loads are, the holds what the
+session shows them, and neither guesses the other. The robot.toml is read by the run's reader (``data.read_robot``),
+so a robot.toml the run refuses, ``plan`` refuses with the same words.
 
 The prediction is the Cramer-Rao bound of :mod:`ftcal_nlp.crb_loads` (its own reading model, independent of
 the estimator): per quasi-static sample ``i`` the readings' derivative ``J_i`` with respect to the offsets, the
-load's parameters, the world tilt of the orientation stream (where the estimator fits it: a dataset whose fit has
-it; a protocol with ``gravity_tilt``, default that of ``[free_load]``) and the mounting rotation, and
+load's parameters, the world tilt of the orientation stream (where the estimator fits it) and the mounting
+rotation, and
 
     F = sum_i J_i^T Sigma^-1 J_i,     se >= sqrt(diag F^+)   (on the directions F determines),
 
-``Sigma = diag(s_f^2 I3, s_t^2 I3)`` (plus the orientation jitter's errors in variables, ``crb_loads``). The
-samples of a hold are independent (white noise), so a hold of ``n`` samples counts ``n`` times and the se fall
-as ``1/sqrt(hold_s * rate_hz)``. Directions of ``F`` below ``solver.REL_EIG_TOL`` of the largest are not
-determined: their parameters get se ``null`` in ``plan.json`` and one line each names what cannot be separated
-from what (``crb_loads.describe_dropped``), e.g. a CoM component along an axis gravity never turns about, a
-link group whose joint never moves.
+``Sigma = diag(s^2)`` per channel (plus the orientation jitter's errors in variables, ``crb_loads``). Directions of
+``F`` below ``solver.REL_EIG_TOL`` of the largest are not determined: their parameters get se ``null`` in
+``plan.json`` and one line each names what cannot be separated from what (``crb_loads.describe_dropped``), e.g. a
+CoM component along an axis gravity never turns about, a link group whose joint never moves.
+
+Noise, and the run's widening. The run weighs channel ``c`` by ``1 / (s_c^2 k_c)``, ``k_c`` the AR(1) variance
+inflation of its residuals (``freeload.problem.serial_inflation``: a residual that stays through a hold carries
+less than white noise; x8.7 in se on a real wrist time series). From a pilot, ``s`` is the pilot fit's residual sd
+and ``k`` is computed by that same function on the pilot fit's residuals (:func:`pilot_widening`), so the plan's
+se are the run's on those motions; ``plan.json`` gives ``serial_widening`` (``sqrt k``) and ``lag1_correlation``
+and the text says so. A protocol of holds has no residuals: white noise at the stated sd (each hold of ``n``
+samples counts ``n`` times, se fall as ``1/sqrt(hold_s * rate_hz)``), and the text says that too.
 
 Inputs:
 
-* a section-5 dataset (a manifest with recordings; transducers without ``{X}_phi``): each free load is
-  calibrated first (the pilot) and the bound is evaluated at its estimate (a payload's mass and CoM; a URDF
-  load at the URDF's nominal bodies), on the quasi-static samples that fit used, with the noise it measured
-  (residual sd per channel): what a session of the same motions will give.
-* a protocol TOML, ``[protocol]`` with ``kind = "payload"``: ``orientations`` (a list of ``[qw, qx, qy, qz]``
-  of B in W, each a hold) or ``n_orientations`` (drawn uniformly on SO(3) with ``seed``), ``hold_s``,
-  ``rate_hz``, ``noise_force_N``, ``noise_torque_Nm``, ``mocap_jitter_deg``, ``mass_kg``, ``com_m`` (the
-  tool's expected mass and CoM in ft: where the bound is evaluated), ``rotation_rpy`` (nominal ft in B,
-  rad), ``mount`` (estimate the mounting rotation, default true), ``gravity_tilt`` (estimate the world tilt of
-  the orientation stream, default ``FreeLoadSettings.gravity_tilt``). ``kind = "urdf"``: ``robot`` (a robot.toml
-  with ``urdf`` and the transducer's ``link``, relative to the protocol file), ``transducer``, and
-  ``holds = [{quat = [qw, qx, qy, qz], q = {joint = rad, ...}}, ...]`` (joints not named held at 0), the
-  noise and hold keys as above; the URDF's bodies are the expected load.
+* a pilot: each free load is calibrated first (``fit_free_load``) and the bound evaluated at its estimate (a
+  payload's mass and CoM; a URDF load at the URDF's nominal bodies), on the quasi-static samples that fit used.
+* ``[protocol]`` with a robot: ``transducer`` (default every transducer of the robot.toml), the holds as one of
+  ``orientations`` (``[qw, qx, qy, qz]`` of B in W, each a hold), ``n_orientations`` (uniform on SO(3), ``seed``) or
+  ``holds = [{quat = [qw, qx, qy, qz], q = {joint = rad, ...}}, ...]`` (joints a hold does not name at 0, as the
+  run takes a missing ``q_{joint}`` column; without ``quat`` gravity is ``gravity_body``, e.g. ``[0, 0, -1]`` for an
+  arm's fixed level base), ``hold_s``, ``rate_hz``, ``noise_force_N``, ``noise_torque_Nm``, ``mocap_jitter_deg``,
+  ``mass_kg`` / ``com_m`` (a rigid payload's expected mass and CoM in ft, where the bound is evaluated; default
+  1 kg, (0, 0, 0.05) m, named in a note), ``mount``, ``gravity_tilt`` (estimated, as the run's defaults), ``g``
+  (default the robot's), ``kind`` (optional; must agree with the robot.toml). The load of a transducer is what the
+  run makes of it: no ``link``, a rigid payload at the table's ``rotation``; a ``link`` with massive links below,
+  the URDF's bodies; a ``link`` with none below (an arm whose URDF leaves the tool out), a rigid payload whose
+  gravity comes through the joint angles. A world tilt is bounded over the holds with ``quat`` (the run tilts the
+  orientation stream only); a tilt per ``gravity_body`` recording is taken as known (a note says so).
 
 ``--search`` and ``--detect`` plan hexapod sessions (the detection sizes of the hexapod diagnosis); with a
 free load they are an error naming why.

@@ -183,3 +183,40 @@ def test_pilot_with_serially_correlated_noise_carries_the_runs_widening(tmp_path
         assert abs(se[n] / s - 1) < 0.25, (n, se[n], s)
     assert abs(plan.groups()["load_mass"][0] / run.load_report()["load_mass_se_kg"] - 1) < 0.25
     assert "se widened as the run widens them" in FreeLoadPlan("pilot", {"wrist": plan}).text()
+
+
+def test_arm_without_the_tool_in_its_urdf_is_a_payload_through_the_joints(tmp_path, monkeypatch) -> None:
+    """A URDF with no mass below the sensor link (most arms: the tool left out, DATA_FORMAT.md section 5): a rigid
+    payload whose gravity comes through the joint angles; the same bound as a plain payload held at the sensor's
+    orientations in W. (The reader refuses such a link today, issue 32: let it through here.)"""
+    import re
+
+    import ftcal_nlp.data as data
+    from ftcal_nlp.sim.free.config import LEG4_URDF
+
+    monkeypatch.setattr(data, "_transducer_link", lambda link, tree, where: link)
+    urdf = LEG4_URDF.read_text()
+    for link in ("r_thigh", "r_shank", "r_ankle", "r_foot"):   # the links below the sensor r_leg_ft: the tool left out
+        urdf = re.sub(rf'(<link name="{link}">)\s*<inertial>.*?</inertial>', r"\1", urdf, flags=re.S)
+    (tmp_path / "arm.urdf").write_text(urdf)
+    (tmp_path / "arm.toml").write_text('name = "arm"\ng = 9.81\nlegs = ["wrist"]\nurdf = "arm.urdf"\n'
+                                       '[transducers.wrist]\nlink = "r_leg_ft"\n')
+    (tmp_path / "plain.toml").write_text('name = "plain"\ng = 9.81\nlegs = ["wrist"]\n[transducers.wrist]\n'
+                                         'position_m = [0, 0, 0]\nrotation = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n')
+    rng = np.random.default_rng(2)
+    quat = rng.standard_normal((8, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    q = {"r_hip_yaw": rng.uniform(-0.5, 0.5, 8), "r_hip_roll": rng.uniform(-0.3, 0.3, 8)}
+    load = {"mass_kg": 1.2, "com_m": [0.01, -0.02, 0.06], "hold_s": 2.0}
+    holds = [{"quat": quat[i].tolist(), "q": {j: float(v[i]) for j, v in q.items()}} for i in range(8)]
+    arm = plan_from_robot({**load, "holds": holds}, tmp_path / "h.toml", tmp_path / "arm.toml").loads["wrist"]
+    assert arm.kind == "rigid_payload" and any("no link with mass below 'r_leg_ft'" in n for n in arm.notes)
+    tree = data.read_robot(tmp_path / "arm.toml").tree
+    from ftcal_nlp.geometry import quat_to_rotation
+
+    R_W_ft = quat_to_rotation(quat) @ tree.pose(tree.root, "r_leg_ft", q, 8)[0]
+    plain = plan_from_robot({**load, "orientations": rotation_to_quat(R_W_ft).tolist()}, tmp_path / "h.toml",
+                            tmp_path / "plain.toml").loads["wrist"]
+    a, b = arm.se(), plain.se()
+    assert set(a) == set(b) and all(np.isfinite(v) for v in a.values())
+    assert all(abs(a[n] / b[n] - 1) < 1e-6 for n in a), {n: a[n] / b[n] for n in a}
