@@ -505,6 +505,8 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
         raise FreeLoadPlanError(f"{where}: unknown key(s) {unknown}{hint}; known keys with a robot.toml: {sorted(ROBOT_KEYS)}",
                                 key=unknown[0])
     rpath = _robot_path(d, path, robot_path, where)
+    if not rpath.is_file():
+        raise FreeLoadPlanError(f"{where}: key 'robot' = {d.get('robot')!r}: {rpath} not found (relative to {path})", key="robot")
     robot = read_robot(rpath)
     if "transducer" in d:
         leg = d["transducer"]

@@ -220,3 +220,8 @@ def test_arm_without_the_tool_in_its_urdf_is_a_payload_through_the_joints(tmp_pa
     a, b = arm.se(), plain.se()
     assert set(a) == set(b) and all(np.isfinite(v) for v in a.values())
     assert all(abs(a[n] / b[n] - 1) < 1e-6 for n in a), {n: a[n] / b[n] for n in a}
+
+
+def test_protocol_naming_a_missing_robot(tmp_path) -> None:
+    with pytest.raises(ConfigError, match=r"key 'robot' = 'nowhere.toml': .*nowhere.toml not found"):
+        plan_from_robot({"robot": "nowhere.toml", "orientations": [[1, 0, 0, 0]]}, tmp_path / "holds.toml")
