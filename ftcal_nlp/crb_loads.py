@@ -301,12 +301,17 @@ def urdf_gravity_in_ft(tree, ft_link: str, q: Mapping[str, np.ndarray], g_B: np.
 
 def urdf_bound(tree, ft_link: str, q: Mapping[str, np.ndarray], g_ft: np.ndarray, bodies: Mapping[str, tuple[float, np.ndarray]],
                sigma: np.ndarray, *, mount: bool = True, orientation_sd_rad: float = 0.0, offset: np.ndarray | None = None,
-               rel_tol: float = REL_EIG_TOL, tilt_dirs: np.ndarray | None = None) -> tuple[LoadBound, tuple[JointGroup, ...]]:
+               rel_tol: float = REL_EIG_TOL, tilt_dirs: np.ndarray | None = None,
+               group_theta: np.ndarray | None = None) -> tuple[LoadBound, tuple[JointGroup, ...]]:
     """The bound of the URDF load below ``ft_link`` for joint angles ``q`` (N,) each, gravity ``g_ft`` (N, 3) in
     the true ft frame and the true bodies ``{link: (mass, CoM in own link)}``; returns it and the groups.
-    ``tilt_dirs`` (N, 3, 2) ``d g_ft / d tilt``: the world tilt estimated too (module docstring)."""
+    ``tilt_dirs`` (N, 3, 2) ``d g_ft / d tilt``: the world tilt estimated too (module docstring). ``group_theta``
+    (G, 4): each group's mass and first moment (in its frame) instead of the bodies' (an estimate's)."""
     groups = joint_groups(tree, ft_link)
-    masses, moments = group_truth(tree, groups, bodies)
+    if group_theta is None:
+        masses, moments = group_truth(tree, groups, bodies)
+    else:
+        masses, moments = np.asarray(group_theta, float)[:, 0], np.asarray(group_theta, float)[:, 1:]
     g = np.asarray(g_ft, float)
     R, p = group_poses(tree, ft_link, groups, q, len(g))
     S = urdf_first_moment(R, p, masses, moments)

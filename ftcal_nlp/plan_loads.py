@@ -248,6 +248,10 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
                 gs.append(ds.robot.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(fit.tilt)))
                 dBs.append(crb_loads.tilt_directions(R_WB, ds.robot.g))
             g_B, dB = np.concatenate(gs), np.concatenate(dBs)
+        elif len(fit.recording_tilts) == 1:   # one gravity_body recording's tilt (the bound has one tilt block)
+            g_B, dB = _recording_tilt(ds, recs, fit)
+            notes = (f"gravity_tilt: the tilt of gravity_body recording {next(iter(fit.recording_tilts))!r} (the run's "
+                     "recording_tilt_rad), estimated by the run and bounded here",)
         if fit.load.kind == "rigid_payload":
             R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
             g_ft = g_B @ R
@@ -263,15 +267,40 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             dg = None if dB is None else np.stack([crb_loads.urdf_gravity_in_ft(tree, link, q, dB[:, :, k], rv)
                                                    for k in range(2)], axis=2)
             bodies = {l: (b.mass_kg, b.com_m) for l, b in tree.bodies.items()}
+            # at the fit's groups (mass and first moment): the mount's rows scale with them, as the run's se do
+            same = [set(g.links) for g in crb_loads.joint_groups(tree, link)] == [set(g.links) for g in fit.load.groups]
             bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, sigma, mount=mount, offset=fit.offset,
-                                         tilt_dirs=dg)[0]
-            notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
-                      "rotation's rows)",)
-        if fit.recording_tilts:   # estimated by the fit, not in the bound: the bound is a little optimistic there
+                                         tilt_dirs=dg, group_theta=fit.theta.reshape(-1, 4) if same else None)[0]
+            if not same:
+                notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
+                          "rotation's rows)",)
+        if fit.recording_tilts and (fit.tilt is not None or len(fit.recording_tilts) > 1):
+            # estimated by the fit, not in the bound: the bound is a little optimistic there
             notes += (f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and not "
                       "in the bound (taken as known here)",)
         loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes, serial)
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
+
+
+def _recording_tilt(ds, recs, fit) -> tuple[np.ndarray, np.ndarray]:
+    """Gravity in B (N, 3) at the fit's tilt of its one ``gravity_body`` recording and ``d g_B / d tilt`` (N, 3, 2)
+    (zero on the other recordings): that recording's gravity is ``g F u``, ``F`` the frame of its nominal direction
+    (``freeload.problem.gravity_frame``), so it enters the bound as a world tilt does with ``R_WB = F^T``."""
+    from .freeload.problem import gravity_frame, tilt_gravity
+
+    (name, tilt), = fit.recording_tilts.items()
+    gs, dBs = [], []
+    for r in recs:
+        m = fit.used[r.name]
+        n = int(m.sum())
+        if r.name != name:
+            gs.append(ds.robot.g * r.gravity_directions()[m])
+            dBs.append(np.zeros((n, 3, 2)))
+            continue
+        F = gravity_frame(r.gravity_directions()[:1])[0]
+        gs.append(np.broadcast_to(ds.robot.g * F @ tilt_gravity(tilt), (n, 3)))
+        dBs.append(crb_loads.tilt_directions(np.broadcast_to(F.T, (n, 3, 3)), ds.robot.g))
+    return np.concatenate(gs), np.concatenate(dBs)
 
 
 # ----------------------------------------------------------------------------- a protocol of held orientations

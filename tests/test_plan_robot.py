@@ -225,3 +225,35 @@ def test_arm_without_the_tool_in_its_urdf_is_a_payload_through_the_joints(tmp_pa
 def test_protocol_naming_a_missing_robot(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"key 'robot' = 'nowhere.toml': .*nowhere.toml not found"):
         plan_from_robot({"robot": "nowhere.toml", "orientations": [[1, 0, 0, 0]]}, tmp_path / "holds.toml")
+
+
+def test_pilot_of_a_fixed_base_urdf_load_bounds_the_recordings_tilt(tmp_path) -> None:
+    """An arm-like pilot (a fixed level base: gravity_body = [0, 0, -1], no orientation columns; the joints above the
+    sensor turn it) whose bodies differ from the URDF's (1.5x its masses): the run estimates the recording's tilt and weighs the
+    mount by the fitted load, and the plan's se must be the run's for every parameter (the mount's included)."""
+    import re
+
+    import tomli_w
+
+    res = simulate_urdf_leg(UrdfLegConfig(seed=4, n_orientations=6, poses_per_orientation=4, hold_s=3.0, move_s=2.0,
+                                          max_tilt_deg=0.0))
+    manifest = write_free_load(res, tmp_path / "arm")
+    frame = res.frame.drop(columns=["qw", "qx", "qy", "qz"])
+    entry = json.loads(json.dumps(res.manifest))
+    entry["recording"][0]["gravity_body"] = [0, 0, -1]
+    frame.to_csv(manifest.parent / entry["recording"][0]["file"], index=False)
+    manifest.write_bytes(tomli_w.dumps(entry).encode())
+    urdf = manifest.parent / res.robot["urdf"]    # nominal masses 1.5x the truth: a URDF is a prior, the data decide
+    urdf.write_text(re.sub(r'<mass value="([0-9.eE+-]+)"', lambda m: f'<mass value="{1.5 * float(m.group(1))!r}"',
+                           urdf.read_text()))
+    ds = read_dataset(manifest)
+    fit = fit_free_load(ds, "r_leg")
+    assert fit.recording_tilts and fit.tilt is None                       # the recording's tilt is estimated
+    plan = plan_from_dataset(ds).loads["r_leg"]
+    se = plan.se()
+    fit_se = dict(zip(fit.names, fit.se))
+    for c in "xyz":
+        assert abs(se[f"mount_r{c}"] / fit_se[f"r_leg.mount.r{c}"] - 1) < REL, c
+    rec = next(iter(fit.recording_tilts))
+    for c in "xy":
+        assert abs(se[f"tilt_r{c}"] / fit_se[f"r_leg.{rec}.tilt.r{c}"] - 1) < REL, c
