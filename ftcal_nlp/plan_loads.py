@@ -35,7 +35,8 @@ samples counts ``n`` times, se fall as ``1/sqrt(hold_s * rate_hz)``), and the te
 Inputs:
 
 * a pilot: each free load is calibrated first (``fit_free_load``) and the bound evaluated at its estimate (a
-  payload's mass and CoM; a URDF load at the URDF's nominal bodies), on the quasi-static samples that fit used.
+  payload's mass and CoM; a URDF load's group masses and first moments), on the quasi-static samples that fit used;
+  a world tilt, or the tilt of its one ``gravity_body`` recording, where the fit estimates it.
 * ``[protocol]`` with a robot: ``transducer`` (default every transducer of the robot.toml), the holds as one of
   ``orientations`` (``[qw, qx, qy, qz]`` of B in W, each a hold), ``n_orientations`` (uniform on SO(3), ``seed``) or
   ``holds = [{quat = [qw, qx, qy, qz], q = {joint = rad, ...}}, ...]`` (joints a hold does not name at 0, as the
@@ -47,7 +48,9 @@ Inputs:
   run makes of it: no ``link``, a rigid payload at the table's ``rotation``; a ``link`` with massive links below,
   the URDF's bodies; a ``link`` with none below (an arm whose URDF leaves the tool out), a rigid payload whose
   gravity comes through the joint angles. A world tilt is bounded over the holds with ``quat`` (the run tilts the
-  orientation stream only); a tilt per ``gravity_body`` recording is taken as known (a note says so).
+  orientation stream only); holds that are all ``gravity_body`` have that recording's tilt bounded where the bound
+  determines it (else held at 0, as the run's ``recording_tilt = "auto"``); mixed with ``quat`` holds it is taken
+  as known (a note says so).
 
 ``--search`` and ``--detect`` plan hexapod sessions (the detection sizes of the hexapod diagnosis); with a
 free load they are an error naming why.
@@ -525,6 +528,7 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
     ``d`` the ``[protocol]`` table of ``path``, ``robot_path`` the robot.toml when the command line gives it (else
     the table's ``robot``, relative to ``path``)."""
     from .data import read_robot
+    from .freeload.problem import gravity_frame
     from .settings import FreeLoadSettings
 
     where = f"{path} [protocol]"
@@ -587,11 +591,17 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
         held = tilt and on_stream.any() and _tilt_held(g_ft[on_stream])
         dg = np.stack([to_ft(dB[:, :, k]) for k in range(2)], axis=2) if tilt and on_stream.any() and not held else None
         notes = ((TILT_HELD,) if held else ())
-        if not on_stream.all():
+        if on_stream.any() and not on_stream.all():
             notes += ("holds without an orientation take gravity from gravity_body: the run estimates a tilt per such "
                       "recording where the data fix it; not in the bound (taken as known here)",)
+        rec_tilt = not on_stream.any() and FreeLoadSettings().recording_tilt is not False
+        if rec_tilt:   # one gravity_body recording: its tilt, g F u (freeload.problem.gravity_frame), as a world tilt
+            F = gravity_frame(holds.gravity_body[None])[0]
+            dBr = crb_loads.tilt_directions(np.broadcast_to(F.T, (len(g_B), 3, 3)), g)
+            dg = np.stack([to_ft(dBr[:, :, k]) for k in range(2)], axis=2)
         if kind == "rigid_payload":
-            bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter, tilt_dirs=dg)
+            bound_of = lambda t: crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount,  # noqa: E731
+                                                         orientation_sd_rad=jitter, tilt_dirs=t)
             if "mass_kg" not in d or "com_m" not in d:
                 notes += (f"evaluated at mass_kg = {m:g} kg, com_m = {com.tolist()} m (protocol keys; default where not "
                           "given): the CoM's and mount's se scale with the tool's mass and lever",)
@@ -600,9 +610,17 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
                           "URDF's joint angles",)
         else:
             bodies = {lk: (b.mass_kg, b.com_m) for lk, b in robot.tree.bodies.items()}
-            bound = crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount, orientation_sd_rad=jitter,
-                                         tilt_dirs=dg)[0]
+            bound_of = lambda t: crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount,  # noqa: E731
+                                                      orientation_sd_rad=jitter, tilt_dirs=t)[0]
             notes += ("evaluated at the URDF's nominal bodies",)
+        bound = bound_of(dg)
+        if rec_tilt and set(crb_loads.TILT_NAMES) & set(_undetermined(bound)):   # the estimator holds it, as "auto"
+            bound = bound_of(None)
+            notes += ("the gravity_body holds' tilt is not separable from the mounting rotation here (the sensor never "
+                      "turns relative to B): held at 0 by the run, as here",)
+        elif rec_tilt:
+            notes += ("gravity_tilt: the tilt of the gravity_body holds' recording (the run's recording_tilt_rad), "
+                      "estimated by the run and bounded here",)
         loads[leg] = _plan(leg, kind, bound, len(g_ft), sigma, len(holds.quat), notes)
     proto = {"robot": str(rpath), "holds": len(holds.quat), "samples_per_hold": n_per,
              "noise_sd": sigma.tolist(), "transducers": list(legs)}

@@ -133,6 +133,10 @@ def test_urdf_robot_with_joint_poses(urdf_leg, tmp_path) -> None:
     arm = {"gravity_body": [0, 0, -1], "hold_s": 4.0, "holds": [{"q": q} for q in poses]}
     p = plan_from_robot(arm, tmp_path / "arm.toml", manifest.parent / "robot.toml").loads["r_leg"]
     assert np.isfinite(p.groups()["load_mass"][0]) and any("gravity_body" in n for n in p.notes)
+    assert "tilt_rx" in p.bound.names and p.se()["tilt_rx"] is not None      # the joints above the sensor turn it
+    still = {**arm, "holds": [{"q": {j: v for j, v in q.items() if j not in ("r_hip_yaw", "r_hip_roll")}} for q in poses]}
+    p = plan_from_robot(still, tmp_path / "arm.toml", manifest.parent / "robot.toml").loads["r_leg"]
+    assert "tilt_rx" not in p.bound.names and any("held at 0" in n for n in p.notes)   # the sensor never turns: held
 
 
 @pytest.mark.parametrize("table, pattern", [
