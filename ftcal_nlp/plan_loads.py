@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -253,8 +254,8 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             g_B, dB = np.concatenate(gs), np.concatenate(dBs)
         elif len(fit.recording_tilts) == 1:   # one gravity_body recording's tilt (the bound has one tilt block)
             g_B, dB = _recording_tilt(ds, recs, fit)
-            notes = (f"gravity_tilt: the tilt of gravity_body recording {next(iter(fit.recording_tilts))!r} (the run's "
-                     "recording_tilt_rad), estimated by the run and bounded here",)
+            notes = ((f"gravity_tilt: the tilt of gravity_body recording {next(iter(fit.recording_tilts))!r} (the run's "
+                      "recording_tilt_rad), estimated by the run and bounded here"),)
         if fit.load.kind == "rigid_payload":
             R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
             g_ft = g_B @ R
@@ -275,12 +276,12 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, sigma, mount=mount, offset=fit.offset,
                                          tilt_dirs=dg, group_theta=fit.theta.reshape(-1, 4) if same else None)[0]
             if not same:
-                notes += ("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
-                          "rotation's rows)",)
+                notes += (("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
+                           "rotation's rows)"),)
         if fit.recording_tilts and (fit.tilt is not None or len(fit.recording_tilts) > 1):
             # estimated by the fit, not in the bound: the bound is a little optimistic there
-            notes += (f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and not "
-                      "in the bound (taken as known here)",)
+            notes += ((f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and "
+                       "not in the bound (taken as known here)"),)
         loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes, serial)
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
 
@@ -523,6 +524,20 @@ def _load_kind(robot, leg: str) -> tuple[str, bool]:
     return ("urdf_subtree", True) if groups_below(robot.tree, link) else ("rigid_payload", True)
 
 
+def _gravity_to_ft(robot, leg: str, q: dict[str, np.ndarray]):
+    """Gravity in B (N, 3) -> in transducer ``leg``'s nominal ft: through the URDF at the joint angles ``q`` where
+    it has a link, else by its table's ``rotation`` (``R_nom^T g_B`` per row)."""
+    link = robot.transducers[leg].link
+    if link is not None:
+        return lambda v: crb_loads.urdf_gravity_in_ft(robot.tree, link, q, v)
+    R_nom = np.asarray(robot.transducers[leg].rotation, float)
+    return lambda v: v @ R_nom
+
+
+def _urdf_bound(*args, **kw) -> crb_loads.LoadBound:
+    return crb_loads.urdf_bound(*args, **kw)[0]
+
+
 def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> FreeLoadPlan:
     """The plan of a section-5 ``robot.toml``'s transducers held through a protocol's holds (module docstring);
     ``d`` the ``[protocol]`` table of ``path``, ``robot_path`` the robot.toml when the command line gives it (else
@@ -558,7 +573,7 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
                                     f"{sorted({kinds[k][0] for k in (wrong or legs)})} (a link with massive links below it: a "
                                     "URDF load; else a rigid payload); leave 'kind' out", key="kind")
     holds = _read_holds(d, where, robot, legs)
-    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
+    n_per = round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where))
     sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
     jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
     g = _num(d, "g", robot.g, where)
@@ -574,53 +589,46 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
     com = np.asarray(d.get("com_m", DEFAULT_COM_M), float)
     if com.shape != (3,):
         raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
-    rep = lambda a: np.repeat(a, n_per, axis=0)   # noqa: E731  every sample of a hold alike (white noise)
-    g_B, dB = rep(holds.gravity_B(g)), rep(holds.tilt_B(g))
-    q = {j: rep(v) for j, v in holds.q.items()}
-    on_stream = rep(holds.tracked)
+    g_B, dB = np.repeat(holds.gravity_B(g), n_per, axis=0), np.repeat(holds.tilt_B(g), n_per, axis=0)
+    q = {j: np.repeat(v, n_per) for j, v in holds.q.items()}     # every sample of a hold alike (white noise)
+    on_stream = np.repeat(holds.tracked, n_per)
+    rec_tilt = not on_stream.any() and FreeLoadSettings().recording_tilt is not False
     loads = {}
     for leg in legs:
         kind, through_urdf = kinds[leg]
-        link = robot.transducers[leg].link
-        if through_urdf:
-            to_ft = lambda v: crb_loads.urdf_gravity_in_ft(robot.tree, link, q, v)   # noqa: E731
-        else:
-            R_nom = np.asarray(robot.transducers[leg].rotation, float)
-            to_ft = lambda v: v @ R_nom   # noqa: E731  R_nom^T g_B per row
+        to_ft = _gravity_to_ft(robot, leg, q)
         g_ft = to_ft(g_B)
         held = tilt and on_stream.any() and _tilt_held(g_ft[on_stream])
         dg = np.stack([to_ft(dB[:, :, k]) for k in range(2)], axis=2) if tilt and on_stream.any() and not held else None
         notes = ((TILT_HELD,) if held else ())
         if on_stream.any() and not on_stream.all():
-            notes += ("holds without an orientation take gravity from gravity_body: the run estimates a tilt per such "
-                      "recording where the data fix it; not in the bound (taken as known here)",)
-        rec_tilt = not on_stream.any() and FreeLoadSettings().recording_tilt is not False
+            notes += (("holds without an orientation take gravity from gravity_body: the run estimates a tilt per such "
+                       "recording where the data fix it; not in the bound (taken as known here)"),)
         if rec_tilt:   # one gravity_body recording: its tilt, g F u (freeload.problem.gravity_frame), as a world tilt
             F = gravity_frame(holds.gravity_body[None])[0]
             dBr = crb_loads.tilt_directions(np.broadcast_to(F.T, (len(g_B), 3, 3)), g)
             dg = np.stack([to_ft(dBr[:, :, k]) for k in range(2)], axis=2)
         if kind == "rigid_payload":
-            bound_of = lambda t: crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount,  # noqa: E731
-                                                         orientation_sd_rad=jitter, tilt_dirs=t)
+            bound_of = partial(crb_loads.payload_bound, g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter)
             if "mass_kg" not in d or "com_m" not in d:
-                notes += (f"evaluated at mass_kg = {m:g} kg, com_m = {com.tolist()} m (protocol keys; default where not "
-                          "given): the CoM's and mount's se scale with the tool's mass and lever",)
+                notes += ((f"evaluated at mass_kg = {m:g} kg, com_m = {com.tolist()} m (protocol keys; default where "
+                           "not given): the CoM's and mount's se scale with the tool's mass and lever"),)
             if through_urdf:
-                notes += (f"no link with mass below '{link}' in the URDF: a rigid payload whose gravity comes through the "
-                          "URDF's joint angles",)
+                notes += ((f"no link with mass below '{robot.transducers[leg].link}' in the URDF: a rigid payload whose "
+                           "gravity comes through the URDF's joint angles"),)
         else:
             bodies = {lk: (b.mass_kg, b.com_m) for lk, b in robot.tree.bodies.items()}
-            bound_of = lambda t: crb_loads.urdf_bound(robot.tree, link, q, g_ft, bodies, sigma, mount=mount,  # noqa: E731
-                                                      orientation_sd_rad=jitter, tilt_dirs=t)[0]
+            bound_of = partial(_urdf_bound, robot.tree, robot.transducers[leg].link, q, g_ft, bodies, sigma, mount=mount,
+                               orientation_sd_rad=jitter)
             notes += ("evaluated at the URDF's nominal bodies",)
-        bound = bound_of(dg)
+        bound = bound_of(tilt_dirs=dg)
         if rec_tilt and set(crb_loads.TILT_NAMES) & set(_undetermined(bound)):   # the estimator holds it, as "auto"
-            bound = bound_of(None)
-            notes += ("the gravity_body holds' tilt is not separable from the mounting rotation here (the sensor never "
-                      "turns relative to B): held at 0 by the run, as here",)
+            bound = bound_of(tilt_dirs=None)
+            notes += (("the gravity_body holds' tilt is not separable from the mounting rotation here (the sensor "
+                       "never turns relative to B): held at 0 by the run, as here"),)
         elif rec_tilt:
-            notes += ("gravity_tilt: the tilt of the gravity_body holds' recording (the run's recording_tilt_rad), "
-                      "estimated by the run and bounded here",)
+            notes += (("gravity_tilt: the tilt of the gravity_body holds' recording (the run's recording_tilt_rad), "
+                       "estimated by the run and bounded here"),)
         loads[leg] = _plan(leg, kind, bound, len(g_ft), sigma, len(holds.quat), notes)
     proto = {"robot": str(rpath), "holds": len(holds.quat), "samples_per_hold": n_per,
              "noise_sd": sigma.tolist(), "transducers": list(legs)}

@@ -10,7 +10,6 @@ by the widening itself, > 2x here)."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,7 +20,13 @@ from ftcal_nlp.errors import ConfigError
 from ftcal_nlp.freeload import fit_free_load
 from ftcal_nlp.geometry import rotation_to_quat
 from ftcal_nlp.plan_loads import FreeLoadPlan, plan_from_dataset, plan_from_robot
-from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
+from ftcal_nlp.sim.free import (
+    PayloadConfig,
+    UrdfLegConfig,
+    simulate_payload,
+    simulate_urdf_leg,
+    write_free_load,
+)
 
 REL = 0.05
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -195,13 +200,13 @@ def test_arm_without_the_tool_in_its_urdf_is_a_payload_through_the_joints(tmp_pa
     orientations in W. (The reader refuses such a link today, issue 32: let it through here.)"""
     import re
 
-    import ftcal_nlp.data as data
+    from ftcal_nlp import data
     from ftcal_nlp.sim.free.config import LEG4_URDF
 
     monkeypatch.setattr(data, "_transducer_link", lambda link, tree, where: link)
     urdf = LEG4_URDF.read_text()
     for link in ("r_thigh", "r_shank", "r_ankle", "r_foot"):   # the links below the sensor r_leg_ft: the tool left out
-        urdf = re.sub(rf'(<link name="{link}">)\s*<inertial>.*?</inertial>', r"\1", urdf, flags=re.S)
+        urdf = re.sub(rf'(<link name="{link}">)\s*<inertial>.*?</inertial>', r"\1", urdf, flags=re.DOTALL)
     (tmp_path / "arm.urdf").write_text(urdf)
     (tmp_path / "arm.toml").write_text('name = "arm"\ng = 9.81\nlegs = ["wrist"]\nurdf = "arm.urdf"\n'
                                        '[transducers.wrist]\nlink = "r_leg_ft"\n')
