@@ -41,15 +41,20 @@ is wrong, or given B -> ft), units (kN or mN: the mass 1000x off), and names tho
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Callable, Sequence
 
 import numpy as np
 
-from ..checks import DEGREES_RATIO, QUAT_ORDER_RATIO, RESIDUAL_NOISE_FACTOR, ROTATION_BOUND_DEG
+from ..checks import (
+    DEGREES_RATIO,
+    QUAT_ORDER_RATIO,
+    RESIDUAL_NOISE_FACTOR,
+    ROTATION_BOUND_DEG,
+)
 from ..data import Recording
 from ..errors import DataFormatError, ImplausibleLoadFit
-from ..geometry import quat_to_rotation, rotation_to_rotvec, skew
+from ..geometry import quat_to_rotation, rotation_to_rotvec
 
 log = logging.getLogger(__name__)
 
@@ -130,12 +135,12 @@ def gravity_fit(f: np.ndarray, b: np.ndarray) -> GravityFit:
     n = max(len(f), 1)
     spread = float(np.sqrt(np.sum(fc**2) / n))
     span = gravity_span(b) if len(b) > 2 else 0
-    if span < 2:
-        m = float(np.sum(fc * bc) / max(float(np.sum(bc**2)), 1e-300))
-        res = fc - m * bc
-        return GravityFit(m, np.eye(3), fm - m * bm, float(np.sqrt(np.sum(res**2) / n)), spread, span, False)
+    if span < 2:   # one direction: the projection on it; none: the mass is not in the forces (NaN)
+        m = float(np.sum(fc * bc) / float(np.sum(bc**2))) if span == 1 else np.nan
+        res = fc - np.nan_to_num(m) * bc
+        return GravityFit(m, np.eye(3), fm - np.nan_to_num(m) * bm, float(np.sqrt(np.sum(res**2) / n)), spread, span, False)
     fits = {sg: _procrustes(fc, bc, sg) for sg in (1.0, -1.0)}
-    (sp, Rp, rp), (sn, Rn, rn) = fits[1.0], fits[-1.0]
+    (_, Rp, rp), (_, Rn, rn) = fits[1.0], fits[-1.0]
     if span == 3 and (rn < QUAT_ORDER_RATIO**2 * rp or rp < QUAT_ORDER_RATIO**2 * rn):
         sign, determined = (-1.0 if rn < rp else 1.0), True
     else:
@@ -172,7 +177,7 @@ def load_fit(w: np.ndarray, b: np.ndarray, K: np.ndarray, mu: np.ndarray, E: np.
     X[:, :, :6] = np.eye(6)
     X[:, :3, 6:] = gt[:, :, None] * np.asarray(mu, float)[None, None, :]
     X[:, 3:, 6:] = -np.einsum("nij,njp->nip", skew_rows(gt), K)      # s x g = -[g]x s
-    sd = np.ones(6) if noise is None or not np.all(np.isfinite(noise)) or not np.all(np.asarray(noise) > 0) else np.asarray(noise, float)
+    sd = _sd(noise)
     Xw, yw = (X / sd[None, :, None]).reshape(-1, 6 + p), (w / sd).reshape(-1)
     x = np.linalg.lstsq(Xw, yw, rcond=None)[0]
     res = w - np.einsum("nik,k->ni", X, x)
@@ -185,10 +190,6 @@ def load_fit(w: np.ndarray, b: np.ndarray, K: np.ndarray, mu: np.ndarray, E: np.
 
 def skew_rows(v: np.ndarray) -> np.ndarray:
     """``[v_n]x`` (N, 3, 3) for the rows of ``v`` (N, 3)."""
-    return np.stack([skew(r) for r in v]) if len(v) < 64 else _skew_fast(v)
-
-
-def _skew_fast(v: np.ndarray) -> np.ndarray:
     S = np.zeros((len(v), 3, 3))
     S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
     S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
@@ -344,8 +345,13 @@ def _weighted_rss(recs: Sequence[Recording], leg: str, load, g: float, noise: np
     return float(np.sum((lf.rms / sd) ** 2))
 
 
+def _known(noise: np.ndarray | None) -> bool:
+    """Whether ``noise`` is a usable per-channel sd (a list of poses has no consecutive samples to estimate it from)."""
+    return noise is not None and bool(np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0))
+
+
 def _sd(noise: np.ndarray | None) -> np.ndarray:
-    return np.asarray(noise, float) if noise is not None and np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0) else np.ones(6)
+    return np.asarray(noise, float) if _known(noise) else np.ones(6)
 
 
 def _force_noise(noise: np.ndarray | None) -> float:
@@ -361,7 +367,7 @@ def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.n
     fit = gravity_fit(w[:, :3], b)
     ref = reference_mass(load)
     m = abs(fit.mass_kg)
-    if ref and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
+    if ref and np.isfinite(m) and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
         unit = "kN" if m < ref else "mN"
         raise DataFormatError(
             f"{_where(recs, leg)}: columns {leg}_fx..{leg}_fz: the load's weight in the forces is {m * g:.4g} N, a mass of "
@@ -405,7 +411,7 @@ def _plausible(gf: GravityFit, lf: LoadFit, noise: np.ndarray | None) -> bool:
 
 
 def _residual_far(lf: LoadFit, noise: np.ndarray | None) -> bool:
-    over_noise = noise is None or np.any(lf.rms > RESIDUAL_NOISE_FACTOR * _sd(noise))
+    over_noise = not _known(noise) or np.any(lf.rms > RESIDUAL_NOISE_FACTOR * _sd(noise))
     return bool(over_noise and np.any(lf.unexplained > UNEXPLAINED_SHARE))
 
 
@@ -490,7 +496,7 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
     w, b, K = load_arrays(recs, leg, load, g)
     lf = load_fit(w, b, K, load.mass_row, result.rotation, noise)
     share = np.array([np.linalg.norm(result.rms[:3]), np.linalg.norm(result.rms[3:])]) / np.maximum(lf.spread, 1e-300)
-    over = result.rms / _sd(noise) if noise is not None else np.full(6, np.inf)
+    over = result.rms / _sd(noise) if _known(noise) else np.full(6, np.inf)
     ref = reference_mass(load)
     # what the data leave undetermined sits at the prior (named by the fit): no bound applies to it
     mass_known = bool(np.isfinite(result.load_report().get("load_mass_se_kg", np.inf)))
@@ -502,9 +508,10 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
         problems.append(f"a mounting rotation {angle:.3g} deg from the nominal (expected within {ROTATION_BOUND_DEG:.0f} deg, "
                         "the bound of a hexapod's legs)")
     if np.any(share > UNEXPLAINED_SHARE) and np.any(over > RESIDUAL_NOISE_FACTOR):
+        vs = f", {np.max(over):.3g}x the per-sample noise" if _known(noise) else ""
         problems.append(f"a residual of {100 * share[0]:.2g} % (forces) and {100 * share[1]:.2g} % (torques) of the readings' "
-                        f"spread, {np.nanmax(over):.3g}x the per-sample noise (expected below {UNEXPLAINED_SHARE:.0%} or "
-                        f"{RESIDUAL_NOISE_FACTOR:g}x)")
+                        f"spread{vs} (expected below {UNEXPLAINED_SHARE:.0%} of the spread, or {RESIDUAL_NOISE_FACTOR:g}x the "
+                        "noise)")
     if ref and mass > 0 and mass_known and not 1 / UNIT_FACTOR <= mass / ref <= UNIT_FACTOR:
         problems.append(f"a load mass of {mass:.4g} kg against the URDF's nominal {ref:.4g} kg (expected within {UNIT_FACTOR:g}x)")
     floor = _force_noise(noise)
