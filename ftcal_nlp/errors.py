@@ -6,6 +6,7 @@ command line can print one ``error:`` line and a caller can catch by kind:
 
 * :class:`DataFormatError` -- a dataset (or a recording, a bag, a URDF) does
   not follow ``DATA_FORMAT.md``; ``path`` / ``column`` name where.
+  Its :class:`ImplausibleLoadFit` is a free load's fit that is not physical, with the likely causes.
 * :class:`ConfigError` -- a config, protocol or plan file is invalid; ``path``
   / ``key`` name where.
 * :class:`SolverError` -- a solver did not report success; ``status`` holds
@@ -26,7 +27,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["FtcalError", "DataFormatError", "ConfigError", "SolverError", "OutputError", "OutputExistsError"]
+__all__ = ["FtcalError", "DataFormatError", "ImplausibleLoadFit", "ConfigError", "SolverError", "OutputError",
+           "OutputExistsError"]
 
 
 class FtcalError(Exception):
@@ -49,6 +51,18 @@ class MisSignedChannel(DataFormatError):
     def __init__(self, message: str, *, leg: str, column: str, path: str | Path | None = None):
         super().__init__(message, path=path, column=column)
         self.leg = leg
+
+
+class ImplausibleLoadFit(DataFormatError):
+    """A free load's fit that is not physical (mass <= 0, mount far from the nominal, residual far above the noise,
+    mass 1000x off; ``freeload/plausibility.py``): ``leg`` the transducer, ``causes`` the conventions whose fix made
+    it plausible, in the order tried (``"quaternion order"``, ``"gravity sign"``, ``"degrees"``, ``"frame"``,
+    ``"units"``; empty when none did)."""
+
+    def __init__(self, message: str, *, leg: str, causes: tuple[str, ...] = (), path: str | Path | None = None):
+        super().__init__(message, path=path)
+        self.leg = leg
+        self.causes = causes
 
 
 class ConfigError(FtcalError, ValueError):

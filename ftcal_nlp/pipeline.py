@@ -48,7 +48,7 @@ from .checks import check_dataset, check_transducer_poses, screen_sensor_faults
 from .correct import correct_recording_full
 from .data import Dataset
 from .diagnose import DiagnosisResult, diagnose_run
-from .errors import DataFormatError, FtcalError
+from .errors import DataFormatError, FtcalError, ImplausibleLoadFit, SolverError
 from .hanging import HangingResult, fit_hanging
 from .loads import LegComCurve
 from .selection import select_models
@@ -158,10 +158,43 @@ def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> Sens
         return None
 
 
+def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> dict[str, tuple[list, np.ndarray, object]]:
+    """Per free-load transducer its quasi-static samples (the recordings cut to them), their per-sample noise and its load,
+    checked before fitting (``freeload/plausibility.py``: quaternion order, gravity sign, joint angles in degrees)."""
+    from .freeload import free_load_data
+    from .freeload.plausibility import THRESHOLDS, check_free_load_data
+    from .loads import load_for
+
+    log.info("plausibility checks: %s", THRESHOLDS)
+    out = {}
+    for leg in ds.free_load_legs:
+        load = load_for(ds, leg, s.free_load.loads.get(leg))
+        data = free_load_data(ds, leg, s.free_load, load)
+        recs = [r.select(data.masks[r.name]) for r in ds.hanging if r.hangs_free(leg) and r.name in data.masks]
+        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, data.noise0)
+        out[leg] = (recs, data.noise0, load)
+    return out
+
+
+def _raise_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarray, object]], exc: SolverError) -> None:
+    """After a failed free-load fit: raise :class:`~ftcal_nlp.errors.ImplausibleLoadFit` naming the conventions whose
+    fix makes a transducer's load plausible, if any (else return: the solver's error stands)."""
+    from .freeload.plausibility import nominal_rotation_source, reference_mass, try_causes
+
+    for leg, (recs, noise, load) in samples.items():
+        found = [t for t in try_causes(recs, leg, load, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg),
+                                       reference_mass(load)) if t.fixes]
+        if found:
+            raise ImplausibleLoadFit(f"{', '.join(str(r.path or r.name) for r in recs)}: transducer {leg}: the free-load fit "
+                                     f"failed ({exc}); tried in order: {'; '.join(t.text for t in found)}",
+                                     leg=leg, causes=tuple(t.name for t in found)) from exc
+
+
 def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float],
                           notes: list[str]) -> CalibrationRun:
     """Section-5 datasets: every transducer's free load by the free-load estimator; the hexapod stages do not apply."""
     from .freeload import fit_free_loads, free_load_calibration
+    from .freeload.plausibility import check_free_load_fit, nominal_rotation_source
 
     hexapod = [k for k in ds.robot.legs if k not in ds.free_load_legs]
     if hexapod:
@@ -172,8 +205,18 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
             msg = f"{kind} recordings skipped: the free-load calibration uses the hanging recordings only"
             log.warning("%s", msg)
             notes.append(msg)
+    with stage("plausibility checks", timings, cpu):
+        samples = _free_load_samples(ds, s)   # quaternion order, gravity sign, joint degrees: before any fit
     with stage("free loads", timings, cpu):
-        res = fit_free_loads(ds, s.free_load)
+        try:
+            res = fit_free_loads(ds, s.free_load)
+        except SolverError as exc:   # a convention the checks before could not tell can leave IPOPT lost: try them
+            _raise_causes(ds, samples, exc)
+            raise
+    with stage("plausibility of the fit", timings, cpu):
+        for leg, r in res.legs.items():
+            recs, noise, _ = samples[leg]
+            check_free_load_fit(r, recs, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg))
     notes += res.identifiability()
     cal = free_load_calibration(res, ds.robot)
     diagnosis = None

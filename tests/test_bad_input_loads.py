@@ -65,19 +65,40 @@ def test_bad_urdf_input_gets_one_clear_error_and_writes_nothing(case, leg4, tmp_
     assert not (tmp_path / "out").exists()
 
 
+def _readings_for_orientations(res, df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with the simulated payload's readings recomputed for its columns qw..qz (its truth, the same noise)."""
+    from ftcal_nlp.geometry import quat_to_rotation
+    from ftcal_nlp.sim.free.physics import gravity_in_ft, payload_readings, true_rotation
+    from ftcal_nlp.sim.free.simulate import rpy_to_rotation
+
+    cfg = res.config
+    R_ft = true_rotation(rpy_to_rotation(cfg.rotation_rpy), np.asarray(res.truth["mount_rotvec"], float))
+    cols = [f"{cfg.transducer}_{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]
+
+    def clean(frame: pd.DataFrame) -> np.ndarray:
+        g_ft = gravity_in_ft(quat_to_rotation(frame[["qw", "qx", "qy", "qz"]].to_numpy()), R_ft, cfg.g)
+        return payload_readings(g_ft, cfg.mass_kg, np.asarray(cfg.com_m), np.asarray(res.truth["offset"]))
+
+    out = df.copy()
+    out[cols] = clean(df) + (res.frame[cols].to_numpy() - clean(res.frame))     # the simulated noise kept
+    return out
+
+
 @pytest.mark.parametrize("axis", ["vertical", "horizontal"])
 def test_orientations_about_one_axis_are_named_by_the_run(axis, tmp_path, capsys) -> None:
     """Turns about the vertical only (one gravity direction in ft): 7 of the 13 directions undetermined (as the
     estimator's own test) and the world tilt's 2 (held at 0), their se null in calibration.json and the run says
     so. Turns about one horizontal axis (gravity sweeps a plane) determine every parameter of a payload (f = m g +
     f_o, t = h x g + t_o with g spanning two dimensions): only the world tilt is named (gravity spans fewer than
-    three directions: held at 0), every other se finite -- no false alarm."""
+    three directions: held at 0), every other se finite -- no false alarm. The readings are the payload's in the
+    orientations given (readings of other orientations are no load at all: the plausibility checks refuse them)."""
     res = simulate_payload(PayloadConfig(seed=8, n_orientations=6, hold_s=4.0, move_s=2.0))
     df = res.frame.copy()
     q = df[["qw", "qx", "qy", "qz"]].to_numpy()
     ang = 2 * np.arctan2(np.linalg.norm(q[:, 1:], axis=1), q[:, 0])     # each orientation's angle, about one axis now
     e = np.array([0.0, 0.0, 1.0]) if axis == "vertical" else np.array([1.0, 0.0, 0.0])
     df[["qw", "qx", "qy", "qz"]] = np.column_stack([np.cos(ang / 2), np.sin(ang / 2)[:, None] * e])
+    df = _readings_for_orientations(res, df)      # the load's readings in these orientations (else no load at all)
     write_free_load(replace(res, frame=df), tmp_path / "data")
     assert run_main([str(_config(tmp_path))]) == 0
     text = "".join(capsys.readouterr())
