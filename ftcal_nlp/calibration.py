@@ -405,6 +405,12 @@ def _check_free_leg(source: str, at: str, l: dict) -> None:
     kind = l.get("load_kind")
     if kind not in FREE_LOAD_KINDS:
         raise _fail(source, f"{at}.load_kind", f"{kind!r}; expected one of {list(FREE_LOAD_KINDS)}")
+    need = ("offset", "load_mass_kg") + (("load_com_m",) if kind == "rigid_payload" else ("urdf", "link", "urdf_groups"))
+    missing = [k for k in need if l.get(k) is None]
+    if missing:
+        raise _fail(source, f"{at}.{missing[0]}", f"missing key(s) {missing} of a {kind} calibration (the contact wrench needs "
+                    + ("the offsets, the load's mass and CoM)" if kind == "rigid_payload" else
+                       "the offsets, the URDF, the sensor link and the groups' parameters)"))
     _numbers(source, f"{at}.offset", l.get("offset"), (6,))
     for key in ("noise_sd", "residual_rms"):
         if l.get(key) is not None:

@@ -413,11 +413,9 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     """The recording's columns ``correct`` reads as numbers, checked as a run reads its recordings (``data.py``): a
     cell that is not a number or a column without one is an error naming it; rows with a NaN time, reading or joint
     angle, and rows without an orientation, are dropped (counted in the log); fewer than two rows left, ``t`` not
-    strictly increasing or not in seconds (``checks.check_clock``), quaternions not of norm 1 within 0.01 are
+    strictly increasing or not in seconds where the correction uses the clock (:func:`_check_clock`), quaternions not
+    of norm 1 within 0.01 are
     errors naming the file and the column. Returns the numeric table of the kept rows and the kept-row mask."""
-    from types import SimpleNamespace
-
-    from .checks import check_clock
     from .data import _numeric
 
     if "t" not in df.columns:
@@ -453,13 +451,34 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
         row = int(np.flatnonzero(keep)[i + 1]) + 2   # the file's line (header is line 1)
         raise DataFormatError(f"{where}: column 't' is not strictly increasing (line {row}: {float(t[i])!r} -> {float(t[i + 1])!r}); expected "
                               "one row per sample in time order", path=where, column="t")
-    check_clock(SimpleNamespace(n=len(t), t=t, path=None, name=where))
+    _check_clock(cal_legs, t, where)
     if orient == list(QUAT_COLUMNS):
         norms = np.linalg.norm(clean[list(QUAT_COLUMNS)].to_numpy(), axis=1)
         if np.any(np.abs(norms - 1.0) > 1e-2):
             raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}.."
                                   f"{norms.max():.3g}); expected norm 1 within 0.01", path=where, column="qw")
     return clean, keep
+
+
+def _check_clock(cal_legs: dict, t: np.ndarray, where: str) -> None:
+    """Column ``t`` in seconds where the correction uses the clock: a calibration with effects that follow the
+    readings' own clock (``effects_correction.STREAM_EFFECTS``: re-sampling, relaxation) needs a stream, and a
+    median sampling interval above ``checks.MAX_SAMPLE_INTERVAL_S`` is a clock in ms or a list of single-row poses.
+    Otherwise ``t`` is copied as it is (a list of poses 9 s apart is a fine recording of a payload)."""
+    from .checks import MAX_SAMPLE_INTERVAL_S
+    from .freeload.effects_correction import STREAM_EFFECTS
+
+    need = {k: [m.name for m in p.effects.members if m.name in STREAM_EFFECTS] for k, p in cal_legs.items()
+            if p.effects is not None}
+    need = {k: v for k, v in need.items() if v}
+    dt = float(np.median(np.diff(t)))
+    if need and dt > MAX_SAMPLE_INTERVAL_S:
+        leg, names = next(iter(need.items()))
+        raise DataFormatError(
+            f"{where}: column t: median sampling interval {dt:.4g} (units of t); {leg}'s calibration corrects for "
+            f"{', '.join(names)}, which follow the readings' own clock: expected seconds, at most {MAX_SAMPLE_INTERVAL_S:g} s "
+            "between the samples of a stream: is t in milliseconds, or is this a list of single-row poses (correct "
+            "those with calibration.json)?", path=where, column="t")
 
 
 def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
