@@ -48,6 +48,13 @@ A ``calibration_with_effect.json`` of a free-load run (``meta.effect.kind = "fre
 transducer: the readings are corrected for them first and the se carry their parameters' joint covariance
 (``freeload/effects_correction.py``: what the file holds, the correction, what the se leave out); a calibration
 without ``meta.effect`` is corrected as above.
+
+Checks, before anything is corrected: the calibration as read (``calibration.read_calibration_json``, the one reader
+of ``calibration.json``: finite numbers, proper rotations, one mounting rotation, a positive load mass); the
+recording as a run reads its own (:func:`clean_rows`: the transducers match the calibration's, no empty table, no
+column without a number, ``t`` strictly increasing, unit quaternions) and against the calibration
+(:func:`check_against_calibration`: the forces' unit from the load's predicted weight, the orientation columns'
+convention from its direction). A recording mostly in contact cannot test the convention: a warning, not an error.
 """
 
 from __future__ import annotations
