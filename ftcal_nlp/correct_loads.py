@@ -423,7 +423,7 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     strictly increasing or not in seconds where the correction uses the clock (:func:`_check_clock`), quaternions not
     of norm 1 within 0.01 are
     errors naming the file and the column. Returns the numeric table of the kept rows and the kept-row mask."""
-    from .data import _numeric
+    from .data import TEMP_COMMON, TEMP_SUFFIX, _numeric
 
     if "t" not in df.columns:
         raise DataFormatError(f"{where}: missing column 't'", path=where, column="t")
@@ -434,6 +434,10 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     joints = [f"{JOINT_PREFIX}{j}" for c in cal_legs.values() for j in c.joints if f"{JOINT_PREFIX}{j}" in df.columns]
     joints = list(dict.fromkeys(joints))
     read = ["t"] + [f"{k}_{c}" for k in cal_legs for c in WRENCH_COMPONENTS] + joints
+    known = set(read) | set(QUAT_COLUMNS) | set(GRAVITY_COLUMNS) | {TEMP_COMMON} | {f"{k}{TEMP_SUFFIX}" for k in cal_legs}
+    extra = [str(c) for c in df.columns if str(c) not in known and not str(c).startswith(JOINT_PREFIX)]
+    if extra:
+        log.warning("%s: extra column(s) ignored: %s", where, extra)
     values = _numeric(df, read + orient, where)
     n = len(df)
     ok_read = np.all(np.isfinite(values[:, :len(read)]), axis=1)
