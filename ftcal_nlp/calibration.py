@@ -116,6 +116,15 @@ def _nulls(x):
     return x
 
 
+def _design_rotation(load: dict) -> dict:
+    """``rotation_nominal``, the design rotation ft -> B of a free load stored with both ``rotation_to_body`` and
+    ``mount_rotation`` (``R_B,ft = R_nom E``): with it a reader checks that the copies of the mount agree."""
+    if load.get("rotation_to_body") is None or load.get("mount_rotation") is None or "rotation_nominal" in load:
+        return {}
+    R, E = np.asarray(load["rotation_to_body"], float), np.asarray(load["mount_rotation"], float)
+    return {"rotation_nominal": _nulls(R @ E.T)}
+
+
 class ModelName(str):
     """A calibration's ``model`` as read from a file: a name for the error-model registry only.
 
@@ -193,7 +202,7 @@ class Calibration:
             if l.load is not None:  # a free load: offsets and the load's keys (OUTPUT_FORMAT.md), no hexapod keys
                 legs[k] = {"offset": lst(l.offset), "offset_se": lst(l.offset_se), "leg_weight_N": float(l.leg_weight_N),
                            "leg_weight_se_N": None if l.leg_weight_se_N is None or not np.isfinite(l.leg_weight_se_N)
-                           else float(l.leg_weight_se_N), **_nulls(l.load)}
+                           else float(l.leg_weight_se_N), **_nulls(l.load), **_design_rotation(l.load)}
                 continue
             d = {
                 "offset": lst(l.offset),
@@ -274,19 +283,194 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path, **kw) -> "Calibration":
-        """Read ``calibration.json``; any fault is a :class:`~ftcal_nlp.data.DataFormatError` naming the file."""
-        path = Path(path)
-        if not path.is_file():
-            raise DataFormatError(f"{path}: calibration file not found")
-        try:
-            d = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise DataFormatError(f"{path}: not valid JSON ({exc}); expected a calibration.json written by a run (truncated?)") from exc
-        if not isinstance(d, dict):
-            raise DataFormatError(f"{path}: expected a JSON object with key 'legs', got {type(d).__name__}")
+        """Read ``calibration.json`` (:func:`read_calibration_json`: checked as it is read); any fault is a
+        :class:`~ftcal_nlp.data.DataFormatError` naming the file and the key."""
+        return cls.from_checked_dict(read_calibration_json(path), path, **kw)
+
+    @classmethod
+    def from_checked_dict(cls, d: dict, path: str | Path, **kw) -> "Calibration":
+        """:meth:`from_json_dict` of a dict :func:`read_calibration_json` read from ``path``."""
         try:
             return cls.from_json_dict(d, source=str(path), **kw)
         except DataFormatError:
             raise
         except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
-            raise DataFormatError(f"{path}: not a calibration ({type(exc).__name__}: {exc}); expected the keys of OUTPUT_FORMAT.md") from exc
+            raise DataFormatError(f"{path}: not a calibration ({type(exc).__name__}: {exc}); expected the keys of OUTPUT_FORMAT.md",
+                                  path=path) from exc
+
+
+# ----------------------------------------------------------------------------- the one reader of calibration.json
+
+#: orthonormality and determinant of a stored rotation, and agreement of the mounting rotation's copies: the file
+#: holds every float to the last bit, so a rotation written by a run is exact to ~1e-15; an edited one is not
+ROTATION_TOL = 1e-6
+#: the kinds of free load ``correct`` and ``export`` apply (DATA_FORMAT.md section 5)
+FREE_LOAD_KINDS = ("rigid_payload", "urdf_subtree")
+
+
+def read_calibration_json(path: str | Path) -> dict:
+    """``calibration.json`` (or ``calibration_with_effect.json``) read and checked: a JSON object with a table
+    ``legs``, every number a command applies finite, every rotation proper, one mounting rotation per transducer
+    (:func:`check_calibration_dict`). Every command that reads a calibration reads it here."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(f"{path}: calibration file not found", path=path)
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"{path}: not valid JSON ({exc}); expected a calibration.json written by a run (truncated?)",
+                              path=path) from exc
+    if not isinstance(d, dict):
+        raise DataFormatError(f"{path}: expected a JSON object with key 'legs', got {type(d).__name__}", path=path)
+    check_calibration_dict(d, str(path))
+    return d
+
+
+def is_free_load(d: dict) -> bool:
+    """Whether a checked calibration dict holds free loads (every transducer names its ``load_kind``)."""
+    legs = d.get("legs") or {}
+    return bool(legs) and all("load_kind" in l for l in legs.values())
+
+
+def read_calibration(path: str | Path, **kw):
+    """The calibration in ``path`` for ``correct`` and ``export``: a :class:`Calibration` (hexapod legs; ``kw`` as
+    :meth:`Calibration.from_json_dict`), or for free loads the per-transducer calibrations of
+    :func:`ftcal_nlp.correct_loads.free_loads_from_dict` (a dict by transducer)."""
+    d = read_calibration_json(path)
+    if is_free_load(d):
+        from .correct_loads import free_loads_from_dict
+
+        return free_loads_from_dict(d, Path(path))
+    return Calibration.from_checked_dict(d, path, **kw)
+
+
+def _fail(source: str, key: str, what: str) -> DataFormatError:
+    return DataFormatError(f"{source} {key}: {what}", path=source, column=key)
+
+
+def _numbers(source: str, key: str, v, shape: tuple[int, ...]) -> np.ndarray:
+    """``v`` as finite floats of ``shape``, or an error naming ``key`` (a null is how a run writes NaN)."""
+    try:
+        a = np.array(v, dtype=float)
+    except (TypeError, ValueError):
+        raise _fail(source, key, f"expected {'x'.join(map(str, shape)) or 'a'} number(s), got {v!r}") from None
+    if a.shape != shape:
+        raise _fail(source, key, f"expected shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise _fail(source, key, f"holds a null, NaN or infinite value ({_nulls(a.tolist())}); expected finite numbers")
+    return a
+
+
+def _rotation(source: str, key: str, v) -> np.ndarray:
+    """A proper rotation matrix (orthonormal, determinant +1, within ``ROTATION_TOL``) or an error naming ``key``."""
+    R = _numbers(source, key, v, (3, 3))
+    det = float(np.linalg.det(R))
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > ROTATION_TOL or abs(det - 1) > ROTATION_TOL:
+        raise _fail(source, key, f"determinant {det:.6g}, max |R^T R - I| {err:.3g}; expected a proper rotation (orthonormal, "
+                                 f"det +1, within {ROTATION_TOL:g})")
+    return R
+
+
+def _check_mount(source: str, at: str, l: dict) -> None:
+    """One mounting rotation per free-load transducer, read from ``rotation_to_body`` (ft -> B) for a rigid payload
+    and from ``mount_rotation`` (``E``) for a URDF load (its nominal pose moves with the joints); the other copies
+    must agree with it within ``ROTATION_TOL``: ``mount_rotation = expm([mount_rotvec]x)`` and, where the design
+    rotation ``rotation_nominal`` is stored, ``rotation_to_body = rotation_nominal mount_rotation``."""
+    from .geometry import rotvec_to_rotation
+
+    read = "rotation_to_body" if l.get("load_kind") == "rigid_payload" else "mount_rotation"
+    if l.get(read) is None and (read == "rotation_to_body" or l.get("mount_rotvec") is not None):
+        raise _fail(source, f"{at}.{read}", f"missing; the correction reads the {l.get('load_kind')} load's mounting rotation "
+                                            "there")
+    rot = {k: _rotation(source, f"{at}.{k}", l[k]) for k in ("rotation_to_body", "mount_rotation", "rotation_nominal")
+           if l.get(k) is not None}
+    if l.get("mount_rotvec") is not None:
+        rot["expm([mount_rotvec]x)"] = rotvec_to_rotation(_numbers(source, f"{at}.mount_rotvec", l["mount_rotvec"], (3,)))
+    pairs = [("expm([mount_rotvec]x)", "mount_rotation")]
+    if "rotation_nominal" in rot:
+        rot["rotation_nominal mount_rotation"] = rot["rotation_nominal"] @ rot.get("mount_rotation", np.eye(3))
+        pairs.append(("rotation_nominal mount_rotation", "rotation_to_body"))
+    for a, b in pairs:
+        if a in rot and b in rot and (diff := float(np.abs(rot[a] - rot[b]).max())) > ROTATION_TOL:
+            keys = [k for k in ("rotation_to_body", "mount_rotation", "mount_rotvec", "rotation_nominal") if k in a or k == b]
+            stored = [k for k in ("rotation_to_body", "mount_rotation", "mount_rotvec") if l.get(k) is not None]
+            raise _fail(source, f"{at}.{next((k for k in keys if k != read), read)}",
+                        f"{a} and {b} disagree by {diff:.3g} (largest element); the mounting rotation is read from "
+                        f"{at}.{read} and its copies ({', '.join(stored)}) must agree with it within {ROTATION_TOL:g}: edit "
+                        "them together, or re-run the calibration")
+
+
+def _check_free_leg(source: str, at: str, l: dict) -> None:
+    kind = l.get("load_kind")
+    if kind not in FREE_LOAD_KINDS:
+        raise _fail(source, f"{at}.load_kind", f"{kind!r}; expected one of {list(FREE_LOAD_KINDS)}")
+    need = ("offset", "load_mass_kg") + (("load_com_m",) if kind == "rigid_payload" else ("urdf", "link", "urdf_groups"))
+    missing = [k for k in need if l.get(k) is None]
+    if missing:
+        raise _fail(source, f"{at}.{missing[0]}", f"missing key(s) {missing} of a {kind} calibration (the contact wrench needs "
+                    + ("the offsets, the load's mass and CoM)" if kind == "rigid_payload" else
+                       "the offsets, the URDF, the sensor link and the groups' parameters)"))
+    _numbers(source, f"{at}.offset", l.get("offset"), (6,))
+    for key in ("noise_sd", "residual_rms"):
+        if l.get(key) is not None:
+            _numbers(source, f"{at}.{key}", l[key], (6,))
+    m = l.get("load_mass_kg")
+    if not isinstance(m, (int, float)) or isinstance(m, bool) or not np.isfinite(m) or m <= 0:
+        raise _fail(source, f"{at}.load_mass_kg", f"{m!r}; expected the load's mass, a positive number (kg)")
+    if kind == "rigid_payload":
+        _numbers(source, f"{at}.load_com_m", l.get("load_com_m"), (3,))
+    else:
+        groups = l.get("urdf_groups")
+        if not isinstance(groups, dict) or not groups:
+            raise _fail(source, f"{at}.urdf_groups", "expected a table of the URDF groups' parameters")
+        for name, gr in groups.items():
+            if not isinstance(gr, dict):
+                raise _fail(source, f"{at}.urdf_groups.{name}", "expected a table with mass_kg and first_moment_kgm")
+            _numbers(source, f"{at}.urdf_groups.{name}.mass_kg", gr.get("mass_kg"), ())
+            _numbers(source, f"{at}.urdf_groups.{name}.first_moment_kgm", gr.get("first_moment_kgm"), (3,))
+    if l.get("gravity_tilt_rad") is not None:
+        _numbers(source, f"{at}.gravity_tilt_rad", l["gravity_tilt_rad"], (2,))
+    _check_mount(source, at, l)
+
+
+def _check_hexapod_leg(source: str, at: str, l: dict) -> None:
+    _numbers(source, f"{at}.offset", l.get("offset"), (6,))
+    _numbers(source, f"{at}.leg_weight_N", l.get("leg_weight_N"), ())
+    _rotation(source, f"{at}.rotation_to_body", l.get("rotation_to_body"))
+    _numbers(source, f"{at}.position_from_com_m", l.get("position_from_com_m"), (3,))
+    grid = l.get("leg_com_grid")
+    if not isinstance(grid, dict):
+        raise _fail(source, f"{at}.leg_com_grid", "expected a table with phi and xyz")
+    try:
+        xyz = np.array([[np.nan if v is None else v for v in r] for r in grid.get("xyz") or []], float)
+    except (TypeError, ValueError):
+        raise _fail(source, f"{at}.leg_com_grid.xyz", "expected rows of three numbers (m)") from None
+    if xyz.size == 0 or not np.isfinite(xyz).any():
+        raise _fail(source, f"{at}.leg_com_grid.xyz", "holds no finite point; expected the leg's CoM on the grid")
+
+
+def check_calibration_dict(d: dict, source: str) -> None:
+    """A calibration as read from a file, before any command applies it: ``legs`` a non-empty table; ``mass_kg`` and
+    ``g`` positive where stored; per hexapod leg the offsets, leg weight, position and CoM grid finite and
+    ``rotation_to_body`` a proper rotation; per free load (``load_kind``) the offsets finite, the load mass positive,
+    its parameters finite, every stored rotation proper and one mounting rotation (:func:`_check_mount`). Errors
+    name the file and the key (``legs.X.key``)."""
+    legs = d.get("legs")
+    if not isinstance(legs, dict) or not legs:
+        raise DataFormatError(f"{source}: missing key 'legs' (a table of the calibrated transducers); expected a "
+                              "calibration.json written by a run (OUTPUT_FORMAT.md)", path=source, column="legs")
+    for key in ("mass_kg", "g"):
+        v = d.get(key)
+        if v is not None and (not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or v <= 0):
+            raise _fail(source, key, f"{v!r}; expected a positive number")
+    for k, l in legs.items():
+        if not isinstance(l, dict):
+            raise _fail(source, f"legs.{k}", f"expected a table, got {type(l).__name__}")
+    free = [k for k, l in legs.items() if "load_kind" in l]
+    if free and len(free) < len(legs):
+        other = [k for k in legs if k not in free]
+        raise _fail(source, f"legs.{other[0]}.load_kind", f"missing, where {free} name theirs; expected one calibration of "
+                    "either free loads (every transducer with its load_kind) or hexapod legs")
+    for k, l in legs.items():
+        (_check_free_leg if "load_kind" in l else _check_hexapod_leg)(source, f"legs.{k}", l)

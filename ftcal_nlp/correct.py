@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .calibration import Calibration
+from .calibration import Calibration, read_calibration
 from .checks import SensorFault, check_calibration, check_recording_to_correct
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
@@ -160,18 +160,31 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     return guarded(lambda: _main(args), extra=(ValueError,))
 
 
+def refuse_inputs_as_outputs(outputs: list[Path], inputs: dict[str, Path]) -> None:
+    """An output that is one of the inputs (``inputs``: what it is -> path) is an error, before anything is read
+    or written: ``--force`` is for earlier results, never for the data."""
+    for target in outputs:
+        for what, p in inputs.items():
+            if target.absolute() == p.absolute() or (target.exists() and p.exists() and target.samefile(p)):
+                raise OutputError(f"{target}: the output would overwrite the {what} {p} (an input of this command); "
+                                  "expected another file for the output", path=target)
+
+
 def _main(args) -> int:
     out = Path(args.output)
     off_out = out.with_name(out.stem + "_offsets.csv")
-    for target in [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else []):
+    targets = [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else [])
+    cal_path = Path(args.calibration)
+    refuse_inputs_as_outputs(targets, {"recording": Path(args.recording), "calibration": cal_path,
+                                       "calibration's covariance file": cal_path.parent / "calibration_cov.npz"})
+    for target in targets:
         if target.exists() and not args.force:
             raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
-    from .correct_loads import correct_free_load_file, payload_calibrations
+    from .correct_loads import correct_free_load_file
 
-    free = payload_calibrations(args.calibration)   # a wrist payload's contact wrench (DATA_FORMAT.md section 5)
-    if free is not None:
-        return correct_free_load_file(free, args, out)
-    cal = Calibration.load(args.calibration)
+    cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
+    if not isinstance(cal, Calibration):
+        return correct_free_load_file(cal, args, out)
     check_calibration(cal, args.calibration)
     # the missing-covariance warning comes after the correction succeeded: a failure is one line
     res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),

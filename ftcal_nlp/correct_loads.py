@@ -48,12 +48,18 @@ A ``calibration_with_effect.json`` of a free-load run (``meta.effect.kind = "fre
 transducer: the readings are corrected for them first and the se carry their parameters' joint covariance
 (``freeload/effects_correction.py``: what the file holds, the correction, what the se leave out); a calibration
 without ``meta.effect`` is corrected as above.
+
+Checks, before anything is corrected: the calibration as read (``calibration.read_calibration_json``, the one reader
+of ``calibration.json``: finite numbers, proper rotations, one mounting rotation, a positive load mass); the
+recording as a run reads its own (:func:`clean_rows`: the transducers match the calibration's, no empty table, no
+column without a number, ``t`` strictly increasing, unit quaternions) and against the calibration
+(:func:`check_against_calibration`: the forces' unit from the load's predicted weight, the orientation columns'
+convention from its direction). A recording mostly in contact cannot test the convention: a warning, not an error.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -366,45 +372,223 @@ def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) ->
     return q
 
 
-def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
-    """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
-    ``{X}_fx_se..tz_se``; rows without gravity or with NaN readings dropped (counted in the log)."""
+#: readings whose median force norm is this many times above or below what the calibration predicts (offset plus
+#: the load's weight) are in another unit: kN or mN are 1000x off; a tool pressing on something for most of a
+#: recording stays well within (a 0.1 kg probe held at 50 N: ~50x)
+UNIT_FACTOR = 100.0
+#: the load's weight must stand this many noise sd above the readings' noise for its direction to test the
+#: orientation columns (a light load in a noisy sensor says nothing about them)
+DIRECTION_SNR = 10.0
+#: rows of a long recording the checks against the calibration look at (a regular subsample)
+CHECK_ROWS = 5000
+
+
+def recorded_transducers(df: pd.DataFrame) -> tuple[str, ...]:
+    """Names ``X`` for which the table holds every wrench column ``X_fx`` .. ``X_tz`` (a free load has no ``X_phi``)."""
+    names = [str(c)[: -len("_fx")] for c in df.columns if str(c).endswith("_fx")]
+    return tuple(k for k in names if all(f"{k}_{c}" in df.columns for c in WRENCH_COMPONENTS))
+
+
+def check_transducers(cal_legs: dict, df: pd.DataFrame, where: str) -> None:
+    """The recording carries exactly the calibration's transducers: one it lacks (columns ``X_fx..X_tz`` the
+    calibration has no entry for) or one of the calibration's missing from it is an error naming the columns."""
+    legs = list(cal_legs)
+    extra = [k for k in recorded_transducers(df) if k not in cal_legs]
+    if extra:
+        raise DataFormatError(f"{where}: columns {extra[0]}_fx..{extra[0]}_tz of transducer(s) {extra} but the calibration "
+                              f"covers only {legs}; expected a calibration of every transducer of the recording (or drop "
+                              "those columns)", path=where, column=f"{extra[0]}_fx")
+    missing = [f"{k}_{c}" for k in legs for c in WRENCH_COMPONENTS if f"{k}_{c}" not in df.columns]
+    if missing:
+        raise DataFormatError(f"{where}: missing column(s) {missing} of the calibrated transducer(s) {legs}; expected the "
+                              "readings of every transducer of the calibration", path=where, column=missing[0])
+
+
+def _orientation_columns(df: pd.DataFrame, where: str) -> list[str]:
+    """``qw..qz`` or ``gx..gz`` (complete), the gravity per sample the contact wrench needs."""
+    from .data import _complete_group
+
+    cols = [str(c) for c in df.columns]
+    q, gcols = _complete_group(cols, QUAT_COLUMNS, where), _complete_group(cols, GRAVITY_COLUMNS, where)
+    if not q and not gcols:
+        raise DataFormatError(f"{where}: the contact wrench needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz",
+                              path=where)
+    return q or gcols
+
+
+def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFrame, np.ndarray]:
+    """The recording's columns ``correct`` reads as numbers, checked as a run reads its recordings (``data.py``): a
+    cell that is not a number or a column without one is an error naming it; rows with a NaN time, reading or joint
+    angle, and rows without an orientation, are dropped (counted in the log); fewer than two rows left, ``t`` not
+    strictly increasing or not in seconds where the correction uses the clock (:func:`_check_clock`), quaternions not
+    of norm 1 within 0.01 are
+    errors naming the file and the column. Returns the numeric table of the kept rows and the kept-row mask."""
+    from .data import TEMP_COMMON, TEMP_SUFFIX, _numeric
+
     if "t" not in df.columns:
         raise DataFormatError(f"{where}: missing column 't'", path=where, column="t")
+    check_transducers(cal_legs, df, where)
+    if len(df) == 0:
+        raise DataFormatError(f"{where}: no rows (only the header); expected a recording to correct", path=where)
+    orient = _orientation_columns(df, where)
+    joints = [f"{JOINT_PREFIX}{j}" for c in cal_legs.values() for j in c.joints if f"{JOINT_PREFIX}{j}" in df.columns]
+    joints = list(dict.fromkeys(joints))
+    read = ["t"] + [f"{k}_{c}" for k in cal_legs for c in WRENCH_COMPONENTS] + joints
+    known = set(read) | set(QUAT_COLUMNS) | set(GRAVITY_COLUMNS) | {TEMP_COMMON} | {f"{k}{TEMP_SUFFIX}" for k in cal_legs}
+    extra = [str(c) for c in df.columns if str(c) not in known and not str(c).startswith(JOINT_PREFIX)]
+    if extra:
+        log.warning("%s: extra column(s) ignored: %s", where, extra)
+    values = _numeric(df, read + orient, where)
+    n = len(df)
+    ok_read = np.all(np.isfinite(values[:, :len(read)]), axis=1)
+    ok_o = np.all(np.isfinite(values[:, len(read):]), axis=1)
+    if orient == list(GRAVITY_COLUMNS):
+        ok_o &= np.linalg.norm(values[:, len(read):], axis=1) > 0
+    if (~ok_read).any():
+        log.warning("%s: dropped %d of %d rows with NaN or infinite readings%s", where, int((~ok_read).sum()), n,
+                    " or joint angles" if joints else "")
+    if (ok_read & ~ok_o).any():
+        log.warning("%s: dropped %d of %d rows without an orientation (%s)", where, int((ok_read & ~ok_o).sum()), n,
+                    ", ".join(orient))
+    keep = ok_read & ok_o
+    if keep.sum() < 2:
+        raise DataFormatError(f"{where}: fewer than 2 rows with finite readings and an orientation ({int(keep.sum())} of {n}); "
+                              "expected a recording", path=where)
+    clean = pd.DataFrame(values[keep], columns=read + orient)
+    t = clean["t"].to_numpy()
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        row = int(np.flatnonzero(keep)[i + 1]) + 2   # the file's line (header is line 1)
+        raise DataFormatError(f"{where}: column 't' is not strictly increasing (line {row}: {float(t[i])!r} -> {float(t[i + 1])!r}); expected "
+                              "one row per sample in time order", path=where, column="t")
+    _check_clock(cal_legs, t, where)
+    if orient == list(QUAT_COLUMNS):
+        norms = np.linalg.norm(clean[list(QUAT_COLUMNS)].to_numpy(), axis=1)
+        if np.any(np.abs(norms - 1.0) > 1e-2):
+            raise DataFormatError(f"{where}: columns qw, qx, qy, qz are not unit quaternions (norms {norms.min():.3g}.."
+                                  f"{norms.max():.3g}); expected norm 1 within 0.01", path=where, column="qw")
+    return clean, keep
+
+
+def _check_clock(cal_legs: dict, t: np.ndarray, where: str) -> None:
+    """Column ``t`` in seconds where the correction uses the clock: a calibration with effects that follow the
+    readings' own clock (``effects_correction.STREAM_EFFECTS``: re-sampling, relaxation) needs a stream, and a
+    median sampling interval above ``checks.MAX_SAMPLE_INTERVAL_S`` is a clock in ms or a list of single-row poses.
+    Otherwise ``t`` is copied as it is (a list of poses 9 s apart is a fine recording of a payload)."""
+    from .checks import MAX_SAMPLE_INTERVAL_S
+    from .freeload.effects_correction import STREAM_EFFECTS
+
+    need = {k: [m.name for m in p.effects.members if m.name in STREAM_EFFECTS] for k, p in cal_legs.items()
+            if p.effects is not None}
+    need = {k: v for k, v in need.items() if v}
+    dt = float(np.median(np.diff(t)))
+    if need and dt > MAX_SAMPLE_INTERVAL_S:
+        leg, names = next(iter(need.items()))
+        raise DataFormatError(
+            f"{where}: column t: median sampling interval {dt:.4g} (units of t); {leg}'s calibration corrects for "
+            f"{', '.join(names)}, which follow the readings' own clock: expected seconds, at most {MAX_SAMPLE_INTERVAL_S:g} s "
+            "between the samples of a stream: is t in milliseconds, or is this a list of single-row poses (correct "
+            "those with calibration.json)?", path=where, column="t")
+
+
+def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """The same rows read with the usual convention slips of the orientation columns: the quaternion's other
+    orders and its conjugate (``checks._quaternion_readings``, the run's list), or gravity ``gx..gz`` negated."""
+    if set(QUAT_COLUMNS) <= set(df.columns):
+        from .checks import _quaternion_readings
+
+        q = df[list(QUAT_COLUMNS)].to_numpy()
+        out = {}
+        for what, v in _quaternion_readings().items():
+            alt = df.copy()
+            alt[list(QUAT_COLUMNS)] = q[:, v] if isinstance(v, list) else q * v
+            out[what] = alt
+        return out
+    alt = df.copy()
+    alt[list(GRAVITY_COLUMNS)] = -df[list(GRAVITY_COLUMNS)].to_numpy()
+    return {"columns gx, gy, gz point up (a raw accelerometer reads +g when still: negate them)": alt}
+
+
+def _load_angles(p, df: pd.DataFrame, w: np.ndarray, q: dict, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per row the angle (deg) between the reading's force less the offset and the calibration's load force,
+    and the calibration's full predicted wrench (offset and load) (N, 6)."""
+    from .checks import _angle_deg
+
+    g_B = gravity_of_frame(df, p.g, where)
+    model, _ = p.predict(g_B, q, orientation_of_frame(df))
+    return _angle_deg(w[:, :3] - p.offset[:3], model[:, :3] - p.offset[:3]), model
+
+
+def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str) -> None:
+    """The readings against what the calibration predicts for them (every transducer, a regular subsample of
+    ``CHECK_ROWS`` rows), as ``run`` checks its recordings against the robot: the forces' unit (median force norm
+    within ``UNIT_FACTOR`` of the prediction's; torques within the run's lever-arm bound of the forces,
+    ``data._check_units``), and, where the load's weight stands ``DIRECTION_SNR`` noise sd above the noise, the
+    orientation columns' convention: the load force's direction from the columns as given must agree with the
+    readings' best (median angle within ``checks.TILT_DEG``), else an error names the reading of the columns that
+    agrees (x, y, z, w order; the conjugate; gravity negated)."""
+    from .checks import QUAT_ORDER_RATIO, TILT_DEG
+    from .data import check_torque_units
+
+    sub = clean.iloc[:: max(1, -(-len(clean) // CHECK_ROWS))].reset_index(drop=True)
+    for k, p in cal_legs.items():
+        w = sub[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy()
+        q = {j: sub[f"{JOINT_PREFIX}{j}"].to_numpy() for j in p.joints if f"{JOINT_PREFIX}{j}" in sub.columns}
+        ang, model = _load_angles(p, sub, w, q, where)
+        f_read = float(np.median(np.linalg.norm(w[:, :3], axis=1)))
+        f_pred = float(np.median(np.linalg.norm(model[:, :3], axis=1)))
+        noise_f = float(np.linalg.norm(np.nan_to_num(np.asarray(p.sigma, float)[:3])))
+        if f_pred > DIRECTION_SNR * noise_f and not 1 / UNIT_FACTOR <= f_read / f_pred <= UNIT_FACTOR:
+            raise DataFormatError(
+                f"{where}: columns {k}_fx..{k}_fz: median force {f_read:.4g} where the calibration predicts {f_pred:.4g} N "
+                f"(offset plus the load's weight), {f_read / f_pred:.3g}x; expected N, within a factor {UNIT_FACTOR:g}: are the "
+                "forces in another unit (kN, mN)?", path=where, column=f"{k}_fx")
+        check_torque_units(w, f_pred, where, k)
+        weight = float(np.median(np.linalg.norm(model[:, :3] - p.offset[:3], axis=1)))
+        if weight <= DIRECTION_SNR * noise_f:
+            continue
+        given = float(np.median(ang))
+        if given <= TILT_DEG:
+            continue
+        alt = {what: float(np.median(_load_angles(p, a, w, q, where)[0])) for what, a in _alternatives(sub).items()}
+        best = min(alt, key=alt.get)
+        cols = "qw, qx, qy, qz" if set(QUAT_COLUMNS) <= set(sub.columns) else "gx, gy, gz"
+        if alt[best] <= TILT_DEG and alt[best] < QUAT_ORDER_RATIO * given:
+            raise DataFormatError(
+                f"{where}: columns {cols}: the load's weight from them is a median {given:.0f} deg from transducer {k}'s force "
+                f"readings less the calibration's offset; expected within {TILT_DEG:.0f} deg (DATA_FORMAT.md section 3: qw..qz "
+                f"map B to the world, gx..gz point down): they agree within {alt[best]:.0f} deg if {best}",
+                path=where, column=cols.split(",")[0])
+        log.warning("%s: columns %s: the load's weight from them is a median %.0f deg from transducer %s's force readings "
+                    "less the offset and no other reading of the columns agrees: contact for most of the recording, or a "
+                    "calibration of another mounting?", where, cols, given, k)
+
+
+def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
+    """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
+    ``{X}_fx_se..tz_se``. The recording is checked first (:func:`clean_rows`, :func:`check_against_calibration`:
+    what a run checks that applies to a recording to correct); rows without gravity or with NaN readings are
+    dropped (counted in the log)."""
     legs = list(cal_legs)
-    cols = [f"{k}_{c}" for k in legs for c in WRENCH_COMPONENTS]
-    missing = [c for c in cols if c not in df.columns]
-    if missing:
-        raise DataFormatError(f"{where}: missing column(s) {missing} of the calibrated transducer(s) {legs}", path=where,
-                              column=missing[0])
-    g_B = gravity_of_frame(df, next(iter(cal_legs.values())).g, where)
-    R_WB = orientation_of_frame(df)
-    w = df[cols].to_numpy(float)
+    clean, keep = clean_rows(cal_legs, df, where)
     q: dict[str, np.ndarray] = {}
     for c in cal_legs.values():
         if isinstance(c, UrdfLoadCalibration):
-            q.update(joint_angles(df, c.joints, c.load.tree, where))
-    ok_g = np.all(np.isfinite(g_B), axis=1)
-    ok_w = np.all(np.isfinite(w), axis=1)
-    ok_q = np.all([np.isfinite(v) for v in q.values()], axis=0) if q else np.ones(len(df), bool)
-    if (~ok_g).any():
-        log.warning("%s: %d of %d rows without an orientation dropped", where, int((~ok_g).sum()), len(df))
-    if (ok_g & ~ok_w).any():
-        log.warning("%s: %d of %d rows with NaN readings dropped", where, int((ok_g & ~ok_w).sum()), len(df))
-    if (ok_g & ok_w & ~ok_q).any():
-        log.warning("%s: %d of %d rows with NaN joint angles dropped", where, int((ok_g & ok_w & ~ok_q).sum()), len(df))
-    keep = ok_g & ok_w & ok_q
-    qk = {j: v[keep] for j, v in q.items()}
-    out: dict[str, np.ndarray] = {"t": df["t"].to_numpy(float)[keep]}
+            q.update(joint_angles(clean, c.joints, c.load.tree, where))
+    check_against_calibration(cal_legs, clean, where)
+    g_B = gravity_of_frame(clean, next(iter(cal_legs.values())).g, where)
+    R_WB = orientation_of_frame(clean)
+    out: dict[str, np.ndarray] = {"t": clean["t"].to_numpy(float)}
     ses: dict[str, np.ndarray] = {}
     quat = None
     if R_WB is not None:
-        quat = df[list(QUAT_COLUMNS)].to_numpy(float)[keep]
+        quat = clean[list(QUAT_COLUMNS)].to_numpy(float)
         quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    for i, k in enumerate(legs):
+    for k in legs:
         p = cal_legs[k]
         temp = _temperature(df, k, keep, out["t"], where) if p.effects is not None else None
-        wc, se = contact_wrench(p, w[keep, 6 * i: 6 * i + 6], g_B[keep], qk, None if R_WB is None else R_WB[keep],
+        wc, se = contact_wrench(p, clean[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy(float), g_B, q, R_WB,
                                 t=out["t"], quat=quat, temperature=temp, where=where)
         for j, c in enumerate(WRENCH_COMPONENTS):
             out[f"{k}_{c}"] = wc[:, j]
@@ -422,16 +606,18 @@ def _temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, wh
 
 
 def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration | UrdfLoadCalibration] | None:
-    """The free-load calibrations of ``calibration.json`` (payloads and URDF loads), or None when it is not a
-    free-load calibration."""
-    try:
-        d = json.loads(Path(cal_path).read_text())
-    except (OSError, json.JSONDecodeError):
-        return None   # the hexapod path reports an unreadable file in its own words
-    legs = d.get("legs", {}) if isinstance(d, dict) else {}
-    if not legs or not all(isinstance(l, dict) and "load_kind" in l for l in legs.values()):
-        return None
-    cal_path = Path(cal_path)
+    """The free-load calibrations of ``calibration.json`` (payloads and URDF loads; read and checked by
+    :func:`ftcal_nlp.calibration.read_calibration_json`), or None when it is not a free-load calibration."""
+    from .calibration import is_free_load, read_calibration_json
+
+    d = read_calibration_json(cal_path)
+    return free_loads_from_dict(d, Path(cal_path)) if is_free_load(d) else None
+
+
+def free_loads_from_dict(d: dict, cal_path: Path) -> dict[str, PayloadCalibration | UrdfLoadCalibration]:
+    """The per-transducer free-load calibrations of a calibration dict read and checked from ``cal_path``
+    (:func:`ftcal_nlp.calibration.read_calibration`)."""
+    legs = d["legs"]
     cc = _covariance_file(cal_path, d.get("meta", {}))
     g = float(d.get("g", 9.81))
     out: dict[str, PayloadCalibration | UrdfLoadCalibration] = {}

@@ -553,7 +553,6 @@ def _weight_scale_N(robot: Robot) -> float | None:
 
 def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
     fmax = np.percentile(np.linalg.norm(w[:, :3], axis=1), 99)
-    tmax = np.percentile(np.linalg.norm(w[:, 3:], axis=1), 99)
     weight = _weight_scale_N(robot)
     if weight is not None and fmax > _MAX_FORCE_IN_WEIGHTS * weight:
         what = "the robot's weight" if robot.mass_kg is not None else "the URDF's total weight"
@@ -561,7 +560,15 @@ def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
             f"{where}: columns {leg}_fx..{leg}_fz reach {fmax:.4g}, over {_MAX_FORCE_IN_WEIGHTS:.0f}x {what} "
             f"({weight:.4g} N); expected N (off by a unit factor such as 1000?)", column=f"{leg}_fx"
         )
-    if tmax > _MAX_LEVER_ARM_M * max(fmax, weight or 0.0):
+    check_torque_units(w, weight, where, leg)
+
+
+def check_torque_units(w: np.ndarray, weight_N: float | None, where: str, leg: str) -> None:
+    """Torques in N*m: the 99th percentile of their norm above ``_MAX_LEVER_ARM_M`` times the larger of the forces'
+    (99th percentile) and ``weight_N`` is an error suspecting N*mm. ``w`` (N, 6) one transducer's readings."""
+    fmax = np.percentile(np.linalg.norm(w[:, :3], axis=1), 99)
+    tmax = np.percentile(np.linalg.norm(w[:, 3:], axis=1), 99)
+    if tmax > _MAX_LEVER_ARM_M * max(fmax, weight_N or 0.0):
         raise DataFormatError(
             f"{where}: columns {leg}_tx..{leg}_tz reach {tmax:.4g}, more than {_MAX_LEVER_ARM_M} m times the forces; "
             "expected N*m (are they in N*mm?)", column=f"{leg}_tx"

@@ -34,7 +34,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from .calibration import Calibration, LegCalibration
+from .calibration import Calibration, LegCalibration, read_calibration
 from .codegen import ExportedFiles, write_generated
 from .errors import ConfigError, DataFormatError, OutputError
 from .geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
@@ -250,16 +250,13 @@ def _main(args) -> int:
     existing = [p for p in (out / f"{args.name}.c", out / f"{args.name}.h", out / "USAGE.md") if p.exists()]
     if existing and not args.force:
         raise OutputError(f"{existing[0]} exists; pass --force to overwrite", path=existing[0])
-    from .correct_loads import payload_calibrations
-
-    free = payload_calibrations(args.calibration)
-    if free is not None:  # free loads: the contact wrench (export_loads.py)
+    cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
+    if not isinstance(cal, Calibration):  # free loads: the contact wrench (export_loads.py)
         from . import export_loads
 
-        files = export_loads.write_c(free, out, args.name, source=Path(args.calibration).name)
+        files = export_loads.write_c(cal, out, args.name, source=Path(args.calibration).name)
         print(f"wrote {files.source}, {files.header}, {files.usage}")
         return 0
-    cal = Calibration.load(args.calibration)
     files = write_c(cal, out, args.name, source=Path(args.calibration).name)
     print(f"wrote {files.source}, {files.header}, {files.usage}")
     return 0

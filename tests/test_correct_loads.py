@@ -105,7 +105,8 @@ def test_a_urdf_calibration_without_its_urdf_is_named(tmp_path, capsys) -> None:
     (tmp_path / "r.csv").write_text("t,r_leg_fx\n0,1\n")
     assert correct.main([str(cal), str(tmp_path / "r.csv"), "-o", str(tmp_path / "o.csv")]) == 2
     err = capsys.readouterr().err
-    assert "transducer r_leg: missing key 'urdf' of a URDF-load calibration" in err and not (tmp_path / "o.csv").exists()
+    assert "calibration.json legs.r_leg.load_mass_kg: missing key(s) ['load_mass_kg', 'urdf', 'link', 'urdf_groups'] of a urdf_subtree calibration" in err
+    assert not (tmp_path / "o.csv").exists()
 
 
 # ----------------------------------------------------------------------------- URDF loads (a leg below its sensor)
