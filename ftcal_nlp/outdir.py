@@ -170,8 +170,9 @@ def guard_files(folder: str | Path, names: Iterable[str], *, force: bool, flag: 
             f"{folder}: holds {_names(foreign)}, not written by ftcal_nlp (not in its {MANIFEST}); it only replaces files "
             "it wrote itself: choose a new or empty folder, or move these away", path=folder, foreign=tuple(foreign))
     if not force:
-        raise OutputExistsError(f"{folder}: holds {_names(present)} of an earlier ftcal_nlp dataset; pass {flag} to "
-                                "replace them (files it did not write are left as they are)", path=folder)
+        more = f" with {_names(present[1:])} of the same earlier output" if present[1:] else ""
+        raise OutputExistsError(f"{folder / present[0]} exists{more} (written by ftcal_nlp); pass {flag} to replace "
+                                "what it wrote (files it did not write are left as they are)", path=folder)
 
 
 def record_written(folder: str | Path, names: Iterable[str]) -> None:
