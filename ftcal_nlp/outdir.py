@@ -105,8 +105,10 @@ def read_manifest(folder: Path) -> dict | None:
     return d
 
 
-def write_manifest(folder: Path, written: Iterable[str], kept: Iterable[str] = ()) -> None:
-    d = {"tool": "ftcal_nlp", "version": tool_version(), "written": sorted(set(written) - {MANIFEST}),
+def write_manifest(folder: Path, written: Iterable[str], kept: Iterable[str] = (), *, kind: str = "result") -> None:
+    """``kind``: ``"result"`` (an output folder :class:`OutputFolder` may replace) or ``"dataset"`` (files written beside
+    whatever is there, :func:`record_written`: never replaced as a whole)."""
+    d = {"tool": "ftcal_nlp", "version": tool_version(), "kind": kind, "written": sorted(set(written) - {MANIFEST}),
          "kept": sorted(set(kept))}
     (folder / MANIFEST).write_text(json.dumps(d, indent=1) + "\n")
 
@@ -179,7 +181,7 @@ def record_written(folder: str | Path, names: Iterable[str]) -> None:
     """Add ``names`` (written into ``folder``) to its manifest (created if missing)."""
     folder = Path(folder)
     man = read_manifest(folder) or {"written": [], "kept": []}
-    write_manifest(folder, [*map(str, man["written"]), *names], [])
+    write_manifest(folder, [*map(str, man["written"]), *names], [], kind=str(man.get("kind", "dataset")))
 
 log = logging.getLogger(__name__)
 
@@ -283,6 +285,11 @@ class OutputFolder:
 
     def _check_earlier(self, t: Path) -> None:
         man = read_manifest(t)
+        if man is not None and man.get("kind", "result") != "result":
+            raise ForeignContentError(
+                f"{t} holds a {man['kind']} ftcal_nlp wrote ({_names(foreign_entries(t, {'written': []}))}), not a result; "
+                "results go to a folder apart from datasets: choose a new or empty folder (-o PATH)",
+                path=t, foreign=tuple(map(str, man["written"])))
         if man is None:
             there = foreign_entries(t, None)
             raise ForeignContentError(
