@@ -76,21 +76,31 @@ def tool_version() -> str:
         return "unknown"
 
 
-def inventory(folder: Path) -> list[str]:
-    """Every entry under ``folder`` as a path relative to it (``/``-separated, folders with a trailing ``/``);
-    symbolic links are entries, never followed."""
+def _entries(folder: Path, own: set[str] | None) -> list[str]:
+    """Entries under ``folder`` as paths relative to it (``/``-separated, folders with a trailing ``/``; symbolic
+    links are entries, never followed; the manifest itself left out): every one with ``own`` None, else those
+    ``own`` does not list (a folder not listed counts once, not its content)."""
     out: list[str] = []
 
     def walk(d: Path, rel: str) -> None:
         for e in sorted(os.scandir(d), key=lambda e: e.name):
-            if e.is_dir(follow_symlinks=False):
-                out.append(f"{rel}{e.name}/")
-                walk(Path(e.path), f"{rel}{e.name}/")
-            else:
-                out.append(f"{rel}{e.name}")
+            is_dir = e.is_dir(follow_symlinks=False)
+            name = f"{rel}{e.name}" + ("/" if is_dir else "")
+            if name == MANIFEST:
+                continue
+            listed = own is None or name in own
+            if not listed or own is None:
+                out.append(name)
+            if listed and is_dir:
+                walk(Path(e.path), name)
 
     walk(folder, "")
     return out
+
+
+def inventory(folder: Path) -> list[str]:
+    """Every entry under ``folder`` (:func:`_entries`)."""
+    return _entries(folder, None)
 
 
 def read_manifest(folder: Path) -> dict | None:
@@ -114,25 +124,8 @@ def write_manifest(folder: Path, written: Iterable[str], kept: Iterable[str] = (
 
 
 def foreign_entries(folder: Path, manifest: dict | None) -> list[str]:
-    """The entries of ``folder`` its manifest does not list (a folder not listed counts once, not its content)."""
-    own = set() if manifest is None else {str(x) for x in manifest["written"]}
-    out: list[str] = []
-
-    def walk(d: Path, rel: str) -> None:
-        for e in sorted(os.scandir(d), key=lambda e: e.name):
-            name = f"{rel}{e.name}"
-            if name == MANIFEST:
-                continue
-            if e.is_dir(follow_symlinks=False):
-                if f"{name}/" in own:
-                    walk(Path(e.path), f"{name}/")
-                else:
-                    out.append(f"{name}/")
-            elif name not in own:
-                out.append(name)
-
-    walk(folder, "")
-    return out
+    """The entries of ``folder`` its manifest does not list (:func:`_entries`)."""
+    return _entries(folder, set() if manifest is None else {str(x) for x in manifest["written"]})
 
 
 def _names(entries: list[str]) -> str:
