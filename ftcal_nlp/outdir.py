@@ -286,9 +286,9 @@ class OutputFolder:
         if man is None:
             there = foreign_entries(t, None)
             raise ForeignContentError(
-                f"{t} is not empty and holds no {MANIFEST}, so ftcal_nlp did not write it: {_names(there)}; the tool only "
-                "replaces an output folder it wrote itself (--force does not change that): choose a new or empty folder "
-                "(-o PATH), or move these away", path=t, foreign=tuple(there))
+                f"{t} is not empty and has no {MANIFEST} (the list of what ftcal_nlp wrote there): {_names(there)}; the "
+                "tool only replaces an output folder it wrote itself, --force or not: choose a new or empty folder (-o PATH), "
+                "or move these away (a result of a version without the list: delete it by hand)", path=t, foreign=tuple(there))
         foreign = foreign_entries(t, man)
         if not self.force:
             kept = (f"; what it did not write ({_names(foreign)}) would be kept as it is" if foreign else "")

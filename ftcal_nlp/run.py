@@ -30,7 +30,7 @@ from .calibration_run import CalibrationRun
 from .checks import residual_note
 from .config import RunConfig, load_config
 from .errors import ConfigError, DataFormatError, FtcalError
-from .outdir import OutputExistsError, OutputFolder, check_apart, guard_files, record_written  # noqa: F401  (OutputExistsError: re-exported)
+from .outdir import OutputExistsError, OutputFolder, check_apart, guard_files, record_written  # noqa: F401  (re-exported)
 from .correct import offsets_frame
 from .csvout import write_csv
 from .data import Dataset, read_dataset

@@ -12,9 +12,8 @@ folder (the bags, a user's notes) is left as it is.
 from __future__ import annotations
 
 import argparse
-from typing import Sequence
-
 from pathlib import Path
+from typing import Sequence
 
 from ..data import read_dataset
 from ..outdir import guard_files, record_written
