@@ -253,3 +253,32 @@ def test_help_speaks_to_every_transducer(capsys):
     assert cli.main(["--help"]) == 0
     usage = capsys.readouterr().out
     assert "walks" not in usage and "ground contact" not in usage
+
+
+# ----------------------------------------------------------------------------- ingest writes over its own only
+
+
+def test_ingest_force_writes_over_only_a_dataset_it_wrote(tmp_path, capsys):
+    from test_ros import _source, base_map, make_bag, write_map, write_urdf
+
+    from ftcal_nlp.ros.cli import main as ingest_main
+
+    write_urdf(tmp_path / "robot.urdf")
+    for name, seed in (("hang_xpos", 1), ("hang_xneg", 2)):
+        make_bag(tmp_path / name, "sqlite3", _source(f"{name}.csv", "hanging", 200), seed=seed, pose=False)
+    mp = write_map(tmp_path / "map.toml", base_map(recordings=[{"bag": "hang_xpos", "kind": "hanging", "gravity_body": [1, 0, 0]},
+                                                              {"bag": "hang_xneg", "kind": "hanging", "gravity_body": [-1, 0, 0]}]))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "robot.toml").write_text("mine\n")      # a user's file with the name the dataset's robot.toml takes
+    line = _error(ingest_main([str(mp), "-o", str(out), "--force", "--format", "csv"]), capsys.readouterr().err)
+    assert "robot.toml (1 entry), not written by ftcal_nlp" in line and _tree(out) == {"robot.toml": b"mine\n"}
+    (out / "robot.toml").unlink()
+    (out / "notes.txt").write_text("mine")
+    assert ingest_main([str(mp), "-o", str(out), "--format", "csv", "-q"]) == 0
+    line = _error(ingest_main([str(mp), "-o", str(out), "--format", "csv"]), capsys.readouterr().err)
+    assert "dataset.toml exists" in line and "pass --force" in line
+    assert ingest_main([str(mp), "-o", str(out), "--format", "csv", "--force", "-q"]) == 0
+    assert (out / "notes.txt").read_text() == "mine"
+    assert set(json.loads((out / MANIFEST).read_text())["written"]) == {"dataset.toml", "robot.toml", "hang_xpos.csv",
+                                                                        "hang_xneg.csv"}
