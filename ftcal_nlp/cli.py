@@ -3,8 +3,8 @@
 Commands (each also runs as its own module, ``python -m ftcal_nlp.run`` ...; the same ``main``):
 
 ========  ==========================================================  ===============================
-run       calibrate a dataset (run config TOML)                        :mod:`ftcal_nlp.run`
-correct   ground contact wrenches of a recording with a calibration   :mod:`ftcal_nlp.correct`
+run       calibrate the transducers of a dataset (run config TOML)    :mod:`ftcal_nlp.run`
+correct   calibrated contact wrenches of a recording                  :mod:`ftcal_nlp.correct`
 plan      predicted se of a protocol, shortest protocol for targets   :mod:`ftcal_nlp.plan`
 export    the correction as C source for a controller                 :mod:`ftcal_nlp.export`
 ingest    ROS bags + URDF -> interchange dataset                      :mod:`ftcal_nlp.ros.cli`
@@ -13,13 +13,15 @@ simulate  write the dataset a ``[simulate]`` table describes          this modul
 ========  ==========================================================  ===============================
 
 Every command takes the same common flags (:func:`add_common`): ``-o/--output``,
-``--force`` (overwrite), ``-v/--verbose``, ``-q/--quiet``, ``--no-progress``; the
+``--force`` (replace what the tool wrote before; ``outdir.py``), ``-v/--verbose``, ``-q/--quiet``, ``--no-progress``; the
 spellings used before (``--overwrite``, ``--out``) are kept as hidden aliases.
 :func:`guarded` turns every error meant for the user (the :class:`~ftcal_nlp.errors.FtcalError`
 family and the operating system's file errors) into one ``error: ...`` line on stderr and exit
 status 2; anything else is a defect and keeps its traceback. :func:`setup` routes Python
 warnings (numpy's ``RuntimeWarning`` included) to the log at DEBUG level (seen with ``-v``),
-so that none reaches the user as a bare warning.
+so that none reaches the user as a bare warning. ``-v`` is the tool's own debug lines: the
+libraries' loggers (:data:`QUIET_LIBRARIES`: matplotlib's font manager alone logs thousands of
+lines) stay at WARNING.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ log = logging.getLogger("ftcal_nlp.cli")
 USER_ERRORS: tuple[type[BaseException], ...] = (FtcalError, FileNotFoundError, FileExistsError, IsADirectoryError,
                                                 NotADirectoryError, PermissionError)
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+#: third-party loggers kept at WARNING under -v (their DEBUG lines are theirs, not the run's)
+QUIET_LIBRARIES = ("matplotlib", "PIL", "fontTools", "casadi", "cvxpy", "numba", "asyncio", "urllib3", "h5py",
+                   "numexpr", "yourdfpy", "trimesh", "rosbags", "pyarrow", "fsspec", "concurrent", "filelock", "joblib")
 _UNDO: list[Callable[[], None]] = []   # what setup() changed, undone by guarded() when the command ends
 
 
@@ -52,8 +57,8 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
-    "run": Command("ftcal_nlp.run", "calibrate a dataset: run config TOML -> calibration.json, report, corrected walks"),
-    "correct": Command("ftcal_nlp.correct", "ground contact wrenches (with se, contact state) of a recording"),
+    "run": Command("ftcal_nlp.run", "calibrate the transducers of a dataset: run config TOML -> calibration.json, report"),
+    "correct": Command("ftcal_nlp.correct", "calibrated wrenches of a recording (contact wrenches with se; contact state for legs)"),
     "plan": Command("ftcal_nlp.plan", "predicted se of a protocol; --search: the shortest protocol meeting targets"),
     "export": Command("ftcal_nlp.export", "the correction as C source + header for a controller"),
     "ingest": Command("ftcal_nlp.ros.cli", "ROS bags (+ URDF) -> interchange dataset"),
@@ -112,6 +117,7 @@ def setup(args: argparse.Namespace) -> None:
     level = logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING if getattr(args, "quiet", False) else logging.INFO
     logging.basicConfig(level=level, format=LOG_FORMAT, datefmt="%H:%M:%S")
     logging.getLogger().setLevel(level)
+    quiet_libraries(level)
     route_warnings()
     if getattr(args, "no_progress", False) or getattr(args, "quiet", False):
         disable_progress()
@@ -122,6 +128,18 @@ def setup(args: argparse.Namespace) -> None:
         matplotlib.use("Agg")
     else:
         os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def quiet_libraries(level: int) -> None:
+    """Under ``-v`` (``level`` DEBUG): the :data:`QUIET_LIBRARIES` loggers at WARNING, the tool's own (``ftcal_nlp.*``)
+    at DEBUG; undone when the command ends (:func:`restore`)."""
+    if level > logging.DEBUG:
+        return
+    for name in (*QUIET_LIBRARIES, "ftcal_nlp"):
+        lg = logging.getLogger(name)
+        before = lg.level
+        lg.setLevel(logging.DEBUG if name == "ftcal_nlp" else logging.WARNING)
+        _UNDO.append(lambda lg=lg, before=before: lg.setLevel(before))
 
 
 def disable_progress() -> None:
@@ -222,6 +240,8 @@ def _simulate(path: Path, output: str | None, force: bool) -> int:
         raise ConfigError(f"{path}: no output folder; pass -o DIR or set [simulate] dir", path=path, key="simulate.dir")
     try:
         manifest = simulate_to_folder(table, folder, overwrite=force)
+    except OutputError:
+        raise
     except FileExistsError as exc:
         raise OutputError(f"{folder / 'dataset.toml'} exists; pass --force to replace the dataset", path=folder) from exc
     except (TypeError, ValueError) as exc:  # the simulator's own key checks: named with the config file

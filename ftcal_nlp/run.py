@@ -30,7 +30,7 @@ from .calibration_run import CalibrationRun
 from .checks import residual_note
 from .config import RunConfig, load_config
 from .errors import ConfigError, DataFormatError, FtcalError
-from .outdir import OutputExistsError, OutputFolder  # noqa: F401  (OutputExistsError: re-exported, run.OutputExistsError)
+from .outdir import OutputExistsError, OutputFolder, check_apart, guard_files, record_written  # noqa: F401  (re-exported)
 from .correct import offsets_frame
 from .csvout import write_csv
 from .data import Dataset, read_dataset
@@ -53,6 +53,8 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
     ``[simulate] kind = "payload" | "urdf_leg"`` simulates a section-5 dataset (``sim.free``); no ``kind``
     (or ``"hexapod"``) the BigAnt one."""
     from .sim.free import KINDS as FREE_KINDS, simulate_free, write_free_load
+    from .sim.free.writer import free_load_files
+    from .sim.writer import simulation_files
     from .sim.free import config_from_dict as free_config
     from .truth import load_truth, load_truth_from_dict
 
@@ -70,7 +72,10 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
             free = simulate_free(free_config(cfg.simulate))
         except ValueError as exc:
             raise ConfigError(f"{cfg.path}: {exc}", path=cfg.path, key="simulate") from None
-        manifest = write_free_load(free, folder, overwrite=force)
+        names = free_load_files(free)
+        guard_files(folder, names, force=force)
+        manifest = write_free_load(free, folder, overwrite=True)
+        record_written(folder, names)
         log.info("simulated %s dataset written to %s", free.config.kind, manifest.parent)
         ds = read_dataset(manifest)
         return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
@@ -79,7 +84,10 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
                           f"{['hexapod', *sorted(FREE_KINDS)]}", path=cfg.path, key="simulate.kind")
     sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
-    manifest = write_simulation(res, folder, overwrite=force)
+    names = simulation_files(res)
+    guard_files(folder, names, force=force)
+    manifest = write_simulation(res, folder, overwrite=True)
+    record_written(folder, names)
     why = f"[data].manifest {cfg.manifest} not found: " if cfg.manifest is not None else ""
     log.warning("%s: %sthe [simulate] table was simulated into %s; everything below is of SIMULATED data",
                 cfg.path, why, manifest.parent)
@@ -113,12 +121,52 @@ def data_origin(cfg: RunConfig, truth: Calibration | None) -> str | None:
     return f"simulated by this run from the [simulate] table of {cfg.path}"
 
 
+def _toml_or_empty(path: Path) -> dict:
+    try:
+        return tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return {}  # the reader reports it, naming the file
+
+
+def input_paths(cfg: RunConfig) -> dict[str, Path]:
+    """What the run reads, found cheaply (the manifest and robot.toml parsed as TOML, no recording read): the
+    config, the dataset's folder and manifest, robot.toml, the URDF, every recording, the simulated dataset's
+    folder, an ``[offsets_only] calibration``. Keys say what each is, for the error of :func:`outdir.check_apart`."""
+    out: dict[str, Path] = {"config file": cfg.path}
+    if cfg.offsets_only.calibration is not None:
+        out["[offsets_only] calibration"] = cfg.offsets_only.calibration
+    if cfg.simulate_dir is not None:
+        out["simulated dataset's folder"] = cfg.simulate_dir
+    if cfg.manifest is None:
+        return out
+    folder = cfg.manifest.parent
+    out["dataset's folder"] = folder
+    out["dataset manifest"] = cfg.manifest
+    man = _toml_or_empty(cfg.manifest) if cfg.manifest.is_file() else {}
+    if isinstance(man.get("robot"), str):
+        robot = folder / man["robot"]
+        out["robot description"] = robot
+        urdf = _toml_or_empty(robot).get("urdf") if robot.is_file() else None
+        if isinstance(urdf, str):
+            out["URDF"] = robot.parent / urdf
+    recs = man.get("recording")
+    for r in recs if isinstance(recs, list) else []:
+        if isinstance(r, dict) and isinstance(r.get("file"), str):
+            out[f"recording {r['file']}"] = folder / r["file"]
+    return out
+
+
 def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
     """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails).
 
-    The output folder is checked (exists without ``force``, writable) and locked before anything is read
-    or fitted; the outputs are written into a staging folder beside it and swapped in whole at the end
-    (``outdir.py``): a failed or interrupted run leaves an earlier result exactly as it was."""
+    Before anything is read or fitted, the output folder is checked apart from the inputs (not one of them,
+    not above one: :func:`input_paths`), refused when it holds files the tool did not write or (without
+    ``force``) an earlier result, writable, and locked; the outputs are written into a staging folder beside
+    it and swapped in whole at the end (``outdir.py``): a failed or interrupted run leaves an earlier result
+    exactly as it was, and ``force`` replaces only the files the tool wrote."""
+    inputs = input_paths(cfg)
+    log.debug("inputs: %s", "; ".join(f"{k} {v}" for k, v in inputs.items()))
+    check_apart(cfg.output_dir, inputs)
     with OutputFolder(cfg.output_dir, force=force) as out:
         if cfg.manifest is None and cfg.simulate_dir is None:  # the simulated dataset goes with the results
             cfg = replace(cfg, simulate_dir=out.path / "dataset")
@@ -130,6 +178,7 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
 
 def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     """The run of ``cfg`` with its outputs written into ``folder`` (the staging folder of :func:`run`)."""
+    log.debug("writing into the staging folder %s", folder)
     t0 = time.perf_counter()
     ds, truth = load_or_simulate(cfg, force)
     t_load = time.perf_counter() - t0
@@ -233,9 +282,10 @@ def write_free_effect_calibration(res: CalibrationRun, folder: Path) -> None:
 
 
 def write_corrected(res: CalibrationRun, folder: Path) -> None:
-    """``corrected/<name>.csv`` for every walking recording and, where offsets were tracked,
+    """``corrected/<name>.csv`` for every walking recording (no folder without one) and, where offsets were tracked,
     ``tracked_offsets/<name>.csv`` (``correct.offsets_frame``)."""
-    (folder / "corrected").mkdir(exist_ok=True)
+    if res.corrected:  # a free-load run corrects no walk: no empty folder
+        (folder / "corrected").mkdir(exist_ok=True)
     for name, df in res.corrected.items():
         write_csv(df, folder / "corrected" / f"{name}.csv")  # t and every value to the last bit (csvout.py)
     if res.tracked_offsets:
@@ -258,13 +308,12 @@ def summary_text(res: CalibrationRun, cfg: RunConfig) -> str:
         for k, r in res.free_loads.legs.items():
             lines.append(f"{k}: {r.n_used} quasi-static samples; residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in r.rms))
             lines += [f"  {n}" for n in r.identifiability()]
-    try:
-        if res.poses is None:
-            raise ValueError("no standing poses")
-        naive = res.naive_total_residuals()
-        lines.append("naive-tare total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((naive**2).mean(0))))
-    except (ValueError, IndexError) as exc:
-        lines.append(f"naive-tare residual not computed: {exc}")
+    if res.poses is not None:  # a free-load dataset has no standing poses: nothing to compare
+        try:
+            naive = res.naive_total_residuals()
+            lines.append("naive-tare total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((naive**2).mean(0))))
+        except (ValueError, IndexError) as exc:
+            lines.append(f"naive-tare residual not computed: {exc}")
     if res.diagnosis is not None:
         lines.append(f"diagnosis: {res.diagnosis.verdict}" + (f" ({res.diagnosis.effect})" if res.diagnosis.effect else ""))
     lines.append("stage times: " + ", ".join(f"{k} {v:.2f}s" for k, v in res.timings.items()))
@@ -290,6 +339,7 @@ def _run_validation(path: str, force: bool, run_validation, output: Path | None 
     if output is None and not isinstance(out, str):
         raise ConfigError(f"{p} [output].dir: expected a path string for the output folder")
     folder = output if output is not None else p.parent / out
+    check_apart(folder, {"config file": p})
     with OutputFolder(folder, force=force) as staged:
         try:
             run_validation(d["validation"], staged.path)
@@ -309,11 +359,14 @@ default and meaning: [hanging], [standing], [standing.poses], [selection], [diag
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     from .cli import add_common, guarded, parse, setup
 
-    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.run", description="Calibrate the transducers of a legged robot from a dataset.",
+    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.run", description="Calibrate six-axis force/torque transducers from a dataset: "
+                                 "the legs of a walking robot (hanging, standing, walking recordings) or a free load "
+                                 "(a wrist sensor's tool, a URDF leg, an arm's tool: held orientations or joint poses). "
+                                 "Writes calibration.json and a report; contact wrenches of walking recordings in corrected/.",
                                  epilog=CONFIG_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("config", help="run config (TOML), e.g. problems/bigant_sim.toml")
     add_common(ap, output_help="output folder (default: the config's [output] dir)",
-               old_force=("--overwrite",), force_help="replace an earlier result in the output folder")
+               old_force=("--overwrite",), force_help="replace an earlier result the tool wrote in the output folder (files it did not write are kept)")
     args = parse(ap, argv)
     setup(args)
     return guarded(lambda: _main(args))

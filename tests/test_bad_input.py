@@ -93,10 +93,11 @@ def test_truncated_parquet_and_an_earlier_result_kept(tmp_path, capsys):
     (tmp_path / "data" / "standing.parquet").write_bytes(blob[: len(blob) // 2])
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "calibration.json").write_text("earlier")
+    (tmp_path / "out" / ".ftcal_manifest.json").write_text('{"written": ["calibration.json"]}')  # the tool's own earlier result
     line = _one_error(run_main([str(_config(tmp_path)), "--force"]), capsys.readouterr().err)
     assert re.search(r"standing\.parquet: cannot be read as Parquet \(ArrowInvalid.*truncated", line), line
     assert (tmp_path / "out" / "calibration.json").read_text() == "earlier"
-    assert [p.name for p in (tmp_path / "out").iterdir()] == ["calibration.json"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [".ftcal_manifest.json", "calibration.json"]
 
 
 def _truth_calibration(tmp_path: Path, drop: str | None = None) -> Path:

@@ -123,7 +123,7 @@ def test_simulate_command_writes_a_dataset(tmp_path, capsys):
     assert cli.main(["simulate", str(cfg), "-q"]) == 0
     assert (tmp_path / "ds" / "dataset.toml").is_file() and "simulated" in capsys.readouterr().out
     # a second time: refused without --force, one line
-    assert re.search(r"ds/dataset\.toml exists; pass --force", _one_error(cli.main(["simulate", str(cfg)]), capsys.readouterr().err))
+    assert re.search(r"ds/dataset\.toml exists.*; pass --force", _one_error(cli.main(["simulate", str(cfg)]), capsys.readouterr().err))
     assert cli.main(["simulate", str(cfg), "--force", "-o", str(tmp_path / "other")]) == 0
     bad = tmp_path / "bad.toml"
     bad.write_text('[simulate]\nn_poses = "many"\n')

@@ -16,7 +16,7 @@ import ftcal_nlp.run as run_mod
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.config import load_config
 from ftcal_nlp.errors import OutputError
-from ftcal_nlp.outdir import OutputExistsError, OutputFolder
+from ftcal_nlp.outdir import MANIFEST, ForeignContentError, OutputExistsError, OutputFolder, inventory, write_manifest
 
 from conftest import require_sample
 
@@ -28,11 +28,13 @@ def _tree(folder: Path) -> dict[str, bytes]:
 
 
 def _earlier(folder: Path) -> dict[str, bytes]:
-    """An earlier result, with a file a new run does not write (it must not survive --force)."""
+    """An earlier result of the tool (its manifest lists it), with a file a new run does not write (it must not
+    survive --force)."""
     (folder / "corrected").mkdir(parents=True)
     (folder / "calibration.json").write_text("earlier calibration")
     (folder / "report.md").write_text("earlier report")
     (folder / "corrected" / "old_walk.csv").write_text("t\n0\n")
+    write_manifest(folder, inventory(folder))
     return _tree(folder)
 
 
@@ -53,7 +55,8 @@ def test_commit_replaces_the_folder_whole(tmp_path):
         (out.path / "calibration.json").write_text("new")
         assert (target / "calibration.json").read_text() == "earlier calibration"  # untouched until the swap
         out.commit()
-    assert _tree(target) == {"calibration.json": b"new"}  # corrected/old_walk.csv is gone with the earlier result
+    after = _tree(target)
+    assert set(after) == {"calibration.json", MANIFEST} and after["calibration.json"] == b"new"  # old_walk.csv is gone
     assert oct(target.stat().st_mode & 0o777) == oct(0o777 & ~_umask())
     _nothing_beside(target)
 
@@ -78,7 +81,8 @@ def test_a_failure_inside_leaves_the_earlier_result(tmp_path):
 def test_refusals_come_first(tmp_path):
     target = tmp_path / "out"
     _earlier(target)
-    with pytest.raises(OutputExistsError, match=r"out exists and is not empty; pass --force"):
+    with pytest.raises(OutputExistsError, match=r"out holds an earlier result of ftcal_nlp .*; pass --force to replace the "
+                                                "files it wrote$"):
         OutputFolder(target).__enter__()
     _nothing_beside(target)
     afile = tmp_path / "afile"

@@ -188,6 +188,26 @@ def test_inline_markup():
     assert inline_md("`a*b` **c**") == "`a*b` **c**"
 
 
+def test_markdown_escapes_only_what_markdown_reads_as_markup(tmp_path):
+    """Issue 30: ``->`` stayed ``-&gt;`` in report.md. Markdown gets backslash escapes where it would read markup
+    (raw HTML, an entity, a block quote), no HTML entity anywhere; HTML escapes for HTML."""
+    from ftcal_nlp.report.render import Figure, Section, Text, render_html, render_markdown
+
+    assert inline_md("offset_drift -> clock_offset, a < b, a > b, R&D") == "offset_drift -> clock_offset, a < b, a > b, R&D"
+    assert inline_md("<b>x</b> &amp; &#62;") == "\\<b>x\\</b> \\&amp; \\&#62;"
+    assert inline_md("> not a quote") == "\\> not a quote"
+    fig = tmp_path / "a<b> c.png"
+    fig.write_bytes(b"\x89PNG\r\n")
+    sec = Section("A -> B", [Text("drift -> creep & <i>x</i>"), Table("t -> u", pd.DataFrame({"a->b": [1.0]})),
+                             Figure("f -> g", fig)])
+    md = render_markdown("r -> s", [sec])
+    assert "&gt;" not in md and "&lt;" not in md and "&amp;" not in md
+    assert "## A -> B" in md and "drift -> creep & \\<i>x\\</i>" in md and "| a->b |" in md
+    assert "](<a\\<b\\> c.png>)" in md
+    html = render_html("r -> s", [sec])
+    assert "drift -&gt; creep &amp; &lt;i&gt;x&lt;/i&gt;" in html and "<i>x" not in html
+
+
 def test_legs_as_columns_spreads_lists_and_triples():
     df = pd.DataFrame({"residual RMS f [N]": ["0.05 0.06 0.07", "0.1 0.2 0.3"],
                        "tilt [deg]": ["a: 1 ± 0.1; b: 2 ± 0.1", "a: 3 ± 0.1; b: 4 ± 0.1"],

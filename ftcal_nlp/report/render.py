@@ -57,17 +57,28 @@ _LONE_STAR = re.compile(r"(?<![*\\])\*(?!\*)")
 def inline_md(text: str, *, escape_all: bool = False) -> str:
     """Markdown text: code spans and ``**`` kept; lone ``*`` (``N*m``) escaped where two of them could pair
     into emphasis (or always, ``escape_all``, for text inside emphasis marks)."""
-    parts = [p if _CODE.fullmatch(p) else md_escape_html(p) for p in re.split(r"(`[^`]+`)", plain(text))]
+    parts = [p if _CODE.fullmatch(p) else md_escape(p) for p in re.split(r"(`[^`]+`)", plain(text))]
     if not escape_all and sum(len(_LONE_STAR.findall(p)) for p in parts if not _CODE.fullmatch(p)) < 2:
         return "".join(parts)
     return "".join(p if _CODE.fullmatch(p) else _LONE_STAR.sub(r"\\*", p) for p in parts)
 
 
-def md_escape_html(text: str) -> str:
-    """Text outside code spans with ``&``, ``<`` and ``>`` as entities: Markdown passes raw HTML through, and
-    names in a report (legs, recordings, effects) come from data files, so none of them may become markup.
-    A Markdown viewer shows the entities as the characters themselves."""
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+_MD_TAG = re.compile(r"<(?=[A-Za-z/!?])")                       # what could open raw HTML or an autolink
+_MD_ENTITY = re.compile(r"&(?=#[0-9]{1,7};|#[xX][0-9a-fA-F]{1,6};|[A-Za-z][A-Za-z0-9]*;)")  # what would be read as one
+_MD_QUOTE = re.compile(r"^([ \t]*)>", re.MULTILINE)               # a block quote at a line's start
+
+
+def md_escape(text: str) -> str:
+    """Text outside code spans with what Markdown would read as markup backslash-escaped (CommonMark): a ``<``
+    that could open raw HTML or an autolink, an ``&`` that would be read as an entity, a ``>`` opening a line.
+    Names in a report (legs, recordings, effects) come from data files, so none of them may become markup;
+    everything else (``->``, ``a < b``, ``R&D``) is left as written: no HTML entity in ``report.md``."""
+    return _MD_QUOTE.sub(r"\1\\>", _MD_ENTITY.sub(r"\\&", _MD_TAG.sub(r"\\<", text)))
+
+
+def _md_destination(name: str) -> str:
+    """A link destination in angle brackets: ``<``, ``>`` and ``\\`` backslash-escaped (CommonMark)."""
+    return "<" + re.sub(r"([<>\\])", r"\\\1", name) + ">"
 
 
 def _fence(text: str) -> str:
@@ -219,10 +230,10 @@ def render_markdown(title: str, sections: list[Section]) -> str:
                 md += [f"- {bold_md(t)}: {inline_md(d)}" for t, d in b.items] + [""]
             elif isinstance(b, Figure):
                 if b.path is None:
-                    md += [f"*(figure {md_escape_html(b.name)} not drawn: see the log)*", ""]
+                    md += [f"*(figure {md_escape(b.name)} not drawn: see the log)*", ""]
                 else:
-                    link = b.path.name if re.fullmatch(r"[\w.+-]+", b.path.name) else f"<{md_escape_html(b.path.name)}>"
-                    md += [f"![{md_escape_html(b.name)}]({link})", ""]
+                    link = b.path.name if re.fullmatch(r"[\w.+-]+", b.path.name) else _md_destination(b.path.name)
+                    md += [f"![{md_escape(b.name)}]({link})", ""]
                     if b.caption:
                         md += [f"Figure: {inline_md(b.caption)}", ""]
     return "\n".join(md)

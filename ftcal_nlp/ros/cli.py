@@ -3,15 +3,20 @@
 Reads the map's bags, writes the interchange dataset, then reads it back with
 :func:`ftcal_nlp.data.read_dataset` (what ``ftcal_nlp.run`` does) so that a
 dataset the run would reject is reported here. Exit status 2 on a bad map,
-bag or dataset, with the message naming the file and key.
+bag or dataset, with the message naming the file and key. The files it writes
+over must be ones the tool wrote (the folder's ``.ftcal_manifest.json`` lists
+them, ``outdir.guard_files``), and only with ``--force``; anything else in the
+folder (the bags, a user's notes) is left as it is.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Sequence
 
 from ..data import read_dataset
+from ..outdir import guard_files, record_written
 from .ingest import ingest, write_ingested
 
 
@@ -30,7 +35,11 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
 
 def _main(args) -> int:
     result = ingest(args.map, progress=False if (args.quiet or args.no_progress) else None)
-    manifest = write_ingested(result, args.output, fmt=args.format, overwrite=args.force)
+    fmt = args.format or result.map.fmt
+    names = ["dataset.toml", "robot.toml", *(f"{rec.name}.{fmt}" for rec in result.dataset.recordings)]
+    guard_files(Path(args.output), names, force=args.force)
+    manifest = write_ingested(result, args.output, fmt=args.format, overwrite=True)
+    record_written(Path(args.output), names)
     ds = read_dataset(manifest)
     n = sum(r.n for r in ds.recordings)
     print(f"wrote {manifest}: {len(ds.recordings)} recording(s), {n} rows, session epoch {result.epoch_ns} ns")

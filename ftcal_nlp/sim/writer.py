@@ -26,6 +26,14 @@ def _write_table(df, path: Path) -> None:
         df.to_csv(path, index=False, float_format="%.10g")
 
 
+def simulation_files(res: SimResult, *, fmt_hanging: str = "csv", fmt_standing: str = "parquet",
+                     fmt_walking: str = "csv") -> list[str]:
+    """The names :func:`write_simulation` writes into its folder (same defaults)."""
+    fmts = {"hanging": fmt_hanging, "standing": fmt_standing, "walking": fmt_walking}
+    return ["dataset.toml", "robot.toml", *(f"{r.name}.{fmts[r.kind]}" for r in res.dataset.recordings),
+            "truth.json", "walk_truth.csv"]
+
+
 def write_simulation(
     res: SimResult,
     folder: str | Path,

@@ -20,6 +20,12 @@ from .config import KINDS, config_from_dict
 from .simulate import FreeLoadResult, simulate_free
 
 
+def free_load_files(res: FreeLoadResult) -> list[str]:
+    """The names :func:`write_free_load` writes into its folder."""
+    urdf = [res.robot["urdf"]] if res.urdf_text is not None else []
+    return ["dataset.toml", "robot.toml", *urdf, *(e["file"] for e in res.manifest["recording"]), "truth.json"]
+
+
 def write_free_load(res: FreeLoadResult, folder: str | Path, *, overwrite: bool = False) -> Path:
     """Write ``res`` into ``folder``; returns the manifest path. Nothing is written when
     ``dataset.toml`` exists and ``overwrite`` is false."""
@@ -45,15 +51,26 @@ def simulate_to_folder(table: dict[str, Any], folder: str | Path, *, overwrite: 
 
     ``kind = "payload" | "urdf_leg"`` goes to this package; no ``kind`` (or
     ``"hexapod"``) to the BigAnt simulator (:class:`ftcal_nlp.sim.SimConfig`).
+    The files it writes over must be ones the tool wrote (``outdir.guard_files``: the folder's manifest lists
+    them), and only with ``overwrite``; other files in the folder are left as they are.
     """
+    from ...outdir import guard_files, record_written
+
     kind = table.get("kind", "hexapod")
     if kind in KINDS:
-        return write_free_load(simulate_free(config_from_dict(table)), folder, overwrite=overwrite)
-    if kind != "hexapod":
+        res = simulate_free(config_from_dict(table))
+        names, write = free_load_files(res), lambda: write_free_load(res, folder, overwrite=True)
+    elif kind != "hexapod":
         raise ValueError(f"[simulate] kind = {kind!r}; known kinds: {['hexapod', *sorted(KINDS)]}")
-    from ..config import SimConfig
-    from ..simulate import simulate
-    from ..writer import write_simulation
+    else:
+        from ..config import SimConfig
+        from ..simulate import simulate
+        from ..writer import simulation_files, write_simulation
 
-    rest = {k: v for k, v in table.items() if k != "kind"}
-    return write_simulation(simulate(SimConfig.from_dict(rest)), folder, overwrite=overwrite)
+        rest = {k: v for k, v in table.items() if k != "kind"}
+        sim = simulate(SimConfig.from_dict(rest))
+        names, write = simulation_files(sim), lambda: write_simulation(sim, folder, overwrite=True)
+    guard_files(folder, names, force=overwrite)
+    manifest = write()
+    record_written(folder, names)
+    return manifest
