@@ -250,7 +250,13 @@ def read_robot(path: str | Path) -> Robot:
         if link is not None and (pos is not None or rot is not None):
             log.info("%s: link '%s' given: the URDF gives the nominal pose for each sample's joint angles; position_m / rotation "
                      "are not used for it", w, link)
-        transducers[k] = Transducer(k, pos, rot, t.get("model"), link)
+        weighed = None
+        if "load_mass_kg" in t:
+            weighed = float(_require(t, "load_mass_kg", w, (int, float)))
+            if not (0 < weighed < 1e4):
+                raise DataFormatError(f"{w}: 'load_mass_kg' = {weighed}; expected the load's mass as weighed, a positive "
+                                      "number of kg", path=path, column="load_mass_kg")
+        transducers[k] = Transducer(k, pos, rot, t.get("model"), link, weighed)
     lm = d.get("leg_mass_kg")
     leg_mass = None
     if lm is not None:

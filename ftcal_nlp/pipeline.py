@@ -171,7 +171,7 @@ def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> dict[str, tuple[l
         load = load_for(ds, leg, s.free_load.loads.get(leg))
         data = free_load_data(ds, leg, s.free_load, load)
         recs = [r.select(data.masks[r.name]) for r in ds.hanging if r.hangs_free(leg) and r.name in data.masks]
-        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, data.noise0)
+        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, data.noise0, ds.robot.transducers[leg].load_mass_kg)
         out[leg] = (recs, data.noise0, load)
     return out
 
@@ -183,7 +183,7 @@ def _raise_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarray, object
 
     for leg, (recs, noise, load) in samples.items():
         found = [t for t in try_causes(recs, leg, load, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg),
-                                       reference_mass(load)) if t.fixes]
+                                       reference_mass(load, ds.robot.transducers[leg].load_mass_kg)) if t.fixes]
         if found:
             raise ImplausibleLoadFit(f"{', '.join(str(r.path or r.name) for r in recs)}: transducer {leg}: the free-load fit "
                                      f"failed ({exc}); tried in order: {'; '.join(t.text for t in found)}",
@@ -194,7 +194,7 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
                           notes: list[str]) -> CalibrationRun:
     """Section-5 datasets: every transducer's free load by the free-load estimator; the hexapod stages do not apply."""
     from .freeload import fit_free_loads, free_load_calibration
-    from .freeload.plausibility import check_free_load_fit, nominal_rotation_source
+    from .freeload.plausibility import check_free_load_fit, nominal_rotation_source, weighed_mass_note
 
     hexapod = [k for k in ds.robot.legs if k not in ds.free_load_legs]
     if hexapod:
@@ -216,7 +216,12 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
     with stage("plausibility of the fit", timings, cpu):
         for leg, r in res.legs.items():
             recs, noise, _ = samples[leg]
-            check_free_load_fit(r, recs, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg))
+            weighed = ds.robot.transducers[leg].load_mass_kg
+            check_free_load_fit(r, recs, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg), weighed)
+            note = weighed_mass_note(r, weighed)
+            if note:
+                log.warning("%s", note)
+                notes.append(note)
     notes += res.identifiability()
     cal = free_load_calibration(res, ds.robot)
     diagnosis = None

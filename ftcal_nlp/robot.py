@@ -31,6 +31,7 @@ class Transducer:
     rotation: np.ndarray | None
     model: str | None = None
     link: str | None = None          # the URDF link whose frame is ft_k (section 5)
+    load_mass_kg: float | None = None   # the load's mass as weighed (section 5): a measurement, not a guess
 
 
 @dataclass(frozen=True)
@@ -93,5 +94,7 @@ class Robot:
                 d["link"] = t.link
             if t.model is not None:
                 d["model"] = t.model
+            if t.load_mass_kg is not None:
+                d["load_mass_kg"] = float(t.load_mass_kg)
             out["transducers"][k] = d
         return out

@@ -257,3 +257,45 @@ def test_a_failed_fit_names_the_cause_that_fixes_the_load(payload, tmp_path, mon
     with pytest.raises(SolverError):           # clean data and a failing solver: the solver's own error stands
         monkeypatch.setattr(freeload, "fit_free_loads", lost)
         _calibrate(_write(payload, tmp_path / "clean"))
+
+
+# ----------------------------------------------------------------------------- a weighed load mass (load_mass_kg)
+
+
+def _weighed(res, folder: Path, kg: float, frame: pd.DataFrame | None = None) -> Path:
+    """The dataset of ``res`` with ``[transducers.wrist] load_mass_kg = kg`` in its robot.toml."""
+    d = _write(res, folder, frame).parent
+    robot = read_robot(d / "robot.toml")
+    write_robot(replace(robot, transducers={"wrist": replace(robot.transducers["wrist"], load_mass_kg=kg)}), d / "robot.toml")
+    assert read_robot(d / "robot.toml").transducers["wrist"].load_mass_kg == kg   # read back, not dropped
+    return d / "dataset.toml"
+
+
+def test_readings_in_mN_against_a_weighed_mass_are_named(payload, tmp_path) -> None:
+    """A rigid payload has no URDF mass; the weighed one tells a unit: mN readings weigh 1000x the tool."""
+    m = float(payload.truth["mass_kg"])
+    df = payload.frame.copy()
+    cols = [c for c in df.columns if re.search(r"_[ft][xyz]$", c)]
+    df[cols] *= 1000.0
+    with pytest.raises(DataFormatError, match=r"against the weighed load_mass_kg \d\.\d+ kg .*are the readings in mN"):
+        _calibrate(_weighed(payload, tmp_path / "d", m, df))
+
+
+def test_a_weighed_mass_the_readings_disagree_with_is_noted(payload, tmp_path, caplog) -> None:
+    """3 % off the true mass: far beyond the fit's se (the run keeps its fitted mass and says so); the true mass: silent."""
+    m = float(payload.truth["mass_kg"])
+    run = _calibrate(_weighed(payload, tmp_path / "off", 1.03 * m))
+    notes = [n for n in run.notes if "weighed load_mass_kg" in n]
+    assert len(notes) == 1 and re.search(r"by -2\.\d %", notes[0]), run.notes
+    fitted = run.free_loads.legs["wrist"].load_report()
+    assert abs(fitted["load_mass_kg"] - m) < 4 * fitted["load_mass_se_kg"]    # the fit is the readings', not the weighing's
+    run = _calibrate(_weighed(payload, tmp_path / "true", m))
+    assert not [n for n in run.notes if "weighed load_mass_kg" in n], run.notes
+
+
+def test_a_weighed_mass_that_is_no_mass_is_refused(payload, tmp_path) -> None:
+    d = _write(payload, tmp_path / "d").parent
+    text = (d / "robot.toml").read_text().replace("[transducers.wrist]", "[transducers.wrist]\nload_mass_kg = -1.2", 1)
+    (d / "robot.toml").write_text(text)
+    with pytest.raises(DataFormatError, match=r"\[transducers\.wrist\]: 'load_mass_kg' = -1\.2; expected the load's mass"):
+        read_robot(d / "robot.toml")

@@ -43,6 +43,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -360,18 +361,21 @@ def _force_noise(noise: np.ndarray | None) -> float:
     return float(np.sqrt(np.sum(np.asarray(noise[:3], float) ** 2)))
 
 
-def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None = None) -> None:
-    """Raise when the weight in the forces is ``UNIT_FACTOR`` times off the URDF's nominal mass of the load, or
-    (without one) the force noise lies below ``MIN_FORCE_NOISE_N``: the readings are in kN (or mN)."""
+def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None = None,
+                weighed_kg: float | None = None) -> None:
+    """Raise when the weight in the forces is ``UNIT_FACTOR`` times off the load's reference mass (:func:`reference_mass`:
+    weighed, else the URDF's nominal), or (without one) the force noise lies below ``MIN_FORCE_NOISE_N``: the readings
+    are in kN (or mN)."""
     w, b, _ = load_arrays(recs, leg, load, g)
     fit = gravity_fit(w[:, :3], b)
-    ref = reference_mass(load)
+    reference = reference_mass(load, weighed_kg)
+    ref = reference.kg if reference else None
     m = abs(fit.mass_kg)
     if ref and np.isfinite(m) and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
         unit = "kN" if m < ref else "mN"
         raise DataFormatError(
             f"{_where(recs, leg)}: columns {leg}_fx..{leg}_fz: the load's weight in the forces is {m * g:.4g} N, a mass of "
-            f"{m:.4g} kg against the URDF's nominal {ref:.4g} kg (expected within {UNIT_FACTOR:g}x; {m * (1000 if unit == 'kN' else 1e-3):.4g} "
+            f"{m:.4g} kg against {reference.what} {ref:.4g} kg (expected within {UNIT_FACTOR:g}x; {m * (1000 if unit == 'kN' else 1e-3):.4g} "
             f"kg with the readings read as {unit}): expected N and N*m: are the readings in {unit} (and {unit}*m)?",
             column=f"{leg}_fx")
     floor = _force_noise(noise)
@@ -383,14 +387,14 @@ def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.n
 
 
 def check_free_load_data(recs: Sequence[Recording], leg: str, load, g: float, tree=None,
-                         noise: np.ndarray | None = None) -> None:
+                         noise: np.ndarray | None = None, weighed_kg: float | None = None) -> None:
     """Every check before fitting, in order: quaternion order, gravity sign, joint angles in degrees, units. ``recs``: the
     recordings in which ``leg``'s load hangs free (its quasi-static rows, or a recording to correct); ``noise`` (6,)
     the per-sample sd of the readings (None: not known)."""
     check_quaternion_order(recs, leg, load, g, noise)
     check_gravity_sign(recs, leg, load, g)
     check_joint_degrees(recs, leg, load, g, tree, noise)
-    check_units(recs, leg, load, g, noise)
+    check_units(recs, leg, load, g, noise, weighed_kg)
 
 
 # ----------------------------------------------------------------------------- after the fit
@@ -431,7 +435,7 @@ def _pct(lf: LoadFit) -> str:
 
 
 def try_causes(recs: Sequence[Recording], leg: str, load, g: float, tree=None, noise: np.ndarray | None = None,
-               nominal_source: str = "robot.toml", reference_mass_kg: float | None = None) -> list[Trial]:
+               nominal_source: str = "robot.toml", reference: Reference | None = None) -> list[Trial]:
     """The likely causes of an implausible fit, in order (quaternion order, gravity sign, degrees, frame, units), each
     tried by the linear refits with its fix applied (module docstring)."""
     out: list[Trial] = []
@@ -470,10 +474,11 @@ def try_causes(recs: Sequence[Recording], leg: str, load, g: float, tree=None, n
     # units: the mass 1000x off a reference, or a force noise no transducer has in N
     m = gf0.mass_kg
     floor = _force_noise(noise)
-    if reference_mass_kg and reference_mass_kg > 0 and m > 0 and not 1 / UNIT_FACTOR <= m / reference_mass_kg <= UNIT_FACTOR:
-        unit = "kN" if m < reference_mass_kg else "mN"
-        out.append(Trial("units", True, f"the load mass {m:.4g} kg is {reference_mass_kg / m if m < reference_mass_kg else m / reference_mass_kg:.3g}x "
-                                        f"off the URDF's nominal {reference_mass_kg:.4g} kg ({m * (1000 if unit == 'kN' else 1e-3):.4g} kg "
+    ref = reference.kg if reference else None
+    if ref and m > 0 and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
+        unit = "kN" if m < ref else "mN"
+        out.append(Trial("units", True, f"the load mass {m:.4g} kg is {ref / m if m < ref else m / ref:.3g}x "
+                                        f"off {reference.what} {ref:.4g} kg ({m * (1000 if unit == 'kN' else 1e-3):.4g} kg "
                                         f"with the forces read as {unit}): are the readings in {unit} (and {unit}*m)?"))
     elif 0 < floor < MIN_FORCE_NOISE_N:
         out.append(Trial("units", True, f"the force noise is {floor:.2g} N per sample, below any six-axis transducer's "
@@ -485,7 +490,7 @@ def try_causes(recs: Sequence[Recording], leg: str, load, g: float, tree=None, n
 
 
 def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, noise: np.ndarray | None = None,
-                        nominal_source: str = "robot.toml") -> None:
+                        nominal_source: str = "robot.toml", weighed_kg: float | None = None) -> None:
     """Raise :class:`~ftcal_nlp.errors.ImplausibleLoadFit` when the fit ``result`` (a
     :class:`~ftcal_nlp.freeload.FreeLoadResult`) is physically implausible (module docstring); ``recs`` the samples
     it used (for the causes' refits), ``noise`` (6,) the readings' per-sample sd, ``nominal_source`` the key that gives
@@ -497,7 +502,8 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
     lf = load_fit(w, b, K, load.mass_row, result.rotation, noise)
     share = np.array([np.linalg.norm(result.rms[:3]), np.linalg.norm(result.rms[3:])]) / np.maximum(lf.spread, 1e-300)
     over = result.rms / _sd(noise) if _known(noise) else np.full(6, np.inf)
-    ref = reference_mass(load)
+    reference = reference_mass(load, weighed_kg)
+    ref = reference.kg if reference else None
     # what the data leave undetermined sits at the prior (named by the fit): no bound applies to it
     mass_known = bool(np.isfinite(result.load_report().get("load_mass_se_kg", np.inf)))
     mount_known = bool(np.all(np.isfinite(result.se[-3:])))
@@ -513,14 +519,14 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
                         f"spread{vs} (expected below {UNEXPLAINED_SHARE:.0%} of the spread, or {RESIDUAL_NOISE_FACTOR:g}x the "
                         "noise)")
     if ref and mass > 0 and mass_known and not 1 / UNIT_FACTOR <= mass / ref <= UNIT_FACTOR:
-        problems.append(f"a load mass of {mass:.4g} kg against the URDF's nominal {ref:.4g} kg (expected within {UNIT_FACTOR:g}x)")
+        problems.append(f"a load mass of {mass:.4g} kg against {reference.what} {ref:.4g} kg (expected within {UNIT_FACTOR:g}x)")
     floor = _force_noise(noise)
     if 0 < floor < MIN_FORCE_NOISE_N:
         problems.append(f"a force noise of {floor:.2g} N per sample (no six-axis transducer resolves below "
                         f"{MIN_FORCE_NOISE_N:g} N)")
     if not problems:
         return
-    trials = try_causes(recs, leg, load, g, tree, noise, nominal_source, ref)
+    trials = try_causes(recs, leg, load, g, tree, noise, nominal_source, reference)
     found = [t for t in trials if t.fixes]
     tried = ", ".join(dict.fromkeys(t.name for t in trials))
     if found:
@@ -534,13 +540,38 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
         leg=leg, causes=tuple(t.name for t in found))
 
 
-def reference_mass(load) -> float | None:
-    """The URDF's nominal total mass of the load (its prior), or None."""
+class Reference(NamedTuple):
+    """A mass to hold the load's against: ``kg`` and ``what`` it is, for the messages."""
+
+    kg: float
+    what: str
+
+
+def reference_mass(load, weighed_kg: float | None = None) -> Reference | None:
+    """The load's weighed mass (``[transducers.X] load_mass_kg``: a measurement) where given, else the URDF's nominal
+    total mass of the load (its prior); None without either."""
+    if weighed_kg is not None and weighed_kg > 0:
+        return Reference(float(weighed_kg), "the weighed load_mass_kg")
     prior = load.prior() if hasattr(load, "prior") else None
     if prior is None:
         return None
     m = float(np.asarray(load.mass_row) @ np.asarray(prior, float))
-    return m if m > 0 else None
+    return Reference(m, "the URDF's nominal") if m > 0 else None
+
+
+def weighed_mass_note(result, weighed_kg: float | None, z_min: float = 5.0, rel_min: float = 0.01) -> str | None:
+    """A note when the fitted load mass differs from the weighed one by more than ``z_min`` se and ``rel_min`` of it: a
+    gain of the force channels (or the weighing) the readings alone cannot tell from the mass; None otherwise."""
+    if weighed_kg is None:
+        return None
+    rep_ = result.load_report()
+    m, se = float(rep_["load_mass_kg"]), float(rep_.get("load_mass_se_kg", np.inf))
+    d = m - weighed_kg
+    if not np.isfinite(se) or abs(d) <= max(z_min * se, rel_min * weighed_kg):
+        return None
+    return (f"transducer {result.leg}: the fitted load mass {m:.5g} +- {se:.2g} kg differs from the weighed load_mass_kg "
+            f"{weighed_kg:.5g} kg by {100 * d / weighed_kg:+.2g} % ({abs(d) / se:.0f} se): a gain of the force channels (or "
+            "the weighing); the calibration keeps the fitted mass, which the contact wrench needs as the sensor reads it")
 
 
 def nominal_rotation_source(ds, leg: str) -> str:
