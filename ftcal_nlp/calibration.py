@@ -332,18 +332,6 @@ def is_free_load(d: dict) -> bool:
     return bool(legs) and all("load_kind" in l for l in legs.values())
 
 
-def read_calibration(path: str | Path, **kw):
-    """The calibration in ``path`` for ``correct`` and ``export``: a :class:`Calibration` (hexapod legs; ``kw`` as
-    :meth:`Calibration.from_json_dict`), or for free loads the per-transducer calibrations of
-    :func:`ftcal_nlp.correct_loads.free_loads_from_dict` (a dict by transducer)."""
-    d = read_calibration_json(path)
-    if is_free_load(d):
-        from .correct_loads import free_loads_from_dict
-
-        return free_loads_from_dict(d, Path(path))
-    return Calibration.from_checked_dict(d, path, **kw)
-
-
 def _fail(source: str, key: str, what: str) -> DataFormatError:
     return DataFormatError(f"{source} {key}: {what}", path=source, column=key)
 

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .calibration import Calibration, read_calibration
+from .calibration import Calibration
+from .correct_loads import correct_free_load_file, read_calibration
 from .checks import SensorFault, check_calibration, check_recording_to_correct
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
@@ -180,7 +181,6 @@ def _main(args) -> int:
     for target in targets:
         if target.exists() and not args.force:
             raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
-    from .correct_loads import correct_free_load_file
 
     cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
     if not isinstance(cal, Calibration):

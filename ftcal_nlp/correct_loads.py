@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .calibration import Calibration, is_free_load, read_calibration_json
 from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
 from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
@@ -608,15 +609,25 @@ def _temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, wh
 def payload_calibrations(cal_path: str | Path) -> dict[str, PayloadCalibration | UrdfLoadCalibration] | None:
     """The free-load calibrations of ``calibration.json`` (payloads and URDF loads; read and checked by
     :func:`ftcal_nlp.calibration.read_calibration_json`), or None when it is not a free-load calibration."""
-    from .calibration import is_free_load, read_calibration_json
-
     d = read_calibration_json(cal_path)
     return free_loads_from_dict(d, Path(cal_path)) if is_free_load(d) else None
 
 
+def read_calibration(path: str | Path, **kw) -> "Calibration | dict[str, PayloadCalibration | UrdfLoadCalibration]":
+    """The calibration in ``path`` for ``correct`` and ``export``, read and checked by
+    :func:`ftcal_nlp.calibration.read_calibration_json`: a :class:`~ftcal_nlp.calibration.Calibration` (hexapod legs;
+    ``kw`` as :meth:`~ftcal_nlp.calibration.Calibration.from_json_dict`), or for free loads the per-transducer
+    calibrations of :func:`free_loads_from_dict` (a dict by transducer). Here, above both kinds, so that
+    ``calibration.py`` imports nothing of the free loads."""
+    d = read_calibration_json(path)
+    if is_free_load(d):
+        return free_loads_from_dict(d, Path(path))
+    return Calibration.from_checked_dict(d, path, **kw)
+
+
 def free_loads_from_dict(d: dict, cal_path: Path) -> dict[str, PayloadCalibration | UrdfLoadCalibration]:
     """The per-transducer free-load calibrations of a calibration dict read and checked from ``cal_path``
-    (:func:`ftcal_nlp.calibration.read_calibration`)."""
+    (:func:`read_calibration`)."""
     legs = d["legs"]
     cc = _covariance_file(cal_path, d.get("meta", {}))
     g = float(d.get("g", 9.81))

@@ -34,7 +34,8 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from .calibration import Calibration, LegCalibration, read_calibration
+from .calibration import Calibration, LegCalibration
+from .correct_loads import read_calibration
 from .codegen import ExportedFiles, write_generated
 from .errors import ConfigError, DataFormatError, OutputError
 from .geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
