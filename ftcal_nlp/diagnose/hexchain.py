@@ -38,8 +38,7 @@ left:
   (:func:`held_out_evidence`: paired block-wise z >= ``Z_MIN`` and a saving of ``MIN_FLOOR_SHARE`` of the floor's
   variance on such a kind, largest z first), each judged as above. The attribution fits the standing poses with the
   named faces but without the joint hanging fit's offsets and leg weights as a prior, so it can see no gap where the
-  joint refit leaves one (a chassis flex beside a casing load: standing excess -0.92 in the attribution, 7.7 after
-  the joint refit, the flex's paired z 15): there the ranking is silent, the held-out evidence is not.
+  joint refit leaves one: there the ranking is silent, the held-out evidence is not.
 
 * when no link is made and a gap is left with two effects or more named, a **swap**: each named effect in turn is
   replaced by each candidate the first attribution scored (none swapped out before), and the others refit jointly with
@@ -59,7 +58,7 @@ left:
 The walking swing kind counts where the gap lies (ranking, the share explained) but is no evidence of its own: the
 joint refit predicts a swing leg's weight by extrapolating the hanging faces (a drift's rate, a crosstalk read as
 tilt while hanging) and with the frames the named effects turn, so what it leaves there is no measure of an effect
-still missing (in the sweep a cable's face took up that remainder as a false second). Once an effect with a design
+still missing (a face fitted to that remainder would be a false second). Once an effect with a design
 face (a common tilt of the frames: ``mocap_bias``, ``tether_force``) is named, it is left out of the gaps too
 (``SKIP_AFTER_DESIGN``).
 
