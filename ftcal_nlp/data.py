@@ -8,7 +8,8 @@ body vectors to world vectors; ``{leg}_phi`` is unwrapped, 0 = leg straight down
 
 Section 5 (any robot): a transducer whose ``{leg}_phi`` column no hanging
 recording has carries a rigid payload; ``robot.toml`` ``urdf`` with
-``[transducers.X].link`` gives a load of URDF links, moved by the ``q_{joint}``
+``[transducers.X].link`` gives a load of URDF links (with no ``<inertial>`` below
+the link: a rigid payload oriented by the joints), moved by the ``q_{joint}``
 columns (``Recording.q``; movable joints without a column are held at 0 and
 named in a warning); ``gx..gz`` or ``qw..qz`` in a ``hanging`` recording give the
 gravity direction per sample (``Recording.gravity``, unit, in B) and make
@@ -166,9 +167,11 @@ class Dataset:
 
     def load_kind(self, leg: str) -> str:
         """The kind of transducer ``leg``'s load (section 5): ``"leg_com_curve"`` (a ``{leg}_phi`` column:
-        a hexapod leg), ``"urdf_subtree"`` (a URDF ``link``) or ``"rigid_payload"``."""
-        if self.robot.transducers[leg].link is not None:
-            return "urdf_subtree"
+        a hexapod leg), ``"urdf_subtree"`` (a URDF ``link`` with links of mass below it) or ``"rigid_payload"``
+        (no ``link``, or a ``link`` with no mass below it: an arm's tool the URDF leaves out, oriented by the joints)."""
+        link = self.robot.transducers[leg].link
+        if link is not None:
+            return "urdf_subtree" if has_mass_below(self.robot.tree, link) else "rigid_payload"
         if any(leg in r.phi for r in self.recordings):
             return "leg_com_curve"
         return "rigid_payload"
@@ -302,10 +305,15 @@ def _transducer_link(link: object, tree, where: str) -> str:
         what = "the root link" if j is None else f"the child of {j.type} joint '{j.name}'"
         raise DataFormatError(f"{where}: key 'link' = '{link}' is {what}; expected a sensor link, the child link of a fixed joint",
                               column="link")
-    if not any(l in tree.bodies for l in tree.below(link)):
-        raise DataFormatError(f"{where}: key 'link' = '{link}': no link with mass below it in the URDF; expected the sensor "
-                              "whose load is the links below it", column="link")
+    if not has_mass_below(tree, link):
+        log.info("%s: no link with mass below '%s' in the URDF %r: its load is a rigid payload (mass and CoM from the "
+                 "readings), oriented by the joints through the URDF (DATA_FORMAT.md section 5)", where, link, tree.name)
     return link
+
+
+def has_mass_below(tree, link: str) -> bool:
+    """Whether a link of ``tree`` below ``link`` carries an ``<inertial>`` (else the load is a rigid payload)."""
+    return any(l in tree.bodies for l in tree.below(link))
 
 
 def read_table(path: Path) -> pd.DataFrame:

@@ -7,7 +7,8 @@ models' :func:`ftcal_nlp.models.resolve`). Built in:
 * ``leg_com_curve`` -- :class:`LegComCurve`, a hexapod leg's CoM curve over
   ``phi`` (delegates to the hanging calibration);
 * ``rigid_payload`` -- :class:`RigidPayload`, a tool on a wrist: mass and
-  first moment;
+  first moment (oriented by the transducer's ``rotation``, or on an arm whose URDF
+  leaves the tool out by the joints through the URDF: the transducer's ``link``);
 * ``urdf_subtree`` -- :class:`UrdfSubtree`, the URDF links below a sensor,
   grouped by the joints that move them: mass and first moment per group.
 
@@ -42,6 +43,9 @@ def load_for(dataset, leg: str, name: str | None = None) -> LinearLoad:
     robot = dataset.robot
     kind = name or dataset.load_kind(leg)
     if kind == "rigid_payload":
+        link = robot.transducers[leg].link
+        if link is not None:   # an arm whose URDF leaves the tool out: oriented by the joints
+            return RigidPayload(tree=robot.tree, ft_link=link)
         return RigidPayload(robot.transducers[leg].rotation)
     if kind == "urdf_subtree":
         return UrdfSubtree(robot.tree, robot.transducers[leg].link)

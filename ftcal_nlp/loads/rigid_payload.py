@@ -6,6 +6,14 @@
 ft orientation in B is the ``rotation`` of ``robot.toml`` (constant). What
 kth ``ft_calib`` and Robotlib ``calibForce`` estimate (``peers.py``), here with
 the mounting rotation and standard errors.
+
+On an arm whose URDF leaves the tool out (``DATA_FORMAT.md`` section 5: no
+``<inertial>`` below the sensor link), the payload is the same four parameters
+but its nominal orientation comes from the joints: built with ``tree`` and
+``ft_link``, ``R_nom(q)`` is the URDF's pose of the sensor link for each sample's
+joint angles (``base_joints``, the movable joints above it), as a URDF load's
+(``loads.urdf_subtree``); the lever stays ``[0 | I]`` (the tool is fixed to the
+sensor). There is no prior: mass and CoM come from the readings alone.
 """
 
 from __future__ import annotations
@@ -23,9 +31,26 @@ class RigidPayload(LinearLoad):
     name = "rigid_payload"
     kind = "rigid_payload"
 
-    def __init__(self, rotation: np.ndarray | None = None, prior: np.ndarray | None = None):
+    load_joints: tuple[str, ...] = ()
+
+    def __init__(self, rotation: np.ndarray | None = None, prior: np.ndarray | None = None, *, tree=None,
+                 ft_link: str | None = None):
+        if (tree is None) != (ft_link is None):
+            raise ValueError("RigidPayload: give both tree and ft_link (a payload oriented through the URDF) or neither")
         self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, float)
         self._prior = prior
+        self.tree, self.ft_link = tree, ft_link
+        if tree is not None:
+            from ..kinematics import MOVABLE
+
+            self.base_joints = tuple(j.name for j in tree.path_to_root(ft_link) if j.type in MOVABLE)
+        else:
+            self.base_joints = ()
+
+    @property
+    def through_urdf(self) -> bool:
+        """Whether the nominal orientation comes from the joints through the URDF (an arm's tool)."""
+        return self.tree is not None
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -44,6 +69,8 @@ class RigidPayload(LinearLoad):
         return False
 
     def nominal_rotation(self, q: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+        if self.tree is not None:
+            return self.tree.pose(self.tree.root, self.ft_link, q, n)[0]
         return np.broadcast_to(self.rotation, (n, 3, 3))
 
     def prior(self) -> np.ndarray | None:
