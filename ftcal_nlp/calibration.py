@@ -362,12 +362,13 @@ def _rotation(source: str, key: str, v) -> np.ndarray:
 
 def _check_mount(source: str, at: str, l: dict) -> None:
     """One mounting rotation per free-load transducer, read from ``rotation_to_body`` (ft -> B) for a rigid payload
-    and from ``mount_rotation`` (``E``) for a URDF load (its nominal pose moves with the joints); the other copies
+    and from ``mount_rotation`` (``E``) for a URDF load or a payload oriented through the URDF (``link``: its
+    nominal pose moves with the joints); the other copies
     must agree with it within ``ROTATION_TOL``: ``mount_rotation = expm([mount_rotvec]x)`` and, where the design
     rotation ``rotation_nominal`` is stored, ``rotation_to_body = rotation_nominal mount_rotation``."""
     from .geometry import rotvec_to_rotation
 
-    read = "rotation_to_body" if l.get("load_kind") == "rigid_payload" else "mount_rotation"
+    read = "rotation_to_body" if l.get("load_kind") == "rigid_payload" and l.get("link") is None else "mount_rotation"
     if l.get(read) is None and (read == "rotation_to_body" or l.get("mount_rotvec") is not None):
         raise _fail(source, f"{at}.{read}", f"missing; the correction reads the {l.get('load_kind')} load's mounting rotation "
                                             "there")
@@ -394,6 +395,8 @@ def _check_free_leg(source: str, at: str, l: dict) -> None:
     if kind not in FREE_LOAD_KINDS:
         raise _fail(source, f"{at}.load_kind", f"{kind!r}; expected one of {list(FREE_LOAD_KINDS)}")
     need = ("offset", "load_mass_kg") + (("load_com_m",) if kind == "rigid_payload" else ("urdf", "link", "urdf_groups"))
+    if kind == "rigid_payload" and (l.get("link") is not None or l.get("urdf") is not None):
+        need += ("urdf", "link")   # a payload oriented by the joints: the correction rebuilds R_nom(q) from the URDF
     missing = [k for k in need if l.get(k) is None]
     if missing:
         raise _fail(source, f"{at}.{missing[0]}", f"missing key(s) {missing} of a {kind} calibration (the contact wrench needs "
@@ -419,6 +422,11 @@ def _check_free_leg(source: str, at: str, l: dict) -> None:
             _numbers(source, f"{at}.urdf_groups.{name}.first_moment_kgm", gr.get("first_moment_kgm"), (3,))
     if l.get("gravity_tilt_rad") is not None:
         _numbers(source, f"{at}.gravity_tilt_rad", l["gravity_tilt_rad"], (2,))
+    if l.get("gravity_body") is not None:   # the fixed base's gravity direction, for a recording without orientation
+        gb = _numbers(source, f"{at}.gravity_body", l["gravity_body"], (3,))
+        if abs(float(np.linalg.norm(gb)) - 1.0) > 1e-3:
+            raise _fail(source, f"{at}.gravity_body", f"norm {np.linalg.norm(gb):.4g}; expected a unit vector (gravity's "
+                                                      "direction in B at calibration)")
     _check_mount(source, at, l)
 
 

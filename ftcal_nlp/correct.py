@@ -1,6 +1,7 @@
 """Turn any recording into per-foot ground contact wrenches with a finished calibration.
 
 ``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv [--bag out_bag] [--track-offsets]``
+(free loads: ``[--gravity-body X Y Z]`` for a fixed base's recording without orientation columns, ``correct_loads.py``)
 
 Each foot's ground wrench is the reading less the offset less the leg's weight
 wrench (report eq. 3), moved to the heading frame about the robot's CoM at that
@@ -32,7 +33,7 @@ from .checks import SensorFault, check_calibration, check_recording_to_correct
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
 from .csvout import write_csv
-from .errors import OutputError
+from .errors import ConfigError, OutputError
 from .geometry import quat_to_rotation
 from .robot import Robot, Transducer
 from .settings import CorrectSettings
@@ -156,6 +157,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     ap.add_argument("--bag", help="also write a ROS 2 MCAP bag with one WrenchStamped topic per foot")
     ap.add_argument("--track-offsets", action="store_true",
                     help="re-estimate each leg's offsets over the recording from its swing phases and correct with them")
+    ap.add_argument("--gravity-body", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                    help="free loads on a fixed base (an arm logging joints only): gravity's direction in B for a recording "
+                         "without qw..qz / gx..gz (default: the calibration's gravity_body, kept by the run)")
     args = parse(ap, argv)
     setup(args)
     return guarded(lambda: _main(args), extra=(ValueError,))
@@ -185,6 +189,9 @@ def _main(args) -> int:
     cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
     if not isinstance(cal, Calibration):
         return correct_free_load_file(cal, args, out)
+    if args.gravity_body is not None:
+        raise ConfigError("--gravity-body applies to free-load calibrations (a fixed base's gravity); "
+                          f"{args.calibration} holds hexapod legs, whose recordings carry qw..qz", key="--gravity-body")
     check_calibration(cal, args.calibration)
     # the missing-covariance warning comes after the correction succeeded: a failure is one line
     res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),

@@ -44,6 +44,19 @@ With the covariance file, an output is undetermined (se inf) only where its deri
 undetermined direction (``null``): a joint that never moved at calibration leaves the split of the links it
 carries undetermined, but not the wrench at the angles it held.
 
+A payload on an arm whose URDF leaves the tool out (``load_kind = "rigid_payload"`` with ``urdf`` and ``link``):
+the rigid payload's wrench with its orientation moving with the joints, ``R_B,ft = R_nom(q) E`` (``rotation_to_body``
+per sample; ``E`` = ``mount_rotation``), the lever constant (``K = [0 | I]``: :class:`~ftcal_nlp.loads.RigidPayload`
+built on the URDF, served as a URDF load above).
+
+Gravity of a recording without orientation columns (joints only: an arm on its fixed base): ``g`` times the
+calibration's ``gravity_body`` (per transducer, the direction its fit used for the base: the manifest's
+``gravity_body`` with the recording's estimated tilt, ``recording_tilt_rad``, applied, written by the run where every
+recording it used gave gravity by ``gravity_body`` alone and they agree, ``freeload.estimate.fixed_base_gravity``),
+or ``correct --gravity-body X Y Z`` (B axes, normalised; it wins over the calibration's and is said in the log).
+The tilt's uncertainty (tens of microradians on the shared arm) is left out of the se. A recording with orientation
+columns uses them; with neither, the error names both ways.
+
 A ``calibration_with_effect.json`` of a free-load run (``meta.effect.kind = "free_load"``) names effects per
 transducer: the readings are corrected for them first and the se carry their parameters' joint covariance
 (``freeload/effects_correction.py``: what the file holds, the correction, what the se leave out); a calibration
@@ -96,6 +109,7 @@ class PayloadCalibration:
     null: np.ndarray | None = None
     tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
     effects: object = None            # the named effects (freeload/effects_correction.FreeEffects); None: none
+    gravity_body: np.ndarray | None = None   # the fixed base's gravity direction at calibration (unit, B); None: not kept
 
     joints: tuple[str, ...] = ()
 
@@ -125,6 +139,7 @@ class UrdfLoadCalibration:
     null: np.ndarray | None = None
     tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
     effects: object = None            # the named effects (freeload/effects_correction.FreeEffects); None: none
+    gravity_body: np.ndarray | None = None   # the fixed base's gravity direction at calibration (unit, B); None: not kept
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -220,12 +235,19 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
     except KeyError as exc:
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a payload calibration", path=where,
                               column=str(exc.args[0])) from None
+    gb = _base_gravity(d)
     if cov is not None:
         C, und, null = cov
         return PayloadCalibration(leg, off, m, m * c, R, np.where(np.isfinite(C), C, 0.0), sigma, g, full_cov=True,
-                                  undetermined=np.asarray(und, bool), null=null, tilt=tilt)
+                                  undetermined=np.asarray(und, bool), null=null, tilt=tilt, gravity_body=gb)
     return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False,
-                              undetermined=np.isinf(var), tilt=tilt)
+                              undetermined=np.isinf(var), tilt=tilt, gravity_body=gb)
+
+
+def _base_gravity(d: dict) -> np.ndarray | None:
+    """A leg entry's ``gravity_body`` (the fixed base's gravity direction the run kept), unit, or None."""
+    gb = d.get("gravity_body")
+    return None if gb is None else np.asarray(gb, float) / np.linalg.norm(gb)
 
 
 def payload_from_fit(fit, R_nominal: np.ndarray, g: float) -> PayloadCalibration:
@@ -247,7 +269,6 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
     ``urdf_groups``): the URDF parsed again (a path relative to ``calibration.json``'s folder, or absolute; a file
     of its name beside ``calibration.json`` when that path is gone), its groups checked against the stored ones. ``cc``: the run's :class:`~ftcal_nlp.uncertainty.CalibrationCovariance`
     (its block of this transducer); None, or the transducer not in it: the diagonal of the stored se."""
-    from .data import read_urdf_tree
     from .loads import UrdfSubtree
 
     where = str(cal_path)
@@ -263,11 +284,7 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a URDF-load calibration (the "
                               "contact wrench needs the URDF, the sensor link and the groups' parameters)", path=where,
                               column=str(exc.args[0])) from None
-    path = Path(urdf) if Path(urdf).is_absolute() else cal_path.parent / urdf
-    if not path.is_file() and (cal_path.parent / path.name).is_file():   # a calibration moved with its URDF beside it
-        log.info("%s: legs.%s.urdf = %s is not there; using %s beside the calibration", where, leg, urdf, path.name)
-        path = cal_path.parent / path.name
-    tree = read_urdf_tree(path, f"{where} legs.{leg}.urdf")
+    path, tree = _urdf_tree(urdf, leg, cal_path)
     try:
         load = UrdfSubtree(tree, link)
     except (KeyError, ValueError) as exc:
@@ -281,11 +298,48 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
     if cov is not None:
         C, und, null = cov
         return UrdfLoadCalibration(leg, load, off, theta, E, np.where(np.isfinite(C), C, 0.0), sigma, g, True,
-                                   np.asarray(und, bool), null, tilt)
+                                   np.asarray(und, bool), null, tilt, gravity_body=_base_gravity(d))
     var_th = np.concatenate([[groups[n]["mass_se_kg"], *groups[n]["first_moment_se_kgm"]] for n in names]).astype(float) ** 2
     var = np.concatenate([var_off, var_th, var_t, var_tail])
     return UrdfLoadCalibration(leg, load, off, theta, E, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, False,
-                               np.isinf(var), None, tilt)
+                               np.isinf(var), None, tilt, gravity_body=_base_gravity(d))
+
+
+def _urdf_tree(urdf: str, leg: str, cal_path: Path):
+    """``(path, KinematicTree)`` of a leg entry's ``urdf`` (relative to ``calibration.json``'s folder, or absolute; a
+    file of its name beside ``calibration.json`` when that path is gone)."""
+    from .data import read_urdf_tree
+
+    path = Path(urdf) if Path(urdf).is_absolute() else cal_path.parent / urdf
+    if not path.is_file() and (cal_path.parent / path.name).is_file():   # a calibration moved with its URDF beside it
+        log.info("%s: legs.%s.urdf = %s is not there; using %s beside the calibration", cal_path, leg, urdf, path.name)
+        path = cal_path.parent / path.name
+    return path, read_urdf_tree(path, f"{cal_path} legs.{leg}.urdf")
+
+
+def arm_payload_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> UrdfLoadCalibration:
+    """A rigid payload oriented by the joints (keys ``urdf``, ``link`` beside the payload's): a
+    :class:`UrdfLoadCalibration` whose load is :class:`~ftcal_nlp.loads.RigidPayload` on the URDF (``R_B,ft =
+    R_nom(q) E``, ``theta = [m, m c]``); ``cc`` as :func:`urdf_from_json` (without it the stored se's diagonal, the
+    CoM's turned into the first moment's as :func:`payload_from_json`)."""
+    from .loads import RigidPayload
+
+    where = str(cal_path)
+    base = payload_from_json({**d, "rotation_to_body": d.get("mount_rotation", np.eye(3))}, leg, g, where)
+    path, tree = _urdf_tree(str(d["urdf"]), leg, cal_path)
+    try:
+        load = RigidPayload(tree=tree, ft_link=str(d["link"]))
+    except KeyError as exc:
+        raise DataFormatError(f"{where}: transducer {leg}: link {d['link']!r} of {path}: {exc}", path=where, column="link") from None
+    theta = np.r_[base.mass_kg, base.h]
+    E = np.asarray(d["mount_rotation"], float)
+    block = None if cc is None else cc.block(param_names(leg, load.param_names, base.tilt is not None))
+    if block is not None:
+        C, und, null = block
+        return UrdfLoadCalibration(leg, load, base.offset, theta, E, np.where(np.isfinite(C), C, 0.0), base.sigma, g, True,
+                                   np.asarray(und, bool), null, base.tilt, gravity_body=base.gravity_body)
+    return UrdfLoadCalibration(leg, load, base.offset, theta, E, base.cov, base.sigma, g, False, base.undetermined, None,
+                               base.tilt, gravity_body=base.gravity_body)
 
 
 def orientation_of_frame(df: pd.DataFrame) -> np.ndarray | None:
@@ -299,9 +353,10 @@ def orientation_of_frame(df: pd.DataFrame) -> np.ndarray | None:
     return out
 
 
-def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
+def gravity_of_frame(df: pd.DataFrame, g: float, where: str, base: np.ndarray | None = None) -> np.ndarray:
     """Gravity in B (N, 3), m/s^2, from ``qw..qz`` (``R_WB^T [0, 0, -g]``) or ``gx..gz`` (normalised, times g);
-    NaN rows where the orientation is missing."""
+    NaN rows where the orientation is missing. Without those columns, ``g base`` for every row (``base`` the fixed
+    base's unit gravity direction in B, :func:`base_gravity`); without a base either, an error."""
     cols = set(map(str, df.columns))
     if set(QUAT_COLUMNS) <= cols:
         q = df[list(QUAT_COLUMNS)].to_numpy(float)
@@ -312,7 +367,40 @@ def gravity_of_frame(df: pd.DataFrame, g: float, where: str) -> np.ndarray:
     if set(GRAVITY_COLUMNS) <= cols:
         v = df[list(GRAVITY_COLUMNS)].to_numpy(float)
         return g * v / np.linalg.norm(v, axis=1, keepdims=True)
-    raise DataFormatError(f"{where}: the contact wrench needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz", path=where)
+    if base is not None:
+        return np.broadcast_to(g * np.asarray(base, float), (len(df), 3)).copy()
+    raise DataFormatError(f"{where}: the contact wrench needs gravity: columns qw, qx, qy, qz or gx, gy, gz, or for a fixed "
+                          "base its direction (the calibration's gravity_body, or correct --gravity-body X Y Z)", path=where)
+
+
+def base_gravity(cal_legs: dict, df: pd.DataFrame, where: str, option=None) -> dict[str, np.ndarray | None]:
+    """Per transducer the fixed base's unit gravity direction in B for a recording without ``qw..qz`` / ``gx..gz``
+    (None with them: they give it per sample): ``option`` (``--gravity-body``) where given, else the calibration's
+    ``gravity_body``; neither is an error naming both ways. Said in the log."""
+    cols = set(map(str, df.columns))
+    if set(QUAT_COLUMNS) <= cols or set(GRAVITY_COLUMNS) <= cols:
+        if option is not None:
+            log.warning("%s: --gravity-body ignored: the recording gives gravity per sample (its orientation columns)", where)
+        return {k: None for k in cal_legs}
+    if option is not None:
+        v = np.asarray(option, float)
+        if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+            raise ConfigError(f"--gravity-body {option}: expected three finite numbers, not all zero (gravity's direction "
+                              "in B, pointing down)", key="--gravity-body")
+        log.info("%s: no orientation columns: gravity along --gravity-body %s (B, normalised) for every sample", where,
+                 np.round(v / np.linalg.norm(v), 6).tolist())
+        return {k: v / np.linalg.norm(v) for k in cal_legs}
+    missing = [k for k, p in cal_legs.items() if getattr(p, "gravity_body", None) is None]
+    if missing:
+        raise DataFormatError(f"{where}: no orientation columns (qw, qx, qy, qz or gx, gy, gz) and the calibration of {missing} "
+                              "keeps no fixed base's gravity_body (it was made with gravity per sample or several held "
+                              "orientations); expected orientation columns, or the base's gravity direction in B: correct "
+                              "--gravity-body X Y Z (e.g. 0 0 -1 for a level base)", path=where)
+    for k, p in cal_legs.items():
+        log.info("%s: no orientation columns: transducer %s's gravity along the calibration's gravity_body %s (the fixed "
+                 "base at calibration, its estimated tilt applied) for every sample", where, k,
+                 np.round(p.gravity_body, 6).tolist())
+    return {k: np.asarray(p.gravity_body, float) for k, p in cal_legs.items()}
 
 
 def predicted_load(p: PayloadCalibration, g_B: np.ndarray, dgB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -406,15 +494,12 @@ def check_transducers(cal_legs: dict, df: pd.DataFrame, where: str) -> None:
 
 
 def _orientation_columns(df: pd.DataFrame, where: str) -> list[str]:
-    """``qw..qz`` or ``gx..gz`` (complete), the gravity per sample the contact wrench needs."""
+    """``qw..qz`` or ``gx..gz`` (complete), the gravity per sample; [] without either (a fixed base)."""
     from .data import _complete_group
 
     cols = [str(c) for c in df.columns]
     q, gcols = _complete_group(cols, QUAT_COLUMNS, where), _complete_group(cols, GRAVITY_COLUMNS, where)
-    if not q and not gcols:
-        raise DataFormatError(f"{where}: the contact wrench needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz",
-                              path=where)
-    return q or gcols
+    return q or gcols   # neither: a fixed base's gravity (base_gravity)
 
 
 def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFrame, np.ndarray]:
@@ -511,32 +596,38 @@ def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
     return {"columns gx, gy, gz point up (a raw accelerometer reads +g when still: negate them)": alt}
 
 
-def _load_angles(p, df: pd.DataFrame, w: np.ndarray, q: dict, where: str) -> tuple[np.ndarray, np.ndarray]:
+def _load_angles(p, df: pd.DataFrame, w: np.ndarray, q: dict, where: str,
+                 base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per row the angle (deg) between the reading's force less the offset and the calibration's load force,
-    and the calibration's full predicted wrench (offset and load) (N, 6)."""
+    and the calibration's full predicted wrench (offset and load) (N, 6); ``base`` as :func:`gravity_of_frame`."""
     from .checks import _angle_deg
 
-    g_B = gravity_of_frame(df, p.g, where)
+    g_B = gravity_of_frame(df, p.g, where, base)
     model, _ = p.predict(g_B, q, orientation_of_frame(df))
     return _angle_deg(w[:, :3] - p.offset[:3], model[:, :3] - p.offset[:3]), model
 
 
-def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str) -> None:
+def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, base: dict | None = None,
+                              base_source: str = "") -> None:
     """The readings against what the calibration predicts for them (every transducer, a regular subsample of
     ``CHECK_ROWS`` rows), as ``run`` checks its recordings against the robot: the forces' unit (median force norm
     within ``UNIT_FACTOR`` of the prediction's; torques within the run's lever-arm bound of the forces,
     ``data._check_units``), and, where the load's weight stands ``DIRECTION_SNR`` noise sd above the noise, the
     orientation columns' convention: the load force's direction from the columns as given must agree with the
     readings' best (median angle within ``checks.TILT_DEG``), else an error names the reading of the columns that
-    agrees (x, y, z, w order; the conjugate; gravity negated)."""
+    agrees (x, y, z, w order; the conjugate; gravity negated). Without orientation columns, the fixed base's
+    gravity (``base`` per transducer, :func:`base_gravity`; ``base_source`` where it came from, for the message) is
+    tested the same way (negated: pointing up)."""
     from .checks import QUAT_ORDER_RATIO, TILT_DEG
     from .data import check_torque_units
 
     sub = clean.iloc[:: max(1, -(-len(clean) // CHECK_ROWS))].reset_index(drop=True)
+    base = base or {}
     for k, p in cal_legs.items():
         w = sub[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy()
         q = {j: sub[f"{JOINT_PREFIX}{j}"].to_numpy() for j in p.joints if f"{JOINT_PREFIX}{j}" in sub.columns}
-        ang, model = _load_angles(p, sub, w, q, where)
+        gb = base.get(k)
+        ang, model = _load_angles(p, sub, w, q, where, gb)
         f_read = float(np.median(np.linalg.norm(w[:, :3], axis=1)))
         f_pred = float(np.median(np.linalg.norm(model[:, :3], axis=1)))
         noise_f = float(np.linalg.norm(np.nan_to_num(np.asarray(p.sigma, float)[:3])))
@@ -552,9 +643,24 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str) -
         given = float(np.median(ang))
         if given <= TILT_DEG:
             continue
-        alt = {what: float(np.median(_load_angles(p, a, w, q, where)[0])) for what, a in _alternatives(sub).items()}
+        if gb is not None:
+            alt = {"the gravity direction is negated (it points down in B: e.g. 0 0 -1 for a level base)":
+                   float(np.median(_load_angles(p, sub, w, q, where, -gb)[0]))}
+        else:
+            alt = {what: float(np.median(_load_angles(p, a, w, q, where)[0])) for what, a in _alternatives(sub).items()}
         best = min(alt, key=alt.get)
         cols = "qw, qx, qy, qz" if set(QUAT_COLUMNS) <= set(sub.columns) else "gx, gy, gz"
+        if gb is not None and alt[best] <= TILT_DEG and alt[best] < QUAT_ORDER_RATIO * given:
+            raise DataFormatError(
+                f"{where}: no orientation columns; gravity along {base_source or 'the fixed base'} {np.round(gb, 4).tolist()}: "
+                f"the load's weight along it is a median {given:.0f} deg from transducer {k}'s force readings less the "
+                f"calibration's offset; expected within {TILT_DEG:.0f} deg: they agree within {alt[best]:.0f} deg if "
+                f"{best}", path=where, column="gravity_body")
+        if gb is not None:
+            log.warning("%s: the load's weight along %s is a median %.0f deg from transducer %s's force readings less the "
+                        "offset: contact for most of the recording, or another base orientation than the calibration's?",
+                        where, base_source or "the fixed base's gravity", given, k)
+            continue
         if alt[best] <= TILT_DEG and alt[best] < QUAT_ORDER_RATIO * given:
             raise DataFormatError(
                 f"{where}: columns {cols}: the load's weight from them is a median {given:.0f} deg from transducer {k}'s force "
@@ -566,19 +672,22 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str) -
                     "calibration of another mounting?", where, cols, given, k)
 
 
-def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str) -> pd.DataFrame:
+def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str,
+                  gravity_body=None) -> pd.DataFrame:
     """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
     ``{X}_fx_se..tz_se``. The recording is checked first (:func:`clean_rows`, :func:`check_against_calibration`:
     what a run checks that applies to a recording to correct); rows without gravity or with NaN readings are
-    dropped (counted in the log)."""
+    dropped (counted in the log). Without orientation columns, gravity is the fixed base's (``gravity_body``: the
+    ``--gravity-body`` option, else the calibration's; :func:`base_gravity`)."""
     legs = list(cal_legs)
     clean, keep = clean_rows(cal_legs, df, where)
+    base = base_gravity(cal_legs, clean, where, gravity_body)
     q: dict[str, np.ndarray] = {}
     for c in cal_legs.values():
         if isinstance(c, UrdfLoadCalibration):
             q.update(joint_angles(clean, c.joints, c.load.tree, where))
-    check_against_calibration(cal_legs, clean, where)
-    g_B = gravity_of_frame(clean, next(iter(cal_legs.values())).g, where)
+    check_against_calibration(cal_legs, clean, where, base,
+                              "--gravity-body" if gravity_body is not None else "the calibration's gravity_body")
     R_WB = orientation_of_frame(clean)
     out: dict[str, np.ndarray] = {"t": clean["t"].to_numpy(float)}
     ses: dict[str, np.ndarray] = {}
@@ -588,6 +697,7 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
         quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
     for k in legs:
         p = cal_legs[k]
+        g_B = gravity_of_frame(clean, p.g, where, base[k])
         temp = _temperature(df, k, keep, out["t"], where) if p.effects is not None else None
         wc, se = contact_wrench(p, clean[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy(float), g_B, q, R_WB,
                                 t=out["t"], quat=quat, temperature=temp, where=where)
@@ -635,6 +745,9 @@ def free_loads_from_dict(d: dict, cal_path: Path) -> dict[str, PayloadCalibratio
     for k, l in legs.items():
         if l.get("load_kind") == "urdf_subtree":
             out[k] = urdf_from_json(l, k, g, cal_path, cc)
+            x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
+        elif l.get("link") is not None:   # a payload oriented by the joints (an arm whose URDF leaves the tool out)
+            out[k] = arm_payload_from_json(l, k, g, cal_path, cc)
             x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
         else:
             x_names = payload_param_names(k, "gravity_tilt_rad" in l)
@@ -699,7 +812,7 @@ def correct_free_load_file(cal: dict, args: argparse.Namespace, out: Path) -> in
     for opt, name in ((args.bag, "--bag"), (args.track_offsets, "--track-offsets")):
         if opt:
             raise ConfigError(f"{name} applies to hexapod calibrations; {args.calibration} holds free loads", key=name)
-    df = contact_frame(cal, read_table(Path(args.recording)), str(args.recording))
+    df = contact_frame(cal, read_table(Path(args.recording)), str(args.recording), getattr(args, "gravity_body", None))
     out.parent.mkdir(parents=True, exist_ok=True)
     write_csv(df, out)  # t and every value to the last bit (csvout.py)
     log.info("wrote %s (%d rows): contact wrench of %s in their ft frames", out, len(df), list(cal))

@@ -223,7 +223,7 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
                 log.warning("%s", note)
                 notes.append(note)
     notes += res.identifiability()
-    cal = free_load_calibration(res, ds.robot)
+    cal = free_load_calibration(res, ds.robot, ds.hanging)
     diagnosis = None
     if s.diagnose.enabled:
         from .diagnose.free import diagnose_free

@@ -96,7 +96,8 @@ def test_correct_cli_dispatches_to_the_payload_correction(calibrated, tmp_path, 
     assert "--track-offsets applies to hexapod" in capsys.readouterr().err
     df.drop(columns=["qw", "qx", "qy", "qz"]).to_csv(rec, index=False)
     assert correct.main([cal, str(rec), "-o", str(out), "--force"]) == 2
-    assert "needs gravity per sample: columns qw, qx, qy, qz or gx, gy, gz" in capsys.readouterr().err
+    err = capsys.readouterr().err       # neither orientation columns nor a fixed base's gravity: both ways named
+    assert "no orientation columns (qw, qx, qy, qz or gx, gy, gz)" in err and "--gravity-body X Y Z" in err
 
 
 def test_a_urdf_calibration_without_its_urdf_is_named(tmp_path, capsys) -> None:

@@ -250,7 +250,7 @@ def free_effect_calibration(res):
         i, j = i + n, j + N.shape[1]
     cc = CalibrationCovariance(tuple(n for names, *_ in parts for n in names), cov, und_all, None, null_all)
     results = FreeLoadResults(legs)
-    cal = free_load_calibration(results, res.dataset.robot)
+    cal = free_load_calibration(results, res.dataset.robot, res.dataset.hanging)
     order = list(dict.fromkeys(m["name"] for b in blocks.values() for m in b["members"]))
     effect = {"name": "+".join(order), "kind": KIND, "legs": blocks,
               "covariance": (f"{COVARIANCE_FILE}: per transducer the joint covariance of the free-load parameters and "

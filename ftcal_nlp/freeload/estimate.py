@@ -417,15 +417,51 @@ def _orientation_notes(data: FreeLoadData, leg: str) -> list[str]:
     return []
 
 
-def free_load_calibration(res: FreeLoadResults, robot) -> Calibration:
+#: gravity_body-only recordings whose fitted gravity directions agree within this angle hold one base orientation
+#: (an arm on its fixed base): ``calibration.json`` keeps it for ``correct`` (:func:`fixed_base_gravity`)
+BASE_GRAVITY_TOL_DEG = 1.0
+
+
+def fixed_base_gravity(r: FreeLoadResult, recordings=()) -> dict:
+    """The keys ``gravity_body`` (unit, in B: the direction the fit used, the recording's estimated tilt applied),
+    ``gravity_body_nominal`` (the manifest's) and ``gravity_body_recordings`` of transducer ``r.leg``'s calibration
+    when every hanging recording it used gives gravity by ``gravity_body`` alone (no ``qw..qz``, no ``gx..gz``: a
+    fixed base, an arm on its pedestal) and their fitted directions agree within ``BASE_GRAVITY_TOL_DEG``; else {}
+    (several held orientations, or gravity per sample: a later recording must then bring its own)."""
+    dirs, nominal, names = [], [], []
+    for rec in recordings:
+        if not rec.hangs_free(r.leg) or (r.selection and rec.name not in r.selection):
+            continue
+        if rec.quat is not None or rec.gravity is not None or rec.gravity_body is None:
+            return {}
+        gb = np.asarray(rec.gravity_body, float) / np.linalg.norm(rec.gravity_body)
+        tilt = r.recording_tilts.get(rec.name)
+        dirs.append(gb if tilt is None else gravity_frame(gb[None])[0] @ tilt_gravity(tilt))
+        nominal.append(gb)
+        names.append(rec.name)
+    if not dirs:
+        return {}
+    mean = np.mean(dirs, axis=0)
+    mean /= np.linalg.norm(mean)
+    spread = max(float(np.degrees(np.arccos(np.clip(d @ mean, -1.0, 1.0)))) for d in dirs)
+    if spread > BASE_GRAVITY_TOL_DEG:
+        return {}
+    nom = np.mean(nominal, axis=0)
+    return {"gravity_body": (mean / np.linalg.norm(mean)).tolist(), "gravity_body_nominal": (nom / np.linalg.norm(nom)).tolist(),
+            "gravity_body_recordings": names}
+
+
+def free_load_calibration(res: FreeLoadResults, robot, recordings=()) -> Calibration:
     """The :class:`~ftcal_nlp.calibration.Calibration` of free loads: per transducer its offsets with se, the load's
     weight, and the load's keys of ``OUTPUT_FORMAT.md`` (``load_mass_kg``, ``load_com_m``, URDF groups and links,
-    with se; what is undetermined and the determined combinations), written by ``calibration.json``."""
+    with se; what is undetermined and the determined combinations), written by ``calibration.json``; with the
+    hanging ``recordings`` the fit used, the fixed base's gravity where they hold one (:func:`fixed_base_gravity`)."""
     from ..calibration import LegCalibration
 
     legs = {}
     for k, r in res.legs.items():
         rep = r.load_report()
+        rep.update(fixed_base_gravity(r, recordings))
         R_nom = robot.transducers[k].rotation
         com = np.asarray(rep.get("load_com_m", [np.nan] * 3), float)
         if R_nom is not None:
