@@ -10,7 +10,8 @@ for every transducer k
     w_c,k = w_m,k - w_o,k - [M_k g_k ; s_k(q) x g_k]           contact wrench in ft_k, about its origin
 
 with ``u_k = R_y(ty) R_x(tx) (0, 0, -1)`` the world tilt of the orientation stream transducer k's calibration
-estimated (``gravity_tilt_rad``; ``(0, 0, -1)`` without one), for a rigid payload, ``R_nom`` the robot's nominal rotation, ``M = m`` and ``s = h = m c``; for a URDF
+estimated (``gravity_tilt_rad``; ``(0, 0, -1)`` without one), for a rigid payload, ``R_nom`` the robot's nominal rotation
+(on an arm whose URDF leaves the tool out, ``R_nom(q)`` the URDF's sensor pose as below), ``M = m`` and ``s = h = m c``; for a URDF
 load, ``R_nom(q)`` the URDF's sensor pose for the joints above it and ``s(q) = sum_G M_G p_G(q) + R_G(q) H_G``
 over the groups of links below it (``loads.urdf_subtree``), the joint transforms written symbolically
 (``T_origin [exp(q [a]x), 0; 0, 1]`` revolute/continuous, ``T_origin [I, q a; 0, 1]`` prismatic, Rodrigues'
@@ -95,7 +96,9 @@ def correction_function(cals: dict, name: str) -> ca.Function:
             R_nom, _ = symbolic_pose(load.tree, load.tree.root, load.ft_link, qd)
             R = ca.mtimes(R_nom, ca.DM(c.E))
             s = ca.DM.zeros(3)
-            for gi, grp in enumerate(load.groups):
+            if not hasattr(load, "groups"):   # a rigid payload oriented by the joints: s = h, fixed to the sensor
+                s = ca.DM(load.lever({}, 1)[0] @ c.theta)
+            for gi, grp in enumerate(getattr(load, "groups", ())):
                 M_G, H_G = float(c.theta[4 * gi]), ca.DM(c.theta[4 * gi + 1: 4 * gi + 4])
                 if grp.frame == load.ft_link:
                     s = s + H_G
@@ -152,14 +155,50 @@ int {name}_batch(long n, const casadi_real* wrench{qb}, const casadi_real* quat,
     return src, hdr
 
 
+def _kind_text(c) -> str:
+    load = getattr(c, "load", None)
+    if load is None:
+        return "rigid payload"
+    if hasattr(load, "groups"):
+        return f"URDF links below {load.ft_link}"
+    return f"rigid payload oriented by the joints through {load.ft_link}"
+
+
+def base_quaternion(gravity_body: np.ndarray) -> np.ndarray:
+    """``qw..qz`` of the smallest rotation ``R_WB`` that puts gravity along ``gravity_body`` in B
+    (``R_WB^T (0, 0, -1) = gravity_body``): the orientation to pass for a fixed base."""
+    from .geometry import rotation_to_quat, rotvec_to_rotation
+
+    a = np.asarray(gravity_body, float) / np.linalg.norm(gravity_body)
+    b = np.array([0.0, 0.0, -1.0])
+    axis, c = np.cross(a, b), float(np.clip(a @ b, -1.0, 1.0))
+    if np.linalg.norm(axis) < 1e-12:
+        R = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    else:
+        R = rotvec_to_rotation(axis / np.linalg.norm(axis) * np.arccos(c))
+    return rotation_to_quat(R)
+
+
+def _fixed_base_text(cals: dict) -> str:
+    """USAGE.md's paragraph for a fixed base (the calibration keeps its ``gravity_body``): the constant ``quat``."""
+    gbs = {k: c.gravity_body for k, c in cals.items() if getattr(c, "gravity_body", None) is not None}
+    if not gbs or len(gbs) < len(cals):
+        return ""
+    k, gb = next(iter(gbs.items()))
+    qb = base_quaternion(gb)
+    return (f"\nA fixed base (an arm logging joints only): pass `quat` = `{' '.join(f'{v:.17g}' for v in qb)}` for every "
+            f"sample, the base's orientation that puts gravity along the calibration's `gravity_body` "
+            f"{np.round(gb, 9).tolist()} (of `{k}`; `correct` uses the same for a recording without orientation columns).\n")
+
+
 def usage_note(cals: dict, name: str, source: str) -> str:
     legs = list(cals)
     K = len(legs)
     joints = joint_order(cals)
     J = len(joints)
     cols = ", ".join(f"`{k}`" for k in legs)
-    kinds = ", ".join(f"`{k}` ({'URDF links below ' + c.load.ft_link if hasattr(c, 'load') else 'rigid payload'})"
-                      for k, c in cals.items())
+    kinds = ", ".join(f"`{k}` ({_kind_text(c)})" for k, c in cals.items())
+    fixed = _fixed_base_text(cals)
     q_sig = "const double* q, " if J else ""
     q_row = (f"| `q` | {J} | joint angles, in this order: {', '.join(f'`{j}`' for j in joints)} | rad (m for prismatic) | URDF |\n"
              if J else "")
@@ -187,7 +226,7 @@ Both return 0 on success; they allocate nothing and keep no state (real-time and
 While the load touches nothing, `contact` is zero within the sensor noise. This is what
 `python -m ftcal_nlp.correct` writes for the same calibration (without its se columns), to rounding.
 A NaN quaternion gives NaN outputs (`correct` drops such rows).
-
+{fixed}
 ## Build
 
 ```bash
