@@ -328,6 +328,7 @@ def fit_free_load(ds: Dataset, leg: str, settings: FreeLoadSettings | None = Non
     names, cov, se, null = [names[i] for i in out], cov[np.ix_(out, out)], se[out], null[out]
     tilt = tilts[:2].copy() if tilt_on else None           # the world group comes first
     rec_tilts = {nm: tilts[2 * k:2 * k + 2].copy() for k, (kd, nm) in enumerate(data.groups) if kd == "recording" and free[k]}
+    notes += prior_notes(load, theta, cov[6:6 + p, 6:6 + p], null[6:6 + p], leg)
     for note in notes:
         log.warning("%s", note)
     log.info("free load %s (%s): %d samples, mass %.4g kg, mount rotation %.3g deg, residual RMS %s", leg, load.kind, mom.n,
@@ -387,6 +388,44 @@ def _covariance(info: np.ndarray, keep: np.ndarray, names: list[str], x: np.ndar
     null = np.zeros((n_all, int((~ident.determined).sum())))
     null[keep] = ident.vectors[:, ~ident.determined] / ident.scale[:, None]
     return cov, se, null, undetermined, determined, ident
+
+
+#: a URDF group's fitted mass this many se and this fraction from its nominal, or its CoM this many se and metres,
+#: is named in a note: the URDF's inertial is off (it is only the prior; the fit keeps what the readings give)
+PRIOR_NOTE_Z, PRIOR_NOTE_MASS_FRACTION, PRIOR_NOTE_COM_M = 5.0, 0.05, 0.005
+
+
+def prior_notes(load, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | None, leg: str) -> list[str]:
+    """Notes naming the URDF groups whose fitted mass or CoM is far from the URDF's nominal (``load.prior()``; the
+    thresholds ``PRIOR_NOTE_*``): the estimates come from the readings, the note tells the user the URDF is off. Loads
+    without a nominal (a rigid payload) get none."""
+    from ..loads.base import se_of
+
+    prior = load.prior() if hasattr(load, "prior") else None
+    groups = getattr(load, "groups", None)
+    if prior is None or not groups:
+        return []
+    out = []
+    for i, g in enumerate(groups):
+        M0, H0 = float(prior[4 * i]), np.asarray(prior[4 * i + 1: 4 * i + 4], float)
+        M, H = float(theta[4 * i]), np.asarray(theta[4 * i + 1: 4 * i + 4], float)
+        if M0 <= 0 or M <= 0:
+            continue
+        J = np.zeros((4, len(theta)))
+        J[0, 4 * i] = 1.0
+        J[1:, 4 * i] = -H / M**2
+        J[1:, 4 * i + 1: 4 * i + 4] = np.eye(3) / M
+        se = se_of(cov, J, null)
+        dc = H / M - H0 / M0
+        far_m = abs(M - M0) > max(PRIOR_NOTE_Z * se[0], PRIOR_NOTE_MASS_FRACTION * M0)
+        far_c = np.linalg.norm(dc) > PRIOR_NOTE_COM_M and np.any(np.abs(dc) > PRIOR_NOTE_Z * se[1:])
+        if far_m or far_c:
+            out.append(f"{leg}: the URDF's nominal inertial of {', '.join(g.links)} (group '{g.name}') is off: mass "
+                       f"{M0:.4g} kg, the readings give {M:.5g} +- {se[0]:.2g} kg ({100 * (M - M0) / M0:+.1f} %); CoM "
+                       f"{1e3 * np.linalg.norm(dc):.1f} mm from the URDF's (in frame {g.frame}). The calibration keeps "
+                       "what the readings give (the URDF is only the prior of what they leave undetermined); correct "
+                       "the URDF where other tools use it")
+    return out
 
 
 def _leg_notes(data: FreeLoadData, load, leg: str, rho: np.ndarray, inflation: np.ndarray) -> list[str]:
