@@ -256,12 +256,14 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             g_B, dB = _recording_tilt(ds, recs, fit)
             notes = ((f"gravity_tilt: the tilt of gravity_body recording {next(iter(fit.recording_tilts))!r} (the run's "
                       "recording_tilt_rad), estimated by the run and bounded here"),)
-        if fit.load.kind == "rigid_payload":
-            R = np.asarray(ds.robot.transducers[leg].rotation, float) @ fit.rotation
-            g_ft = g_B @ R
+        if fit.load.kind == "rigid_payload":   # oriented by its rotation, or by the joints (an arm's tool)
+            q = {j: np.concatenate([r.q[j][fit.used[r.name]] if j in r.q else np.zeros(int(fit.used[r.name].sum()))
+                                    for r in recs]) for j in fit.load.base_joints}
+            R = fit.load.nominal_rotation(q, len(g_B)) @ fit.rotation
+            g_ft = np.einsum("nji,nj->ni", R, g_B)
             m = float(fit.theta[0])
             bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, sigma, mount=mount, offset=fit.offset,
-                                            tilt_dirs=None if dB is None else np.einsum("ji,njt->nit", R, dB))
+                                            tilt_dirs=None if dB is None else np.einsum("nji,njt->nit", R, dB))
         else:
             tree, link = ds.robot.tree, ds.robot.transducers[leg].link
             joints = tuple(fit.load.base_joints) + tuple(fit.load.load_joints)

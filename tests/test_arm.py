@@ -248,3 +248,17 @@ def test_urdf_tool_mass_off_changes_only_the_prior_note(tmp_path) -> None:
     only_a, only_b = set(a.notes) - set(b.notes), set(b.notes) - set(a.notes)
     assert len(only_a) == len(only_b) == 1
     assert "nominal inertial of tool" in only_b.pop() and "mass 1.425 kg" in [n for n in b.notes if "nominal" in n][0]
+
+
+def test_plan_of_an_arm_pilot_without_the_tool_in_the_urdf(arm, tmp_path) -> None:
+    """A pilot dataset of the arm plans its payload through the joints; the plan's se equal the run's (the same
+    samples and noise: within 5 %)."""
+    from ftcal_nlp.plan import main as plan_main
+
+    out = tmp_path / "plan.json"
+    assert plan_main([str(arm / "dataset.toml"), "-o", str(out), "-q"]) == 0
+    tr = json.loads(out.read_text())["transducers"]["wrist"]
+    assert tr["load_kind"] == "rigid_payload"
+    d = read_calibration_json(arm / "out" / "calibration.json")["legs"]["wrist"]
+    assert abs(tr["se"]["offset_fx"] / d["offset_se"][0] - 1) < 0.05
+    assert abs(tr["groups"]["load_mass"]["se"] / d["load_mass_se_kg"] - 1) < 0.05

@@ -217,7 +217,7 @@ def _ft_pose_of(ctx) -> tuple[np.ndarray, np.ndarray]:
     E = np.eye(3) if ctx.rotation is None else np.asarray(ctx.rotation, float)
     load = ctx.load
     q = ctx.q
-    if load is not None and hasattr(load, "tree") and hasattr(load, "ft_link"):
+    if getattr(load, "tree", None) is not None and getattr(load, "ft_link", None) is not None:
         R_B_ft, p_B = load.tree.pose(load.tree.root, load.ft_link, q, n)
     else:
         R_B_ft = load.nominal_rotation(q, n) if load is not None else np.broadcast_to(np.eye(3), (n, 3, 3))
