@@ -658,7 +658,8 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                 f"{best}", path=where, column="gravity_body")
         if gb is not None:
             log.warning("%s: the load's weight along %s is a median %.0f deg from transducer %s's force readings less the "
-                        "offset: contact for most of the recording, or another base orientation than the calibration's?",
+                        "offset: contact for most of the recording, another base orientation than the calibration's, or joint "
+                        "angles off (a joint without its column, another zero)?",
                         where, base_source or "the fixed base's gravity", given, k)
             continue
         if alt[best] <= TILT_DEG and alt[best] < QUAT_ORDER_RATIO * given:

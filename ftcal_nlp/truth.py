@@ -71,7 +71,7 @@ def load_truth_from_dict(d: dict, path: str | Path = "truth.json", robot=None) -
     try:
         common = dict(kind=kind, transducer=None if transducer is None else str(transducer),
                       offset=np.asarray(d["offset"], float), noise=np.asarray(d["noise"], float),
-                      mount_rotvec=np.asarray(d["mount_rotvec"], float) if "mount_rotvec" in d else None,
+                      mount_rotvec=_mount_rotvec(d),
                       effects=tuple(e["name"] if isinstance(e, dict) else str(e) for e in d.get("effects", ())), raw=d)
         if kind == "payload":
             return LoadTruth(mass_kg=float(d["mass_kg"]), com_m=np.asarray(d["com_m"], float), **common)
@@ -79,6 +79,12 @@ def load_truth_from_dict(d: dict, path: str | Path = "truth.json", robot=None) -
         return LoadTruth(mass_kg=float(d["load_mass_kg"]), ft_link=ft_link, bodies=dict(d["bodies"]), **common)
     except KeyError as exc:
         raise DataFormatError(f"{path}: a {kind} truth needs key {exc.args[0]!r}", path=path, column=str(exc.args[0])) from None
+
+
+def _mount_rotvec(d: dict) -> np.ndarray | None:
+    """The true mounting rotation vector: ``mount_rotvec``, or ``mount_rotvec_rad`` (the shared arm samples' name)."""
+    v = d.get("mount_rotvec", d.get("mount_rotvec_rad"))
+    return None if v is None else np.asarray(v, float)
 
 
 def _robot_link(robot, transducer) -> str | None:

@@ -262,3 +262,16 @@ def test_plan_of_an_arm_pilot_without_the_tool_in_the_urdf(arm, tmp_path) -> Non
     d = read_calibration_json(arm / "out" / "calibration.json")["legs"]["wrist"]
     assert abs(tr["se"]["offset_fx"] / d["offset_se"][0] - 1) < 0.05
     assert abs(tr["groups"]["load_mass"]["se"] / d["load_mass_se_kg"] - 1) < 0.05
+
+
+def test_gravity_body_option_is_for_free_loads(tmp_path, capsys) -> None:
+    """A hexapod calibration's recordings carry qw..qz: --gravity-body there is an error naming the option."""
+    from conftest import SAMPLE, require_sample
+    from ftcal_nlp.calibration import Calibration
+
+    d = json.loads((require_sample() / "truth.json").read_text())
+    cal = tmp_path / "calibration.json"
+    Calibration.from_json_dict(d, mass_kg=8.18, g=9.81).save(cal)
+    out = tmp_path / "o.csv"
+    assert correct.main([str(cal), str(SAMPLE / "walk.csv"), "-o", str(out), "--gravity-body", "0", "0", "-1"]) == 2
+    assert "--gravity-body applies to free-load calibrations" in capsys.readouterr().err and not out.exists()

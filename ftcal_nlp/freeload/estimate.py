@@ -1,5 +1,13 @@
 """The free-load fit itself (the steps of the package docstring): data assembly over recordings, start, NLP
-solves with re-weighting, information, identifiability, covariance, notes; and the Calibration it makes."""
+solves with re-weighting, information, identifiability, covariance, notes; and the Calibration it makes.
+
+Keys it adds to a transducer's entry of ``calibration.json`` beside ``OUTPUT_FORMAT.md``'s: ``mount_rotation`` (``E``),
+``urdf`` and ``link`` (where the load or its orientation comes through a URDF: what ``correct`` and ``export``
+rebuild it from), and for a fixed base (every recording the fit used gives gravity by ``gravity_body`` alone, one
+direction: an arm on its pedestal) ``gravity_body`` (unit, B: the direction the fit used, the recordings' estimated
+tilt ``recording_tilt_rad`` applied, so that a later recording with joints only is corrected as the calibration saw
+the base), ``gravity_body_nominal`` (the manifest's) and ``gravity_body_recordings`` (:func:`fixed_base_gravity`).
+"""
 
 from __future__ import annotations
 
