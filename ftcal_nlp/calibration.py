@@ -118,11 +118,25 @@ def _nulls(x):
 
 def _design_rotation(load: dict) -> dict:
     """``rotation_nominal``, the design rotation ft -> B of a free load stored with both ``rotation_to_body`` and
-    ``mount_rotation`` (``R_B,ft = R_nom E``): with it a reader checks that the copies of the mount agree."""
-    if load.get("rotation_to_body") is None or load.get("mount_rotation") is None or "rotation_nominal" in load:
+    ``mount_rotation`` (``R_B,ft = R_nom E``): with it a reader checks that the copies of the mount agree. A load
+    oriented through a URDF (``urdf``, ``link``; no ``rotation_to_body``) stores the URDF's pose of the sensor link
+    at zero joint angles: with it a reader checks that the URDF it parses is the one calibrated with."""
+    if "rotation_nominal" in load:
+        return {}
+    if load.get("rotation_to_body") is None and load.get("urdf") is not None and load.get("link") is not None:
+        return {"rotation_nominal": _nulls(urdf_rotation_at_zero(Path(load["urdf"]), str(load["link"]), "calibration"))}
+    if load.get("rotation_to_body") is None or load.get("mount_rotation") is None:
         return {}
     R, E = np.asarray(load["rotation_to_body"], float), np.asarray(load["mount_rotation"], float)
     return {"rotation_nominal": _nulls(R @ E.T)}
+
+
+def urdf_rotation_at_zero(urdf: Path, link: str, where: str, tree=None) -> np.ndarray:
+    """The URDF's nominal rotation ft -> B of sensor ``link`` with every joint at 0 (``tree``: the URDF parsed)."""
+    from .data import read_urdf_tree
+
+    tree = read_urdf_tree(urdf, where) if tree is None else tree
+    return tree.pose(tree.root, link, {}, 1)[0][0]
 
 
 class ModelName(str):
@@ -306,6 +320,8 @@ class Calibration:
 ROTATION_TOL = 1e-6
 #: the kinds of free load ``correct`` and ``export`` apply (DATA_FORMAT.md section 5)
 FREE_LOAD_KINDS = ("rigid_payload", "urdf_subtree")
+#: a calibration's ``g`` (m/s^2) outside this range is another unit or a typo (98.1), as ``data.read_robot`` bounds it
+G_RANGE = (1.0, 30.0)
 
 
 def read_calibration_json(path: str | Path) -> dict:
@@ -453,13 +469,20 @@ def check_calibration_dict(d: dict, source: str) -> None:
     its parameters finite, every stored rotation proper and one mounting rotation (:func:`_check_mount`). Errors
     name the file and the key (``legs.X.key``)."""
     legs = d.get("legs")
-    if not isinstance(legs, dict) or not legs:
+    if isinstance(legs, dict) and not legs:
+        raise _fail(source, "legs", "an empty table: the calibration holds no transducer; expected the calibrated "
+                                    "transducers' entries (a calibration.json written by a run, OUTPUT_FORMAT.md)")
+    if not isinstance(legs, dict):
         raise DataFormatError(f"{source}: missing key 'legs' (a table of the calibrated transducers); expected a "
                               "calibration.json written by a run (OUTPUT_FORMAT.md)", path=source, column="legs")
     for key in ("mass_kg", "g"):
         v = d.get(key)
         if v is not None and (not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or v <= 0):
             raise _fail(source, key, f"{v!r}; expected a positive number")
+    g = d.get("g")
+    if g is not None and not G_RANGE[0] < g < G_RANGE[1]:
+        raise _fail(source, "g", f"{g!r}; expected gravity's magnitude in m/s^2, between {G_RANGE[0]:g} and {G_RANGE[1]:g} "
+                                 "(9.81 on Earth), as robot.toml's g")
     for k, l in legs.items():
         if not isinstance(l, dict):
             raise _fail(source, f"legs.{k}", f"expected a table, got {type(l).__name__}")

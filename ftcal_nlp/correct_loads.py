@@ -285,6 +285,7 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
                               "contact wrench needs the URDF, the sensor link and the groups' parameters)", path=where,
                               column=str(exc.args[0])) from None
     path, tree = _urdf_tree(urdf, leg, cal_path)
+    check_urdf_unchanged(d, leg, path, tree, cal_path)
     try:
         load = UrdfSubtree(tree, link)
     except (KeyError, ValueError) as exc:
@@ -314,7 +315,34 @@ def _urdf_tree(urdf: str, leg: str, cal_path: Path):
     if not path.is_file() and (cal_path.parent / path.name).is_file():   # a calibration moved with its URDF beside it
         log.info("%s: legs.%s.urdf = %s is not there; using %s beside the calibration", cal_path, leg, urdf, path.name)
         path = cal_path.parent / path.name
-    return path, read_urdf_tree(path, f"{cal_path} legs.{leg}.urdf")
+    tree = read_urdf_tree(path, f"{cal_path} legs.{leg}.urdf")
+    return path, tree
+
+
+def check_urdf_unchanged(d: dict, leg: str, path: Path, tree, cal_path: Path) -> None:
+    """The URDF as parsed now is the one calibrated with: its pose of the sensor link at zero joint angles against the
+    calibration's ``rotation_nominal`` (written with it), within ``calibration.ROTATION_TOL``; an edited joint
+    above the sensor (its ``rpy``) turns gravity in ft and would leave a phantom contact wrench. A calibration
+    without the key (written before it was stored) is not checked."""
+    from .calibration import ROTATION_TOL, urdf_rotation_at_zero
+
+    if d.get("rotation_nominal") is None:
+        return
+    link = str(d["link"])
+    try:
+        now = urdf_rotation_at_zero(path, link, str(path), tree)
+    except KeyError:
+        return   # the link is gone: the load's reader names it
+    diff = float(np.abs(now - np.asarray(d["rotation_nominal"], float)).max())
+    if diff > ROTATION_TOL:
+        ang = float(np.degrees(np.arccos(np.clip((np.trace(now.T @ np.asarray(d["rotation_nominal"], float)) - 1) / 2, -1, 1))))
+        chain = [j.name for j in tree.path_to_root(link)]
+        raise DataFormatError(
+            f"{cal_path}: legs.{leg}.rotation_nominal: the URDF {path} puts sensor link '{link}' {ang:.3g} deg from the pose "
+            f"the calibration was made with (largest element {diff:.3g}, beyond {ROTATION_TOL:g}); the joints above it "
+            f"(one of {', '.join(chain)}, the sensor's own joint first) changed since: expected "
+            "the URDF the calibration was made with (restore it, or re-run the calibration)", path=cal_path,
+            column=f"legs.{leg}.rotation_nominal")
 
 
 def arm_payload_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> UrdfLoadCalibration:
@@ -327,6 +355,7 @@ def arm_payload_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) 
     where = str(cal_path)
     base = payload_from_json({**d, "rotation_to_body": d.get("mount_rotation", np.eye(3))}, leg, g, where)
     path, tree = _urdf_tree(str(d["urdf"]), leg, cal_path)
+    check_urdf_unchanged(d, leg, path, tree, cal_path)
     try:
         load = RigidPayload(tree=tree, ft_link=str(d["link"]))
     except KeyError as exc:
@@ -493,6 +522,20 @@ def check_transducers(cal_legs: dict, df: pd.DataFrame, where: str) -> None:
                               "readings of every transducer of the calibration", path=where, column=missing[0])
 
 
+def check_joint_columns(cal_legs: dict, df: pd.DataFrame, where: str) -> None:
+    """Every ``q_{joint}`` column names a joint of the calibration's URDF (as ``run`` reads its recordings): a
+    misspelt joint would otherwise be held at 0 in silence. A calibration without a URDF reads no joint column."""
+    trees = [c.load.tree for c in cal_legs.values() if isinstance(c, UrdfLoadCalibration) and c.load.tree is not None]
+    if not trees:
+        return
+    names = list(dict.fromkeys(j.name for tr in trees for j in tr.joints.values()))
+    for c in map(str, df.columns):
+        if c.startswith(JOINT_PREFIX) and c[len(JOINT_PREFIX):] not in names:
+            raise DataFormatError(f"{where}: column '{c}': the calibration's URDF has no joint '{c[len(JOINT_PREFIX):]}' "
+                                  f"(joints: {names}); expected q_{{joint}} columns of its joints (a misspelt name?)",
+                                  path=where, column=c)
+
+
 def _orientation_columns(df: pd.DataFrame, where: str) -> list[str]:
     """``qw..qz`` or ``gx..gz`` (complete), the gravity per sample; [] without either (a fixed base)."""
     from .data import _complete_group
@@ -517,6 +560,7 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     if len(df) == 0:
         raise DataFormatError(f"{where}: no rows (only the header); expected a recording to correct", path=where)
     orient = _orientation_columns(df, where)
+    check_joint_columns(cal_legs, df, where)
     joints = [f"{JOINT_PREFIX}{j}" for c in cal_legs.values() for j in c.joints if f"{JOINT_PREFIX}{j}" in df.columns]
     joints = list(dict.fromkeys(joints))
     read = ["t"] + [f"{k}_{c}" for k in cal_legs for c in WRENCH_COMPONENTS] + joints
