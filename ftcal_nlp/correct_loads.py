@@ -593,6 +593,7 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
         raise DataFormatError(f"{where}: column 't' is not strictly increasing (line {row}: {float(t[i])!r} -> {float(t[i + 1])!r}); expected "
                               "one row per sample in time order", path=where, column="t")
     _check_clock(cal_legs, t, where)
+    check_holds_clock(t, clean, orient, joints, where)
     if orient == list(QUAT_COLUMNS):
         norms = np.linalg.norm(clean[list(QUAT_COLUMNS)].to_numpy(), axis=1)
         if np.any(np.abs(norms - 1.0) > 1e-2):
@@ -620,6 +621,49 @@ def _check_clock(cal_legs: dict, t: np.ndarray, where: str) -> None:
             f"{', '.join(names)}, which follow the readings' own clock: expected seconds, at most {MAX_SAMPLE_INTERVAL_S:g} s "
             "between the samples of a stream: is t in milliseconds, or is this a list of single-row poses (correct "
             "those with calibration.json)?", path=where, column="t")
+
+
+#: a median interval of ``t`` above this (units of t) between rows that mostly share their pose is milliseconds:
+#: a stream of holds at 100 Hz in ms has 10 units between samples; single-row poses seconds apart differ row to row
+HOLD_CLOCK_DT = 2.0
+#: consecutive rows closer than this (deg of orientation, rad of each joint) share a pose
+SAME_POSE_DEG = 0.5
+SAME_JOINT_RAD = 0.01
+
+
+def same_pose_fraction(clean: pd.DataFrame, orient: list[str], joints: list[str]) -> float:
+    """The fraction of consecutive rows that share their pose: orientation (``qw..qz`` or ``gx..gz``) within
+    ``SAME_POSE_DEG`` and every joint column within ``SAME_JOINT_RAD``; nan without either."""
+    if len(clean) < 2 or not (orient or joints):
+        return float("nan")
+    same = np.ones(len(clean) - 1, bool)
+    if orient:
+        v = clean[orient].to_numpy(float)
+        v = v / np.linalg.norm(v, axis=1, keepdims=True)
+        dot = np.abs(np.einsum("ni,ni->n", v[1:], v[:-1])) if orient == list(QUAT_COLUMNS) else np.einsum("ni,ni->n", v[1:], v[:-1])
+        ang = np.degrees(np.arccos(np.clip(dot, -1, 1))) * (2 if orient == list(QUAT_COLUMNS) else 1)
+        same &= ang <= SAME_POSE_DEG
+    if joints:
+        same &= np.all(np.abs(np.diff(clean[joints].to_numpy(float), axis=0)) <= SAME_JOINT_RAD, axis=1)
+    return float(same.mean())
+
+
+def check_holds_clock(t: np.ndarray, clean: pd.DataFrame, orient: list[str], joints: list[str], where: str) -> None:
+    """Column ``t`` in seconds, as ``run`` reads a stream of holds: a median interval above ``HOLD_CLOCK_DT`` units
+    of t where most consecutive rows share their pose (:func:`same_pose_fraction`) is a clock in milliseconds; a
+    list of single-row poses (each row another pose) is left as it is."""
+    if len(t) < 3:
+        return
+    dt = float(np.median(np.diff(t)))
+    if dt <= HOLD_CLOCK_DT:
+        return
+    same = same_pose_fraction(clean, orient, joints)
+    if same > 0.5:
+        raise DataFormatError(
+            f"{where}: column t: median sampling interval {dt:.4g} (units of t) while {100 * same:.0f} % of consecutive rows "
+            f"share their pose ({', '.join((orient or []) + joints)} within {SAME_POSE_DEG:g} deg / {SAME_JOINT_RAD:g} rad): "
+            f"a stream of holds, not a list of poses; expected seconds, at most {HOLD_CLOCK_DT:g} s between the samples of "
+            "a hold: is t in milliseconds?", path=where, column="t")
 
 
 def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
@@ -652,7 +696,7 @@ def _load_angles(p, df: pd.DataFrame, w: np.ndarray, q: dict, where: str,
 
 
 def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, base: dict | None = None,
-                              base_source: str = "") -> None:
+                              base_source: str = "", faulty: dict[str, np.ndarray] | None = None) -> None:
     """The readings against what the calibration predicts for them (every transducer, a regular subsample of
     ``CHECK_ROWS`` rows), as ``run`` checks its recordings against the robot: the forces' unit (median force norm
     within ``UNIT_FACTOR`` of the prediction's; torques within the run's lever-arm bound of the forces,
@@ -661,13 +705,19 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
     readings' best (median angle within ``checks.TILT_DEG``), else an error names the reading of the columns that
     agrees (x, y, z, w order; the conjugate; gravity negated). Without orientation columns, the fixed base's
     gravity (``base`` per transducer, :func:`base_gravity`; ``base_source`` where it came from, for the message) is
-    tested the same way (negated: pointing up)."""
+    tested the same way (negated: pointing up). Before the direction, the rows without contact test the frames
+    (:func:`check_frames`; ``faulty`` per transducer the rows of a stuck or dead channel, left out)."""
     from .checks import QUAT_ORDER_RATIO, TILT_DEG
     from .data import check_torque_units
 
-    sub = clean.iloc[:: max(1, -(-len(clean) // CHECK_ROWS))].reset_index(drop=True)
+    step = max(1, -(-len(clean) // CHECK_ROWS))
+    every = clean.iloc[::step].reset_index(drop=True)
     base = base or {}
     for k, p in cal_legs.items():
+        ok = np.ones(len(every), bool) if not faulty or k not in faulty else ~np.asarray(faulty[k], bool)[::step]
+        if not ok.any():
+            continue   # every row of a stuck or dead channel: said by the fault's warning
+        sub = every[ok].reset_index(drop=True)
         w = sub[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy()
         q = {j: sub[f"{JOINT_PREFIX}{j}"].to_numpy() for j in p.joints if f"{JOINT_PREFIX}{j}" in sub.columns}
         gb = base.get(k)
@@ -681,6 +731,7 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                 f"(offset plus the load's weight), {f_read / f_pred:.3g}x; expected N, within a factor {UNIT_FACTOR:g}: are the "
                 "forces in another unit (kN, mN)?", path=where, column=f"{k}_fx")
         check_torque_units(w, f_pred, where, k)
+        check_frames(p, k, sub, w, q, where, gb)
         weight = float(np.median(np.linalg.norm(model[:, :3] - p.offset[:3], axis=1)))
         if weight <= DIRECTION_SNR * noise_f:
             continue
@@ -717,6 +768,136 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                     "calibration of another mounting?", where, cols, given, k)
 
 
+#: a row is at the noise (no contact) when its residual's norm, forces or torques, is within this many times the
+#: norm of the readings' noise sd (3 components: a chi of 3 dof exceeds 5 sd with probability ~1e-5)
+FREE_K = 5.0
+#: the rows at the noise the frame checks need (of the regular subsample) before they test anything
+MIN_FREE_ROWS = 20
+#: a reading of the columns is named where it puts this many times more rows at the noise than the columns as
+#: given, and at least MIN_FREE_ROWS of them (a recording mostly in contact leaves few rows to either)
+FIX_RATIO = 5.0
+#: the torques' other units tried (N*mm, kN*m)
+TORQUE_SCALES = {"the torques are in N*mm (x0.001 turns them into N*m)": 1e-3,
+                 "the torques are in kN*m (x1000 turns them into N*m)": 1e3}
+
+
+def _describe_signed(P: np.ndarray, names: tuple[str, str, str]) -> str:
+    """``fx <- -fy, ...`` for the rows of a signed permutation that differ from the identity."""
+    out = []
+    for i, n in enumerate(names):
+        j = int(np.argmax(np.abs(P[i])))
+        if j == i and P[i, j] < 0:
+            out.append(f"{n} negated")
+        elif j != i:
+            out.append(f"{n} <- {'-' if P[i, j] < 0 else ''}{names[j]}")
+    return ", ".join(out)
+
+
+def _signed_fix_text(P: np.ndarray, cols: list[str]) -> str:
+    names = tuple(c.rsplit("_", 1)[1] for c in cols)
+    if np.allclose(P, -np.eye(3)):
+        return f"the columns {', '.join(cols)} are negated (their sign convention reversed)"
+    what = "a reflected (left-handed) frame: " if np.linalg.det(P) < 0 else "another order or sign: "
+    return f"{what}{_describe_signed(P, names)} (columns {cols[0]}..{cols[-1]})"
+
+
+def _at_noise(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Rows (N,) of residuals ``r`` (N, 3) within ``FREE_K`` times the noise's norm."""
+    return np.linalg.norm(r, axis=1) <= FREE_K * float(np.linalg.norm(sigma))
+
+
+def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: str, gb: np.ndarray | None) -> None:
+    """Transducer ``k``'s readings ``w`` (rows of ``sub``) against the calibration ``p`` on the rows without contact.
+
+    Forces: the rows whose force residual (reading less offset and load) is at the noise (``FREE_K``) with the
+    columns as given, against every signed permutation of the force columns, the other readings of the orientation
+    columns (:func:`_alternatives`) and continuous joints' columns read as degrees: one that puts ``FIX_RATIO`` times
+    more rows (and ``MIN_FREE_ROWS``) at the noise is an error naming it, the force frame's before the orientation's
+    (a reflected frame cannot pass for another quaternion order); an orientation reading is left to the direction
+    test that follows (:func:`check_against_calibration`). Torques: a contact has a force; on the rows whose force is
+    at the noise the torque must be too (a couple without a force is no contact): where it is not on most of them,
+    the torques' other units and every signed permutation are tried, and one that brings most to the noise is named;
+    none is a warning. Fewer than ``MIN_FREE_ROWS`` rows at the noise (a recording mostly in contact, offsets
+    drifted): a warning, nothing tested."""
+    fc, tc = [f"{k}_{c}" for c in WRENCH_COMPONENTS[:3]], [f"{k}_{c}" for c in WRENCH_COMPONENTS[3:]]
+    sf, st = np.nan_to_num(np.asarray(p.sigma, float)[:3]), np.nan_to_num(np.asarray(p.sigma, float)[3:])
+    if not np.linalg.norm(sf) > 0 or not np.linalg.norm(st) > 0:
+        return
+    g_B = gravity_of_frame(sub, p.g, where, gb)
+    model, _ = p.predict(g_B, q, orientation_of_frame(sub))
+    free = _at_noise(w[:, :3] - model[:, :3], sf)
+    n_given = int(free.sum())
+    cand: dict[str, int] = {}
+    from .checks import _signed_permutations
+
+    for P in _signed_permutations():
+        cand[_signed_fix_text(P, fc)] = int(_at_noise(w[:, :3] @ P.T - model[:, :3], sf).sum())
+    for j in _continuous_joints(p, q):
+        qq = {**q, j: q[j] * np.pi / 180}
+        m2, _ = p.predict(g_B, qq, orientation_of_frame(sub))
+        cand[f"column {JOINT_PREFIX}{j} holds degrees (continuous joint: no URDF limit to exceed; x pi/180 turns it into "
+             "radians)"] = int(_at_noise(w[:, :3] - m2[:, :3], sf).sum())
+    orient = {}
+    if gb is None:
+        for what, alt in _alternatives(sub).items():
+            m2, _ = p.predict(gravity_of_frame(alt, p.g, where), q, orientation_of_frame(alt))
+            orient[what] = int(_at_noise(w[:, :3] - m2[:, :3], sf).sum())
+    best = max(cand, key=cand.get)
+    best_o = max(orient.values(), default=0)
+    if cand[best] >= MIN_FREE_ROWS and cand[best] >= FIX_RATIO * max(n_given, 1) and cand[best] > best_o:
+        joint = best.split(" ")[1] if best.startswith("column ") else None
+        at = (f"{n_given} of {len(w)} rows (a regular subsample) have transducer {k}'s force at the noise (within {FREE_K:g}x "
+              f"its sd, {FREE_K * np.linalg.norm(sf):.3g} N, of the calibration's offset plus the load)")
+        if joint:
+            raise DataFormatError(f"{where}: column {joint}: {at} with the column as given, {cand[best]} if it {best.split(' ', 2)[2]}; "
+                                  "expected joint angles in radians (DATA_FORMAT.md section 5)", path=where, column=joint)
+        raise DataFormatError(
+            f"{where}: columns {fc[0]}..{fc[-1]}: {at} with the columns as given, {cand[best]} if {best}; expected the columns "
+            "as given to leave the rows without contact at the noise (DATA_FORMAT.md: forces in N in the ft frame, a "
+            "right-handed frame)", path=where, column=fc[0])
+    if n_given < MIN_FREE_ROWS:
+        log.warning("%s: transducer %s: %d of %d rows (a regular subsample) have a force at the noise of the calibration's "
+                    "prediction; the readings' frame and the torques' unit are tested on %d or more such rows without "
+                    "contact: not tested (a short recording, one mostly in contact, offsets drifted since the calibration, "
+                    "or another load)", where, k, n_given, len(w), MIN_FREE_ROWS)
+        return
+    rt = w[free, 3:]
+    mt = model[free, 3:]
+    good = int(_at_noise(rt - mt, st).sum())
+    if good >= 0.5 * n_given:
+        return
+    fixes = {what: int(_at_noise(rt * s - mt, st).sum()) for what, s in TORQUE_SCALES.items()}
+    for P in _signed_permutations():
+        fixes[_signed_fix_text(P, tc)] = int(_at_noise(rt @ P.T - mt, st).sum())
+    fix = max(fixes, key=fixes.get)
+    excess = float(np.median(np.linalg.norm(rt - mt, axis=1)))
+    head = (f"{where}: columns {tc[0]}..{tc[-1]}: on the {n_given} rows (of {len(w)}, a regular subsample) whose force is at "
+            f"the noise (no contact), the torque less the calibration's offset and load is a median {excess:.3g} N*m, "
+            f"{excess / np.linalg.norm(st):.3g}x its noise sd; at the noise on {good} of them")
+    if fixes[fix] >= 0.5 * n_given:
+        raise DataFormatError(f"{head}, on {fixes[fix]} if {fix}; expected the torques as given at the noise where there "
+                              "is no contact force (a couple without a force is no contact; torques in N*m, ft frame)",
+                              path=where, column=tc[0])
+    log.warning("%s; no other unit, order or sign of the torque columns brings them to the noise: torques in another "
+                "frame or unit, or a calibration of another load?", head)
+
+
+def _continuous_joints(p, q: dict) -> list[str]:
+    """Joints of ``q`` (with a column) that turn without URDF limits (continuous, or revolute without limits)."""
+    tree = getattr(getattr(p, "load", None), "tree", None)
+    if tree is None:
+        return []
+    out = []
+    for j in q:
+        try:
+            jt = tree.joint(j)
+        except KeyError:
+            continue
+        if jt.type == "continuous" or (jt.type == "revolute" and (jt.lower is None or jt.upper is None or jt.upper <= jt.lower)):
+            out.append(j)
+    return out
+
+
 def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str,
                   gravity_body=None) -> pd.DataFrame:
     """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
@@ -731,8 +912,10 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
     for c in cal_legs.values():
         if isinstance(c, UrdfLoadCalibration):
             q.update(joint_angles(clean, c.joints, c.load.tree, where))
+    faults = channel_faults(cal_legs, df, where)
     check_against_calibration(cal_legs, clean, where, base,
-                              "--gravity-body" if gravity_body is not None else "the calibration's gravity_body")
+                              "--gravity-body" if gravity_body is not None else "the calibration's gravity_body",
+                              {f.leg: f.rows[keep] for f in faults})
     R_WB = orientation_of_frame(clean)
     out: dict[str, np.ndarray] = {"t": clean["t"].to_numpy(float)}
     ses: dict[str, np.ndarray] = {}
@@ -749,7 +932,28 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
         for j, c in enumerate(WRENCH_COMPONENTS):
             out[f"{k}_{c}"] = wc[:, j]
             ses[f"{k}_{c}_se"] = se[:, j]
-    return pd.DataFrame({**out, **ses})
+    return _with_fault_columns(pd.DataFrame({**out, **ses}), faults, keep)
+
+
+def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
+    """The stuck, dead or clipped channels of each transducer over the recording's rows (``checks.sensor_faults``,
+    the hexapod's screen; a cell that is no number never repeats)."""
+    from types import SimpleNamespace
+
+    from .checks import sensor_faults
+
+    wrench = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+              for k in cal_legs}
+    return sensor_faults(SimpleNamespace(path=where, name=where, wrench=wrench), tuple(cal_legs))
+
+
+def _with_fault_columns(df: pd.DataFrame, faults: list, keep: np.ndarray) -> pd.DataFrame:
+    """``df`` (the recording's rows ``keep``) with a warning per fault and a column ``{X}_fault`` (1 on its rows), as
+    ``correct.flag_faults`` for a hexapod."""
+    from .correct import flag_faults
+    from .wrenches import Correction
+
+    return flag_faults(Correction(df, None, None, None), faults, keep).frame if faults else df
 
 
 def _temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:
