@@ -103,3 +103,133 @@ def test_a_urdf_edited_after_the_calibration_is_refused(case, tmp_path, capsys) 
     err = _error(capsys)
     assert rc == 2 and f"legs.{case.leg}.rotation_nominal: the URDF {tmp_path / 'edited.urdf'} puts sensor link" in err
     assert f"one of {joint.group(1)}" in err and "17.2 deg" in err
+
+
+# ----------------------------------------------------------------------------- clean recordings pass, with contact
+
+LEVER = {"payload": [0.0, 0.0, 0.12], "urdf_leg": [0.0, 0.0, -0.3]}
+
+
+def _pushed(case, share: float) -> tuple[pd.DataFrame, np.ndarray]:
+    """The recording with a push (3, -2, 5) N, its size varying, at the tool's or the foot's point (true ft frame)
+    on the middle ``share`` of the rows."""
+    rec = case.rec.copy()
+    n = len(rec)
+    a, b = int(n * (1 - share) / 2), int(n * (1 + share) / 2)
+    f = np.array([3.0, -2.0, 5.0])[None] * (1 + 0.5 * np.sin(np.linspace(0, 20, b - a)))[:, None]
+    push = np.zeros((n, 6))
+    push[a:b] = np.c_[f, np.cross(np.asarray(LEVER[case.kind])[None], f)]
+    cols = [f"{case.leg}_{c}" for c in WRENCH]
+    rec[cols] = rec[cols].to_numpy() + push
+    return rec, push
+
+
+@pytest.mark.parametrize("share", [0.3, 0.8, 1.0])
+def test_a_clean_recording_with_contact_passes(case, tmp_path, capsys, caplog, share) -> None:
+    """No false error: the checks on the rows without contact leave a recording alone however much of it touches
+    something; the contact wrench is the push within its se. Wholly in contact: nothing to test, said once."""
+    rec, push = _pushed(case, share)
+    with caplog.at_level("WARNING"):
+        rc, out = _correct(case, tmp_path, rec, name="push.csv")
+    assert rc == 0, capsys.readouterr().err[-600:]
+    got = pd.read_csv(out)
+    cols = [f"{case.leg}_{c}" for c in WRENCH]
+    z = (got[cols].to_numpy() - push) / got[[c + "_se" for c in cols]].to_numpy()
+    assert np.abs(z).max() < 6.0 and f"{case.leg}_fault" not in got.columns
+    untested = "the readings' frame and the torques' unit are tested on 20 or more such rows" in caplog.text
+    assert untested == (share == 1.0)
+
+
+# ----------------------------------------------------------------------------- frames and units on the rows without contact
+
+
+@pytest.mark.parametrize("fault, fix", [
+    ("kNm", "if the torques are in kN*m (x1000 turns them into N*m)"),
+    ("Nmm_small", None),
+    ("negty", "if a reflected (left-handed) frame: ty negated"),
+    ("swap_txty", "if a reflected (left-handed) frame: tx <- ty, ty <- tx"),
+])
+def test_torques_off_where_there_is_no_contact_are_named(case, tmp_path, capsys, fault, fix) -> None:
+    rec, _ = _pushed(case, 0.4)
+    tc = [f"{case.leg}_{c}" for c in WRENCH[3:]]
+    if fault == "kNm":
+        rec[tc] = rec[tc] / 1000
+    elif fault == "negty":
+        rec[tc[1]] = -rec[tc[1]]
+    elif fault == "swap_txty":
+        rec[tc[:2]] = rec[tc[1::-1]].to_numpy()
+    else:   # the torques' unit test of run (N*mm) comes first: this check never sees them
+        rec[tc] = rec[tc] * 1000
+    rc, out = _correct(case, tmp_path, rec, name="t.csv")
+    err = _error(capsys)
+    assert rc == 2 and not out.exists()
+    if fix is None:
+        assert f"t.csv: columns {tc[0]}..{tc[2]} reach" in err
+        return
+    assert f"t.csv: columns {tc[0]}..{tc[2]}: on the " in err and "whose force is at the noise (no contact)" in err
+    assert fix in err
+
+
+@pytest.mark.parametrize("fault, fix", [
+    ("swap", "if a reflected (left-handed) frame: fx <- fy, fy <- fx"),
+    ("negfz", "if a reflected (left-handed) frame: fz negated"),
+    ("rot", "if another order or sign: fx <- fy, fy <- -fx"),
+])
+def test_forces_in_another_frame_are_named_before_the_quaternion(case, tmp_path, capsys, fault, fix) -> None:
+    rec, _ = _pushed(case, 0.4)
+    fc = [f"{case.leg}_{c}" for c in WRENCH[:3]]
+    f = rec[fc].to_numpy()
+    rec[fc] = {"swap": f[:, [1, 0, 2]], "negfz": f * [1, 1, -1], "rot": np.c_[-f[:, 1], f[:, 0], f[:, 2]]}[fault]
+    rc, _ = _correct(case, tmp_path, rec, name="f.csv")
+    err = _error(capsys)
+    assert rc == 2 and f"f.csv: columns {fc[0]}..{fc[2]}: " in err and fix in err and "qw" not in err
+
+
+def test_the_quaternion_order_is_still_named_as_such(case, tmp_path, capsys) -> None:
+    rec, _ = _pushed(case, 0.4)
+    q = ["qw", "qx", "qy", "qz"]
+    rec[q] = rec[["qx", "qy", "qz", "qw"]].to_numpy()
+    rc, _ = _correct(case, tmp_path, rec, name="q.csv")
+    assert rc == 2 and "if the quaternion columns hold x, y, z, w (not w, x, y, z)" in _error(capsys)
+
+
+# ----------------------------------------------------------------------------- clock and channels
+
+
+def test_t_in_ms_is_named_for_a_stream_of_holds(case, tmp_path, capsys) -> None:
+    rec = case.rec.copy()
+    rec["t"] = (rec["t"] - rec["t"].iloc[0]) * 1000
+    rc, _ = _correct(case, tmp_path, rec, name="ms.csv")
+    err = _error(capsys)
+    assert rc == 2 and "ms.csv: column t: median sampling interval 10 (units of t) while" in err
+    assert "is t in milliseconds?" in err
+
+
+def test_a_list_of_single_row_poses_seconds_apart_passes(case, tmp_path) -> None:
+    rec = case.rec
+    v = rec[[c for c in rec.columns if c in ("qw", "qx", "qy", "qz") or c.startswith("q_")]].to_numpy()
+    keep = [0]
+    for i in range(1, len(v)):   # one row per pose: each row far from the one before
+        if np.abs(v[i] - v[keep[-1]]).max() > 0.1:
+            keep.append(i)
+    poses = rec.iloc[keep].reset_index(drop=True)
+    poses["t"] = 1.7e9 + 10.0 * np.arange(len(poses))
+    assert len(poses) > 20
+    assert _correct(case, tmp_path, poses, name="poses.csv")[0] == 0
+
+
+@pytest.mark.parametrize("fault", ["dead", "stuck"])
+def test_a_dead_or_stuck_channel_is_warned_and_flagged(case, tmp_path, caplog, fault) -> None:
+    rec = case.rec.copy()
+    col = f"{case.leg}_fx"
+    rows = slice(None) if fault == "dead" else slice(100, 400)
+    j = rec.columns.get_loc(col)
+    rec.iloc[rows, j] = 0.0 if fault == "dead" else rec.iloc[100, j]
+    with caplog.at_level("WARNING"):
+        rc, out = _correct(case, tmp_path, rec, name=f"{fault}.csv")
+    assert rc == 0
+    flag = pd.read_csv(out)[f"{case.leg}_fault"].to_numpy()
+    want = np.zeros(len(rec), int)
+    want[rows] = 1
+    assert np.array_equal(flag, want)
+    assert f"columns {col} stuck at" in caplog.text and f"flagged in column {case.leg}_fault" in caplog.text
