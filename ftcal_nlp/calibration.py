@@ -124,7 +124,10 @@ def _design_rotation(load: dict) -> dict:
     if "rotation_nominal" in load:
         return {}
     if load.get("rotation_to_body") is None and load.get("urdf") is not None and load.get("link") is not None:
-        return {"rotation_nominal": _nulls(urdf_rotation_at_zero(Path(load["urdf"]), str(load["link"]), "calibration"))}
+        try:
+            return {"rotation_nominal": _nulls(urdf_rotation_at_zero(Path(load["urdf"]), str(load["link"]), "calibration"))}
+        except (DataFormatError, KeyError):   # the URDF not where the entry names it (a copy): nothing to keep
+            return {}
     if load.get("rotation_to_body") is None or load.get("mount_rotation") is None:
         return {}
     R, E = np.asarray(load["rotation_to_body"], float), np.asarray(load["mount_rotation"], float)

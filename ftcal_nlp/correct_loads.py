@@ -731,12 +731,12 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                 f"(offset plus the load's weight), {f_read / f_pred:.3g}x; expected N, within a factor {UNIT_FACTOR:g}: are the "
                 "forces in another unit (kN, mN)?", path=where, column=f"{k}_fx")
         check_torque_units(w, f_pred, where, k)
-        check_frames(p, k, sub, w, q, where, gb)
+        pending = check_frames(p, k, sub, w, q, where, gb)   # an orientation reading's error: after the direction's
         weight = float(np.median(np.linalg.norm(model[:, :3] - p.offset[:3], axis=1)))
-        if weight <= DIRECTION_SNR * noise_f:
-            continue
         given = float(np.median(ang))
-        if given <= TILT_DEG:
+        if weight <= DIRECTION_SNR * noise_f or given <= TILT_DEG:
+            if pending is not None:
+                raise pending
             continue
         if gb is not None:
             alt = {"the gravity direction is negated (it points down in B: e.g. 0 0 -1 for a level base)":
@@ -752,6 +752,8 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                 f"calibration's offset; expected within {TILT_DEG:.0f} deg: they agree within {alt[best]:.0f} deg if "
                 f"{best}", path=where, column="gravity_body")
         if gb is not None:
+            if pending is not None:
+                raise pending
             log.warning("%s: the load's weight along %s is a median %.0f deg from transducer %s's force readings less the "
                         "offset: contact for most of the recording, another base orientation than the calibration's, or joint "
                         "angles off (a joint without its column, another zero)?",
@@ -763,6 +765,8 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                 f"readings less the calibration's offset; expected within {TILT_DEG:.0f} deg (DATA_FORMAT.md section 3: qw..qz "
                 f"map B to the world, gx..gz point down): they agree within {alt[best]:.0f} deg if {best}",
                 path=where, column=cols.split(",")[0])
+        if pending is not None:
+            raise pending
         log.warning("%s: columns %s: the load's weight from them is a median %.0f deg from transducer %s's force readings "
                     "less the offset and no other reading of the columns agrees: contact for most of the recording, or a "
                     "calibration of another mounting?", where, cols, given, k)
@@ -806,15 +810,16 @@ def _at_noise(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return np.linalg.norm(r, axis=1) <= FREE_K * float(np.linalg.norm(sigma))
 
 
-def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: str, gb: np.ndarray | None) -> None:
+def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: str,
+                 gb: np.ndarray | None) -> DataFormatError | None:
     """Transducer ``k``'s readings ``w`` (rows of ``sub``) against the calibration ``p`` on the rows without contact.
 
     Forces: the rows whose force residual (reading less offset and load) is at the noise (``FREE_K``) with the
     columns as given, against every signed permutation of the force columns, the other readings of the orientation
     columns (:func:`_alternatives`) and continuous joints' columns read as degrees: one that puts ``FIX_RATIO`` times
     more rows (and ``MIN_FREE_ROWS``) at the noise is an error naming it, the force frame's before the orientation's
-    (a reflected frame cannot pass for another quaternion order); an orientation reading is left to the direction
-    test that follows (:func:`check_against_calibration`). Torques: a contact has a force; on the rows whose force is
+    (a reflected frame cannot pass for another quaternion order); an orientation reading is returned (the error to
+    raise) for the direction test that follows (:func:`check_against_calibration`) to name it first in its words. Torques: a contact has a force; on the rows whose force is
     at the noise the torque must be too (a couple without a force is no contact): where it is not on most of them,
     the torques' other units and every signed permutation are tried, and one that brings most to the noise is named;
     none is a warning. Fewer than ``MIN_FREE_ROWS`` rows at the noise (a recording mostly in contact, offsets
@@ -855,7 +860,18 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
             f"{where}: columns {fc[0]}..{fc[-1]}: {at} with the columns as given, {cand[best]} if {best}; expected the columns "
             "as given to leave the rows without contact at the noise (DATA_FORMAT.md: forces in N in the ft frame, a "
             "right-handed frame)", path=where, column=fc[0])
+    what_o = max(orient, key=orient.get) if orient else None
+    pending = None
+    if what_o is not None and orient[what_o] >= MIN_FREE_ROWS and orient[what_o] >= FIX_RATIO * max(n_given, 1):
+        pending = DataFormatError(
+            f"{where}: columns {', '.join(_orientation_names(sub))}: {n_given} of {len(w)} rows (a regular subsample) have "
+            f"transducer {k}'s force at the noise (within {FREE_K:g}x its sd of the calibration's offset plus the load) with "
+            f"the columns as given, {orient[what_o]} if {what_o}; expected the columns as given to agree best "
+            "(DATA_FORMAT.md section 3: qw..qz map B to the world, gx..gz point down)", path=where,
+            column=_orientation_names(sub)[0])
     if n_given < MIN_FREE_ROWS:
+        if pending is not None:
+            return pending
         log.warning("%s: transducer %s: %d of %d rows (a regular subsample) have a force at the noise of the calibration's "
                     "prediction; the readings' frame and the torques' unit are tested on %d or more such rows without "
                     "contact: not tested (a short recording, one mostly in contact, offsets drifted since the calibration, "
@@ -865,7 +881,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
     mt = model[free, 3:]
     good = int(_at_noise(rt - mt, st).sum())
     if good >= 0.5 * n_given:
-        return
+        return pending
     fixes = {what: int(_at_noise(rt * s - mt, st).sum()) for what, s in TORQUE_SCALES.items()}
     for P in _signed_permutations():
         fixes[_signed_fix_text(P, tc)] = int(_at_noise(rt @ P.T - mt, st).sum())
@@ -880,6 +896,11 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
                               path=where, column=tc[0])
     log.warning("%s; no other unit, order or sign of the torque columns brings them to the noise: torques in another "
                 "frame or unit, or a calibration of another load?", head)
+    return pending
+
+
+def _orientation_names(df: pd.DataFrame) -> list[str]:
+    return list(QUAT_COLUMNS) if set(QUAT_COLUMNS) <= set(map(str, df.columns)) else list(GRAVITY_COLUMNS)
 
 
 def _continuous_joints(p, q: dict) -> list[str]:

@@ -233,3 +233,26 @@ def test_a_dead_or_stuck_channel_is_warned_and_flagged(case, tmp_path, caplog, f
     want[rows] = 1
     assert np.array_equal(flag, want)
     assert f"columns {col} stuck at" in caplog.text and f"flagged in column {case.leg}_fault" in caplog.text
+
+
+def test_a_quaternion_off_by_less_than_the_direction_bound_is_named(case, tmp_path, capsys) -> None:
+    """Held about one orientation tilted 10 deg: the conjugate quaternion puts gravity 20 deg off, within the
+    direction test's 30 deg; the rows without contact still tell (the forces are at the noise only as conjugated)."""
+    from ftcal_nlp.correct_loads import orientation_of_frame, gravity_of_frame, payload_calibrations
+
+    p = payload_calibrations(case.cal)[case.leg]
+    rec = case.rec.iloc[:600].copy().reset_index(drop=True)
+    n = len(rec)
+    a = np.radians(10) * (1 + 0.05 * np.sin(np.linspace(0, 6, n)))          # a little motion about the tilt
+    quat = np.c_[np.cos(a / 2), np.sin(a / 2), np.zeros(n), np.zeros(n)]
+    rec[["qw", "qx", "qy", "qz"]] = quat
+    qj = {j: rec[f"q_{j}"].to_numpy() for j in p.joints if f"q_{j}" in rec.columns}
+    model, _ = p.predict(gravity_of_frame(rec, p.g, "x"), qj, orientation_of_frame(rec))
+    rng = np.random.default_rng(11)
+    cols = [f"{case.leg}_{c}" for c in WRENCH]
+    rec[cols] = model + rng.normal(size=(n, 6)) * np.asarray(p.sigma)
+    assert _correct(case, tmp_path, rec, name="tilt.csv")[0] == 0
+    rec[["qx", "qy", "qz"]] = -rec[["qx", "qy", "qz"]]
+    rc, _ = _correct(case, tmp_path, rec, name="conj.csv")
+    err = _error(capsys)
+    assert rc == 2 and "conj.csv: columns qw, qx, qy, qz: " in err and "if the quaternion maps world to body" in err
