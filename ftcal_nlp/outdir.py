@@ -407,7 +407,7 @@ class OutputFolder:
         if man is not None and man.get("kind", "result") != "result":
             raise ForeignContentError(
                 f"{t} holds a {man['kind']} ftcal_nlp wrote ({_names(foreign_entries(t, {'written': []}))}), not a result; "
-                "results go to a folder apart from datasets: choose a new or empty folder (-o PATH)",
+                "a result goes to a folder of its own: choose a new or empty folder (-o PATH)",
                 path=t, foreign=tuple(map(str, man["written"])))
         if man is None:
             there = foreign_entries(t, None)

@@ -68,6 +68,10 @@ def test_correct_output_a_folder_or_parquet_is_refused(calibrated, tmp_path, cap
     # the recording itself, --force or not
     line = _error(cli.main(["correct", str(cal), str(rec), "-o", str(rec), "--force"]), capsys.readouterr().err)
     assert "would overwrite the recording" in line
+    # a bag (a ROS 2 bag is a folder, replaced whole with --force) over the recording's folder
+    line = _error(cli.main(["correct", str(cal), str(rec), "-o", str(tmp_path / "o.csv"), "--bag", str(rec.parent), "--force"]),
+                  capsys.readouterr().err)
+    assert "the output folder holds the recording" in line and rec.is_file()
 
 
 def test_plan_never_writes_over_its_inputs(calibrated, tmp_path, capsys):
@@ -178,3 +182,23 @@ def test_simulate_into_a_file_says_it_is_a_file(tmp_path, capsys):
     line = _error(cli.main(["simulate", str(tmp_path / "d" / "dataset.toml"), "-o", str(tmp_path / "d"), "--force"]),
                   capsys.readouterr().err)
     assert "would overwrite the config file" in line and (tmp_path / "d" / "dataset.toml").read_text() == table.read_text()
+
+
+def test_a_link_to_the_datasets_folder_is_the_datasets_folder(calibrated, tmp_path, capsys):
+    """Links resolved in the rule itself: an output folder that is a link to the dataset's folder is refused."""
+    data = calibrated / "data"
+    (tmp_path / "out").symlink_to(data)
+    before = _tree(data)
+    line = _error(cli.main(["run", str(_config(tmp_path / "c.toml", str(data / "dataset.toml"), "out")), "--force"]),
+                  capsys.readouterr().err)
+    assert "the output folder is the dataset's folder" in line
+    assert _tree(data) == before and (tmp_path / "out").is_symlink()
+
+
+def test_a_later_run_into_an_export_folder_is_refused(calibrated, tmp_path, capsys):
+    out = tmp_path / "exp"
+    assert cli.main(["export", str(calibrated / "cal" / "calibration.json"), "-o", str(out), "-q"]) == 0
+    before = _tree(out)
+    line = _error(cli.main(["run", str(_config(tmp_path / "c.toml", str(calibrated / "data" / "dataset.toml"), "exp")),
+                            "--force"]), capsys.readouterr().err)
+    assert "holds a C export ftcal_nlp wrote" in line and _tree(out) == before
