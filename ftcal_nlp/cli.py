@@ -93,7 +93,7 @@ def add_common(ap: argparse.ArgumentParser, *, output_help: str, output_required
         ap.add_argument(alias, dest="force", action="store_true", help=argparse.SUPPRESS)
     g = ap.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="store_true", help="debug log lines (also Python's own warnings)")
-    g.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    g.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors (no summary: the written files hold it)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars (they are shown only on a terminal anyway)")
     ap.set_defaults(_output_required=output_required)
 
@@ -225,19 +225,23 @@ def simulate_main(argv: Sequence[str] | None = None, prog: str | None = None) ->
                old_force=("--overwrite",), force_help="replace an existing dataset in the folder")
     args = parse(ap, argv)
     setup(args)
-    return guarded(lambda: _simulate(Path(args.config), args.output, args.force))
+    return guarded(lambda: _simulate(Path(os.path.expanduser(args.config)), args.output, args.force, quiet=args.quiet))
 
 
-def _simulate(path: Path, output: str | None, force: bool) -> int:
+def _simulate(path: Path, output: str | None, force: bool, *, quiet: bool = False) -> int:
     from .config import read_toml
+    from .outdir import check_files_apart, output_path
     from .sim import simulate_to_folder
 
     d = read_toml(path)
     table = dict(d["simulate"]) if isinstance(d.get("simulate"), dict) else d
     where = table.pop("dir", None)
-    folder = Path(output) if output else (path.parent / where if isinstance(where, str) else None)
+    folder = Path(output) if output else (path.parent / os.path.expanduser(where) if isinstance(where, str) else None)
     if folder is None:
         raise ConfigError(f"{path}: no output folder; pass -o DIR or set [simulate] dir", path=path, key="simulate.dir")
+    # the files a simulation writes (dataset.toml, robot.toml, recordings, truth.json, a URDF): none may be the config
+    check_files_apart(folder, ["dataset.toml", "robot.toml", "truth.json"], {"config file": path})
+    folder = output_path(folder)
     try:
         manifest = simulate_to_folder(table, folder, overwrite=force)
     except OutputError:
@@ -249,7 +253,8 @@ def _simulate(path: Path, output: str | None, force: bool) -> int:
             raise
         msg = str(exc) if str(exc).startswith("[simulate]") else f"[simulate]: {exc}"
         raise ConfigError(f"{path} {msg}", path=path, key=getattr(exc, "key", None) or "simulate") from exc
-    print(f"wrote {manifest} (simulated)")
+    if not quiet:
+        print(f"wrote {manifest} (simulated)")
     return 0
 
 

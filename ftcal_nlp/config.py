@@ -94,7 +94,7 @@ def _convert(value: Any, hint: Any, base: Path) -> Any:
     if isinstance(value, list):
         return tuple(value)
     if Path in args and isinstance(value, str):
-        return _norm(base / value)
+        return _at(base, value)
     if float in args and int not in args and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     return value
@@ -138,6 +138,11 @@ def _norm(p: Path) -> Path:
     return Path(os.path.normpath(p))
 
 
+def _at(base: Path, value: str) -> Path:
+    """A path of the config: ``~`` is the home folder (as in a shell), else relative to the config's folder."""
+    return _norm(base / os.path.expanduser(value))
+
+
 def read_toml(path: Path) -> dict[str, Any]:
     """The TOML table of a config file; a missing file or invalid TOML is a :class:`ConfigError` naming it."""
     if not path.is_file():
@@ -168,7 +173,7 @@ def load_config(path: str | Path) -> RunConfig:
                               path=path, key="data")
         if not isinstance(data.get("manifest"), str):
             raise ConfigError(f"{path} [data].manifest: expected a path string to dataset.toml", path=path, key="data.manifest")
-        manifest = _norm(base / data["manifest"])
+        manifest = _at(base, data["manifest"])
     simulate = d.get("simulate")
     sim_dir = None
     if simulate is not None:
@@ -176,7 +181,7 @@ def load_config(path: str | Path) -> RunConfig:
             raise ConfigError(f"{path} [simulate]: expected a table", path=path, key="simulate")
         simulate = dict(simulate)
         if "dir" in simulate:
-            sim_dir = _norm(base / str(simulate.pop("dir")))
+            sim_dir = _at(base, str(simulate.pop("dir")))
     if manifest is None and simulate is None:
         raise ConfigError(f"{path}: needs [data].manifest (a dataset.toml) or a [simulate] table", path=path, key="data.manifest")
 
@@ -192,7 +197,7 @@ def load_config(path: str | Path) -> RunConfig:
         manifest=manifest,
         simulate=simulate,
         simulate_dir=sim_dir,
-        output_dir=_norm(base / out["dir"]),
+        output_dir=_at(base, out["dir"]),
         settings=settings,
         offsets_only=_build(OffsetsOnlySettings, d.get("offsets_only", {}), path, "offsets_only", base),
     )

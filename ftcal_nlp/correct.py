@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -165,26 +166,22 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     return guarded(lambda: _main(args), extra=(ValueError,))
 
 
-def refuse_inputs_as_outputs(outputs: list[Path], inputs: dict[str, Path]) -> None:
-    """An output that is one of the inputs (``inputs``: what it is -> path) is an error, before anything is read
-    or written: ``--force`` is for earlier results, never for the data."""
-    for target in outputs:
-        for what, p in inputs.items():
-            if target.absolute() == p.absolute() or (target.exists() and p.exists() and target.samefile(p)):
-                raise OutputError(f"{target}: the output would overwrite the {what} {p} (an input of this command); "
-                                  "expected another file for the output", path=target)
-
-
 def _main(args) -> int:
-    out = Path(args.output)
-    off_out = out.with_name(out.stem + "_offsets.csv")
-    targets = [out] + ([Path(args.bag)] if args.bag else []) + ([off_out] if args.track_offsets else [])
-    cal_path = Path(args.calibration)
-    refuse_inputs_as_outputs(targets, {"recording": Path(args.recording), "calibration": cal_path,
-                                       "calibration's covariance file": cal_path.parent / "calibration_cov.npz"})
-    for target in targets:
-        if target.exists() and not args.force:
-            raise OutputError(f"{target} exists; pass --force to overwrite", path=target)
+    from .outdir import calibration_inputs, check_apart, check_file_output, output_path
+
+    given = Path(os.path.expanduser(args.output))
+    cal_path = Path(os.path.expanduser(args.calibration))
+    inputs = {"recording": Path(os.path.expanduser(args.recording)), **calibration_inputs(cal_path)}
+    # the output's format is CSV (every value to the last bit, csvout.py): a .parquet name is refused, not given CSV bytes
+    out = check_file_output(given, inputs, force=args.force, suffixes=(".csv",))
+    off_out = check_file_output(given.with_name(given.stem + "_offsets.csv"), inputs, force=args.force) if args.track_offsets else None
+    if args.bag:
+        bag = Path(os.path.expanduser(args.bag))
+        check_apart(bag, inputs)   # a ROS 2 bag is a folder, replaced whole with --force
+        if bag.exists() and not args.force:
+            raise OutputError(f"{bag} exists; pass --force to replace it", path=bag)
+        bag = output_path(bag)
+    args.calibration, args.recording = str(cal_path), str(inputs["recording"])
 
     cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
     if not isinstance(cal, Calibration):
@@ -206,13 +203,14 @@ def _main(args) -> int:
         write_csv(offsets_frame(df["t"].to_numpy(), res.tracking), off_out)
         log.info("wrote %s (tracked offsets)", off_out)
         for line in log_changes(res.tracking):
-            print(line)
+            if not args.quiet:
+                print(line)
     if args.bag:
         from .ros.bagio import write_ground_wrench_bag
 
         legs = cal.leg_names + ("total",)
         wr = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy() for k in legs}
-        write_ground_wrench_bag(args.bag, df["t"].to_numpy(), wr, overwrite=args.force)
+        write_ground_wrench_bag(bag, df["t"].to_numpy(), wr, overwrite=args.force)
         log.info("wrote bag %s", args.bag)
     return 0
 

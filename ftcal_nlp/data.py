@@ -227,6 +227,11 @@ def read_robot(path: str | Path) -> Robot:
     legs = _require(d, "legs", where, list)
     if not legs or not all(isinstance(k, str) for k in legs) or len(set(legs)) != len(legs):
         raise DataFormatError(f"{where}: 'legs' must be a non-empty list of distinct names")
+    # a transducer's name becomes a file name (report tables, corrected recordings): no path in it
+    for k in legs:
+        if "/" in k or "\\" in k or k.startswith(".") or "\0" in k:
+            raise DataFormatError(f"{where}: 'legs': {k!r} is not a plain name (it names files of the results as well as the "
+                                  f"columns {k}_fx..{k}_tz); expected no '/' or '\\' and no leading '.'", path=path, column="legs")
     urdf_path, tree = None, None
     if "urdf" in d:
         urdf_path = path.parent / str(_require(d, "urdf", where, str))

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import ctypes
 import logging
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -237,7 +238,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.export", description=__doc__.splitlines()[0])
     ap.add_argument("calibration", help="calibration.json written by a run")
     add_common(ap, output_help="folder for the C source, header and USAGE.md", output_required=True, old_force=("--overwrite",),
-               force_help="overwrite existing files")
+               force_help="replace the files an earlier export wrote (files the tool did not write are never replaced)")
     ap.add_argument("--name", default=DEFAULT_NAME, help=f"C function name (default {DEFAULT_NAME})")
     args = parse(ap, argv)
     setup(args)
@@ -245,21 +246,27 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
-    out = Path(args.output)
+    from .outdir import calibration_inputs, check_files_apart, guard_files, output_path, record_written
+
     if not args.name.isidentifier():
         raise ConfigError(f"--name {args.name!r} is not a C identifier", key="--name")
-    existing = [p for p in (out / f"{args.name}.c", out / f"{args.name}.h", out / "USAGE.md") if p.exists()]
-    if existing and not args.force:
-        raise OutputError(f"{existing[0]} exists; pass --force to overwrite", path=existing[0])
-    cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
+    cal_path = Path(os.path.expanduser(args.calibration))
+    names = [f"{args.name}.c", f"{args.name}.h", "USAGE.md"]
+    # fixed names written into a folder beside what is there: none an input; an existing one replaced only with --force
+    # and only when the folder's manifest lists it (the tool wrote it); what was written is added to the manifest
+    check_files_apart(args.output, names, calibration_inputs(cal_path))
+    out = output_path(args.output)
+    guard_files(out, names, force=args.force)
+    cal = read_calibration(cal_path)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
     if not isinstance(cal, Calibration):  # free loads: the contact wrench (export_loads.py)
         from . import export_loads
 
-        files = export_loads.write_c(cal, out, args.name, source=Path(args.calibration).name)
+        files = export_loads.write_c(cal, out, args.name, source=cal_path.name)
+    else:
+        files = write_c(cal, out, args.name, source=cal_path.name)
+    record_written(out, names, kind="C export")
+    if not args.quiet:
         print(f"wrote {files.source}, {files.header}, {files.usage}")
-        return 0
-    files = write_c(cal, out, args.name, source=Path(args.calibration).name)
-    print(f"wrote {files.source}, {files.header}, {files.usage}")
     return 0
 
 

@@ -29,8 +29,13 @@ changed). Until the swap the earlier result is exactly as it was: leaving the bl
 failed stage, Ctrl-C) deletes the staging folder; a SIGKILL leaves it hidden beside the target for the next
 run to remove.
 
-:func:`check_apart` refuses an output folder that is, or lies above, an input (the dataset, the config, a
-recording): the caller collects the inputs and calls it before anything is read. :func:`guard_files` is
+:func:`check_apart` is the one rule of outputs against inputs for every command: an output folder that is, or lies
+above, an input (the dataset, the config, a recording), or an output file that is one (:func:`check_file_output` for a
+named file, :func:`check_files_apart` for the fixed names written into a folder), is an error, ``--force`` or not; the
+caller collects the inputs (:func:`dataset_inputs`, :func:`robot_inputs`, :func:`toml_inputs`,
+:func:`calibration_inputs`: the files each names, found by parsing TOML or JSON only) and calls it before anything is
+read. Every output path has ``~`` expanded and links resolved (:func:`output_path`): the real folder or file behind a
+link is written, the link is left as it is. :func:`guard_files` is
 the rule for commands that write named files into a folder without replacing it (``simulate``,
 ``ingest``): an existing file is written over only with ``force`` and only when the folder's manifest
 lists it; :func:`record_written` adds what they wrote to the manifest.
@@ -51,8 +56,11 @@ from typing import Iterable, Mapping
 
 from .errors import OutputError, OutputExistsError
 
-__all__ = ["OutputFolder", "OutputExistsError", "ForeignContentError", "MANIFEST", "check_apart", "check_writable",
-           "guard_files", "record_written", "read_manifest"]
+__all__ = ["OutputFolder", "OutputExistsError", "ForeignContentError", "MANIFEST", "check_apart", "check_files_apart",
+           "check_file_output", "output_path", "check_writable", "guard_files", "record_written", "read_manifest",
+           "dataset_inputs", "robot_inputs", "toml_inputs", "calibration_inputs"]
+
+log = logging.getLogger(__name__)
 
 #: the file in every folder the tool writes that lists what it wrote there
 MANIFEST = ".ftcal_manifest.json"
@@ -134,26 +142,147 @@ def _names(entries: list[str]) -> str:
     return shown + more
 
 
-def check_apart(target: str | Path, inputs: Mapping[str, str | Path | None]) -> None:
-    """An :class:`OutputError` when the output folder ``target`` is, or lies above, one of ``inputs`` (what each is:
-    its path; None entries skipped): replacing the folder would replace the input. An input the folder is
-    named before one it holds."""
-    t = Path(target) if Path(target).name not in ("", ".", "..") else Path(os.path.abspath(target))
+def output_path(path: str | Path) -> Path:
+    """The path an output is written to: ``~`` expanded, symbolic links resolved (the real file or folder a link names
+    is written, never the link replaced by a new file); a relative path stays relative to the working folder."""
+    p = Path(os.path.expanduser(str(path)))
+    real = Path(os.path.realpath(p))
+    if real != Path(os.path.abspath(p)):
+        log.info("%s: writing %s (the real path of the link)", p, real)
+    return real
+
+
+def check_apart(target: str | Path, inputs: Mapping[str, str | Path | None], *, folder: bool = True) -> None:
+    """The one rule of outputs against inputs, for every command: an :class:`OutputError` when the output ``target``
+    is one of ``inputs`` (what each is: its path; None entries skipped), or (``folder``: an output folder the tool
+    replaces as a whole) lies above one. Paths are compared with ``~`` expanded and links resolved (a link to an
+    input is the input; a hard link too). An input the output is named before one it holds. ``--force`` never
+    lifts it: it is for the tool's earlier outputs, never for the data."""
+    t = Path(os.path.expanduser(str(target)))
+    t = t if t.name not in ("", ".", "..") else Path(os.path.abspath(t))
     rt = t.resolve()
-    given = {what: Path(p) for what, p in inputs.items() if p is not None}
-    same = [(w, p) for w, p in given.items() if p.resolve() == rt]
-    below = [(w, p) for w, p in given.items() if rt in p.resolve().parents]
-    for what, p in same[:1] or below[:1]:
-        where = "is" if same else "holds"
+    given = {what: Path(os.path.expanduser(str(p))) for what, p in inputs.items() if p is not None}
+
+    def same(p: Path) -> bool:
+        if p.resolve() == rt:
+            return True
+        try:
+            return rt.exists() and p.exists() and os.path.samefile(rt, p)
+        except OSError:
+            return False
+
+    hits = [(w, p) for w, p in given.items() if same(p)]
+    below = [(w, p) for w, p in given.items() if rt in p.resolve().parents] if folder else []
+    if hits and not folder:
+        what, p = hits[0]
+        raise OutputError(f"{t}: the output would overwrite the {what} {p} (an input of this command), --force or not; "
+                          "expected another file for the output", path=t)
+    for what, p in hits[:1] or below[:1]:
+        where = "is" if hits else "holds"
         raise OutputError(f"{t}: the output folder {where} the {what} {p}; the results must go to a folder apart "
                           "from the inputs (e.g. -o results, or [output] dir = \"results\" in the config)", path=t)
+
+
+def check_files_apart(folder: str | Path, names: Iterable[str], inputs: Mapping[str, str | Path | None]) -> None:
+    """:func:`check_apart` for each file ``names`` a command writes into ``folder`` beside what is there (``export``,
+    ``simulate``, ``ingest``): none of them may be an input, and ``folder`` must not be a file."""
+    f = Path(os.path.expanduser(str(folder)))
+    if f.exists() and not f.is_dir():
+        raise OutputError(f"{f} is a file, not a folder; expected a folder to write {_names(list(names))} into "
+                          "(-o DIR)", path=f)
+    for n in names:
+        check_apart(f / n, inputs, folder=False)
+
+
+def check_file_output(target: str | Path, inputs: Mapping[str, str | Path | None], *, force: bool,
+                      flag: str = "--force", suffixes: tuple[str, ...] = ()) -> Path:
+    """A single named output file (``correct -o``, ``plan -o``): not an input (:func:`check_apart`), not a folder, an
+    existing file replaced only with ``force``, a suffix among ``suffixes`` (when given; no suffix passes). Returns the
+    path to write (:func:`output_path`: the real file behind a link)."""
+    given = Path(os.path.expanduser(str(target)))
+    check_apart(given, inputs, folder=False)
+    if given.is_dir():
+        raise OutputError(f"{given} is a folder; expected a file name for the output (e.g. {given / 'out.csv'})", path=given)
+    if suffixes and given.suffix and given.suffix.lower() not in suffixes:
+        raise OutputError(f"{given}: the output is written as {suffixes[0].lstrip('.').upper()}; expected a name ending "
+                          f"in {' or '.join(suffixes)}, not {given.suffix!r}", path=given)
+    if (given.exists() or given.is_symlink()) and not force:
+        raise OutputError(f"{given} exists; pass {flag} to replace it", path=given)
+    return output_path(given)
+
+
+def _toml(path: Path) -> dict:
+    import tomllib
+
+    try:
+        return tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return {}  # the reader reports it, naming the file
+
+
+def robot_inputs(robot: Path) -> dict[str, Path]:
+    """A robot.toml and the URDF it names (found cheaply: parsed as TOML only)."""
+    out = {"robot description": robot}
+    urdf = _toml(robot).get("urdf") if robot.is_file() else None
+    if isinstance(urdf, str):
+        out["URDF"] = robot.parent / os.path.expanduser(urdf)
+    return out
+
+
+def dataset_inputs(manifest: Path) -> dict[str, Path]:
+    """A dataset.toml, its folder, its robot.toml and URDF, every recording it lists (parsed as TOML only)."""
+    folder = manifest.parent
+    out: dict[str, Path] = {"dataset's folder": folder, "dataset manifest": manifest}
+    man = _toml(manifest) if manifest.is_file() else {}
+    if isinstance(man.get("robot"), str):
+        out.update(robot_inputs(folder / man["robot"]))
+    recs = man.get("recording")
+    for r in recs if isinstance(recs, list) else []:
+        if isinstance(r, dict) and isinstance(r.get("file"), str):
+            out[f"recording {r['file']}"] = folder / r["file"]
+    return out
+
+
+def toml_inputs(path: Path, what: str = "input") -> dict[str, Path]:
+    """What a TOML input of ``plan`` names, by its keys: a dataset (:func:`dataset_inputs`), a robot.toml
+    (:func:`robot_inputs`), a protocol naming ``robot`` (that robot.toml and its URDF), else the file alone."""
+    d = _toml(path) if path.is_file() else {}
+    if "recording" in d or "recordings" in d:
+        return dataset_inputs(path)
+    if "legs" in d and "transducers" in d:
+        return robot_inputs(path)
+    out = {what: path}
+    table = d.get("protocol", d)
+    if isinstance(table, dict) and isinstance(table.get("robot"), str):
+        out.update(robot_inputs(path.parent / os.path.expanduser(table["robot"])))
+    return out
+
+
+def calibration_inputs(cal: Path) -> dict[str, Path]:
+    """A calibration.json, its covariance file (``meta.covariance_file``, else ``calibration_cov.npz`` beside it) and
+    every URDF its transducers name (relative to its folder, and the file of that name beside it), read as JSON only."""
+    out: dict[str, Path] = {"calibration": cal}
+    try:
+        d = json.loads(cal.read_text())
+    except (OSError, ValueError):
+        d = {}
+    meta = d.get("meta") if isinstance(d, dict) and isinstance(d.get("meta"), dict) else {}
+    cov = meta.get("covariance_file")
+    out["calibration's covariance file"] = cal.parent / (cov if isinstance(cov, str) else "calibration_cov.npz")
+    legs = d.get("legs") if isinstance(d, dict) and isinstance(d.get("legs"), dict) else {}
+    for name, leg in legs.items():
+        if isinstance(leg, dict) and isinstance(leg.get("urdf"), str):
+            u = Path(os.path.expanduser(leg["urdf"]))
+            out[f"URDF of transducer {name}"] = u if u.is_absolute() else cal.parent / u
+            out[f"URDF of transducer {name} (beside the calibration)"] = cal.parent / u.name
+    return out
 
 
 def guard_files(folder: str | Path, names: Iterable[str], *, force: bool, flag: str = "--force") -> None:
     """Before writing the files ``names`` into ``folder`` (a command that writes named files beside whatever is
     there): refused if any exists that the folder's manifest does not list (the tool did not write it, so it
     is not replaced, ``force`` or not), or exists at all without ``force``."""
-    folder = Path(folder)
+    folder = output_path(folder)
     present = [n for n in names if (folder / n).exists() or (folder / n).is_symlink()]
     if not present:
         return
@@ -170,14 +299,11 @@ def guard_files(folder: str | Path, names: Iterable[str], *, force: bool, flag: 
                                 "what it wrote (files it did not write are left as they are)", path=folder)
 
 
-def record_written(folder: str | Path, names: Iterable[str]) -> None:
-    """Add ``names`` (written into ``folder``) to its manifest (created if missing)."""
-    folder = Path(folder)
-    man = read_manifest(folder) or {"written": [], "kept": []}
-    write_manifest(folder, [*map(str, man["written"]), *names], [], kind=str(man.get("kind", "dataset")))
-
-log = logging.getLogger(__name__)
-
+def record_written(folder: str | Path, names: Iterable[str], *, kind: str = "dataset") -> None:
+    """Add ``names`` (written into ``folder``) to its manifest (created, of ``kind``, if missing)."""
+    folder = output_path(folder)
+    man = read_manifest(folder) or {"written": [], "kept": [], "kind": kind}
+    write_manifest(folder, [*map(str, man["written"]), *names], [], kind=str(man.get("kind", kind)))
 
 def _nearest_existing(p: Path) -> Path:
     p = p.absolute()
@@ -245,9 +371,9 @@ class OutputFolder:
     """A staged output folder for ``target`` (module docstring): ``path`` to write into, ``commit()`` to swap in."""
 
     def __init__(self, target: str | Path, *, force: bool = False):
-        self.target = Path(target)
-        if self.target.name in ("", ".", ".."):  # "." has no name to stage beside: the same folder, absolute
-            self.target = Path(os.path.abspath(self.target))
+        # absolute ("." has no name to stage beside) and real: a link to a folder is followed (the staging folder and
+        # the swap are beside the real folder), never renamed away and replaced by a folder of its name
+        self.target = output_path(target)
         self.force = force
         self.path: Path | None = None
         self._lock_fd: int | None = None
@@ -281,7 +407,7 @@ class OutputFolder:
         if man is not None and man.get("kind", "result") != "result":
             raise ForeignContentError(
                 f"{t} holds a {man['kind']} ftcal_nlp wrote ({_names(foreign_entries(t, {'written': []}))}), not a result; "
-                "results go to a folder apart from datasets: choose a new or empty folder (-o PATH)",
+                "a result goes to a folder of its own: choose a new or empty folder (-o PATH)",
                 path=t, foreign=tuple(map(str, man["written"])))
         if man is None:
             there = foreign_entries(t, None)

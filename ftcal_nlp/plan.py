@@ -62,6 +62,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import tomllib
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -71,7 +72,7 @@ import numpy as np
 import pandas as pd
 
 from . import crb
-from .errors import ConfigError, OutputError
+from .errors import ConfigError
 from .detection import POWER, Detection, detection_sizes
 from .hanging import fit_hanging
 from .hanging.com_qp import second_difference
@@ -498,15 +499,31 @@ def _free_load_main(args, out: Path, what) -> int:
         plan = plan_from_protocol(obj, Path(args.input))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(plan.to_json_dict(), indent=1, default=float))
-    print(plan.text())
-    print(f"wrote {out}")
+    if not args.quiet:
+        print(plan.text())
+        print(f"wrote {out}")
     return 0
 
 
+def plan_inputs(args) -> dict[str, Path]:
+    """What ``plan`` reads (``outdir.toml_inputs``: a pilot's files, a robot.toml's URDF, a protocol's robot.toml)."""
+    from .outdir import toml_inputs
+
+    out: dict[str, Path] = {}
+    if args.protocol:
+        out.update(toml_inputs(Path(args.protocol), "protocol"))
+    if args.input:
+        out.update(toml_inputs(Path(args.input), "input"))
+    return out
+
+
 def _main(args) -> int:
-    out = Path(args.output)
-    if out.exists() and not args.force:
-        raise OutputError(f"{out} exists; pass --force to overwrite", path=out)
+    from .outdir import check_file_output
+
+    args.input = os.path.expanduser(args.input) if args.input else args.input
+    args.protocol = os.path.expanduser(args.protocol) if args.protocol else args.protocol
+    # the plan is JSON: a name of another type (.toml, .csv, .urdf) is refused, not given JSON bytes
+    out = check_file_output(args.output, plan_inputs(args), force=args.force, suffixes=(".json",))
     what = free_load_input(args.input, args.protocol)
     if what is not None:
         return _free_load_main(args, out, what)
@@ -521,6 +538,8 @@ def _main(args) -> int:
         js["search"] = trail
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(js, indent=1, default=float))
+    if args.quiet:
+        return 0
     t = pred.table()
     p = pred.protocol
     print(f"protocol: {p.hanging_turns:g} turns x {p.turn_s:g} s per hanging recording (x{HANGING_RECORDINGS}), "

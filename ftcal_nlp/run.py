@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import time
 import tomllib
 from dataclasses import replace
@@ -30,7 +31,7 @@ from .calibration_run import CalibrationRun
 from .checks import residual_note
 from .config import RunConfig, load_config
 from .errors import ConfigError, DataFormatError, FtcalError
-from .outdir import OutputExistsError, OutputFolder, check_apart, guard_files, record_written  # noqa: F401  (re-exported)
+from .outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs, guard_files, record_written  # noqa: F401  (re-exported)
 from .correct import offsets_frame
 from .csvout import write_csv
 from .data import Dataset, read_dataset
@@ -121,13 +122,6 @@ def data_origin(cfg: RunConfig, truth: Calibration | None) -> str | None:
     return f"simulated by this run from the [simulate] table of {cfg.path}"
 
 
-def _toml_or_empty(path: Path) -> dict:
-    try:
-        return tomllib.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return {}  # the reader reports it, naming the file
-
-
 def input_paths(cfg: RunConfig) -> dict[str, Path]:
     """What the run reads, found cheaply (the manifest and robot.toml parsed as TOML, no recording read): the
     config, the dataset's folder and manifest, robot.toml, the URDF, every recording, the simulated dataset's
@@ -137,33 +131,20 @@ def input_paths(cfg: RunConfig) -> dict[str, Path]:
         out["[offsets_only] calibration"] = cfg.offsets_only.calibration
     if cfg.simulate_dir is not None:
         out["simulated dataset's folder"] = cfg.simulate_dir
-    if cfg.manifest is None:
-        return out
-    folder = cfg.manifest.parent
-    out["dataset's folder"] = folder
-    out["dataset manifest"] = cfg.manifest
-    man = _toml_or_empty(cfg.manifest) if cfg.manifest.is_file() else {}
-    if isinstance(man.get("robot"), str):
-        robot = folder / man["robot"]
-        out["robot description"] = robot
-        urdf = _toml_or_empty(robot).get("urdf") if robot.is_file() else None
-        if isinstance(urdf, str):
-            out["URDF"] = robot.parent / urdf
-    recs = man.get("recording")
-    for r in recs if isinstance(recs, list) else []:
-        if isinstance(r, dict) and isinstance(r.get("file"), str):
-            out[f"recording {r['file']}"] = folder / r["file"]
+    if cfg.manifest is not None:
+        out.update(dataset_inputs(cfg.manifest))
     return out
 
 
-def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
+def run(cfg: RunConfig, *, force: bool = False, quiet: bool = False) -> CalibrationRun:
     """Run the pipeline of ``cfg`` and write every output into ``cfg.output_dir`` (nothing when it fails).
 
     Before anything is read or fitted, the output folder is checked apart from the inputs (not one of them,
     not above one: :func:`input_paths`), refused when it holds files the tool did not write or (without
     ``force``) an earlier result, writable, and locked; the outputs are written into a staging folder beside
     it and swapped in whole at the end (``outdir.py``): a failed or interrupted run leaves an earlier result
-    exactly as it was, and ``force`` replaces only the files the tool wrote."""
+    exactly as it was, and ``force`` replaces only the files the tool wrote. The summary is printed unless ``quiet``
+    (``-q``: only warnings and errors; the summary is in report.md)."""
     inputs = input_paths(cfg)
     log.debug("inputs: %s", "; ".join(f"{k} {v}" for k, v in inputs.items()))
     check_apart(cfg.output_dir, inputs)
@@ -172,7 +153,8 @@ def run(cfg: RunConfig, *, force: bool = False) -> CalibrationRun:
             cfg = replace(cfg, simulate_dir=out.path / "dataset")
         res = _run_into(cfg, force, out.path)
         out.commit()
-    print(summary_text(res, cfg))
+    if not quiet:
+        print(summary_text(res, cfg))
     return res
 
 
@@ -338,7 +320,7 @@ def _run_validation(path: str, force: bool, run_validation, output: Path | None 
     out = d.get("output", {}).get("dir")
     if output is None and not isinstance(out, str):
         raise ConfigError(f"{p} [output].dir: expected a path string for the output folder")
-    folder = output if output is not None else p.parent / out
+    folder = output if output is not None else p.parent / os.path.expanduser(out)
     check_apart(folder, {"config file": p})
     with OutputFolder(folder, force=force) as staged:
         try:
@@ -373,7 +355,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    output = Path(args.output) if args.output else None
+    output = Path(os.path.expanduser(args.output)) if args.output else None
     if _is_validation_config(args.config):
         with threadpool_limits(limits=1):
             return _run_validation(args.config, args.force, run_validation, output)
@@ -383,7 +365,7 @@ def _main(args: argparse.Namespace) -> int:
     check_models(cfg)
     # many small LAPACK calls: threaded BLAS only adds contention on a few cores
     with threadpool_limits(limits=1):
-        run(cfg, force=args.force)
+        run(cfg, force=args.force, quiet=args.quiet)
     return 0
 
 

@@ -88,7 +88,7 @@ def test_unknown_model_is_an_error_before_any_data_are_read(standing, match, tmp
 
 def test_dash_o_overrides_the_config_output(tmp_path, monkeypatch):
     seen = {}
-    monkeypatch.setattr(run_mod, "run", lambda cfg, force=False: seen.update(out=cfg.output_dir, force=force))
+    monkeypatch.setattr(run_mod, "run", lambda cfg, force=False, quiet=False: seen.update(out=cfg.output_dir, force=force))
     assert cli.main(["run", str(_sample_config(tmp_path, 'model = "full"')), "-o", str(tmp_path / "elsewhere"), "--overwrite"]) == 0
     assert seen == {"out": tmp_path / "elsewhere", "force": True}
 
@@ -121,7 +121,8 @@ def test_simulate_command_writes_a_dataset(tmp_path, capsys):
     cfg = tmp_path / "sim.toml"
     cfg.write_text('[simulate]\nseed = 4\nn_poses = 12\nhanging_cycles = 1.0\nwalk_cycles = 0.0\ndir = "ds"\n')
     assert cli.main(["simulate", str(cfg), "-q"]) == 0
-    assert (tmp_path / "ds" / "dataset.toml").is_file() and "simulated" in capsys.readouterr().out
+    assert (tmp_path / "ds" / "dataset.toml").is_file() and capsys.readouterr().out == ""   # -q: only warnings and errors
+    assert cli.main(["simulate", str(cfg), "--force"]) == 0 and "simulated" in capsys.readouterr().out
     # a second time: refused without --force, one line
     assert re.search(r"ds/dataset\.toml exists.*; pass --force", _one_error(cli.main(["simulate", str(cfg)]), capsys.readouterr().err))
     assert cli.main(["simulate", str(cfg), "--force", "-o", str(tmp_path / "other")]) == 0

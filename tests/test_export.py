@@ -89,7 +89,7 @@ def test_export_cli(tmp_path, capsys):
     cal.save(path)
     out = tmp_path / "c"
     assert export_main([str(path), "-o", str(out), "--name", "legs2"]) == 0
-    assert {p.name for p in out.iterdir()} == {"legs2.c", "legs2.h", "USAGE.md"}
+    assert {p.name for p in out.iterdir()} == {"legs2.c", "legs2.h", "USAGE.md", ".ftcal_manifest.json"}
     header = (out / "legs2.h").read_text()
     assert "int legs2_sample(" in header and "LEGS2_N_LEGS 2" in header
     assert "`L0`, `L1`" in (out / "USAGE.md").read_text()

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..data import read_dataset
-from ..outdir import guard_files, record_written
+from ..outdir import check_files_apart, guard_files, output_path, record_written, robot_inputs
 from .ingest import ingest, write_ingested
 
 
@@ -33,14 +33,37 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     return guarded(lambda: _main(args))
 
 
+def map_inputs(path: Path) -> dict[str, Path]:
+    """What an ingest map names (parsed as TOML only): the map, its bags, its URDF or robot.toml (and that one's URDF)."""
+    import tomllib
+
+    try:
+        d = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        d = {}
+    out: dict[str, Path] = {"ingest map": path}
+    if isinstance(d.get("urdf"), str):
+        out["URDF"] = path.parent / d["urdf"]
+    if isinstance(d.get("robot"), str):
+        out.update(robot_inputs(path.parent / d["robot"]))
+    recs = d.get("recording")
+    for r in recs if isinstance(recs, list) else []:
+        if isinstance(r, dict) and isinstance(r.get("bag"), str):
+            out[f"bag {r['bag']}"] = path.parent / r["bag"]
+    return out
+
+
 def _main(args) -> int:
     result = ingest(args.map, progress=False if (args.quiet or args.no_progress) else None)
     fmt = args.format or result.map.fmt
     names = ["dataset.toml", "robot.toml", *(f"{rec.name}.{fmt}" for rec in result.dataset.recordings)]
-    guard_files(Path(args.output), names, force=args.force)
-    manifest = write_ingested(result, args.output, fmt=args.format, overwrite=True)
-    record_written(Path(args.output), names)
+    check_files_apart(args.output, names, map_inputs(Path(args.map)))
+    out = output_path(args.output)
+    guard_files(out, names, force=args.force)
+    manifest = write_ingested(result, out, fmt=args.format, overwrite=True)
+    record_written(out, names)
     ds = read_dataset(manifest)
     n = sum(r.n for r in ds.recordings)
-    print(f"wrote {manifest}: {len(ds.recordings)} recording(s), {n} rows, session epoch {result.epoch_ns} ns")
+    if not args.quiet:
+        print(f"wrote {manifest}: {len(ds.recordings)} recording(s), {n} rows, session epoch {result.epoch_ns} ns")
     return 0
