@@ -166,13 +166,24 @@ def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> dict[str, tuple[l
     from .loads import load_for
 
     log.info("plausibility checks: %s", THRESHOLDS)
+    from .freeload.plausibility import check_pose_list_clock, follows_gravity
+
     out = {}
     for leg in ds.free_load_legs:
         load = load_for(ds, leg, s.free_load.loads.get(leg))
+        for r in ds.hanging:   # the clock first: milliseconds make every sample a hold of its own
+            if r.hangs_free(leg):
+                check_pose_list_clock(r, tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ())))
         data = free_load_data(ds, leg, s.free_load, load)
         recs = [r.select(data.masks[r.name]) for r in ds.hanging if r.hangs_free(leg) and r.name in data.masks]
-        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, data.noise0, ds.robot.transducers[leg].load_mass_kg)
         out[leg] = (recs, data.noise0, load)
+    # a transducer on the same recordings whose weight follows gravity as given clears the stream: per-transducer evidence
+    fine = {leg for leg, (recs, _, load) in out.items() if follows_gravity(recs, leg, load, ds.robot.g)}
+    for leg, (recs, noise, load) in out.items():
+        names = {r.name for r in recs}
+        siblings = tuple(k for k in fine if k != leg and names & {r.name for r in out[k][0]})
+        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, noise, ds.robot.transducers[leg].load_mass_kg,
+                             siblings)
     return out
 
 
@@ -206,6 +217,8 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
             log.warning("%s", msg)
             notes.append(msg)
     with stage("plausibility checks", timings, cpu):
+        ds, screened = screen_sensor_faults(ds, unit="transducer", every_recording_fatal=False)  # dead / stuck / clipped channels, as the hexapod's
+        notes += screened
         samples = _free_load_samples(ds, s)   # quaternion order, gravity sign, joint degrees: before any fit
     with stage("free loads", timings, cpu):
         try:
