@@ -804,7 +804,8 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
                   "something large (another load on the transducer, a wrong link or transducer, a recording that is not "
                   "this load's)")
     raise ImplausibleLoadFit(
-        f"{_where(recs, leg)}: the free-load fit is not physical: {'; '.join(problems)}. Tried in order ({tried}): {causes}",
+        f"{_where(recs, leg)}: the free-load fit is not physical: {'; '.join(problems)}{' ' if problems[-1].endswith('?') else '. '}"
+        f"Tried in order ({tried}): {causes}",
         leg=leg, causes=tuple(t.name for t in found))
 
 
