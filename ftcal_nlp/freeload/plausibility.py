@@ -605,7 +605,7 @@ def grams_hint(leg: str, m: float, reference: Reference | None, floor: float) ->
     ratio = reference.kg / m
     if not (abs(np.log10(ratio) - 3) < 0.5 and floor >= MIN_FORCE_NOISE_N):
         return None
-    return (f"[transducers.{leg}] load_mass_kg = {reference.kg:.6g} is {ratio:.3g}x the mass the forces {leg}_fx..{leg}_fz "
+    return (f"[transducers.{leg}] load_mass_kg = {reference.kg:.6g} is {ratio:.0f}x the mass the forces {leg}_fx..{leg}_fz "
             f"weigh ({m:.4g} kg), whose per-sample noise ({floor:.2g} N) is a transducer's in N (readings in kN would lie "
             f"below {MIN_FORCE_NOISE_N:g} N): expected kilograms: is load_mass_kg in grams ({reference.kg / 1000:.6g} kg)?")
 
