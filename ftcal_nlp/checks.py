@@ -668,6 +668,7 @@ class SensorFault:
     channels: tuple[str, ...]
     rows: np.ndarray
     value: float
+    unit: str = "leg"   # what the message calls the transducer's carrier: a hexapod's leg, or "transducer"
 
     @property
     def fraction(self) -> float:
@@ -680,7 +681,7 @@ class SensorFault:
         spans = ", ".join(f"{a + 1}-{b + 1}" for a, b in list(zip(starts, ends))[:4]) + (" ..." if len(starts) > 4 else "")
         what = {"dead": "reads 0 on every channel (dead or unplugged)", "saturated": f"clipped at {self.value:.6g}",
                 "stuck": f"stuck at {self.value:.6g}"}[self.kind]
-        return (f"{self.source}: leg {self.leg} columns {', '.join(self.channels)} {what} on {int(self.rows.sum())} of "
+        return (f"{self.source}: {self.unit} {self.leg} columns {', '.join(self.channels)} {what} on {int(self.rows.sum())} of "
                 f"{self.rows.size} samples ({100 * self.fraction:.1f} %; rows {spans})")
 
 
@@ -771,24 +772,25 @@ def check_recording_to_correct(rec: Recording, cal, robot: Robot) -> list[Sensor
 MAX_FAULT_SHARE = 0.5
 
 
-def screen_sensor_faults(ds: Dataset) -> tuple[Dataset, list[str]]:
+def screen_sensor_faults(ds: Dataset, unit: str = "leg", every_recording_fatal: bool = True) -> tuple[Dataset, list[str]]:
     """Dead, stuck or clipped channels of the calibration recordings (hanging, standing), named before fitting.
 
     A leg whose channels are held in every calibration recording is an error (nothing to calibrate it from);
     otherwise the held rows of each such recording are left out of the fit, a warning names leg, columns, file
-    and share, and the returned notes (for the report) say so. Walking recordings are left whole: their
+    and share, and the returned notes (for the report) say so. ``every_recording_fatal`` False (free loads, often one
+    recording): a fault in every recording is refused only where it holds more than ``MAX_FAULT_SHARE`` of one. Walking recordings are left whole: their
     correction flags the rows (``{leg}_fault``)."""
     calib = [r for r in ds.recordings if r.kind in ("hanging", "standing")]
-    found = {r.name: sensor_faults(r, ds.robot.legs) for r in calib}
+    found = {r.name: [replace(f, unit=unit) for f in sensor_faults(r, ds.robot.legs)] for r in calib}
     by_leg: dict[str, list[SensorFault]] = {}
     for fs in found.values():
         for f in fs:
             by_leg.setdefault(f.leg, []).append(f)
     for leg, fs in by_leg.items():
-        if len(fs) == len(calib):
+        if every_recording_fatal and len(fs) == len(calib):
             raise DataFormatError(
-                f"leg {leg}: its transducer does not move in any calibration recording: " + "; ".join(f.describe() for f in fs)
-                + f"; expected readings that change with the pose (is the sensor of leg {leg} connected, within its range?)"
+                f"{unit} {leg}: its transducer does not move in any calibration recording: " + "; ".join(f.describe() for f in fs)
+                + f"; expected readings that change with the pose (is the sensor of {unit} {leg} connected, within its range?)"
             )
     if not by_leg:
         return ds, []

@@ -159,24 +159,42 @@ def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> Sens
 
 
 def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> dict[str, tuple[list, np.ndarray, object]]:
+    return checked_free_load_samples(ds, s.free_load)
+
+
+def checked_free_load_samples(ds: Dataset, free_load=None) -> dict[str, tuple[list, np.ndarray, object]]:
     """Per free-load transducer its quasi-static samples (the recordings cut to them), their per-sample noise and its load,
-    checked before fitting (``freeload/plausibility.py``: quaternion order, gravity sign, joint angles in degrees)."""
+    checked before fitting (``freeload/plausibility.py``: quaternion order, gravity sign, joint angles in degrees, ...);
+    ``free_load`` the :class:`~ftcal_nlp.settings.FreeLoadSettings` (None: the defaults). ``plan`` checks a pilot so."""
     from .freeload import free_load_data
     from .freeload.plausibility import THRESHOLDS, check_free_load_data
     from .loads import load_for
 
     log.info("plausibility checks: %s", THRESHOLDS)
+    from .freeload.plausibility import check_pose_list_clock, follows_gravity
+
+    if free_load is None:
+        free_load = CalibrationSettings().free_load
     out = {}
     for leg in ds.free_load_legs:
-        load = load_for(ds, leg, s.free_load.loads.get(leg))
-        data = free_load_data(ds, leg, s.free_load, load)
+        load = load_for(ds, leg, free_load.loads.get(leg))
+        for r in ds.hanging:   # the clock first: milliseconds make every sample a hold of its own
+            if r.hangs_free(leg):
+                check_pose_list_clock(r, tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ())))
+        data = free_load_data(ds, leg, free_load, load)
         recs = [r.select(data.masks[r.name]) for r in ds.hanging if r.hangs_free(leg) and r.name in data.masks]
-        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, data.noise0, ds.robot.transducers[leg].load_mass_kg)
         out[leg] = (recs, data.noise0, load)
+    # a transducer on the same recordings whose weight follows gravity as given clears the stream: per-transducer evidence
+    fine = {leg for leg, (recs, _, load) in out.items() if follows_gravity(recs, leg, load, ds.robot.g)}
+    for leg, (recs, noise, load) in out.items():
+        names = {r.name for r in recs}
+        siblings = tuple(k for k in fine if k != leg and names & {r.name for r in out[k][0]})
+        check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, noise, ds.robot.transducers[leg].load_mass_kg,
+                             siblings)
     return out
 
 
-def _raise_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarray, object]], exc: SolverError) -> None:
+def raise_free_load_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarray, object]], exc: SolverError) -> None:
     """After a failed free-load fit: raise :class:`~ftcal_nlp.errors.ImplausibleLoadFit` naming the conventions whose
     fix makes a transducer's load plausible, if any (else return: the solver's error stands)."""
     from .freeload.plausibility import nominal_rotation_source, reference_mass, try_causes
@@ -190,12 +208,27 @@ def _raise_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarray, object
                                      leg=leg, causes=tuple(t.name for t in found)) from exc
 
 
+def check_free_load_fits(ds: Dataset, fits: dict, samples: dict[str, tuple[list, np.ndarray, object]]) -> list[str]:
+    """The checks after the free-load fits (``freeload/plausibility.py``: an implausible fit raises, naming the causes
+    tried); returns the notes of a weighed mass the fit disagrees with (logged). ``plan`` checks a pilot so."""
+    from .freeload.plausibility import check_free_load_fit, nominal_rotation_source, weighed_mass_note
+
+    notes = []
+    for leg, r in fits.items():
+        recs, noise, _ = samples[leg]
+        weighed = ds.robot.transducers[leg].load_mass_kg
+        check_free_load_fit(r, recs, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg), weighed)
+        note = weighed_mass_note(r, weighed)
+        if note:
+            log.warning("%s", note)
+            notes.append(note)
+    return notes
+
+
 def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float],
                           notes: list[str]) -> CalibrationRun:
     """Section-5 datasets: every transducer's free load by the free-load estimator; the hexapod stages do not apply."""
     from .freeload import fit_free_loads, free_load_calibration
-    from .freeload.plausibility import check_free_load_fit, nominal_rotation_source, weighed_mass_note
-
     hexapod = [k for k in ds.robot.legs if k not in ds.free_load_legs]
     if hexapod:
         raise DataFormatError(f"{ds.manifest or 'dataset'}: transducers {hexapod} have {{leg}}_phi columns (hexapod legs) and "
@@ -206,22 +239,17 @@ def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str
             log.warning("%s", msg)
             notes.append(msg)
     with stage("plausibility checks", timings, cpu):
+        ds, screened = screen_sensor_faults(ds, unit="transducer", every_recording_fatal=False)  # dead / stuck / clipped channels, as the hexapod's
+        notes += screened
         samples = _free_load_samples(ds, s)   # quaternion order, gravity sign, joint degrees: before any fit
     with stage("free loads", timings, cpu):
         try:
             res = fit_free_loads(ds, s.free_load)
         except SolverError as exc:   # a convention the checks before could not tell can leave IPOPT lost: try them
-            _raise_causes(ds, samples, exc)
+            raise_free_load_causes(ds, samples, exc)
             raise
     with stage("plausibility of the fit", timings, cpu):
-        for leg, r in res.legs.items():
-            recs, noise, _ = samples[leg]
-            weighed = ds.robot.transducers[leg].load_mass_kg
-            check_free_load_fit(r, recs, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg), weighed)
-            note = weighed_mass_note(r, weighed)
-            if note:
-                log.warning("%s", note)
-                notes.append(note)
+        notes += check_free_load_fits(ds, res.legs, samples)
     notes += res.identifiability()
     cal = free_load_calibration(res, ds.robot, ds.hanging)
     diagnosis = None

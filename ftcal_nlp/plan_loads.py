@@ -224,10 +224,23 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
     """The plan of a section-5 dataset's free loads (module docstring): each fitted, the bound at its estimate on
     the samples the fit used with the noise it measured."""
     from .freeload import fit_free_load
+    from .checks import screen_sensor_faults
+    from .errors import SolverError
+    from .pipeline import check_free_load_fits, checked_free_load_samples, raise_free_load_causes
 
-    loads = {}
+    # the run's checks before and after the fit: a pilot a run refuses is no ground for a plan
+    ds, _ = screen_sensor_faults(ds, unit="transducer", every_recording_fatal=False)
+    samples = checked_free_load_samples(ds, settings)
+    loads, fits = {}, {}
     for leg in ds.free_load_legs:
-        fit = fit_free_load(ds, leg, settings)
+        try:
+            fits[leg] = fit_free_load(ds, leg, settings)
+        except SolverError as exc:   # as the run: the causes whose refit makes the load plausible, if any
+            raise_free_load_causes(ds, {leg: samples[leg]}, exc)
+            raise
+    check_free_load_fits(ds, fits, samples)
+    for leg in ds.free_load_legs:
+        fit = fits[leg]
         recs = [r for r in ds.hanging if r.name in fit.used]
         # the run weighs each channel by 1 / (sd^2 inflation): the bound at the same weights is the run's se
         serial = pilot_widening(ds, leg, fit)
@@ -499,7 +512,32 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
                                     f"{sorted(robot.tree.movable)})", key="holds")
     joints = robot.tree.movable if robot.tree is not None else ()
     q = {j: np.array([float(h.get(j, 0.0)) for h in poses]) for j in joints}
+    _check_hold_limits(q, robot, where)
     return Holds(quat, q, gb)
+
+
+#: a planned hold may touch a joint's URDF limit within this (rad); a continuous joint turns at most this many turns
+HOLD_LIMIT_TOL_RAD = 1e-3
+HOLD_MAX_TURNS = 2.0
+
+
+def _check_hold_limits(q: dict[str, np.ndarray], robot, where: str) -> None:
+    """Every hold's joint angle within its URDF limits (revolute) or ``HOLD_MAX_TURNS`` turns (continuous): a pose the
+    joint cannot take is no hold (degrees, most often)."""
+    for name, v in q.items():
+        jt = robot.tree.joint(name)
+        lo, hi = (jt.lower, jt.upper) if jt.type == "revolute" and jt.lower is not None and jt.upper is not None \
+            and jt.upper > jt.lower else (-HOLD_MAX_TURNS * 2 * np.pi, HOLD_MAX_TURNS * 2 * np.pi)
+        if jt.type not in ("revolute", "continuous"):
+            continue
+        bad = np.flatnonzero((v < lo - HOLD_LIMIT_TOL_RAD) | (v > hi + HOLD_LIMIT_TOL_RAD))
+        if bad.size:
+            i = int(bad[0])
+            deg = bool(np.all((np.radians(v) >= lo - HOLD_LIMIT_TOL_RAD) & (np.radians(v) <= hi + HOLD_LIMIT_TOL_RAD)))
+            raise FreeLoadPlanError(
+                f"{where}: holds[{i}].q.{name} = {v[i]:g}{f' (and {bad.size - 1} more hold(s))' if bad.size > 1 else ''}: beyond "
+                f"the URDF's limits of joint '{name}' [{lo:.4g}, {hi:.4g}] rad; expected radians"
+                + (" (all of them fit read as degrees: degrees?)" if deg else ""), key="holds")
 
 
 def _robot_path(d: dict, path: Path, robot_path: Path | None, where: str) -> Path:

@@ -190,7 +190,7 @@ def test_mount_90_deg_off_nominal_names_the_frame(payload, tmp_path) -> None:
     tr = robot.transducers["wrist"]
     R = tr.rotation @ rotvec_to_rotation(np.array([0.0, 0.0, np.pi / 2]))
     write_robot(replace(robot, transducers={"wrist": replace(tr, rotation=R)}), d / "robot.toml")
-    with pytest.raises(ImplausibleLoadFit, match=r"a mounting rotation (8|9)\d(\.\d)? deg from the nominal \(expected within 20 deg"
+    with pytest.raises(ImplausibleLoadFit, match=r"a mounting rotation (8|9)\d(\.\d)? deg from the nominal \(expected within the 20 deg bound"
                                                  r".*turned 9\d deg .*\[transducers\.wrist\] rotation in .*robot\.toml .*is likely "
                                                  r"wrong") as ei:
         _calibrate(d / "dataset.toml")

@@ -23,7 +23,19 @@ Before fitting (:func:`check_free_load_data`, on each transducer's quasi-static 
   leave ``DEGREES_RATIO`` (the hexapod's) times less weighted residual than with radians;
 * units (:func:`check_units`): the weight in the forces within ``UNIT_FACTOR`` of the URDF's nominal mass of the
   load; without one, a force noise above ``MIN_FORCE_NOISE_N`` (kN readings of a real transducer fall below it; a
-  rigid payload in mN has no reference and is not caught).
+  rigid payload in mN is caught after the fit, by its lever arm); a weighed ``load_mass_kg`` ~1000x the weight in
+  forces whose noise is a transducer's in N names the key (grams);
+* a left-handed force frame (:func:`check_gravity_sign`): the weight follows gravity through a reflection (the
+  negative-mass fit) whose proper part lies far from the nominal: not gravity's sign (``-I`` near the nominal) but
+  the columns (one negated, two swapped), named by the nearest signed permutation. A transducer on the same
+  recordings whose weight follows gravity as given clears the stream: the message then names the readings;
+* torque signs (:func:`check_torque_signs`): a load with the URDF's nominal inertials predicts its torques; the
+  columns as given must not leave more than their spread when a signed permutation of them agrees (as the hexapod's
+  ``check_torque_axes``). Negated torques mirror a payload's CoM: with no nominal to hold it against, that one
+  case is not caught;
+* the clock (:func:`check_pose_list_clock`): samples further apart than the hexapod's ``MAX_SAMPLE_INTERVAL_S`` are a
+  list of poses only when consecutive rows are other poses; ``gx..gz`` and ``qw..qz`` both given must agree
+  (:func:`check_gravity_columns_agree`).
 
 After fitting (:func:`check_free_load_fit`) the fit is an error when the load mass is ``<= 0``, the mounting
 rotation lies farther than ``ROTATION_BOUND_DEG`` (the hexapod's, 20 deg) from the nominal, the residual leaves
@@ -32,10 +44,14 @@ more than ``UNEXPLAINED_SHARE`` of the readings' spread over the holds unexplain
 (or, without one, the force noise is below ``MIN_FORCE_NOISE_N``: no six-axis transducer resolves that in N). The
 residual's share, not its ratio to the noise alone: every simulator effect on a free load (``sim/free``, seed 3)
 leaves 1-60x the noise (the diagnosis' business) but at most 3 % of the spread, while a convention error leaves
-20-100 %. The error tries the likely causes in order, each by the linear refits above with the fix applied:
+20-100 %. A URDF link group's determined mass below 0 by ``NEGATIVE_MASS_SE`` se, and a rigid payload's CoM outside
+the hexapod's lever-arm range (``LEVER_MIN_M``..``LEVER_MAX_M``: forces in mN, torques in kN*m or N*mm) are errors too.
+The error tries the likely causes in order, each by the linear refits above with the fix applied:
 quaternion order, gravity sign (or the readings negated: the same data), joint angles in degrees, the frame
 (mass positive, residual small, rotation far: the transducer's nominal rotation, in ``robot.toml`` or the URDF,
-is wrong, or given B -> ft), units (kN or mN: the mass 1000x off), and names those that make the load plausible.
+is wrong, or given B -> ft), torque signs (every signed permutation of the torque columns) and torque units (x1000,
+/1000) where the forces are plausible, units (kN or mN: the mass 1000x off; a weighed mass in grams), and names those
+that make the load plausible.
 """
 
 from __future__ import annotations
@@ -49,9 +65,13 @@ import numpy as np
 
 from ..checks import (
     DEGREES_RATIO,
+    LEVER_MAX_M,
+    LEVER_MIN_M,
+    MAX_SAMPLE_INTERVAL_S,
     QUAT_ORDER_RATIO,
     RESIDUAL_NOISE_FACTOR,
     ROTATION_BOUND_DEG,
+    _signed_permutations,
 )
 from ..data import Recording
 from ..errors import DataFormatError, ImplausibleLoadFit
@@ -93,6 +113,7 @@ class GravityFit:
     spread_N: float
     span: int
     sign_determined: bool
+    other_rms_N: float = float("nan")
 
     @property
     def angle_deg(self) -> float:
@@ -148,14 +169,16 @@ def gravity_fit(f: np.ndarray, b: np.ndarray) -> GravityFit:
         sign, determined = (-1.0 if rotation_angle_deg(Rn.T) < rotation_angle_deg(Rp.T) else 1.0), False
     s, R, rss = fits[sign]
     m = sign * s
-    return GravityFit(m, R.T, fm - m * bm @ R.T, float(np.sqrt(rss / n)), spread, span, determined)
+    return GravityFit(m, R.T, fm - m * bm @ R.T, float(np.sqrt(rss / n)), spread, span, determined,
+                      float(np.sqrt(fits[-sign][2] / n)))
 
 
 @dataclass(frozen=True)
 class LoadFit:
     """The load's whole model at a fixed mounting rotation, fitted linearly: ``theta`` (p,), ``offset`` (6,),
     ``rms`` (6,) residual RMS per channel, ``spread`` (2,) the forces' and torques' RMS about their mean (norms),
-    ``unexplained`` (2,) the residual's share of them, ``mass_kg`` ``mu . theta``."""
+    ``unexplained`` (2,) the residual's share of them, ``mass_kg`` ``mu . theta``, ``se`` (p,) the se of ``theta``
+    (inf where the data leave it undetermined; the residual's scale where the noise is not known)."""
 
     theta: np.ndarray
     offset: np.ndarray
@@ -163,6 +186,7 @@ class LoadFit:
     spread: np.ndarray
     unexplained: np.ndarray
     mass_kg: float
+    se: np.ndarray | None = None
 
 
 def load_fit(w: np.ndarray, b: np.ndarray, K: np.ndarray, mu: np.ndarray, E: np.ndarray,
@@ -180,13 +204,19 @@ def load_fit(w: np.ndarray, b: np.ndarray, K: np.ndarray, mu: np.ndarray, E: np.
     X[:, 3:, 6:] = -np.einsum("nij,njp->nip", skew_rows(gt), K)      # s x g = -[g]x s
     sd = _sd(noise)
     Xw, yw = (X / sd[None, :, None]).reshape(-1, 6 + p), (w / sd).reshape(-1)
-    x = np.linalg.lstsq(Xw, yw, rcond=None)[0]
+    U, S, Vt = np.linalg.svd(Xw, full_matrices=False)
+    keep = S > S[0] * 1e-9 if S.size else S > 0
+    x = Vt[keep].T @ ((U[:, keep].T @ yw) / S[keep])
     res = w - np.einsum("nik,k->ni", X, x)
+    dof = max(yw.size - int(keep.sum()), 1)
+    s2 = float(np.sum(((w - np.einsum("nik,k->ni", X, x)) / sd) ** 2)) / dof
+    se = np.sqrt(np.sum((Vt[keep] / S[keep, None]) ** 2, axis=0) * (max(s2, 1.0) if _known(noise) else s2))
+    se[np.sum(Vt[~keep] ** 2, axis=0) > 1e-6] = np.inf
     rms = np.sqrt(np.mean(res**2, axis=0))
     wc = w - w.mean(axis=0)
     spread = np.array([np.sqrt(np.mean(np.sum(wc[:, :3] ** 2, axis=1))), np.sqrt(np.mean(np.sum(wc[:, 3:] ** 2, axis=1)))])
     resn = np.array([np.sqrt(np.mean(np.sum(res[:, :3] ** 2, axis=1))), np.sqrt(np.mean(np.sum(res[:, 3:] ** 2, axis=1)))])
-    return LoadFit(x[6:], x[:6], rms, spread, resn / np.maximum(spread, 1e-300), float(np.asarray(mu) @ x[6:]))
+    return LoadFit(x[6:], x[:6], rms, spread, resn / np.maximum(spread, 1e-300), float(np.asarray(mu) @ x[6:]), se[6:])
 
 
 def skew_rows(v: np.ndarray) -> np.ndarray:
@@ -298,13 +328,78 @@ def check_quaternion_order(recs: Sequence[Recording], leg: str, load, g: float, 
                 "quaternion map the world to B?", column="qw")
 
 
-def check_gravity_sign(recs: Sequence[Recording], leg: str, load, g: float) -> None:
-    """Raise when the forces follow reversed gravity where three gravity directions tell it (module docstring)."""
+def follows_gravity(recs: Sequence[Recording], leg: str, load, g: float) -> bool:
+    """Whether ``leg``'s forces follow gravity as given (a positive weight where three directions tell the sign): the
+    evidence a transducer sharing ``leg``'s orientation stream gives about the stream."""
     w, b, _ = load_arrays(recs, leg, load, g)
     fit = gravity_fit(w[:, :3], b)
-    if fit.sign_determined and fit.mass_kg < 0:
-        raise DataFormatError(f"{_where(recs, leg)}: the forces (columns {leg}_fx..{leg}_fz) follow gravity reversed: "
-                              f"{_reversal_hint(recs, leg, fit)}")
+    return bool(fit.sign_determined and fit.mass_kg > 0 and fit.angle_deg <= ROTATION_BOUND_DEG)
+
+
+def signed_permutation_near(Q: np.ndarray, det: float | None = None) -> tuple[np.ndarray, float]:
+    """The signed permutation (of determinant ``det``, any where None) nearest the orthogonal ``Q``, and the angle (deg)
+    between them."""
+    maps = [np.eye(3)] + _signed_permutations()
+    if det is not None:
+        maps = [P for P in maps if np.sign(np.linalg.det(P)) == np.sign(det)]
+    P = max(maps, key=lambda P: float(np.sum(P * Q)))
+    M = P.T @ Q
+    if np.linalg.det(M) < 0:      # Q and P of opposite determinants: no rotation between them
+        return P, 180.0
+    return P, rotation_angle_deg(M)
+
+
+def describe_columns(P: np.ndarray, leg: str, kind: str = "f") -> str:
+    """The column mix-up a signed permutation ``P`` makes (the reading's column i holds ``P[i] .`` the true axes)."""
+    c = "xyz"
+    src = [(int(np.argmax(np.abs(P[i]))), float(np.sign(P[i][np.argmax(np.abs(P[i]))]))) for i in range(3)]
+    parts, done = [], set()
+    for i, (j, sg) in enumerate(src):
+        if i in done:
+            continue
+        if j == i:
+            if sg < 0:
+                parts.append(f"{leg}_{kind}{c[i]} negated")
+            continue
+        if src[j][0] == i:
+            done |= {i, j}
+            neg = [f"{leg}_{kind}{c[k]}" for k in (i, j) if src[k][1] < 0]
+            parts.append(f"{leg}_{kind}{c[i]} and {leg}_{kind}{c[j]} swapped" + (f" ({' and '.join(neg)} negated)" if neg else ""))
+        else:
+            parts.append(f"{leg}_{kind}{c[i]} holds {'-' if sg < 0 else ''}{kind}{c[j]}")
+    return ", ".join(parts) or "none"
+
+
+def check_gravity_sign(recs: Sequence[Recording], leg: str, load, g: float, siblings_ok: Sequence[str] = ()) -> None:
+    """Raise when the forces follow reversed gravity where three gravity directions tell it (module docstring): through a
+    reflection near the nominal frame (``-E`` with ``E`` within ``ROTATION_BOUND_DEG``: gravity or the readings' sign),
+    or through a reflection far from it (the force columns form a left-handed frame: one negated, two swapped).
+    ``siblings_ok``: transducers on the same recordings whose weight follows gravity as given (the stream is right)."""
+    w, b, _ = load_arrays(recs, leg, load, g)
+    fit = gravity_fit(w[:, :3], b)
+    if not (fit.sign_determined and fit.mass_kg < 0):
+        return
+    if fit.angle_deg > ROTATION_BOUND_DEG:
+        Q = -fit.rotation.T                     # f ~ |m| Q b: the best orthogonal map, determinant -1
+        P, off = signed_permutation_near(Q, det=-1.0)
+        what = (f"the nearest column mix-up is {describe_columns(P, leg)} ({off:.2g} deg from the map found)"
+                if off <= ROTATION_BOUND_DEG else
+                f"no single column mix-up is near it (the nearest, {describe_columns(P, leg)}, is {off:.3g} deg off)")
+        raise DataFormatError(
+            f"{_where(recs, leg)}: columns {leg}_fx..{leg}_fz form a left-handed frame: the load's weight follows gravity "
+            f"through a reflection (determinant -1; residual {fit.rms_N:.3g} N RMS, load mass {-fit.mass_kg:.4g} kg) and through "
+            f"no rotation (best: residual {fit.other_rms_N:.3g} N RMS), nor through reversed gravity or a relabelled quaternion "
+            f"(the mount would be {fit.angle_deg:.3g} deg from the nominal); {what}; expected the columns of a right-handed "
+            f"transducer frame (DATA_FORMAT.md section 1): {describe_columns(P, leg)}?", column=f"{leg}_fx")
+    if siblings_ok:
+        raise DataFormatError(
+            f"{_where(recs, leg)}: the forces (columns {leg}_fx..{leg}_fz) follow gravity reversed: a load mass of "
+            f"{fit.mass_kg:.4g} kg (residual {fit.rms_N:.3g} N RMS; {-fit.mass_kg:.4g} kg with gravity reversed), while "
+            f"transducer(s) {', '.join(siblings_ok)} on the same recordings follow gravity as given (the gravity source is "
+            f"right); expected a positive mass: are the readings of {leg} negated (a reading is the wrench the load exerts on "
+            "the transducer, DATA_FORMAT.md section 1)?", column=f"{leg}_fx")
+    raise DataFormatError(f"{_where(recs, leg)}: the forces (columns {leg}_fx..{leg}_fz) follow gravity reversed: "
+                          f"{_reversal_hint(recs, leg, fit)}")
 
 
 def _reversal_hint(recs: Sequence[Recording], leg: str, fit: GravityFit) -> str:
@@ -371,14 +466,17 @@ def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.n
     reference = reference_mass(load, weighed_kg)
     ref = reference.kg if reference else None
     m = abs(fit.mass_kg)
+    floor = _force_noise(noise)
     if ref and np.isfinite(m) and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
+        grams = grams_hint(leg, m, reference, floor)
+        if grams:
+            raise DataFormatError(f"{_where(recs, leg)}: {grams}", column=f"{leg}_fx")
         unit = "kN" if m < ref else "mN"
         raise DataFormatError(
             f"{_where(recs, leg)}: columns {leg}_fx..{leg}_fz: the load's weight in the forces is {m * g:.4g} N, a mass of "
             f"{m:.4g} kg against {reference.what} {ref:.4g} kg (expected within {UNIT_FACTOR:g}x; {m * (1000 if unit == 'kN' else 1e-3):.4g} "
             f"kg with the readings read as {unit}): expected N and N*m: are the readings in {unit} (and {unit}*m)?",
             column=f"{leg}_fx")
-    floor = _force_noise(noise)
     if not ref and 0 < floor < MIN_FORCE_NOISE_N:
         raise DataFormatError(
             f"{_where(recs, leg)}: columns {leg}_fx..{leg}_fz: the per-sample noise is {floor:.2g} N, below any six-axis "
@@ -386,15 +484,147 @@ def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.n
             "kN): expected N and N*m: are the readings in kN (and kN*m)?", column=f"{leg}_fx")
 
 
+#: consecutive rows this close (gravity direction, deg; joint angles, rad) are the same pose: a hold, not a list of poses
+SAME_POSE_DEG = 0.05
+SAME_POSE_RAD = 1e-4
+#: a list of poses has (nearly) no consecutive rows of one pose; holds sampled at a rate have most, less the moves
+#: between them (the real ATI Axia80 time series at 10 Hz: 55 %)
+SAME_POSE_SHARE = 0.3
+#: gx..gz and the gravity from qw..qz (after the stream's constant world tilt) may disagree by this much (deg)
+GRAVITY_AGREE_DEG = 3.0
+
+
+def check_pose_list_clock(rec: Recording, joints: Sequence[str] = ()) -> None:
+    """Column ``t`` of a recording whose samples lie more than ``MAX_SAMPLE_INTERVAL_S`` apart (taken as a list of poses,
+    one pose a row): refused when more than ``SAME_POSE_SHARE`` of consecutive rows hold the same pose (gravity per
+    sample within ``SAME_POSE_DEG``, joints within ``SAME_POSE_RAD``): holds sampled at a rate, with ``t`` in
+    milliseconds. Without gravity per sample or joint columns the rows cannot be told apart: not checked."""
+    if rec.n < 3:
+        return
+    dt = float(np.median(np.diff(rec.t)))
+    if dt <= MAX_SAMPLE_INTERVAL_S:
+        return
+    same = np.ones(rec.n - 1, bool)
+    told = False
+    if rec.gravity is not None:
+        gr = rec.gravity
+        told = True
+        same &= np.degrees(np.arccos(np.clip(np.sum(gr[1:] * gr[:-1], axis=1), -1, 1))) <= SAME_POSE_DEG
+    for j in joints:
+        if j in rec.q:
+            told = True
+            same &= np.abs(np.diff(rec.q[j])) <= SAME_POSE_RAD
+    if told and same.mean() > SAME_POSE_SHARE:
+        raise DataFormatError(
+            f"{rec.path or rec.name}: column t: median interval {dt:.4g}; {100 * same.mean():.0f} % of consecutive rows hold the "
+            f"same pose (gravity within {SAME_POSE_DEG:g} deg, joints within {SAME_POSE_RAD:g} rad): they are holds sampled "
+            f"at a rate, not single-row poses (expected seconds, at most {MAX_SAMPLE_INTERVAL_S:g} s between samples): is t in "
+            "milliseconds?", column="t")
+
+
+def check_gravity_columns_agree(rec: Recording) -> None:
+    """Both ``gx..gz`` and ``qw..qz`` given (``DATA_FORMAT.md`` section 5: alternatives): the gravity ``gx..gz`` gives,
+    carried to the stream's world by ``qw..qz``, must be one direction (the world's tilt) within ``GRAVITY_AGREE_DEG``."""
+    if rec.quat is None or rec.gravity is None:
+        return
+    ok = np.all(np.isfinite(rec.quat), axis=1) & np.all(np.isfinite(rec.gravity), axis=1)
+    if ok.sum() < 2:
+        return
+    from_q = -quat_to_rotation(rec.quat[ok])[:, 2, :]
+    if np.allclose(from_q, rec.gravity[ok], atol=1e-9):    # gravity taken from the quaternion itself
+        return
+    d = np.einsum("nij,nj->ni", quat_to_rotation(rec.quat[ok]), rec.gravity[ok])
+    mean = d.mean(axis=0)
+    mean /= max(float(np.linalg.norm(mean)), 1e-300)
+    ang = np.degrees(np.arccos(np.clip(d @ mean, -1, 1)))
+    worst = float(np.percentile(ang, 95))
+    if worst > GRAVITY_AGREE_DEG:
+        tilt = float(np.degrees(np.arccos(np.clip(-mean[2], -1, 1))))
+        raise DataFormatError(
+            f"{rec.path or rec.name}: columns gx, gy, gz and qw, qx, qy, qz disagree: the gravity gx..gz gives, carried to the "
+            f"world by qw..qz, spreads {worst:.3g} deg (95th percentile) about its mean direction ({tilt:.3g} deg from the "
+            f"world's down); expected one direction within {GRAVITY_AGREE_DEG:g} deg (DATA_FORMAT.md section 5: gx..gz is an "
+            "alternative to qw..qz; give one, or both of the same orientation)", column="gx")
+
+
+#: the URDF's nominal model leaves more than this share of the torques' spread with the columns as given (it explains
+#: less than their mean) while a signed permutation of the columns leaves below ``NOMINAL_FIXED`` and
+#: ``1 / NOMINAL_GAIN`` of it: the torque columns are negated or reordered (clean URDF loads: 3-25 %; negated: 110-220 %)
+NOMINAL_WORSE = 1.0
+NOMINAL_FIXED = 0.5
+NOMINAL_GAIN = 3.0
+
+
+def _nominal_torque_share(t: np.ndarray, pred: np.ndarray) -> float:
+    r = t - pred
+    r = r - r.mean(axis=0)
+    tc = t - t.mean(axis=0)
+    return float(np.sqrt(np.sum(r**2) / max(float(np.sum(tc**2)), 1e-300)))
+
+
+def _simplest(maps: list[tuple[float, np.ndarray]], tol: float = 1.1) -> tuple[float, np.ndarray]:
+    """The best (score, map), preferring among those within ``tol`` of the best score all columns negated, then the fewest
+    columns changed (directions the data do not excite leave several maps alike)."""
+    best = min(v for v, _ in maps)
+    near = [(v, P) for v, P in maps if v <= tol * best]
+    return min(near, key=lambda vp: (not np.allclose(vp[1], -np.eye(3)), int(np.sum(np.abs(vp[1] - np.eye(3)) > 0.5)), vp[0]))
+
+
+def check_torque_signs(recs: Sequence[Recording], leg: str, load, g: float) -> None:
+    """A load with the URDF's nominal inertials (its prior): the torques it predicts at the weight's mounting rotation
+    against the torque columns as given and under every signed permutation (as ``checks.check_torque_axes``); raise
+    when the given columns disagree with it (``NOMINAL_WORSE``) and a permutation agrees (``NOMINAL_FIXED``,
+    ``NOMINAL_GAIN``): negated torques mirror a payload's CoM or make link masses negative, and no fit can tell."""
+    prior = load.prior() if hasattr(load, "prior") else None
+    if prior is None:
+        return
+    w, b, K = load_arrays(recs, leg, load, g)
+    gf = gravity_fit(w[:, :3], b)
+    if not (gf.mass_kg > 0 and gf.angle_deg <= ROTATION_BOUND_DEG):
+        return
+    pred = np.cross(np.einsum("nip,p->ni", K, np.asarray(prior, float)), b @ gf.rotation)
+    given = _nominal_torque_share(w[:, 3:], pred)
+    if given <= NOMINAL_WORSE:
+        return
+    best, P = _simplest([(_nominal_torque_share(w[:, 3:] @ P, pred), P) for P in _signed_permutations()])
+    if best < NOMINAL_FIXED and best * NOMINAL_GAIN < given:
+        what = (f"the torque readings negated ({leg}_tx..{leg}_tz: their sign convention reversed)"
+                if np.allclose(P, -np.eye(3)) else f"the torque columns in another order or sign ({describe_columns(P, leg, 't')})")
+        raise DataFormatError(
+            f"{_where(recs, leg)}: columns {leg}_tx..{leg}_tz: the URDF's nominal inertials of the load predict the torques "
+            f"leaving {given:.0%} of their spread unexplained as given (more than their mean) and {best:.0%} with "
+            f"{describe_columns(P, leg, 't')}; expected the torques as given to agree best (no other order or sign below "
+            f"{NOMINAL_FIXED:.0%} and {NOMINAL_GAIN:g}x less): are {what}?", column=f"{leg}_tx")
+
+
+def grams_hint(leg: str, m: float, reference: Reference | None, floor: float) -> str | None:
+    """A weighed ``load_mass_kg`` ~1000x the mass the forces weigh while their noise is a transducer's in N (not kN's):
+    the key is in grams. None otherwise."""
+    if reference is None or not reference.what.startswith("the weighed") or not m > 0:
+        return None
+    ratio = reference.kg / m
+    if not (abs(np.log10(ratio) - 3) < 0.5 and floor >= MIN_FORCE_NOISE_N):
+        return None
+    return (f"[transducers.{leg}] load_mass_kg = {reference.kg:.6g} is {ratio:.0f}x the mass the forces {leg}_fx..{leg}_fz "
+            f"weigh ({m:.4g} kg), whose per-sample noise ({floor:.2g} N) is a transducer's in N (readings in kN would lie "
+            f"below {MIN_FORCE_NOISE_N:g} N): expected kilograms: is load_mass_kg in grams ({reference.kg / 1000:.6g} kg)?")
+
+
 def check_free_load_data(recs: Sequence[Recording], leg: str, load, g: float, tree=None,
-                         noise: np.ndarray | None = None, weighed_kg: float | None = None) -> None:
-    """Every check before fitting, in order: quaternion order, gravity sign, joint angles in degrees, units. ``recs``: the
-    recordings in which ``leg``'s load hangs free (its quasi-static rows, or a recording to correct); ``noise`` (6,)
-    the per-sample sd of the readings (None: not known)."""
+                         noise: np.ndarray | None = None, weighed_kg: float | None = None,
+                         siblings_ok: Sequence[str] = ()) -> None:
+    """Every check before fitting, in order: the clock of a list of poses, gx..gz against qw..qz, quaternion order,
+    gravity sign (and a left-handed force frame), joint angles in degrees, units. ``recs``: the recordings in which
+    ``leg``'s load hangs free (whole: the clock needs consecutive rows); ``noise`` (6,) the per-sample sd of the
+    readings (None: not known); ``siblings_ok`` transducers on the same recordings that follow gravity as given."""
+    for rec in recs:
+        check_pose_list_clock(rec, _joints(load))
+        check_gravity_columns_agree(rec)
     check_quaternion_order(recs, leg, load, g, noise)
-    check_gravity_sign(recs, leg, load, g)
+    check_gravity_sign(recs, leg, load, g, siblings_ok)
     check_joint_degrees(recs, leg, load, g, tree, noise)
     check_units(recs, leg, load, g, noise, weighed_kg)
+    check_torque_signs(recs, leg, load, g)
 
 
 # ----------------------------------------------------------------------------- after the fit
@@ -471,11 +701,15 @@ def try_causes(recs: Sequence[Recording], leg: str, load, g: float, tree=None, n
                                         f"from its nominal frame: {nominal_source} is likely wrong{why}"))
     else:
         out.append(Trial("frame", False, "the frame: not it (the mass or the residual is off too)"))
+    out += _torque_trials(recs, leg, load, g, noise, gf0, lf0)
     # units: the mass 1000x off a reference, or a force noise no transducer has in N
     m = gf0.mass_kg
     floor = _force_noise(noise)
     ref = reference.kg if reference else None
-    if ref and m > 0 and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
+    grams = grams_hint(leg, m, reference, floor) if ref and m > 0 else None
+    if grams:
+        out.append(Trial("units", True, grams))
+    elif ref and m > 0 and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
         unit = "kN" if m < ref else "mN"
         out.append(Trial("units", True, f"the load mass {m:.4g} kg is {ref / m if m < ref else m / ref:.3g}x "
                                         f"off {reference.what} {ref:.4g} kg ({m * (1000 if unit == 'kN' else 1e-3):.4g} kg "
@@ -486,6 +720,55 @@ def try_causes(recs: Sequence[Recording], leg: str, load, g: float, tree=None, n
                                         "are the readings in kN (and kN*m)?"))
     else:
         out.append(Trial("units", False, "units: not it"))
+    return out
+
+
+def _load_plausible(load, lf: LoadFit, noise: np.ndarray | None, leg: str) -> bool:
+    """The load's torques explained: residual not far, no link group's mass below 0, a payload's CoM within reach."""
+    return not (_residual_far(lf, noise) or negative_groups(load, lf.theta, lf.se)
+                or lever_arm_problem(load, lf.theta, lf.se, leg))
+
+
+def _torque_trials(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None, gf0: GravityFit,
+                   lf0: LoadFit) -> list[Trial]:
+    """Torque signs (the columns negated, reordered: every signed permutation, as ``checks.check_torque_axes``) and
+    torque units (x1000, /1000), tried where the forces' weight is plausible and the torques are not."""
+    forces_ok = gf0.mass_kg > 0 and gf0.angle_deg <= ROTATION_BOUND_DEG and lf0.unexplained[0] <= UNEXPLAINED_SHARE
+    if not forces_ok or _load_plausible(load, lf0, noise, leg):
+        return [Trial("torque signs", False, "torque signs: not tried (the forces, or nothing, are off)"),
+                Trial("torque units", False, "torque units: not tried")]
+    w, b, K = load_arrays(recs, leg, load, g)
+    nz = None if noise is None else np.asarray(noise, float)
+
+    def refit(T: np.ndarray, scale: float = 1.0) -> LoadFit:
+        w2 = w.copy()
+        w2[:, 3:] = scale * w[:, 3:] @ T
+        n2 = None if nz is None else np.r_[nz[:3], scale * np.abs(T).T @ nz[3:]]
+        return load_fit(w2, b, K, load.mass_row, gf0.rotation, n2)
+
+    out = []
+    fits = {}
+    for i, P in enumerate(_signed_permutations()):
+        lf = refit(P)
+        if _load_plausible(load, lf, noise if nz is None else np.r_[nz[:3], np.abs(P).T @ nz[3:]], leg):
+            fits[i] = (P, lf)
+    if fits:
+        _, P = _simplest([(max(lf.unexplained[1], 1e-12), P) for P, lf in fits.values()])
+        lf = next(lf for Q, lf in fits.values() if Q is P)
+        what = (f"the torque readings negated ({leg}_tx..{leg}_tz: their sign convention reversed)" if np.allclose(P, -np.eye(3))
+                else f"{describe_columns(P, leg, 't')} (torque columns in another order or sign)")
+        out.append(Trial("torque signs", True, f"with {what} the torques are explained (residual {_pct(lf)} of the readings' "
+                                               f"spread): {what.removeprefix('the ')}?"))
+    else:
+        out.append(Trial("torque signs", False, "torque signs: not it"))
+    for scale, unit in ((1000.0, "kN*m"), (1e-3, "N*mm")):
+        lf = refit(np.eye(3), scale)
+        if _load_plausible(load, lf, None if nz is None else np.r_[nz[:3], scale * nz[3:]], leg):
+            out.append(Trial("torque units", True, f"with {leg}_tx..{leg}_tz read as {unit} the load is plausible (residual "
+                                                   f"{_pct(lf)} of the readings' spread): are the torques in {unit}?"))
+            break
+    else:
+        out.append(Trial("torque units", False, "torque units: not it"))
     return out
 
 
@@ -511,8 +794,8 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
     if mass <= 0 and mass_known:
         problems.append(f"a load mass of {mass:.4g} kg (expected > 0)")
     if angle > ROTATION_BOUND_DEG and mount_known:
-        problems.append(f"a mounting rotation {angle:.3g} deg from the nominal (expected within {ROTATION_BOUND_DEG:.0f} deg, "
-                        "the bound of a hexapod's legs)")
+        problems.append(f"a mounting rotation {angle:.3g} deg from the nominal (expected within the {ROTATION_BOUND_DEG:.0f} deg "
+                        "bound, ROTATION_BOUND_DEG)")
     if np.any(share > UNEXPLAINED_SHARE) and np.any(over > RESIDUAL_NOISE_FACTOR):
         vs = f", {np.max(over):.3g}x the per-sample noise" if _known(noise) else ""
         problems.append(f"a residual of {100 * share[0]:.2g} % (forces) and {100 * share[1]:.2g} % (torques) of the readings' "
@@ -524,6 +807,10 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
     if 0 < floor < MIN_FORCE_NOISE_N:
         problems.append(f"a force noise of {floor:.2g} N per sample (no six-axis transducer resolves below "
                         f"{MIN_FORCE_NOISE_N:g} N)")
+    problems += negative_groups(load, result.theta, _param_se(result))
+    lever = lever_arm_problem(load, result.theta, _param_se(result), leg)
+    if lever:
+        problems.append(lever)
     if not problems:
         return
     trials = try_causes(recs, leg, load, g, tree, noise, nominal_source, reference)
@@ -536,8 +823,69 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
                   "something large (another load on the transducer, a wrong link or transducer, a recording that is not "
                   "this load's)")
     raise ImplausibleLoadFit(
-        f"{_where(recs, leg)}: the free-load fit is not physical: {'; '.join(problems)}. Tried in order ({tried}): {causes}",
+        f"{_where(recs, leg)}: the free-load fit is not physical: {'; '.join(problems)}{' ' if problems[-1].endswith('?') else '. '}"
+        f"Tried in order ({tried}): {causes}",
         leg=leg, causes=tuple(t.name for t in found))
+
+
+#: a URDF link group's mass this many se below 0 is no estimate of a mass
+NEGATIVE_MASS_SE = 3.0
+
+
+def _param_se(result) -> np.ndarray:
+    """The se of ``result.theta`` (inf where not determined), by the fit's parameter names."""
+    names = list(result.names)
+    out = np.full(len(result.theta), np.inf)
+    for i, pn in enumerate(result.load.param_names):
+        for key in (f"{result.leg}.{pn}", pn):
+            if key in names:
+                out[i] = float(np.asarray(result.se)[names.index(key)])
+                break
+    return out
+
+
+def negative_groups(load, theta: np.ndarray, se: np.ndarray | None) -> list[str]:
+    """The URDF link groups (two or more) whose fitted mass is determined and below 0 by more than ``NEGATIVE_MASS_SE``
+    se, as problems for the message."""
+    names = load.param_names
+    idx = [i for i, n in enumerate(names) if n.endswith("mass_kg")]
+    if len(idx) < 2 or se is None:
+        return []
+    out = []
+    for i in idx:
+        m, e = float(theta[i]), float(se[i])
+        if np.isfinite(e) and m < -NEGATIVE_MASS_SE * e:
+            group = names[i].rsplit(".", 1)[0]
+            out.append(f"a mass of {m:.4g} +- {e:.2g} kg for link group '{group}' (expected > 0; {-m / max(e, 1e-300):.0f} se "
+                       "below)")
+    return out
+
+
+def payload_com(load, theta: np.ndarray, se: np.ndarray | None) -> np.ndarray | None:
+    """A rigid payload's CoM ``h / m`` (m, ft) where its mass and first moment are determined; None otherwise."""
+    if tuple(load.param_names) != ("mass_kg", "h_x", "h_y", "h_z"):
+        return None
+    if se is None or not np.all(np.isfinite(se)) or not theta[0] > 0:
+        return None
+    return np.asarray(theta[1:], float) / float(theta[0])
+
+
+def lever_arm_problem(load, theta: np.ndarray, se: np.ndarray | None, leg: str) -> str | None:
+    """The hexapod's lever-arm rule (``checks.check_lever_arms``) on a rigid payload: its CoM from torques over forces
+    within ``LEVER_MIN_M`` to ``LEVER_MAX_M`` of the transducer, else the readings' units are named."""
+    c = payload_com(load, theta, se)
+    if c is None:
+        return None
+    r = float(np.linalg.norm(c))
+    if LEVER_MIN_M <= r <= LEVER_MAX_M:
+        return None
+    m = float(theta[0])
+    hint = (f"are the forces {leg}_fx..{leg}_fz in mN (a load mass of {m / 1000:.4g} kg read as N) or the torques "
+            f"{leg}_tx..{leg}_tz in kN*m?" if r < LEVER_MIN_M else
+            f"are the torques {leg}_tx..{leg}_tz in N*mm, or the forces {leg}_fx..{leg}_fz in kN (a load mass of "
+            f"{1000 * m:.4g} kg read as N)?")
+    return (f"the load's centre of mass {r:.3g} m from the transducer (torques over forces; expected {LEVER_MIN_M:g} to "
+            f"{LEVER_MAX_M:g} m, LEVER_MIN_M..LEVER_MAX_M, with forces in N and torques in N*m): {hint}")
 
 
 class Reference(NamedTuple):
