@@ -582,15 +582,22 @@ def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
     check_torque_units(w, weight, where, leg)
 
 
+#: forces whose 99th percentile stays below this (N) while the torques look large: likely kN, not N
+_KN_FORCE_MAX_N = 1.0
+
+
 def check_torque_units(w: np.ndarray, weight_N: float | None, where: str, leg: str) -> None:
     """Torques in N*m: the 99th percentile of their norm above ``_MAX_LEVER_ARM_M`` times the larger of the forces'
     (99th percentile) and ``weight_N`` is an error suspecting N*mm. ``w`` (N, 6) one transducer's readings."""
     fmax = np.percentile(np.linalg.norm(w[:, :3], axis=1), 99)
     tmax = np.percentile(np.linalg.norm(w[:, 3:], axis=1), 99)
     if tmax > _MAX_LEVER_ARM_M * max(fmax, weight_N or 0.0):
+        # the ratio cannot tell torques in N*mm from forces in kN; forces that never reach a newton point at the latter
+        guess = ("are the forces in kN, or the torques in N*mm?" if fmax < _KN_FORCE_MAX_N
+                 else "are the torques in N*mm, or the forces in kN?")
         raise DataFormatError(
-            f"{where}: columns {leg}_tx..{leg}_tz reach {tmax:.4g}, more than {_MAX_LEVER_ARM_M} m times the forces; "
-            "expected N*m (are they in N*mm?)", column=f"{leg}_tx"
+            f"{where}: columns {leg}_tx..{leg}_tz reach {tmax:.4g}, more than {_MAX_LEVER_ARM_M} m times the forces "
+            f"({leg}_fx..{leg}_fz reach {fmax:.4g}); expected N*m and N: {guess}", column=f"{leg}_tx"
         )
 
 

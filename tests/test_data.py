@@ -183,3 +183,18 @@ def test_unknown_kind(small):
     (small / "dataset.toml").write_text(text)
     with pytest.raises(DataFormatError, match=r"kind 'running'"):
         read_dataset(small / "dataset.toml")
+
+
+def test_torque_ratio_names_forces_in_kN_first_when_they_never_reach_a_newton():
+    """The lever-arm ratio of torques to forces cannot tell N*mm torques from kN forces: forces below 1 N (a 1.5 kg
+    tool read in kN) put kN first; forces of newtons put N*mm first."""
+    from ftcal_nlp.data import check_torque_units
+
+    rng = np.random.default_rng(0)
+    f = rng.normal(size=(200, 3)) * 14.7
+    t = rng.normal(size=(200, 3)) * 0.3
+    with pytest.raises(DataFormatError, match=r"are the forces in kN, or the torques in N\*mm\?"):
+        check_torque_units(np.hstack([f / 1000.0, t]), None, "x.csv", "wrist")
+    with pytest.raises(DataFormatError, match=r"are the torques in N\*mm, or the forces in kN\?"):
+        check_torque_units(np.hstack([f, t * 1000.0]), None, "x.csv", "wrist")
+    check_torque_units(np.hstack([f, t]), None, "x.csv", "wrist")   # N and N*m: a lever of 2 cm passes
