@@ -95,6 +95,7 @@ import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
+import pandas as pd
 
 from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs
 from .errors import MisSignedChannel
@@ -692,6 +693,19 @@ def _held_runs(x: np.ndarray, min_run: int) -> np.ndarray:
     new = np.r_[True, x[1:] != x[:-1]]
     run_id = np.cumsum(new) - 1
     return np.bincount(run_id)[run_id] >= min_run
+
+
+def with_fault_columns(frame: pd.DataFrame, faults: list[SensorFault], kept: np.ndarray) -> pd.DataFrame:
+    """A corrected table with a warning per sensor fault (transducer, columns, rows of the recording) and a column
+    ``{X}_fault`` (1 on its rows) after the others; ``kept`` (N,) the recording's rows the table holds. One wording for
+    every transducer kind (``correct`` of a hexapod walk and of a free load)."""
+    if not faults:
+        return frame
+    cols = {}
+    for f in faults:
+        log.warning("%s; those rows are corrected as read and flagged in column %s_fault", f.describe(), f.leg)
+        cols[f"{f.leg}_fault"] = f.rows[kept].astype(np.int8)
+    return pd.concat([frame, pd.DataFrame(cols, index=frame.index)], axis=1)
 
 
 def sensor_faults(rec: Recording, legs: tuple[str, ...] | None = None, min_run: int = STUCK_RUN) -> list[SensorFault]:

@@ -30,7 +30,7 @@ import pandas as pd
 
 from .calibration import Calibration
 from .correct_loads import correct_free_load_file, read_calibration
-from .checks import SensorFault, check_calibration, check_recording_to_correct
+from .checks import SensorFault, check_calibration, check_recording_to_correct, with_fault_columns
 from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from .effect_correction import correct_for_effect
 from .csvout import write_csv
@@ -89,13 +89,7 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
 def flag_faults(res: Correction, faults: list[SensorFault], kept: np.ndarray) -> Correction:
     """A warning per sensor fault (leg, columns, rows of the recording) and a column ``{leg}_fault`` (1 on its rows)
     after the others; ``kept`` (N,) the recording's rows the correction kept. No fault: the table as it was."""
-    if not faults:
-        return res
-    cols = {}
-    for f in faults:
-        log.warning("%s; those rows are corrected as read and flagged in column %s_fault", f.describe(), f.leg)
-        cols[f"{f.leg}_fault"] = f.rows[kept].astype(np.int8)
-    return replace(res, frame=pd.concat([res.frame, pd.DataFrame(cols, index=res.frame.index)], axis=1))
+    return replace(res, frame=with_fault_columns(res.frame, faults, kept)) if faults else res
 
 
 def load_covariance(cal: Calibration, calibration_path: str | Path, *, warn: bool = True) -> CalibrationCovariance | None:

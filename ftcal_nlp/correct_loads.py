@@ -971,10 +971,9 @@ def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
 def _with_fault_columns(df: pd.DataFrame, faults: list, keep: np.ndarray) -> pd.DataFrame:
     """``df`` (the recording's rows ``keep``) with a warning per fault and a column ``{X}_fault`` (1 on its rows), as
     ``correct.flag_faults`` for a hexapod."""
-    from .correct import flag_faults
-    from .wrenches import Correction
+    from .checks import with_fault_columns
 
-    return flag_faults(Correction(df, None, None, None), faults, keep).frame if faults else df
+    return with_fault_columns(df, faults, keep)
 
 
 def _temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:
