@@ -217,9 +217,9 @@ class Calibration:
         legs = {}
         for k, l in self.legs.items():
             if l.load is not None:  # a free load: offsets and the load's keys (OUTPUT_FORMAT.md), no hexapod keys
-                legs[k] = {"offset": lst(l.offset), "offset_se": lst(l.offset_se), "leg_weight_N": float(l.leg_weight_N),
-                           "leg_weight_se_N": None if l.leg_weight_se_N is None or not np.isfinite(l.leg_weight_se_N)
-                           else float(l.leg_weight_se_N), **_nulls(l.load), **_design_rotation(l.load)}
+                # no leg_weight_N: "keys of the hexapod layout appear where they apply, and only there" (OUTPUT_FORMAT.md);
+                # the load's weight is load_mass_kg times g
+                legs[k] = {"offset": lst(l.offset), "offset_se": lst(l.offset_se), **_nulls(l.load), **_design_rotation(l.load)}
                 continue
             d = {
                 "offset": lst(l.offset),

@@ -1,4 +1,4 @@
-"""Turn any recording into per-foot ground contact wrenches with a finished calibration.
+"""Turn any recording into contact wrenches with a finished calibration: per foot (legged robot) or per transducer (free load).
 
 ``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv [--bag out_bag] [--track-offsets]``
 (free loads: ``[--gravity-body X Y Z]`` for a fixed base's recording without orientation columns, ``correct_loads.py``)

@@ -182,8 +182,9 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
         res.calibration.save(folder / "calibration.json")
         if covariance is not None:
             covariance.save(folder / COVARIANCE_FILE)
-    with stage("write corrected", res.timings):
-        write_corrected(res, folder)
+    if res.corrected or res.tracked_offsets:   # no stage (nor folder) where nothing is corrected: a free-load run
+        with stage("write corrected", res.timings):
+            write_corrected(res, folder)
     if res.diagnosis is not None:
         (folder / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
         last = last_joint(res.diagnosis)

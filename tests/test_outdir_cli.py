@@ -145,6 +145,9 @@ def test_a_free_load_run_writes_its_manifest_and_no_empty_corrected(first_run):
     on_disk = {str(p.relative_to(out)) + ("/" if p.is_dir() else "") for p in out.rglob("*")} - {MANIFEST}
     assert set(man["written"]) == on_disk and "calibration.json" in on_disk
     assert not (out / "corrected").exists()
+    cal = json.loads((out / "calibration.json").read_text())
+    for leg in cal["legs"].values():   # OUTPUT_FORMAT: hexapod keys only where they apply
+        assert "leg_weight_N" not in leg and "leg_com_grid" not in leg and leg["load_mass_kg"] > 0
 
 
 def test_rerun_with_force_replaces_the_tools_files_and_keeps_the_users(first_run, tmp_path, capsys):
