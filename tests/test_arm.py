@@ -83,11 +83,10 @@ def _arm_frame(tree, seed: int, holds: int, hold_s: float = 2.0, move_s: float =
     return pd.DataFrame(cols)
 
 
-@pytest.fixture(scope="module")
-def arm(tmp_path_factory):
-    """The simulated arm's dataset (16 holds) and a later session of it (10 other holds), written to a folder."""
-    folder = tmp_path_factory.mktemp("arm4")
-    (folder / "arm4.urdf").write_text(URDF)
+def write_arm(folder: Path, urdf: str) -> Path:
+    """The simulated arm's dataset (16 holds) and a later session of it (10 other holds) written to ``folder`` with the
+    URDF text ``urdf``, calibrated into ``folder/out`` (diagnosis off)."""
+    (folder / "arm4.urdf").write_text(urdf)
     tree = load_tree(folder / "arm4.urdf")
     _arm_frame(tree, 1, 16).to_csv(folder / "wrist.csv", index=False, float_format="%.17g")
     _arm_frame(tree, 2, 10, t0=1.8e9).to_csv(folder / "later.csv", index=False, float_format="%.17g")
@@ -99,6 +98,12 @@ def arm(tmp_path_factory):
                                                      "diagnose": {"enabled": False}}).encode())
     assert run_main([str(folder / "run.toml"), "-q"]) == 0
     return folder
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory):
+    """The simulated arm's dataset and a later session of it (:func:`write_arm`)."""
+    return write_arm(tmp_path_factory.mktemp("arm4"), URDF)
 
 
 def _z_table(fit, truth: dict) -> dict[str, float]:

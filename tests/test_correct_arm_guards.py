@@ -11,13 +11,10 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-import tomli_w
 
 from ftcal_nlp import correct
-from ftcal_nlp.kinematics import load_tree
-from ftcal_nlp.run import main as run_main
 
-from test_arm import NOISE, URDF, _arm_frame
+from test_arm import NOISE, URDF, write_arm
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 J4 = '<joint name="j4" type="revolute"><parent link="l3"/><child link="l4"/><origin xyz="0.3 0 0"/><axis xyz="1 0 0"/><limit lower="-3.1" upper="3.1" effort="1" velocity="1"/></joint>'
@@ -28,19 +25,7 @@ URDF_CONT = URDF.replace(J4, J4.replace('type="revolute"', 'type="continuous"').
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
     assert URDF_CONT != URDF and 'name="j4" type="continuous"' in URDF_CONT
-    folder = tmp_path_factory.mktemp("arm4c")
-    (folder / "arm4.urdf").write_text(URDF_CONT)
-    tree = load_tree(folder / "arm4.urdf")
-    _arm_frame(tree, 1, 16).to_csv(folder / "wrist.csv", index=False, float_format="%.17g")
-    _arm_frame(tree, 2, 10, t0=1.8e9).to_csv(folder / "later.csv", index=False, float_format="%.17g")
-    (folder / "robot.toml").write_bytes(tomli_w.dumps({"name": "arm4", "g": 9.81, "legs": ["wrist"], "urdf": "arm4.urdf",
-                                                       "transducers": {"wrist": {"link": "ft_sensor"}}}).encode())
-    (folder / "dataset.toml").write_bytes(tomli_w.dumps({"robot": "robot.toml", "recording": [
-        {"file": "wrist.csv", "kind": "hanging", "gravity_body": [0.0, 0.0, -1.0]}]}).encode())
-    (folder / "run.toml").write_bytes(tomli_w.dumps({"data": {"manifest": "dataset.toml"}, "output": {"dir": "out"},
-                                                     "diagnose": {"enabled": False}}).encode())
-    assert run_main([str(folder / "run.toml"), "-q"]) == 0
-    return folder
+    return write_arm(tmp_path_factory.mktemp("arm4c"), URDF_CONT)
 
 
 def _correct(arm, tmp_path, df: pd.DataFrame, name: str, cal=None) -> tuple[int, str]:

@@ -55,20 +55,29 @@ def _correct(case, tmp_path, rec: pd.DataFrame | None = None, cal: Path | None =
     return correct.main([str(cal or case.cal), str(path), "-o", str(out), "--force", *extra]), out
 
 
-def _cal_with(case, tmp_path, edit) -> Path:
-    """A copy of the case's calibration (and its covariance file) with ``edit(leg entry)`` applied."""
+def cal_edited(case, tmp_path, edit) -> Path:
+    """A copy of the case's calibration (and its covariance file) as ``tmp_path/cal.json`` with ``edit(dict)`` applied."""
     d = json.loads(case.cal.read_text())
-    edit(d["legs"][case.leg])
+    edit(d)
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(d))
     shutil.copy(case.cal.parent / "calibration_cov.npz", tmp_path / "calibration_cov.npz")
     return path
 
 
-def _error(capsys) -> str:
+def _cal_with(case, tmp_path, edit) -> Path:
+    """:func:`cal_edited` with ``edit(leg entry)``."""
+    return cal_edited(case, tmp_path, lambda d: edit(d["legs"][case.leg]))
+
+
+def error_line(capsys) -> str:
+    """The last line on stderr, asserted to be the CLI's one ``error:`` line."""
     err = capsys.readouterr().err.strip().splitlines()
-    assert err and err[-1].startswith("error: ")
+    assert err and err[-1].startswith("error: "), err[-3:]
     return err[-1]
+
+
+_error = error_line
 
 
 def test_the_recording_as_written_is_corrected(case, tmp_path) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,6 +19,8 @@ import pytest
 from ftcal_nlp import correct
 from ftcal_nlp.config import load_config
 from ftcal_nlp.run import run
+
+from test_correct_loads_guards import cal_edited, error_line
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 SIM = {"payload": 'kind = "payload"\nn_orientations = 8\nhold_s = 3.0\n',
@@ -45,19 +46,8 @@ def _correct(case, tmp_path, rec: pd.DataFrame | None = None, cal: Path | None =
     return correct.main([str(cal or case.cal), str(path), "-o", str(out), "--force"]), out
 
 
-def _cal_edit(case, tmp_path, edit) -> Path:
-    d = json.loads(case.cal.read_text())
-    edit(d)
-    path = tmp_path / "cal.json"
-    path.write_text(json.dumps(d))
-    shutil.copy(case.cal.parent / "calibration_cov.npz", tmp_path / "calibration_cov.npz")
-    return path
-
-
-def _error(capsys) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err and err[-1].startswith("error: "), err[-3:]
-    return err[-1]
+_cal_edit = cal_edited
+_error = error_line
 
 
 def test_a_calibration_g_in_another_unit_is_named(case, tmp_path, capsys) -> None:
