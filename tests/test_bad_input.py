@@ -23,9 +23,7 @@ from ftcal_nlp import CalibrationSettings, calibrate
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.checks import (
     DEGREES_RATIO,
-    LEG_SHARE_MIN,
     ROTATION_BOUND_DEG,
-    TILT_DEG,
     check_dataset,
     check_rotations,
     degrees_ratio,
@@ -37,7 +35,7 @@ from ftcal_nlp.run import main as run_main
 from ftcal_nlp.settings import DiagnoseSettings, HangingSettings, StandingSettings
 from ftcal_nlp.sim import SimConfig, simulate
 
-from bad_inputs import CASES, LEGS, broken_sample, read_frame
+from bad_inputs import LEGS, broken_sample, read_frame
 from conftest import require_sample
 
 ROOT = Path(__file__).resolve().parents[1]

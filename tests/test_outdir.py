@@ -16,7 +16,7 @@ import ftcal_nlp.run as run_mod
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.config import load_config
 from ftcal_nlp.errors import OutputError
-from ftcal_nlp.outdir import MANIFEST, ForeignContentError, OutputExistsError, OutputFolder, inventory, write_manifest
+from ftcal_nlp.outdir import MANIFEST, OutputExistsError, OutputFolder, inventory, write_manifest
 
 from conftest import require_sample
 

@@ -181,7 +181,7 @@ def test_urdf_leg_asset_and_dataset_follow_section_5(leg, tmp_path) -> None:
     q1 = {**q0, above[0].name: np.array([0.0, 0.4])}
     R0, p0 = tree.pose(tree.root, cfg.ft_link, q1, 2)
     assert not np.allclose(R0[0], R0[1]) or not np.allclose(p0[0], p0[1])   # ft pose in B depends on q
-    manifest = write_free_load(leg, tmp_path)
+    write_free_load(leg, tmp_path)
     robot = tomllib.loads((tmp_path / "robot.toml").read_text())
     assert robot["urdf"] == "robot.urdf" and robot["transducers"]["r_leg"] == {"link": "r_leg_ft"}
     assert (tmp_path / "robot.urdf").read_text() == LEG4_URDF.read_text()

@@ -47,7 +47,6 @@ def test_hysteresis_keeps_the_state_between_thresholds():
 
 def test_contact_follows_a_moved_swing_level():
     """Swing read 7 N above zero (a moved offset) is still swing; a window without swing keeps zero."""
-    rng = np.random.default_rng(0)
     t = np.arange(0, 120, 0.01)
     swing = (np.mod(t, 12.5) < 5.0) & (t < 90)
     fz = np.where(swing, 7.0, 7.0 + 15.0 + 2 * np.sin(t))  # stance-only windows: q90 - q10 < 8 N + rng.normal(0, 0.05, len(t))
