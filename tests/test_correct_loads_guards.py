@@ -36,15 +36,18 @@ SIM = {"payload": 'kind = "payload"\nn_orientations = 8\nhold_s = 3.0\n',
 def case(request, tmp_path_factory) -> SimpleNamespace:
     """A calibration.json of the simulated load, its recording (a table), the transducer's name and the key its
     mounting rotation is read from."""
-    tmp = tmp_path_factory.mktemp(request.param)
-    (tmp / "c.toml").write_text(f'[simulate]\n{SIM[request.param]}dir = "data"\nseed = 5\n'
+    mount = "rotation_to_body" if request.param == "payload" else "mount_rotation"
+    return simulated_case(request.param, tmp_path_factory.mktemp(request.param), seed=5, mount=mount)
+
+
+def simulated_case(kind: str, tmp: Path, seed: int, **extra) -> SimpleNamespace:
+    """``kind`` (a key of ``SIM``) simulated with ``seed`` into ``tmp/data`` and run into ``tmp/out`` (no diagnosis):
+    its calibration.json, recording (a table), transducer name and folder, with ``extra``."""
+    (tmp / "c.toml").write_text(f'[simulate]\n{SIM[kind]}dir = "data"\nseed = {seed}\n'
                                 '[output]\ndir = "out"\n[diagnose]\nenabled = false\n')
     res = run(load_config(tmp / "c.toml"))
-    leg = res.dataset.robot.legs[0]
-    rec = pd.read_csv(res.dataset.recordings[0].path)
-    cal = tmp / "out" / "calibration.json"
-    mount = "rotation_to_body" if request.param == "payload" else "mount_rotation"
-    return SimpleNamespace(kind=request.param, cal=cal, rec=rec, leg=leg, mount=mount)
+    return SimpleNamespace(kind=kind, cal=tmp / "out" / "calibration.json", rec=pd.read_csv(res.dataset.recordings[0].path),
+                           leg=res.dataset.robot.legs[0], root=tmp, **extra)
 
 
 def _correct(case, tmp_path, rec: pd.DataFrame | None = None, cal: Path | None = None, name: str = "rec.csv",

@@ -17,26 +17,16 @@ import pandas as pd
 import pytest
 
 from ftcal_nlp import correct
-from ftcal_nlp.config import load_config
-from ftcal_nlp.run import run
 
-from test_correct_loads_guards import cal_edited, error_line
+from test_correct_loads_guards import SIM, cal_edited, error_line, simulated_case
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
-SIM = {"payload": 'kind = "payload"\nn_orientations = 8\nhold_s = 3.0\n',
-       "urdf_leg": 'kind = "urdf_leg"\nn_orientations = 8\nposes_per_orientation = 3\nhold_s = 3.0\nmove_s = 2.0\n'}
 
 
 @pytest.fixture(scope="module", params=sorted(SIM))
 def case(request, tmp_path_factory) -> SimpleNamespace:
     """A calibration.json of the simulated load, its recording (a table) and the transducer's name."""
-    tmp = tmp_path_factory.mktemp(request.param)
-    (tmp / "c.toml").write_text(f'[simulate]\n{SIM[request.param]}dir = "data"\nseed = 7\n'
-                                '[output]\ndir = "out"\n[diagnose]\nenabled = false\n')
-    res = run(load_config(tmp / "c.toml"))
-    leg = res.dataset.robot.legs[0]
-    rec = pd.read_csv(res.dataset.recordings[0].path)
-    return SimpleNamespace(kind=request.param, cal=tmp / "out" / "calibration.json", rec=rec, leg=leg, root=tmp)
+    return simulated_case(request.param, tmp_path_factory.mktemp(request.param), seed=7)
 
 
 def _correct(case, tmp_path, rec: pd.DataFrame | None = None, cal: Path | None = None, name: str = "rec.csv"):

@@ -21,12 +21,16 @@ from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, s
 REL = 0.05   # the fit's se rest on its estimated noise sd (~1 % from 5000 samples) and first-order weights
 
 
-@pytest.fixture(scope="module")
-def payload(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("plan_payload")
-    res = simulate_payload(PayloadConfig(seed=3, n_orientations=10, hold_s=6.0, move_s=3.0))
+def fitted_payload(tmp: Path, seed: int):
+    """A simulated payload (10 holds of 6 s) written to ``tmp/p``: ``(tmp, simulation, manifest, fit)``."""
+    res = simulate_payload(PayloadConfig(seed=seed, n_orientations=10, hold_s=6.0, move_s=3.0))
     manifest = write_free_load(res, tmp / "p")
     return tmp, res, manifest, fit_free_load(read_dataset(manifest), "wrist")
+
+
+@pytest.fixture(scope="module")
+def payload(tmp_path_factory):
+    return fitted_payload(tmp_path_factory.mktemp("plan_payload"), seed=3)
 
 
 def _fit_se(fit) -> dict[str, float]:

@@ -19,6 +19,7 @@ from ftcal_nlp.data import read_dataset
 from ftcal_nlp.errors import ConfigError
 from ftcal_nlp.freeload import fit_free_load
 from ftcal_nlp.geometry import rotation_to_quat
+from test_plan_loads import fitted_payload
 from ftcal_nlp.plan_loads import FreeLoadPlan, plan_from_dataset, plan_from_robot
 from ftcal_nlp.sim.free import (
     PayloadConfig,
@@ -47,10 +48,7 @@ def _toml_list(v) -> str:
 
 @pytest.fixture(scope="module")
 def payload(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("robot_payload")
-    res = simulate_payload(PayloadConfig(seed=7, n_orientations=10, hold_s=6.0, move_s=3.0))
-    manifest = write_free_load(res, tmp / "p")
-    return tmp, res, manifest, fit_free_load(read_dataset(manifest), "wrist")
+    return fitted_payload(tmp_path_factory.mktemp("robot_payload"), seed=7)
 
 
 @pytest.fixture(scope="module")
