@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .errors import ConfigError, FtcalError, OutputError
+from .errors import ConfigError, FtcalError
 
 log = logging.getLogger("ftcal_nlp.cli")
 
@@ -244,10 +244,6 @@ def _simulate(path: Path, output: str | None, force: bool, *, quiet: bool = Fals
     folder = output_path(folder)
     try:
         manifest = simulate_to_folder(table, folder, overwrite=force)
-    except OutputError:
-        raise
-    except FileExistsError as exc:
-        raise OutputError(f"{folder / 'dataset.toml'} exists; pass --force to replace the dataset", path=folder) from exc
     except (TypeError, ValueError) as exc:  # the simulator's own key checks: named with the config file
         if isinstance(exc, FtcalError) and str(path) in str(exc):
             raise

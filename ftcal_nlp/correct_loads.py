@@ -81,6 +81,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration, is_free_load, read_calibration_json
+from .checks import with_fault_columns
 from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
 from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
@@ -953,7 +954,7 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
         for j, c in enumerate(WRENCH_COMPONENTS):
             out[f"{k}_{c}"] = wc[:, j]
             ses[f"{k}_{c}_se"] = se[:, j]
-    return _with_fault_columns(pd.DataFrame({**out, **ses}), faults, keep)
+    return with_fault_columns(pd.DataFrame({**out, **ses}), faults, keep)
 
 
 def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
@@ -966,14 +967,6 @@ def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
     wrench = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
               for k in cal_legs}
     return sensor_faults(SimpleNamespace(path=where, name=where, wrench=wrench), tuple(cal_legs))
-
-
-def _with_fault_columns(df: pd.DataFrame, faults: list, keep: np.ndarray) -> pd.DataFrame:
-    """``df`` (the recording's rows ``keep``) with a warning per fault and a column ``{X}_fault`` (1 on its rows), as
-    ``correct.flag_faults`` for a hexapod."""
-    from .checks import with_fault_columns
-
-    return with_fault_columns(df, faults, keep)
 
 
 def _temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:

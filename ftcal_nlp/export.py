@@ -232,6 +232,17 @@ def load_compiled(lib: str | Path, n_legs: int, name: str = DEFAULT_NAME) -> Cal
     return call
 
 
+def _write_export(cal_path: Path, out: Path, name: str):
+    """Read the calibration (checked as read) and write its C export into ``out``: free loads' contact wrench
+    (``export_loads.py``) or the legs' ground wrenches."""
+    cal = read_calibration(cal_path)
+    if not isinstance(cal, Calibration):
+        from . import export_loads
+
+        return export_loads.write_c(cal, out, name, source=cal_path.name)
+    return write_c(cal, out, name, source=cal_path.name)
+
+
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     from .cli import add_common, guarded, parse, setup
 
@@ -246,7 +257,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
-    from .outdir import calibration_inputs, check_files_apart, guard_files, output_path, record_written
+    from .outdir import calibration_inputs, check_files_apart, output_path, write_guarded
 
     if not args.name.isidentifier():
         raise ConfigError(f"--name {args.name!r} is not a C identifier", key="--name")
@@ -256,15 +267,7 @@ def _main(args) -> int:
     # and only when the folder's manifest lists it (the tool wrote it); what was written is added to the manifest
     check_files_apart(args.output, names, calibration_inputs(cal_path))
     out = output_path(args.output)
-    guard_files(out, names, force=args.force)
-    cal = read_calibration(cal_path)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
-    if not isinstance(cal, Calibration):  # free loads: the contact wrench (export_loads.py)
-        from . import export_loads
-
-        files = export_loads.write_c(cal, out, args.name, source=cal_path.name)
-    else:
-        files = write_c(cal, out, args.name, source=cal_path.name)
-    record_written(out, names, kind="C export")
+    files = write_guarded(out, names, lambda: _write_export(cal_path, out, args.name), force=args.force, kind="C export")
     if not args.quiet:
         print(f"wrote {files.source}, {files.header}, {files.usage}")
     return 0

@@ -52,7 +52,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Callable, Iterable, Mapping, TypeVar
 
 from .errors import OutputError, OutputExistsError
 
@@ -61,6 +61,7 @@ __all__ = ["OutputFolder", "OutputExistsError", "ForeignContentError", "MANIFEST
            "dataset_inputs", "robot_inputs", "toml_inputs", "calibration_inputs"]
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 #: the file in every folder the tool writes that lists what it wrote there
 MANIFEST = ".ftcal_manifest.json"
@@ -299,10 +300,23 @@ def guard_files(folder: str | Path, names: Iterable[str], *, force: bool, flag: 
                                 "what it wrote (files it did not write are left as they are)", path=folder)
 
 
+def write_guarded(folder: str | Path, names: Iterable[str], write: Callable[[], T], *, force: bool,
+                  kind: str = "dataset") -> T:
+    """Write the files ``names`` into ``folder`` beside whatever is there: :func:`guard_files` first (nothing the tool did
+    not write is replaced; what it wrote only with ``force``), then ``write()``, then :func:`record_written`; returns
+    what ``write`` returns. Every command that writes named files into a folder (simulate, ingest, export, a run's
+    simulated dataset) goes through here."""
+    names = list(names)
+    guard_files(folder, names, force=force)
+    out = write()
+    record_written(folder, names, kind=kind)
+    return out
+
+
 def record_written(folder: str | Path, names: Iterable[str], *, kind: str = "dataset") -> None:
     """Add ``names`` (written into ``folder``) to its manifest (created, of ``kind``, if missing)."""
     folder = output_path(folder)
-    man = read_manifest(folder) or {"written": [], "kept": [], "kind": kind}
+    man = read_manifest(folder) or {"written": [], "kind": kind}
     write_manifest(folder, [*map(str, man["written"]), *names], [], kind=str(man.get("kind", kind)))
 
 def _nearest_existing(p: Path) -> Path:

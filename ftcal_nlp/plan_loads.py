@@ -556,12 +556,12 @@ def _load_kind(robot, leg: str) -> tuple[str, bool]:
     """``(kind, through_urdf)``: ``urdf_subtree`` where links with mass hang below the transducer's link, else a
     ``rigid_payload`` (its gravity through the URDF where the transducer has a link: an arm whose URDF leaves the
     tool out, ``DATA_FORMAT.md`` section 5)."""
-    from .loads import groups_below
+    from .data import has_mass_below
 
     link = robot.transducers[leg].link
     if link is None:
         return "rigid_payload", False
-    return ("urdf_subtree", True) if groups_below(robot.tree, link) else ("rigid_payload", True)
+    return ("urdf_subtree", True) if has_mass_below(robot.tree, link) else ("rigid_payload", True)
 
 
 def _gravity_to_ft(robot, leg: str, q: dict[str, np.ndarray]):

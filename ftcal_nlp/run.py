@@ -31,7 +31,7 @@ from .calibration_run import CalibrationRun
 from .checks import residual_note
 from .config import RunConfig, load_config
 from .errors import ConfigError, DataFormatError, FtcalError
-from .outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs, guard_files, record_written  # noqa: F401  (re-exported)
+from .outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs, write_guarded  # noqa: F401  (OutputExistsError: re-exported)
 from .correct import offsets_frame
 from .csvout import write_csv
 from .data import Dataset, read_dataset
@@ -73,10 +73,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
             free = simulate_free(free_config(cfg.simulate))
         except ValueError as exc:
             raise ConfigError(f"{cfg.path}: {exc}", path=cfg.path, key="simulate") from None
-        names = free_load_files(free)
-        guard_files(folder, names, force=force)
-        manifest = write_free_load(free, folder, overwrite=True)
-        record_written(folder, names)
+        manifest = write_guarded(folder, free_load_files(free), lambda: write_free_load(free, folder, overwrite=True), force=force)
         log.info("simulated %s dataset written to %s", free.config.kind, manifest.parent)
         ds = read_dataset(manifest)
         return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
@@ -85,10 +82,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
                           f"{['hexapod', *sorted(FREE_KINDS)]}", path=cfg.path, key="simulate.kind")
     sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
-    names = simulation_files(res)
-    guard_files(folder, names, force=force)
-    manifest = write_simulation(res, folder, overwrite=True)
-    record_written(folder, names)
+    manifest = write_guarded(folder, simulation_files(res), lambda: write_simulation(res, folder, overwrite=True), force=force)
     why = f"[data].manifest {cfg.manifest} not found: " if cfg.manifest is not None else ""
     log.warning("%s: %sthe [simulate] table was simulated into %s; everything below is of SIMULATED data",
                 cfg.path, why, manifest.parent)

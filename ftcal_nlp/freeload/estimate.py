@@ -407,29 +407,24 @@ def prior_notes(load, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | Non
     """Notes naming the URDF groups whose fitted mass or CoM is far from the URDF's nominal (``load.prior()``; the
     thresholds ``PRIOR_NOTE_*``): the estimates come from the readings, the note tells the user the URDF is off. Loads
     without a nominal (a rigid payload) get none."""
-    from ..loads.base import se_of
-
     prior = load.prior() if hasattr(load, "prior") else None
     groups = getattr(load, "groups", None)
     if prior is None or not groups:
         return []
+    fitted = load.report(theta, cov, null)["urdf_groups"]   # each group's mass and CoM with se (loads/urdf_subtree.py)
     out = []
     for i, g in enumerate(groups):
         M0, H0 = float(prior[4 * i]), np.asarray(prior[4 * i + 1: 4 * i + 4], float)
-        M, H = float(theta[4 * i]), np.asarray(theta[4 * i + 1: 4 * i + 4], float)
+        f = fitted[g.name]
+        M, se_M = f["mass_kg"], f["mass_se_kg"]
         if M0 <= 0 or M <= 0:
             continue
-        J = np.zeros((4, len(theta)))
-        J[0, 4 * i] = 1.0
-        J[1:, 4 * i] = -H / M**2
-        J[1:, 4 * i + 1: 4 * i + 4] = np.eye(3) / M
-        se = se_of(cov, J, null)
-        dc = H / M - H0 / M0
-        far_m = abs(M - M0) > max(PRIOR_NOTE_Z * se[0], PRIOR_NOTE_MASS_FRACTION * M0)
-        far_c = np.linalg.norm(dc) > PRIOR_NOTE_COM_M and np.any(np.abs(dc) > PRIOR_NOTE_Z * se[1:])
+        dc = np.asarray(f["com_m"]) - H0 / M0
+        far_m = abs(M - M0) > max(PRIOR_NOTE_Z * se_M, PRIOR_NOTE_MASS_FRACTION * M0)
+        far_c = np.linalg.norm(dc) > PRIOR_NOTE_COM_M and np.any(np.abs(dc) > PRIOR_NOTE_Z * np.asarray(f["com_se_m"]))
         if far_m or far_c:
             out.append(f"{leg}: the URDF's nominal inertial of {', '.join(g.links)} (group '{g.name}') is off: mass "
-                       f"{M0:.4g} kg, the readings give {M:.5g} +- {se[0]:.2g} kg ({100 * (M - M0) / M0:+.1f} %); CoM "
+                       f"{M0:.4g} kg, the readings give {M:.5g} +- {se_M:.2g} kg ({100 * (M - M0) / M0:+.1f} %); CoM "
                        f"{1e3 * np.linalg.norm(dc):.1f} mm from the URDF's (in frame {g.frame}). The calibration keeps "
                        "what the readings give (the URDF is only the prior of what they leave undetermined); correct "
                        "the URDF where other tools use it")

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..data import read_dataset
-from ..outdir import check_files_apart, guard_files, output_path, record_written, robot_inputs
+from ..outdir import check_files_apart, output_path, robot_inputs, write_guarded
 from .ingest import ingest, write_ingested
 
 
@@ -59,9 +59,7 @@ def _main(args) -> int:
     names = ["dataset.toml", "robot.toml", *(f"{rec.name}.{fmt}" for rec in result.dataset.recordings)]
     check_files_apart(args.output, names, map_inputs(Path(args.map)))
     out = output_path(args.output)
-    guard_files(out, names, force=args.force)
-    manifest = write_ingested(result, out, fmt=args.format, overwrite=True)
-    record_written(out, names)
+    manifest = write_guarded(out, names, lambda: write_ingested(result, out, fmt=args.format, overwrite=True), force=args.force)
     ds = read_dataset(manifest)
     n = sum(r.n for r in ds.recordings)
     if not args.quiet:

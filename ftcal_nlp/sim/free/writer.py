@@ -54,7 +54,7 @@ def simulate_to_folder(table: dict[str, Any], folder: str | Path, *, overwrite: 
     The files it writes over must be ones the tool wrote (``outdir.guard_files``: the folder's manifest lists
     them), and only with ``overwrite``; other files in the folder are left as they are.
     """
-    from ...outdir import guard_files, record_written
+    from ...outdir import write_guarded
 
     kind = table.get("kind", "hexapod")
     if kind in KINDS:
@@ -70,7 +70,4 @@ def simulate_to_folder(table: dict[str, Any], folder: str | Path, *, overwrite: 
         rest = {k: v for k, v in table.items() if k != "kind"}
         sim = simulate(SimConfig.from_dict(rest))
         names, write = simulation_files(sim), lambda: write_simulation(sim, folder, overwrite=True)
-    guard_files(folder, names, force=overwrite)
-    manifest = write()
-    record_written(folder, names)
-    return manifest
+    return write_guarded(folder, names, write, force=overwrite)
