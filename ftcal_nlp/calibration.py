@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import DataFormatError
+from .data import G_RANGE, DataFormatError
 
 
 @dataclass(frozen=True)
@@ -323,8 +323,6 @@ class Calibration:
 ROTATION_TOL = 1e-6
 #: the kinds of free load ``correct`` and ``export`` apply (DATA_FORMAT.md section 5)
 FREE_LOAD_KINDS = ("rigid_payload", "urdf_subtree")
-#: a calibration's ``g`` (m/s^2) outside this range is another unit or a typo (98.1), as ``data.read_robot`` bounds it
-G_RANGE = (1.0, 30.0)
 
 
 def read_calibration_json(path: str | Path) -> dict:

@@ -97,6 +97,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
+from .calibration import ROTATION_TOL   # a stored rotation's tolerance: the one reader's
 from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs
 from .errors import MisSignedChannel
 from .geometry import quat_to_rotation, rotation_to_rotvec, skew
@@ -409,11 +410,17 @@ def _quaternion_fixes_it(S_B: np.ndarray, q: np.ndarray, body: float) -> bool:
     with the body's weight: then the quaternion is off, not the readings. The other orders are not asked: some turn
     any up axis over, and a reversed sign or unit is the likelier fault."""
     for v in list(_quaternion_readings().values())[:2]:
-        qq = q[:, v] if isinstance(v, list) else q * v
+        qq = reread_quaternion(q, v)
         share = float(np.median(np.einsum("ni,ni->n", S_B, quat_to_rotation(qq)[:, 2, :])) / body)
         if 1 / BODY_WEIGHT_FACTOR <= share <= BODY_WEIGHT_FACTOR:
             return True
     return False
+
+
+def reread_quaternion(q: np.ndarray, reading: list[int] | np.ndarray) -> np.ndarray:
+    """Quaternions ``q`` (N, 4) read another way: an order of the columns (index list) or signs (the conjugate), as
+    :func:`_quaternion_readings` gives them."""
+    return q[:, reading] if isinstance(reading, list) else q * reading
 
 
 def _quaternion_readings() -> dict[str, list[int] | np.ndarray]:
@@ -449,7 +456,7 @@ def check_quaternion(rec: Recording, S_B: np.ndarray, ok: np.ndarray) -> None:
     given, given99 = stats(q)
     if given <= TILT_DEG and given99 <= TILT_MIN_DEG:
         return
-    alt = {k: stats(q[:, v] if isinstance(v, list) else q * v) for k, v in _quaternion_readings().items()}
+    alt = {k: stats(reread_quaternion(q, v)) for k, v in _quaternion_readings().items()}
     best = min(alt, key=lambda k: alt[k][1])
     if given > TILT_DEG:
         best = min(alt, key=lambda k: alt[k][0])
@@ -639,8 +646,6 @@ MAX_SAMPLE_INTERVAL_S = 2.0
 STUCK_RUN = 25
 #: rows of a long recording the checks of a correction look at (a regular subsample)
 CHECK_ROWS = 50_000
-#: orthogonality of a calibration's rotations, max |R^T R - I|
-ROTATION_TOL = 1e-6
 
 
 def check_clock(rec: Recording) -> None:

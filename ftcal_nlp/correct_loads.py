@@ -81,7 +81,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration, is_free_load, read_calibration_json
-from .checks import with_fault_columns
+from .checks import MAX_SAMPLE_INTERVAL_S, reread_quaternion, with_fault_columns
 from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
 from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
@@ -608,7 +608,6 @@ def _check_clock(cal_legs: dict, t: np.ndarray, where: str) -> None:
     readings' own clock (``effects_correction.STREAM_EFFECTS``: re-sampling, relaxation) needs a stream, and a
     median sampling interval above ``checks.MAX_SAMPLE_INTERVAL_S`` is a clock in ms or a list of single-row poses.
     Otherwise ``t`` is copied as it is (a list of poses 9 s apart is a fine recording of a payload)."""
-    from .checks import MAX_SAMPLE_INTERVAL_S
     from .freeload.effects_correction import STREAM_EFFECTS
 
     need = {k: [m.name for m in p.effects.members if m.name in STREAM_EFFECTS] for k, p in cal_legs.items()
@@ -626,7 +625,7 @@ def _check_clock(cal_legs: dict, t: np.ndarray, where: str) -> None:
 
 #: a median interval of ``t`` above this (units of t) between rows that mostly share their pose is milliseconds:
 #: a stream of holds at 100 Hz in ms has 10 units between samples; single-row poses seconds apart differ row to row
-HOLD_CLOCK_DT = 2.0
+HOLD_CLOCK_DT = MAX_SAMPLE_INTERVAL_S
 #: consecutive rows closer than this (deg of orientation, rad of each joint) share a pose
 SAME_POSE_DEG = 0.5
 SAME_JOINT_RAD = 0.01
@@ -677,7 +676,7 @@ def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
         out = {}
         for what, v in _quaternion_readings().items():
             alt = df.copy()
-            alt[list(QUAT_COLUMNS)] = q[:, v] if isinstance(v, list) else q * v
+            alt[list(QUAT_COLUMNS)] = reread_quaternion(q, v)
             out[what] = alt
         return out
     alt = df.copy()

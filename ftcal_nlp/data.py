@@ -211,6 +211,10 @@ def _vec3(v: object, where: str) -> np.ndarray:
     return a
 
 
+#: a plausible gravity (m/s^2) in robot.toml and calibration.json: outside it, another unit or a typo
+G_RANGE = (1.0, 30.0)
+
+
 def read_robot(path: str | Path) -> Robot:
     """Read and validate ``robot.toml`` (format page sections 2 and 5)."""
     path = Path(path)
@@ -222,7 +226,7 @@ def read_robot(path: str | Path) -> Robot:
         if not (0 < mass < 1e4):
             raise DataFormatError(f"{where}: 'mass_kg' = {mass} is not a plausible mass in kg", path=path, column="mass_kg")
     g = float(_require(d, "g", where, (int, float)))
-    if not (1.0 < g < 30.0):
+    if not (G_RANGE[0] < g < G_RANGE[1]):
         raise DataFormatError(f"{where}: 'g' = {g} is not a plausible m/s^2 value")
     legs = _require(d, "legs", where, list)
     if not legs or not all(isinstance(k, str) for k in legs) or len(set(legs)) != len(legs):
@@ -579,17 +583,18 @@ def _check_units(w: np.ndarray, robot: Robot, where: str, leg: str) -> None:
             f"{where}: columns {leg}_fx..{leg}_fz reach {fmax:.4g}, over {_MAX_FORCE_IN_WEIGHTS:.0f}x {what} "
             f"({weight:.4g} N); expected N (off by a unit factor such as 1000?)", column=f"{leg}_fx"
         )
-    check_torque_units(w, weight, where, leg)
+    check_torque_units(w, weight, where, leg, fmax)
 
 
 #: forces whose 99th percentile stays below this (N) while the torques look large: likely kN, not N
 _KN_FORCE_MAX_N = 1.0
 
 
-def check_torque_units(w: np.ndarray, weight_N: float | None, where: str, leg: str) -> None:
+def check_torque_units(w: np.ndarray, weight_N: float | None, where: str, leg: str, fmax: float | None = None) -> None:
     """Torques in N*m: the 99th percentile of their norm above ``_MAX_LEVER_ARM_M`` times the larger of the forces'
     (99th percentile) and ``weight_N`` is an error suspecting N*mm. ``w`` (N, 6) one transducer's readings."""
-    fmax = np.percentile(np.linalg.norm(w[:, :3], axis=1), 99)
+    if fmax is None:   # the forces' 99th percentile norm, where the caller has not taken it
+        fmax = np.percentile(np.linalg.norm(w[:, :3], axis=1), 99)
     tmax = np.percentile(np.linalg.norm(w[:, 3:], axis=1), 99)
     if tmax > _MAX_LEVER_ARM_M * max(fmax, weight_N or 0.0):
         # the ratio cannot tell torques in N*mm from forces in kN; forces that never reach a newton point at the latter
