@@ -171,7 +171,7 @@ def checked_free_load_samples(ds: Dataset, free_load=None) -> dict[str, tuple[li
     from .loads import load_for
 
     log.info("plausibility checks: %s", THRESHOLDS)
-    from .freeload.plausibility import check_pose_list_clock, follows_gravity
+    from .freeload.plausibility import as_given, check_pose_list_clock, follows_gravity
 
     if free_load is None:
         free_load = CalibrationSettings().free_load
@@ -185,12 +185,13 @@ def checked_free_load_samples(ds: Dataset, free_load=None) -> dict[str, tuple[li
         recs = [r.select(data.masks[r.name]) for r in ds.hanging if r.hangs_free(leg) and r.name in data.masks]
         out[leg] = (recs, data.noise0, load)
     # a transducer on the same recordings whose weight follows gravity as given clears the stream: per-transducer evidence
-    fine = {leg for leg, (recs, _, load) in out.items() if follows_gravity(recs, leg, load, ds.robot.g)}
+    given = {leg: as_given(recs, leg, load, ds.robot.g) for leg, (recs, _, load) in out.items()}
+    fine = {leg for leg, (recs, _, load) in out.items() if follows_gravity(recs, leg, load, ds.robot.g, given[leg])}
     for leg, (recs, noise, load) in out.items():
         names = {r.name for r in recs}
         siblings = tuple(k for k in fine if k != leg and names & {r.name for r in out[k][0]})
         check_free_load_data(recs, leg, load, ds.robot.g, ds.robot.tree, noise, ds.robot.transducers[leg].load_mass_kg,
-                             siblings)
+                             siblings, given[leg])
     return out
 
 

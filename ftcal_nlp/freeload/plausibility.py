@@ -248,6 +248,22 @@ def load_arrays(recs: Sequence[Recording], leg: str, load, g: float) -> tuple[np
     return np.concatenate(ws), np.concatenate(bs), np.concatenate(Ks)
 
 
+class AsGiven(NamedTuple):
+    """A transducer's data as given, computed once for every check before the fit: :func:`load_arrays` ``(w, b, K)``
+    and the closed-form :func:`gravity_fit` ``gf`` of its forces."""
+
+    w: np.ndarray
+    b: np.ndarray
+    K: np.ndarray
+    gf: GravityFit
+
+
+def as_given(recs: Sequence[Recording], leg: str, load, g: float) -> AsGiven:
+    """:class:`AsGiven` of ``leg``'s load over ``recs``."""
+    w, b, K = load_arrays(recs, leg, load, g)
+    return AsGiven(w, b, K, gravity_fit(w[:, :3], b))
+
+
 def with_quaternion(rec: Recording, quat: np.ndarray) -> Recording:
     """``rec`` with its orientation (and the gravity per sample from it, ``R_WB^T (0, 0, -1)``) replaced."""
     ok = np.all(np.isfinite(quat), axis=1)
@@ -302,12 +318,13 @@ def _where(recs: Sequence[Recording], leg: str) -> str:
 # ----------------------------------------------------------------------------- before the fit
 
 
-def check_quaternion_order(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None = None) -> None:
-    """Raise when another reading of the columns qw..qz explains the forces far better (module docstring)."""
+def check_quaternion_order(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None = None,
+                           data: AsGiven | None = None) -> None:
+    """Raise when another reading of the columns qw..qz explains the forces far better (module docstring). ``data``:
+    :func:`as_given` of the same arguments, where the caller has it."""
     if not any(r.quat is not None for r in recs):
         return
-    w, b, _ = load_arrays(recs, leg, load, g)
-    given = gravity_fit(w[:, :3], b)
+    given = (data or as_given(recs, leg, load, g)).gf
     floor = _force_noise(noise)
     if given.rms_N <= RESIDUAL_NOISE_FACTOR * floor:
         return
@@ -328,11 +345,10 @@ def check_quaternion_order(recs: Sequence[Recording], leg: str, load, g: float, 
                 "quaternion map the world to B?", column="qw")
 
 
-def follows_gravity(recs: Sequence[Recording], leg: str, load, g: float) -> bool:
+def follows_gravity(recs: Sequence[Recording], leg: str, load, g: float, data: AsGiven | None = None) -> bool:
     """Whether ``leg``'s forces follow gravity as given (a positive weight where three directions tell the sign): the
     evidence a transducer sharing ``leg``'s orientation stream gives about the stream."""
-    w, b, _ = load_arrays(recs, leg, load, g)
-    fit = gravity_fit(w[:, :3], b)
+    fit = (data or as_given(recs, leg, load, g)).gf
     return bool(fit.sign_determined and fit.mass_kg > 0 and fit.angle_deg <= ROTATION_BOUND_DEG)
 
 
@@ -370,13 +386,13 @@ def describe_columns(P: np.ndarray, leg: str, kind: str = "f") -> str:
     return ", ".join(parts) or "none"
 
 
-def check_gravity_sign(recs: Sequence[Recording], leg: str, load, g: float, siblings_ok: Sequence[str] = ()) -> None:
+def check_gravity_sign(recs: Sequence[Recording], leg: str, load, g: float, siblings_ok: Sequence[str] = (),
+                       data: AsGiven | None = None) -> None:
     """Raise when the forces follow reversed gravity where three gravity directions tell it (module docstring): through a
     reflection near the nominal frame (``-E`` with ``E`` within ``ROTATION_BOUND_DEG``: gravity or the readings' sign),
     or through a reflection far from it (the force columns form a left-handed frame: one negated, two swapped).
     ``siblings_ok``: transducers on the same recordings whose weight follows gravity as given (the stream is right)."""
-    w, b, _ = load_arrays(recs, leg, load, g)
-    fit = gravity_fit(w[:, :3], b)
+    fit = (data or as_given(recs, leg, load, g)).gf
     if not (fit.sign_determined and fit.mass_kg < 0):
         return
     if fit.angle_deg > ROTATION_BOUND_DEG:
@@ -418,13 +434,14 @@ def _reversal_hint(recs: Sequence[Recording], leg: str, fit: GravityFit) -> str:
             "the load exerts on the transducer, DATA_FORMAT.md section 1)?")
 
 
-def check_joint_degrees(recs: Sequence[Recording], leg: str, load, g: float, tree, noise: np.ndarray | None = None) -> None:
+def check_joint_degrees(recs: Sequence[Recording], leg: str, load, g: float, tree, noise: np.ndarray | None = None,
+                        data: AsGiven | None = None) -> None:
     """Raise when the load's model fits far better with the continuous joints' columns read as degrees."""
     joints = continuous_joints(load, tree, recs)
     if not joints:
         return
-    given = _weighted_rss(recs, leg, load, g, noise)
-    alt = _weighted_rss([joints_in_degrees(r, joints) for r in recs], leg, load, g, noise)
+    given = _weighted_rss(data or as_given(recs, leg, load, g), load, noise)
+    alt = _weighted_rss(as_given([joints_in_degrees(r, joints) for r in recs], leg, load, g), load, noise)
     if alt * DEGREES_RATIO < given:
         cols = ", ".join(f"q_{j}" for j in joints)
         raise DataFormatError(
@@ -433,10 +450,8 @@ def check_joint_degrees(recs: Sequence[Recording], leg: str, load, g: float, tre
             "expected radians: are the joint angles in degrees?", column=f"q_{joints[0]}")
 
 
-def _weighted_rss(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None) -> float:
-    w, b, K = load_arrays(recs, leg, load, g)
-    gf = gravity_fit(w[:, :3], b)
-    lf = load_fit(w, b, K, load.mass_row, gf.rotation, noise)
+def _weighted_rss(d: AsGiven, load, noise: np.ndarray | None) -> float:
+    lf = load_fit(d.w, d.b, d.K, load.mass_row, d.gf.rotation, noise)
     sd = _sd(noise)
     return float(np.sum((lf.rms / sd) ** 2))
 
@@ -457,12 +472,11 @@ def _force_noise(noise: np.ndarray | None) -> float:
 
 
 def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.ndarray | None = None,
-                weighed_kg: float | None = None) -> None:
+                weighed_kg: float | None = None, data: AsGiven | None = None) -> None:
     """Raise when the weight in the forces is ``UNIT_FACTOR`` times off the load's reference mass (:func:`reference_mass`:
     weighed, else the URDF's nominal), or (without one) the force noise lies below ``MIN_FORCE_NOISE_N``: the readings
     are in kN (or mN)."""
-    w, b, _ = load_arrays(recs, leg, load, g)
-    fit = gravity_fit(w[:, :3], b)
+    fit = (data or as_given(recs, leg, load, g)).gf
     reference = reference_mass(load, weighed_kg)
     ref = reference.kg if reference else None
     m = abs(fit.mass_kg)
@@ -570,7 +584,7 @@ def _simplest(maps: list[tuple[float, np.ndarray]], tol: float = 1.1) -> tuple[f
     return min(near, key=lambda vp: (not np.allclose(vp[1], -np.eye(3)), int(np.sum(np.abs(vp[1] - np.eye(3)) > 0.5)), vp[0]))
 
 
-def check_torque_signs(recs: Sequence[Recording], leg: str, load, g: float) -> None:
+def check_torque_signs(recs: Sequence[Recording], leg: str, load, g: float, data: AsGiven | None = None) -> None:
     """A load with the URDF's nominal inertials (its prior): the torques it predicts at the weight's mounting rotation
     against the torque columns as given and under every signed permutation (as ``checks.check_torque_axes``); raise
     when the given columns disagree with it (``NOMINAL_WORSE``) and a permutation agrees (``NOMINAL_FIXED``,
@@ -578,8 +592,7 @@ def check_torque_signs(recs: Sequence[Recording], leg: str, load, g: float) -> N
     prior = load.prior() if hasattr(load, "prior") else None
     if prior is None:
         return
-    w, b, K = load_arrays(recs, leg, load, g)
-    gf = gravity_fit(w[:, :3], b)
+    w, b, K, gf = data or as_given(recs, leg, load, g)
     if not (gf.mass_kg > 0 and gf.angle_deg <= ROTATION_BOUND_DEG):
         return
     pred = np.cross(np.einsum("nip,p->ni", K, np.asarray(prior, float)), b @ gf.rotation)
@@ -612,7 +625,7 @@ def grams_hint(leg: str, m: float, reference: Reference | None, floor: float) ->
 
 def check_free_load_data(recs: Sequence[Recording], leg: str, load, g: float, tree=None,
                          noise: np.ndarray | None = None, weighed_kg: float | None = None,
-                         siblings_ok: Sequence[str] = ()) -> None:
+                         siblings_ok: Sequence[str] = (), data: AsGiven | None = None) -> None:
     """Every check before fitting, in order: the clock of a list of poses, gx..gz against qw..qz, quaternion order,
     gravity sign (and a left-handed force frame), joint angles in degrees, units. ``recs``: the recordings in which
     ``leg``'s load hangs free (whole: the clock needs consecutive rows); ``noise`` (6,) the per-sample sd of the
@@ -620,11 +633,12 @@ def check_free_load_data(recs: Sequence[Recording], leg: str, load, g: float, tr
     for rec in recs:
         check_pose_list_clock(rec, _joints(load))
         check_gravity_columns_agree(rec)
-    check_quaternion_order(recs, leg, load, g, noise)
-    check_gravity_sign(recs, leg, load, g, siblings_ok)
-    check_joint_degrees(recs, leg, load, g, tree, noise)
-    check_units(recs, leg, load, g, noise, weighed_kg)
-    check_torque_signs(recs, leg, load, g)
+    data = data or as_given(recs, leg, load, g)   # the readings and their gravity fit, once for every check
+    check_quaternion_order(recs, leg, load, g, noise, data)
+    check_gravity_sign(recs, leg, load, g, siblings_ok, data)
+    check_joint_degrees(recs, leg, load, g, tree, noise, data)
+    check_units(recs, leg, load, g, noise, weighed_kg, data)
+    check_torque_signs(recs, leg, load, g, data)
 
 
 # ----------------------------------------------------------------------------- after the fit
