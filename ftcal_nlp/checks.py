@@ -648,6 +648,22 @@ STUCK_RUN = 25
 CHECK_ROWS = 50_000
 
 
+def same_pose_share(step_deg: np.ndarray | None, joint_steps: np.ndarray | None, deg: float, rad: float) -> float:
+    """The share of consecutive rows that hold one pose: the turn between them (``step_deg`` (N-1,), degrees) within
+    ``deg`` and every joint's step (``joint_steps`` (N-1, m)) within ``rad``; nan when neither is given (rows that cannot
+    be told apart). Holds sampled at a rate share their pose; a list of single-row poses does not (the clock checks of
+    ``run`` and ``correct`` on free loads)."""
+    if step_deg is None and joint_steps is None:
+        return float("nan")
+    n = len(step_deg) if step_deg is not None else len(joint_steps)
+    same = np.ones(n, bool)
+    if step_deg is not None:
+        same &= step_deg <= deg
+    if joint_steps is not None:
+        same &= np.all(np.abs(joint_steps) <= rad, axis=1)
+    return float(same.mean())
+
+
 def check_clock(rec: Recording) -> None:
     """Column ``t`` in seconds: a median sampling interval above ``MAX_SAMPLE_INTERVAL_S`` is milliseconds (or
     another unit): a 100 Hz recording in ms has 10 units between samples."""

@@ -81,7 +81,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import Calibration, is_free_load, read_calibration_json
-from .checks import MAX_SAMPLE_INTERVAL_S, reread_quaternion, with_fault_columns
+from .checks import MAX_SAMPLE_INTERVAL_S, reread_quaternion, same_pose_share, with_fault_columns
 from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
 from .errors import ConfigError, DataFormatError
 from .geometry import quat_to_rotation, skew
@@ -634,18 +634,16 @@ SAME_JOINT_RAD = 0.01
 def same_pose_fraction(clean: pd.DataFrame, orient: list[str], joints: list[str]) -> float:
     """The fraction of consecutive rows that share their pose: orientation (``qw..qz`` or ``gx..gz``) within
     ``SAME_POSE_DEG`` and every joint column within ``SAME_JOINT_RAD``; nan without either."""
-    if len(clean) < 2 or not (orient or joints):
+    if len(clean) < 2:
         return float("nan")
-    same = np.ones(len(clean) - 1, bool)
+    ang = None
     if orient:
         v = clean[orient].to_numpy(float)
         v = v / np.linalg.norm(v, axis=1, keepdims=True)
         dot = np.abs(np.einsum("ni,ni->n", v[1:], v[:-1])) if orient == list(QUAT_COLUMNS) else np.einsum("ni,ni->n", v[1:], v[:-1])
         ang = np.degrees(np.arccos(np.clip(dot, -1, 1))) * (2 if orient == list(QUAT_COLUMNS) else 1)
-        same &= ang <= SAME_POSE_DEG
-    if joints:
-        same &= np.all(np.abs(np.diff(clean[joints].to_numpy(float), axis=0)) <= SAME_JOINT_RAD, axis=1)
-    return float(same.mean())
+    steps = np.diff(clean[joints].to_numpy(float), axis=0) if joints else None
+    return same_pose_share(ang, steps, SAME_POSE_DEG, SAME_JOINT_RAD)
 
 
 def check_holds_clock(t: np.ndarray, clean: pd.DataFrame, orient: list[str], joints: list[str], where: str) -> None:

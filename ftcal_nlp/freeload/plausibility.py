@@ -68,6 +68,7 @@ from ..checks import (
     LEVER_MAX_M,
     LEVER_MIN_M,
     MAX_SAMPLE_INTERVAL_S,
+    same_pose_share,
     QUAT_ORDER_RATIO,
     RESIDUAL_NOISE_FACTOR,
     ROTATION_BOUND_DEG,
@@ -518,19 +519,13 @@ def check_pose_list_clock(rec: Recording, joints: Sequence[str] = ()) -> None:
     dt = float(np.median(np.diff(rec.t)))
     if dt <= MAX_SAMPLE_INTERVAL_S:
         return
-    same = np.ones(rec.n - 1, bool)
-    told = False
-    if rec.gravity is not None:
-        gr = rec.gravity
-        told = True
-        same &= np.degrees(np.arccos(np.clip(np.sum(gr[1:] * gr[:-1], axis=1), -1, 1))) <= SAME_POSE_DEG
-    for j in joints:
-        if j in rec.q:
-            told = True
-            same &= np.abs(np.diff(rec.q[j])) <= SAME_POSE_RAD
-    if told and same.mean() > SAME_POSE_SHARE:
+    gr = rec.gravity
+    step = None if gr is None else np.degrees(np.arccos(np.clip(np.sum(gr[1:] * gr[:-1], axis=1), -1, 1)))
+    cols = [np.diff(rec.q[j]) for j in joints if j in rec.q]
+    share = same_pose_share(step, np.stack(cols, axis=1) if cols else None, SAME_POSE_DEG, SAME_POSE_RAD)
+    if share > SAME_POSE_SHARE:   # nan (rows not told apart): not checked
         raise DataFormatError(
-            f"{rec.path or rec.name}: column t: median interval {dt:.4g}; {100 * same.mean():.0f} % of consecutive rows hold the "
+            f"{rec.path or rec.name}: column t: median interval {dt:.4g}; {100 * share:.0f} % of consecutive rows hold the "
             f"same pose (gravity within {SAME_POSE_DEG:g} deg, joints within {SAME_POSE_RAD:g} rad): they are holds sampled "
             f"at a rate, not single-row poses (expected seconds, at most {MAX_SAMPLE_INTERVAL_S:g} s between samples): is t in "
             "milliseconds?", column="t")
