@@ -420,7 +420,7 @@ class OutputFolder:
         man = read_manifest(t)
         if man is not None and man.get("kind", "result") != "result":
             raise ForeignContentError(
-                f"{t} holds a {man['kind']} ftcal_nlp wrote ({_names(foreign_entries(t, {'written': []}))}), not a result; "
+                f"{t} holds a {man['kind']} ftcal_nlp wrote ({_names(foreign_entries(t, None))}), not a result; "
                 "a result goes to a folder of its own: choose a new or empty folder (-o PATH)",
                 path=t, foreign=tuple(map(str, man["written"])))
         if man is None:
