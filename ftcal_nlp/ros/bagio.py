@@ -8,7 +8,12 @@ the header stamps and the bag's receive stamps in integer nanoseconds.
 
 * ``geometry_msgs/WrenchStamped`` -> (N, 6) ``[fx, fy, fz, tx, ty, tz]``, N and N*m,
   in the frame ``header.frame_id``;
-* ``sensor_msgs/JointState`` -> per joint name, (N, 1) ``position`` (rad);
+* ``sensor_msgs/JointState`` -> per joint name, (N, 1) ``position`` (rad), found by name in every message
+  that names it (the order of names may change between messages; a message naming some joints only, or
+  positions for none, adds samples to the joints it gives positions for); with several JointState topics a
+  joint's samples are the union over the topics that name it, in bag order (:func:`merge_streams`);
+* ``sensor_msgs/Temperature`` (and any type of :data:`.wire.N_VALUES`, asked for by ``extra_topics``) ->
+  (N, d) values, e.g. ``[temperature, variance]``;
 * ``geometry_msgs/PoseStamped`` -> (N, 4) ``[qw, qx, qy, qz]`` (ROS stores
   ``x, y, z, w``); the pose of the tracked body in ``header.frame_id``, i.e. a
   quaternion mapping body vectors to world vectors. Samples with a non-finite
@@ -41,7 +46,7 @@ import numpy as np
 from ..data import DataFormatError
 from ..errors import ConfigError, OutputExistsError
 from . import rawscan
-from .wire import JOINT_TYPE, POSE_TYPE, WRENCH_TYPE, Group, Packed, decode_batch, encode_batch
+from .wire import JOINT_TYPE, N_VALUES, POSE_TYPE, TEMPERATURE_TYPE, WRENCH_TYPE, Group, Packed, decode_batch, encode_batch
 
 STORAGES = ("mcap", "sqlite3", "ros1")
 FLUSH_EVERY = 1 << 15  # messages held as raw bytes before a batch is decoded
@@ -87,7 +92,8 @@ class BagStreams:
     joints: dict[str, Stream]
     joint_names_seen: frozenset[str]
     pose: Stream | None
-    extra: dict = field(default_factory=dict)      # section 5: e.g. "imu" (ros/freeload.py)
+    extra: dict = field(default_factory=dict)      # section 5: e.g. "imu" (ros/freeload.py); extra_topics by topic
+    joints_by_topic: dict = field(default_factory=dict)   # topic -> joint name -> Stream (before merging)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -165,6 +171,10 @@ class _TopicBatches:
 
     def wrench(self) -> Stream:
         return self._stream(self.groups, None, 6)[0]
+
+    def values(self) -> Stream:
+        """Every message's values (N, d) in bag order (a type of :data:`.wire.N_VALUES`)."""
+        return self._stream(self.groups, None, N_VALUES[self.msgtype])[0]
 
     def pose(self) -> Stream:
         """Orientation ``[qw, qx, qy, qz]``, normalised; non-finite or zero ones left out and counted."""
@@ -277,6 +287,8 @@ def read_streams(
     check_topics: Callable[[dict[str, str]], None] | None = None,
     progress: bool | None = None,
     fast: bool = True,
+    joint_topics: Sequence[str] = (),
+    extra_topics: Mapping[str, str] | None = None,
 ) -> BagStreams:
     """Read the named topics of one bag into :class:`Stream` arrays in one pass.
 
@@ -290,16 +302,25 @@ def read_streams(
     read, through the ``rosbags`` reader. ``fast=False`` reads and deserialises
     every message with ``rosbags`` (same result, ~10x slower). ``progress``: a
     progress bar over messages on stderr (None: only when stderr is a terminal).
+
+    ``joint_topics``: more JointState topics besides ``joint_topic`` (a joint's samples are merged over them,
+    :func:`merge_streams`; ``joints_by_topic`` keeps them apart). ``extra_topics``: topic -> message type (one
+    of :data:`.wire.N_VALUES`, e.g. ``sensor_msgs/msg/Temperature``), returned in ``extra`` by topic.
     """
     from tqdm import tqdm
 
     path = Path(path)
     wrench_topics = list(wrench_topics)
     expected = {t: WRENCH_TYPE for t in wrench_topics}
-    if joint_topic:
-        expected[joint_topic] = JOINT_TYPE
+    all_joint_topics = list(dict.fromkeys(([joint_topic] if joint_topic else []) + list(joint_topics)))
+    for t in all_joint_topics:
+        expected[t] = JOINT_TYPE
     if pose_topic:
         expected[pose_topic] = POSE_TYPE
+    for t, typ in (extra_topics or {}).items():
+        if typ not in N_VALUES or expected.get(t, typ) != typ:
+            raise ValueError(f"extra topic {t}: type {typ} (one of {sorted(N_VALUES)}, once per topic)")
+        expected[t] = typ
     _reader_checks(path)
     try:
         with ExitStack() as stack:
@@ -319,12 +340,15 @@ def read_streams(
         raise
     except Exception as exc:
         raise BagError(f"{path}: error while reading ({type(exc).__name__}: {exc})") from exc
-    joints = {}
+    joint_names = list(joint_names)
     seen: frozenset[str] = frozenset()
-    if joint_topic in acc:
-        ja = acc[joint_topic]
-        seen = ja.names_seen()
-        joints = {n: s for n in joint_names if len(s := ja.joint(n))}
+    by_topic: dict[str, dict[str, Stream]] = {}
+    for t in all_joint_topics:
+        if t in acc:
+            seen |= acc[t].names_seen()
+            by_topic[t] = {n: s for n in joint_names if len(s := acc[t].joint(n))}
+    joints = {n: merge_streams([by_topic[t][n] for t in by_topic if n in by_topic[t]]) for n in joint_names
+              if any(n in d for d in by_topic.values())}
     return BagStreams(
         path,
         src.topics,
@@ -332,7 +356,23 @@ def read_streams(
         joints,
         seen,
         acc[pose_topic].pose() if pose_topic in acc else None,
+        {t: acc[t].values() for t in (extra_topics or {}) if t in acc},
+        by_topic,
     )
+
+
+def merge_streams(parts: Sequence[Stream]) -> Stream:
+    """One joint's samples from several topics as one stream in bag order (receive time; ties by header stamp).
+
+    Samples are kept as they are: equal header stamps from two topics are two samples here, and the resampling
+    keeps the first in stamp order (``clock.sort_unique``). The topic reads ``"/a + /b"``."""
+    if len(parts) == 1:
+        return parts[0]
+    recv = np.concatenate([p.receive_ns for p in parts])
+    stamp = np.concatenate([p.stamp_ns for p in parts])
+    o = np.lexsort((stamp, recv))
+    return Stream(" + ".join(p.topic for p in parts), stamp[o], recv[o], np.concatenate([p.values for p in parts])[o],
+                  frozenset().union(*(p.frame_ids for p in parts)), sum(p.n_invalid for p in parts))
 
 
 # ----------------------------------------------------------------------------- messages
@@ -391,6 +431,11 @@ def pose_stamped(ts, stamp_ns: int, frame_id: str, quat_wxyz: Sequence[float], p
     )
 
 
+def temperature(ts, stamp_ns: int, frame_id: str, temp_C: float, variance: float = 0.0):
+    """``sensor_msgs/Temperature`` (degC; ``variance`` 0: unknown)."""
+    return ts.types[TEMPERATURE_TYPE](header=_header(ts, stamp_ns, frame_id), temperature=float(temp_C), variance=float(variance))
+
+
 # ----------------------------------------------------------------------------- writing
 
 
@@ -417,7 +462,7 @@ def encode_messages(storage: str, msgtype: str, stamp_ns: np.ndarray, frame_id: 
     """Serialised messages of one topic, all with ``frame_id`` (and joint ``names``), fast.
 
     ``values`` (n, d): wrench ``[fx..tz]``; pose ``[px, py, pz, qx, qy, qz, qw]``;
-    joint positions (n, len(names)). The first message is serialised by
+    joint positions (n, len(names)); temperature ``[degC, variance]``. The first message is serialised by
     ``rosbags`` and the rest copied from it with their own stamps and values
     (:func:`.wire.encode_batch`): ~1 us instead of ~20 us a message.
     """
@@ -433,6 +478,8 @@ def encode_messages(storage: str, msgtype: str, stamp_ns: np.ndarray, frame_id: 
         msg = pose_stamped(ts, int(stamp_ns[0]), frame_id, [v0[6], v0[3], v0[4], v0[5]], v0[:3])
     elif msgtype == JOINT_TYPE:
         msg = joint_state(ts, int(stamp_ns[0]), list(names or ()), v0, frame_id)
+    elif msgtype == TEMPERATURE_TYPE:
+        msg = temperature(ts, int(stamp_ns[0]), frame_id, v0[0], v0[1])
     else:
         raise ValueError(f"no encoder for {msgtype}")
     template = bytes(ts.serialize_ros1(msg, msgtype) if storage == "ros1" else ts.serialize_cdr(msg, msgtype))

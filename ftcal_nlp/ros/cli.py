@@ -43,7 +43,7 @@ def map_inputs(path: Path) -> dict[str, Path]:
         d = {}
     out: dict[str, Path] = {"ingest map": path}
     if isinstance(d.get("urdf"), str):
-        out["URDF"] = path.parent / d["urdf"]
+        out["URDF"] = path.parent / d["urdf"]         # a hexapod's or an [arm] map's
     if isinstance(d.get("robot"), str):
         out.update(robot_inputs(path.parent / d["robot"]))
     recs = d.get("recording")
@@ -57,6 +57,8 @@ def _main(args) -> int:
     result = ingest(args.map, progress=False if (args.quiet or args.no_progress) else None)
     fmt = args.format or result.map.fmt
     names = ["dataset.toml", "robot.toml", *(f"{rec.name}.{fmt}" for rec in result.dataset.recordings)]
+    if result.dataset.robot.urdf is not None:     # section 5: the URDF is copied beside robot.toml
+        names.append(result.dataset.robot.urdf.name)
     check_files_apart(args.output, names, map_inputs(Path(args.map)))
     out = output_path(args.output)
     manifest = write_guarded(out, names, lambda: write_ingested(result, out, fmt=args.format, overwrite=True), force=args.force)

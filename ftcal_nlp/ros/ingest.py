@@ -37,7 +37,8 @@ counted); legs without a ``[joints]`` entry get no ``{leg}_phi``; hanging record
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, field
+import shutil
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -57,45 +58,12 @@ from ..data import (
 from ..csvout import write_csv
 from ..errors import ConfigError, OutputExistsError
 from .bagio import BagError, BagStreams, Stream, read_streams
+from .counts import IngestCounts, IngestResult, check_not_backwards, seconds, summary
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique
-from .mapfile import IngestMap, RecordingSpec, read_map
+from .arm import ArmMap, ingest_arm, read_arm_map
+from .mapfile import IngestMap, RecordingSpec, load_map, read_map
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class IngestCounts:
-    """What resampling one bag kept and dropped (rows of the wrench clock).
-
-    Per-leg counts are independent (a row may be counted for several reasons);
-    ``n_rows`` is what the recording holds. ``clock_gaps`` estimates the
-    messages of the first leg (the clock) that never arrived: they leave no row.
-    """
-
-    name: str
-    bag: str
-    n_clock: int
-    n_rows: int
-    duplicate_stamps: int
-    clock_gaps: int = 0
-    unmatched_wrench: dict[str, int] = field(default_factory=dict)
-    joint_outside_span: dict[str, int] = field(default_factory=dict)
-    joint_gap: dict[str, int] = field(default_factory=dict)
-    nan_readings: int = 0
-    nan_orientation: int = 0
-    invalid_pose_samples: int = 0
-    joint_columns_dropped: dict[str, int] = field(default_factory=dict)   # section 5: rows without q_{joint}
-    imu_dropped: int = 0                                                   # rows without accelerometer gravity
-
-
-@dataclass(frozen=True)
-class IngestResult:
-    """A dataset built from a map's bags, with the counts and the session epoch (ns)."""
-
-    dataset: Dataset
-    counts: tuple[IngestCounts, ...]
-    epoch_ns: int
-    map: IngestMap
 
 
 # ----------------------------------------------------------------------------- checks
@@ -152,24 +120,7 @@ def _check_streams(m: IngestMap, spec: RecordingSpec, s: BagStreams) -> None:
             if np.any(st.stamp_ns <= 0):
                 raise BagError(f"{spec.bag}: topic '{st.topic}' ({key}) has messages with zero header stamps; "
                                "the publisher does not stamp them: set time_source = \"receive\" in the map to use bag receive times")
-            _check_not_backwards(spec, key, st, m.max_backward_s)
-
-
-def _check_not_backwards(spec: RecordingSpec, key: str, st: Stream, max_backward_s: float) -> None:
-    """Header stamps in bag (receive) order may step back by transport reordering,
-    never by more than ``max_backward_s``: that is a clock reset, a looped
-    playback or two clocks on one topic, and sorting would interleave them."""
-    if len(st) < 2:
-        return
-    d = np.diff(st.stamp_ns)
-    i = int(np.argmin(d))
-    if d[i] < -max_backward_s * 1e9:
-        raise BagError(
-            f"{spec.bag}: topic '{st.topic}' ({key}): header stamps go backwards: sample {i + 2} of {len(st)} (bag order) is stamped "
-            f"{-d[i] * 1e-9:.6g} s before the one received just ahead of it ({(st.stamp_ns[i] - st.stamp_ns[0]) * 1e-9:.6g} s after the first); "
-            f"expected stamps that increase, up to max_backward_s = {max_backward_s:g} s of reordering. A clock reset, a looped playback "
-            "or two publishers with different clocks on one topic? Split or fix the bag, or set time_source = \"receive\""
-        )
+            check_not_backwards(spec, key, st, m.max_backward_s)
 
 
 def _stamps(st: Stream, m: IngestMap) -> np.ndarray:
@@ -187,11 +138,6 @@ def _streams_used(m: IngestMap, s: BagStreams) -> list[Stream]:
 # ----------------------------------------------------------------------------- resampling
 
 
-def _seconds(stamp_ns: np.ndarray, epoch_ns: int) -> np.ndarray:
-    # Subtract in integers first: float64 seconds since 1970 lose sub-microsecond detail.
-    return (np.asarray(stamp_ns, dtype=np.int64) - np.int64(epoch_ns)).astype(float) * 1e-9
-
-
 def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) -> tuple[pd.DataFrame, IngestCounts]:
     """One bag's streams on its wrench clock, as a table with the format's columns.
 
@@ -201,7 +147,7 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
     legs = m.legs
     first = s.wrench[m.wrench_topics[legs[0]]]
     clock_ns, w0, n_dup = sort_unique(_stamps(first, m), first.values)
-    t = _seconds(clock_ns, epoch_ns)
+    t = seconds(clock_ns, epoch_ns)
     period = median_period(t)
     dt = np.diff(t)
     clock_gaps = int(np.sum(np.round(dt[dt > 1.5 * period] / period) - 1))
@@ -210,7 +156,7 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
     unmatched = {}
     for k in legs[1:]:
         st = s.wrench[m.wrench_topics[k]]
-        sk, vk, _ = sort_unique(_seconds(_stamps(st, m), epoch_ns), st.values)
+        sk, vk, _ = sort_unique(seconds(_stamps(st, m), epoch_ns), st.values)
         # A row has a reading of leg k when one of its samples lies within half a
         # period; "linear" then takes the chord between the bracketing samples.
         idx = match_nearest(t, sk, 0.5 * period)
@@ -227,7 +173,7 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
     phi = {}
     for k in m.joint_names:
         st = s.joints[m.joint_names[k]]
-        sj, pj, _ = sort_unique(_seconds(_stamps(st, m), epoch_ns), st.values[:, 0])
+        sj, pj, _ = sort_unique(seconds(_stamps(st, m), epoch_ns), st.values[:, 0])
         # Unwrap in the stream's own order, before resampling: a wrapped angle
         # interpolated across the +-pi seam would sweep the whole circle.
         pos = m.joint_sign[k] * (np.unwrap(pj) - m.joint_zero_rad[k])
@@ -239,7 +185,7 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
     if m.free_keys is not None:                 # section 5: q_{joint}, IMU (ros/freeload.py)
         from .freeload import free_columns
 
-        free = free_columns(m.free_keys, s.joints, s.extra.get("imu"), t, lambda x: _seconds(x, epoch_ns), lambda st: _stamps(st, m))
+        free = free_columns(m.free_keys, s.joints, s.extra.get("imu"), t, lambda x: seconds(x, epoch_ns), lambda st: _stamps(st, m))
         keep &= free.keep
     # NaN or infinite values inside a bag's messages (a driver's fault flag) drop the row too.
     readings = np.concatenate([np.stack([phi[k] for k in phi], 1) if phi else np.zeros((len(t), 0))] + [wrench[k] for k in legs], axis=1)
@@ -249,7 +195,7 @@ def resample(m: IngestMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) ->
     n_invalid_pose = 0
     if s.pose is not None and len(s.pose) >= 1:
         n_invalid_pose = s.pose.n_invalid
-        sp, qp, _ = sort_unique(_seconds(_stamps(s.pose, m), epoch_ns), s.pose.values)
+        sp, qp, _ = sort_unique(seconds(_stamps(s.pose, m), epoch_ns), s.pose.values)
         if m.R_marker_to_body is not None:
             qp = _right_multiply(qp, m.R_marker_to_body)
         quat = slerp_quat(t, sp, qp, m.pose_max_gap_s).values[keep]
@@ -329,12 +275,21 @@ def session_epoch_ns(m: IngestMap, streams: list[BagStreams]) -> int:
     return int(min(int(_stamps(st, m).min()) for s in streams for st in _streams_used(m, s) if len(st)))
 
 
-def ingest(map_or_path: IngestMap | str | Path, *, progress: bool | None = None) -> IngestResult:
+def read_any_map(path: str | Path) -> IngestMap | ArmMap:
+    """An ``[arm]`` map (:mod:`.arm`) or any other (:mod:`.mapfile`), read and validated."""
+    path = Path(path)
+    d = load_map(path)
+    return read_arm_map(d, path) if "arm" in d else read_map(path)
+
+
+def ingest(map_or_path: IngestMap | ArmMap | str | Path, *, progress: bool | None = None) -> IngestResult:
     """Read a map and its bags into a validated :class:`Dataset` (nothing written).
 
     ``progress``: a progress bar over each bag's messages (None: when stderr is a terminal).
     """
-    m = map_or_path if isinstance(map_or_path, IngestMap) else read_map(map_or_path)
+    m = map_or_path if isinstance(map_or_path, (IngestMap, ArmMap)) else read_any_map(map_or_path)
+    if isinstance(m, ArmMap):                     # an arm: JointState + WrenchStamped (+ Temperature) + URDF
+        return ingest_arm(m, progress=progress)
     streams = read_bags(m, progress=progress)
     epoch = session_epoch_ns(m, streams)
     recs: list[Recording] = []
@@ -342,43 +297,19 @@ def ingest(map_or_path: IngestMap | str | Path, *, progress: bool | None = None)
     for spec, s in zip(m.recordings, streams):
         df, c = resample(m, spec, s, epoch)
         if len(df) < 2:
-            raise DataFormatError(f"{spec.bag}: only {len(df)} row(s) left on the wrench clock after alignment ({_summary(c)})")
+            raise DataFormatError(f"{spec.bag}: only {len(df)} row(s) left on the wrench clock after alignment ({summary(c)})")
         # The format's own validation (units, monotonic t, NaN readings, unit quaternions).
         rec = recording_from_frame(df, m.robot, name=spec.name, kind=spec.kind, gravity_body=spec.gravity_body, source=str(spec.bag),
                                    payload_legs=m.payload_legs)
         if spec.kind != "hanging" and c.nan_orientation == c.n_rows:
             log.warning("%s: no row has a body orientation (mocap never overlaps the wrench clock)", spec.bag)
-        log.info("%s -> %s: %s", spec.bag, spec.name, _summary(c))
+        log.info("%s -> %s: %s", spec.bag, spec.name, summary(c))
         recs.append(rec)
         counts.append(c)
     ds = Dataset(m.robot, tuple(recs), None)
     if not m.payload_legs and all(r.gravity_body is not None for r in ds.hanging):   # hexapod legs: opposite pairs
         hanging_pairs(ds.hanging)
     return IngestResult(ds, tuple(counts), epoch, m)
-
-
-def _summary(c: IngestCounts) -> str:
-    parts = [f"{c.n_rows} of {c.n_clock} clock rows kept"]
-    for label, d in (("no matching reading", c.unmatched_wrench), ("outside joint span", c.joint_outside_span), ("in joint gap", c.joint_gap)):
-        nz = {k: v for k, v in d.items() if v}
-        if nz:
-            parts.append(f"{label}: {nz}")
-    if c.clock_gaps:
-        parts.append(f"about {c.clock_gaps} messages of the clock (first leg's wrench) missing")
-    if c.duplicate_stamps:
-        parts.append(f"{c.duplicate_stamps} duplicate clock stamps")
-    if c.nan_readings:
-        parts.append(f"{c.nan_readings} rows with NaN readings")
-    if c.nan_orientation:
-        parts.append(f"{c.nan_orientation} rows without orientation (NaN)")
-    if c.invalid_pose_samples:
-        parts.append(f"{c.invalid_pose_samples} invalid mocap samples ignored")
-    nz = {k: v for k, v in c.joint_columns_dropped.items() if v}
-    if nz:
-        parts.append(f"rows without a joint position (q_{{joint}}): {nz}")
-    if c.imu_dropped:
-        parts.append(f"{c.imu_dropped} rows without accelerometer gravity")
-    return "; ".join(parts)
 
 
 def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None = None, overwrite: bool = False) -> Path:
@@ -388,7 +319,8 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
     exists, unless ``overwrite``; the manifest is written last.
 
     The manifest also holds, under keys the reader ignores, the bag of each
-    recording, its counts and the session epoch (``[ingest] epoch_ns``).
+    recording, its counts and the session epoch (``[ingest] epoch_ns``). A robot
+    with a URDF (section 5) gets it copied beside ``robot.toml``, which names it.
     """
     import tomli_w
 
@@ -401,6 +333,9 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
     # Every file this would write is checked first: nothing is written over unless asked,
     # not even the recordings of a dataset whose manifest is gone.
     targets = [manifest, folder / "robot.toml"] + [folder / f"{rec.name}.{fmt}" for rec in ds.recordings]
+    urdf = ds.robot.urdf
+    if urdf is not None and not ((folder / urdf.name).exists() and (folder / urdf.name).samefile(urdf)):
+        targets.append(folder / urdf.name)
     inside = folder.resolve()
     for t in targets:  # the map's names are checked when read; a result built by hand is checked here
         if t.resolve().parent != inside:
@@ -412,6 +347,8 @@ def write_ingested(result: IngestResult, folder: str | Path, *, fmt: str | None 
         raise OutputExistsError(f"{folder} exists and is not a folder", path=folder)
     folder.mkdir(parents=True, exist_ok=True)
     write_robot(ds.robot, folder / "robot.toml")
+    if urdf is not None and folder / urdf.name in targets:
+        shutil.copyfile(urdf, folder / urdf.name)
     entries = []
     for rec, c in zip(ds.recordings, result.counts):
         fname = f"{rec.name}.{fmt}"

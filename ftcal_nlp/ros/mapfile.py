@@ -229,16 +229,25 @@ def _plain_name(name: str) -> bool:
             and "\0" not in name and ":" not in name and not Path(name).is_absolute() and name == name.strip())
 
 
-def read_map(path: str | Path) -> IngestMap:
-    """Read and validate an ingest map; errors name the map file and the key."""
+def load_map(path: str | Path) -> dict:
+    """The parsed TOML of a map file; a missing file or bad TOML is an error naming it."""
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(f"{path}: map file not found")
     try:
         with path.open("rb") as fh:
-            d = tomllib.load(fh)
+            return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
         raise DataFormatError(f"{path}: not valid TOML ({exc})") from exc
+
+
+def read_map(path: str | Path) -> IngestMap:
+    """Read and validate an ingest map; errors name the map file and the key. An ``[arm]`` map is
+    :func:`.arm.read_arm_map`'s (:func:`.ingest.read_any_map` tells them apart)."""
+    path = Path(path)
+    d = load_map(path)
+    if "arm" in d:
+        raise DataFormatError(f"{path}: an [arm] map (ros/arm.py); read it with ftcal_nlp.ros.read_any_map or ingest it")
     where, root = str(path), path.parent
     robot, links, base, urdf = _robot(d, where, root)
     legs = robot.legs

@@ -1,4 +1,4 @@
-"""Byte layouts of ``WrenchStamped``, ``PoseStamped`` and ``JointState``: vectorised decoding and encoding.
+"""Byte layouts of ``WrenchStamped``, ``PoseStamped``, ``JointState`` and ``Temperature``: vectorised decoding and encoding.
 
 A standing bag of a few hundred poses holds about a million messages;
 deserialising each into Python objects costs ~20 us a message. Messages of one
@@ -39,10 +39,12 @@ import numpy as np
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+TEMPERATURE_TYPE = "sensor_msgs/msg/Temperature"
 MAX_LAYOUTS = 32  # per block of one message length; more means the slow path is as fast
 
-#: values per message type: wrench [fx fy fz tx ty tz]; pose [px py pz qx qy qz qw] (ROS order)
-N_VALUES = {WRENCH_TYPE: 6, POSE_TYPE: 7}
+#: values per message type: wrench [fx fy fz tx ty tz]; pose [px py pz qx qy qz qw] (ROS order);
+#: temperature [temperature (degC), variance]
+N_VALUES = {WRENCH_TYPE: 6, POSE_TYPE: 7, TEMPERATURE_TYPE: 2}
 
 
 @dataclass(frozen=True)
@@ -171,6 +173,8 @@ def extract(msg, msgtype: str) -> tuple[int, str, np.ndarray, tuple[str, ...] | 
         return stamp, h.frame_id, np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float), None
     if msgtype == JOINT_TYPE:
         return stamp, h.frame_id, np.asarray(msg.position, dtype=float), tuple(msg.name)
+    if msgtype == TEMPERATURE_TYPE:
+        return stamp, h.frame_id, np.array([msg.temperature, msg.variance], dtype=float), None
     raise ValueError(f"no decoder for {msgtype}")
 
 
