@@ -1,6 +1,7 @@
 """Command line: ``python -m ftcal_nlp.ingest MAP.toml -o DATASET_DIR``.
 
-Reads the map's bags, writes the interchange dataset, then reads it back with
+Reads the map's bags (an ``[arm]`` map: :mod:`.arm`; any other: :mod:`.mapfile`), writes the interchange
+dataset (with a URDF: copied beside ``robot.toml``), then reads it back with
 :func:`ftcal_nlp.data.read_dataset` (what ``ftcal_nlp.run`` does) so that a
 dataset the run would reject is reported here. Exit status 2 on a bad map,
 bag or dataset, with the message naming the file and key. The files it writes
@@ -24,7 +25,8 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     from ..cli import add_common, guarded, parse, setup
 
     ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.ingest", description="ROS bags -> ftcal_nlp interchange dataset")
-    ap.add_argument("map", help="ingest map (TOML); see ftcal_nlp/ros/mapfile.py and problems/ros_map_example.toml")
+    ap.add_argument("map", help="ingest map (TOML); see ftcal_nlp/ros/mapfile.py and problems/ros_map_example.toml; "
+                                "an arm's map (an [arm] table: JointState + WrenchStamped + URDF): ftcal_nlp/ros/arm.py")
     add_common(ap, output_help="dataset folder to write (dataset.toml, robot.toml, recordings)", output_required=True,
                old_force=("--overwrite",), force_help="replace an existing dataset.toml in the output folder")
     ap.add_argument("--format", choices=("parquet", "csv"), default=None, help="recording file type (default: the map's 'format', else parquet)")
