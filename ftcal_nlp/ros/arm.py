@@ -78,7 +78,7 @@ from ..robot import Robot, Transducer
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, median_period, sort_unique
 from .counts import IngestCounts, IngestResult, check_not_backwards, seconds, summary
-from .mapfile import RecordingSpec, _get, _plain_name
+from .mapfile import RecordingSpec, _get, output_name, recording_tables
 from .wire import TEMPERATURE_TYPE
 
 log = logging.getLogger(__name__)
@@ -208,26 +208,17 @@ def read_arm_map(d: dict, path: Path) -> ArmMap:
 
 
 def _arm_recordings(d: dict, where: str, root: Path, gravity_body: np.ndarray) -> tuple[RecordingSpec, ...]:
-    entries = d.get("recording")
-    if not isinstance(entries, list) or not entries:
-        raise DataFormatError(f"{where}: no [[recording]] entries (each names a bag)")
-    out, names = [], {}
-    for i, e in enumerate(entries):
-        w = f"{where} [[recording]] #{i + 1}"
+    out: list[RecordingSpec] = []
+    names: dict[str, str] = {}
+    for e, w in recording_tables(d, where):
         unknown = sorted(set(e) - set(RECORDING_KEYS))
         if unknown:
             raise DataFormatError(f"{w}: unknown key(s) {unknown}; known: {list(RECORDING_KEYS)}")
         bag = root / _get(e, "bag", w, str)
         if _get(e, "kind", w, str, "hanging") != "hanging":
             raise DataFormatError(f"{w}: kind = {e['kind']!r}; an arm's recordings are 'hanging' (the load hangs free below the sensor)")
-        name = _get(e, "name", w, str, bag.stem)
-        if not _plain_name(name):
-            raise DataFormatError(f"{w}: key 'name' = {name!r} should be a plain file stem (no path); the recording is written as <output>/<name>.<format>")
-        if name in names:
-            raise DataFormatError(f"{w}: output name '{name}' is also that of recording #{names[name]}; set 'name' on one of them")
-        names[name] = i + 1
         gb = _gravity(e["gravity_body"], w, "gravity_body") if "gravity_body" in e else gravity_body
-        out.append(RecordingSpec(bag, "hanging", name, gb))
+        out.append(RecordingSpec(bag, "hanging", output_name(e, w, bag, names), gb))
     return tuple(out)
 
 

@@ -82,21 +82,15 @@ def summary(c: IngestCounts) -> str:
         nz = {k: v for k, v in d.items() if v}
         if nz:
             parts.append(f"{label}: {nz}")
-    if c.clock_gaps:
-        parts.append(f"about {c.clock_gaps} messages of the clock (first leg's wrench) missing")
-    if c.duplicate_stamps:
-        parts.append(f"{c.duplicate_stamps} duplicate clock stamps")
-    if c.nan_readings:
-        parts.append(f"{c.nan_readings} rows with NaN readings")
-    if c.nan_orientation:
-        parts.append(f"{c.nan_orientation} rows without orientation (NaN)")
-    if c.invalid_pose_samples:
-        parts.append(f"{c.invalid_pose_samples} invalid mocap samples ignored")
     nz = {k: v for k, v in c.joint_columns_dropped.items() if v}
-    if nz:
-        parts.append(f"rows without a joint position (q_{{joint}}): {nz}")
-    if c.imu_dropped:
-        parts.append(f"{c.imu_dropped} rows without accelerometer gravity")
-    if c.temperature_outside_span:
-        parts.append(f"{c.temperature_outside_span} rows too far outside the temperature stream")
+    for n, text in ((c.clock_gaps, "about {} messages of the clock (first leg's wrench) missing"),
+                    (c.duplicate_stamps, "{} duplicate clock stamps"),
+                    (c.nan_readings, "{} rows with NaN readings"),
+                    (c.nan_orientation, "{} rows without orientation (NaN)"),
+                    (c.invalid_pose_samples, "{} invalid mocap samples ignored"),
+                    (nz, "rows without a joint position (q_{{joint}}): {}"),
+                    (c.imu_dropped, "{} rows without accelerometer gravity"),
+                    (c.temperature_outside_span, "{} rows too far outside the temperature stream")):
+        if n:
+            parts.append(text.format(n))
     return "; ".join(parts)

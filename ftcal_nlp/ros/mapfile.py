@@ -193,13 +193,31 @@ def _robot(d: dict, where: str, root: Path) -> tuple[Robot, dict[str, str] | Non
     return robot, tl, base, load_urdf(urdf_path)
 
 
-def _recordings(d: dict, where: str, root: Path, orientation_per_sample: bool = False) -> tuple[RecordingSpec, ...]:
+def recording_tables(d: dict, where: str) -> list[tuple[dict, str]]:
+    """The map's ``[[recording]]`` tables, each with its place for messages (``<map> [[recording]] #i``)."""
     entries = d.get("recording")
     if not isinstance(entries, list) or not entries:
         raise DataFormatError(f"{where}: no [[recording]] entries")
-    specs, names = [], {}
-    for i, e in enumerate(entries):
-        w = f"{where} [[recording]] #{i + 1}"
+    return [(e, f"{where} [[recording]] #{i + 1}") for i, e in enumerate(entries)]
+
+
+def output_name(e: dict, w: str, bag: Path, names: dict[str, str]) -> str:
+    """A recording's output file stem (key ``name``, default the bag's stem): plain, and not that of an earlier
+    recording (``names``: stem -> its place, filled in here)."""
+    name = _get(e, "name", w, str, Path(bag).stem)
+    if not _plain_name(name):  # the recording's file is written as <-o>/<name>.<fmt>: never outside -o
+        raise DataFormatError(f"{w}: key 'name' = {name!r} should be a plain file stem (letters, digits, '_', '-', '.'; no "
+                              "path separator, no '..', not absolute): the recording is written as <output>/<name>.parquet")
+    if name in names:
+        raise DataFormatError(f"{w}: output name '{name}' is also that of recording #{names[name]}; set 'name' on one of them")
+    names[name] = w.rsplit("#", 1)[-1]
+    return name
+
+
+def _recordings(d: dict, where: str, root: Path, orientation_per_sample: bool = False) -> tuple[RecordingSpec, ...]:
+    specs: list[RecordingSpec] = []
+    names: dict[str, str] = {}
+    for e, w in recording_tables(d, where):
         bag = root / _get(e, "bag", w, str)
         kind = _get(e, "kind", w, str)
         if kind not in KINDS:
@@ -212,14 +230,7 @@ def _recordings(d: dict, where: str, root: Path, orientation_per_sample: bool = 
             if gb.shape != (3,) or not np.all(np.isfinite(gb)) or np.linalg.norm(gb) < 1e-9:
                 raise DataFormatError(f"{w}: gravity_body should be 3 finite numbers, not all zero, got {e['gravity_body']!r}")
             gb = gb / np.linalg.norm(gb)
-        name = _get(e, "name", w, str, Path(bag).stem)
-        if not _plain_name(name):  # the recording's file is written as <-o>/<name>.<fmt>: never outside -o
-            raise DataFormatError(f"{w}: key 'name' = {name!r} should be a plain file stem (letters, digits, '_', '-', '.'; no "
-                                  "path separator, no '..', not absolute): the recording is written as <output>/<name>.parquet")
-        if name in names:
-            raise DataFormatError(f"{w}: output name '{name}' is also that of recording #{names[name]}; set 'name' on one of them")
-        names[name] = i + 1
-        specs.append(RecordingSpec(bag, kind, name, gb))
+        specs.append(RecordingSpec(bag, kind, output_name(e, w, bag, names), gb))
     return tuple(specs)
 
 
