@@ -102,17 +102,20 @@ def test_header_stamps_kept_to_the_nanosecond_and_columns_true(session) -> None:
     assert np.abs(rec.temperature["wrist"] - s.temperature(np.maximum(ts, 0.25))).max() < 1e-3
 
 
-@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
-def test_storages_give_one_table_and_no_temperature_without_its_topic(tmp_path, storage) -> None:
-    """sqlite3 (read by rosbags) and MCAP (read chunk by chunk) bags of one session give the same table; all joints on
-    one topic; no temperature topic: no temperature column."""
-    s = write_arm_session(tmp_path / storage, storage, seed=5, holds=3, temperature_hz=None, split_joints=False)
+@pytest.mark.parametrize("storage, split", [("sqlite3", "messages"), ("mcap", None), ("ros1", "topics")])
+def test_storages_give_one_table_and_no_temperature_without_its_topic(tmp_path, storage, split) -> None:
+    """sqlite3 (read by rosbags) and MCAP (read chunk by chunk) bags of one session give the same table, the joints on
+    one topic in one message per stamp or split over two messages of each stamp; no temperature topic: no
+    temperature column."""
+    s = write_arm_session(tmp_path / storage, storage, seed=5, holds=3, temperature_hz=None, split_joints=split)
     res = ingest(s.map, progress=False)
     rec = res.dataset.recordings[0]
     assert rec.temperature == {} and set(rec.q) == set(JOINTS) and res.counts[0].n_rows == len(s.wrench_stamp_ns) - 2
     stamps = res.epoch_ns + np.round(rec.t * 1e9).astype(np.int64)
     assert np.array_equal(stamps, s.wrench_stamp_ns[1:-1])
     np.testing.assert_array_equal(rec.wrench["wrist"], s.wrench[1:-1])
+    q = s.q((stamps - s.t0_ns) * 1e-9)
+    assert max(np.abs(rec.q[j] - q[j]).max() for j in JOINTS) < 2e-5
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -173,15 +176,20 @@ def test_map_readers_tell_arm_maps_apart(tmp_path) -> None:
     assert m.arm.joints == JOINTS and m.arm.continuous == {"wrist_3"} and m.robot.mass_kg is None
 
 
-def _bag(path: Path, wrench_ns, joint_ns, *, storage: str = "mcap") -> Path:
-    """A bag of the arm with the given WrenchStamped and JointState header stamps (bag order = list order); arm at rest."""
+def _bag(path: Path, wrench_ns, joint_ns, *, temp_ns=None, storage: str = "mcap") -> Path:
+    """A bag of the arm with the given WrenchStamped, JointState (and Temperature) header stamps (bag order = list
+    order); arm at rest, 30 degC."""
     w_ns, j_ns = np.asarray(wrench_ns, dtype=np.int64), np.asarray(joint_ns, dtype=np.int64)
     w = np.tile([1.0, 2.0, -8.0, 0.1, 0.2, 0.0], (len(w_ns), 1))
     series = [bagio.TopicSeries("/ft_sensor/wrench", bagio.WRENCH_TYPE, np.arange(len(w_ns)) + 10**18,
                                 bagio.encode_messages(storage, bagio.WRENCH_TYPE, w_ns, "ft_sensor", w))]
     series.append(bagio.TopicSeries("/joint_states", bagio.JOINT_TYPE, np.arange(len(j_ns)) + 10**18,
                                     bagio.encode_messages(storage, bagio.JOINT_TYPE, j_ns, "", np.full((len(j_ns), 6), 0.3), JOINTS)))
-    return bagio.write_bag(path, series, storage=storage)
+    if temp_ns is not None:
+        T = np.asarray(temp_ns, dtype=np.int64)
+        series.append(bagio.TopicSeries("/temp", bagio.TEMPERATURE_TYPE, np.arange(len(T)) + 10**18,
+                                        bagio.encode_messages(storage, bagio.TEMPERATURE_TYPE, T, "ft_sensor", np.tile([30.0, 0.0], (len(T), 1)))))
+    return bagio.write_bag(path, series, storage=storage, overwrite=True)
 
 
 def _map(tmp_path: Path) -> Path:
@@ -207,6 +215,17 @@ def test_joint_gap_longer_than_the_bound_is_refused_with_topic_and_time(tmp_path
         ingest(_map(tmp_path), progress=False)
     mp = _edit(_map(tmp_path), max_gap_s=0.5)              # a bound that allows it: interpolated (the arm was still)
     assert ingest(mp, progress=False).counts[0].n_rows == 300
+    # temperature: a gap longer than its bound is refused; rows beyond its ends by more than the bound dropped, counted
+    _bag(tmp_path / "b", w, T0 + np.arange(0, 3000, 4) * 1_000_000, temp_ns=T0 + np.array([5, 10, 25]) * 100_000_000)
+    mp = _edit(_map(tmp_path), temperature_topic="/temp", temperature_max_gap_s=1.0)
+    with pytest.raises(DataFormatError, match=r"topic '/temp' \(field temperature\): no sample for 1.5 s, .* \[arm\] temperature_max_gap_s = 1 s"):
+        ingest(mp, progress=False)
+    res = ingest(_edit(mp, temperature_max_gap_s=2.0), progress=False)
+    c, rec = res.counts[0], res.dataset.recordings[0]
+    assert c.temperature_outside_span == 0 and np.all(rec.temperature["wrist"] == 30.0)
+    _bag(tmp_path / "b", w, T0 + np.arange(0, 3000, 4) * 1_000_000, temp_ns=T0 + np.arange(5, 26) * 100_000_000)
+    res = ingest(_edit(mp, temperature_max_gap_s=0.2 + 1e-9), progress=False)          # 0.5 s .. 2.5 s every 0.1 s:
+    assert res.counts[0].temperature_outside_span == 59 == 300 - res.counts[0].n_rows   # rows before 0.3 s, after 2.7 s
 
 
 def test_out_of_order_stamps_and_empty_bags_are_named(tmp_path) -> None:

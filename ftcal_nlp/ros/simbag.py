@@ -272,7 +272,7 @@ def _min_jerk_path(poses: np.ndarray, hold_s: float, move_s: float) -> Callable[
 
 def write_arm_session(folder: str | Path, storage: str = "mcap", *, seed: int = 0, holds: int = 14, hold_s: float = 2.0,
                       move_s: float = 1.5, rate_hz: float = 100.0, joint_rate_hz: float = 250.0, truth: dict | None = None,
-                      t0_ns: int = 1_700_000_000_123_456_789, temperature_hz: float | None = 2.0, split_joints: bool = True,
+                      t0_ns: int = 1_700_000_000_123_456_789, temperature_hz: float | None = 2.0, split_joints: str | None = "topics",
                       frame_id: str = "ft_sensor", name: str = "wrist") -> ArmSession:
     """An arm's session (``ARM_URDF``, the tool ``truth``, default ``ARM_TRUTH``) as one ROS bag, the URDF and an
     ``[arm]`` ingest map (``ros/arm.py``) in ``folder``.
@@ -284,8 +284,9 @@ def write_arm_session(folder: str | Path, storage: str = "mcap", *, seed: int = 
       quasi-static payload ``[m g_ft, c x m g_ft]`` in the true sensor frame (URDF's turned by ``mount_rotvec``)
       plus offset plus white noise;
     * JointState at ``joint_rate_hz`` on its own clock, positions exact at their stamps, ``wrist_3`` wrapped to
-      (-pi, pi]; the name order alternates between two permutations; ``split_joints``: the first three joints on
-      ``/arm/joint_states``, the other three on ``/wrist/joint_states`` (else all on ``/joint_states``);
+      (-pi, pi]; the name order alternates between two permutations; ``split_joints = "topics"``: the first three
+      joints on ``/arm/joint_states``, the other three on ``/wrist/joint_states``; ``"messages"``: both halves on
+      ``/joint_states`` as two messages of one stamp; None: all six in one message on ``/joint_states``;
     * ``/ft_sensor/temperature`` Temperature at ``temperature_hz`` (None: no topic), 24 degC + a slow drift (no
       effect on the readings).
 
@@ -333,19 +334,22 @@ def write_arm_session(folder: str | Path, storage: str = "mcap", *, seed: int = 
     qj = path((j_ns - t0_ns) * 1e-9)
     k3 = joints.index("wrist_3")
     qj[:, k3] = (qj[:, k3] + np.pi) % (2 * np.pi) - np.pi
-    groups = [("/arm/joint_states", [0, 1, 2]), ("/wrist/joint_states", [3, 4, 5])] if split_joints else [("/joint_states", list(range(6)))]
+    groups = {"topics": [("/arm/joint_states", [0, 1, 2]), ("/wrist/joint_states", [3, 4, 5])],
+              "messages": [("/joint_states", [0, 1, 2]), ("/joint_states", [3, 4, 5])]}.get(split_joints, [("/joint_states", list(range(6)))])
+    by_topic: dict[str, tuple[list, list]] = {}
     for topic, idx in groups:
-        msgs, recv = [], []
+        msgs, recv = by_topic.setdefault(topic, ([], []))
         for parity, order in ((0, idx), (1, idx[::-1])):        # two name orders, alternating
             sel = np.arange(parity, nj, 2)
-            msgs.append(bagio.encode_messages(storage, bagio.JOINT_TYPE, j_ns[sel], "", qj[np.ix_(sel, order)], [joints[i] for i in order]))
-            recv.append(j_ns[sel] + 700_000)
-        series.append(bagio.TopicSeries(topic, bagio.JOINT_TYPE, np.concatenate(recv), msgs[0] + msgs[1]))
+            msgs += bagio.encode_messages(storage, bagio.JOINT_TYPE, j_ns[sel], "", qj[np.ix_(sel, order)], [joints[i] for i in order])
+            recv.append(j_ns[sel] + 700_000 + idx[0] * 1000)
+    for topic, (msgs, recv) in by_topic.items():
+        series.append(bagio.TopicSeries(topic, bagio.JOINT_TYPE, np.concatenate(recv), msgs))
 
     def temp(t_s: np.ndarray) -> np.ndarray:
         return 24.0 + 1.5 * (1 - np.exp(-np.asarray(t_s) / 30.0))
 
-    topics = {"wrench_topic": "/ft_sensor/wrench", "joint_states": [g[0] for g in groups], "link": "ft_sensor", "transducer": "wrist"}
+    topics = {"wrench_topic": "/ft_sensor/wrench", "joint_states": list(by_topic), "link": "ft_sensor", "transducer": "wrist"}
     if frame_id != "ft_sensor":
         topics["frame_id"] = frame_id
     if temperature_hz:
