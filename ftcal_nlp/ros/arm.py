@@ -46,7 +46,7 @@ Rules (every stamp is a header stamp, int64 ns; ``t`` and the epoch below):
   ``link``), in URDF order. A JointState's positions are taken by name (the order may change between
   messages; a message naming only some joints gives samples to those). With several topics, or several
   publishers on one, a joint's samples are the union over them, sorted by header stamp, a repeated stamp
-  keeping the first. ``continuous`` joints are unwrapped in stamp order (their column keeps growing over full
+  keeping the first. Names that are no URDF joint (a gripper's, another description's) are left out (logged). ``continuous`` joints are unwrapped in stamp order (their column keeps growing over full
   turns); revolute and prismatic positions are taken as published. Positions are interpolated linearly in
   the header stamps onto the clock; clock rows before a joint's first or after its last sample are dropped
   (counted); a gap between two samples longer than ``max_gap_s`` with a clock row inside it is an error
@@ -269,6 +269,9 @@ def _check(m: ArmMap, spec: RecordingSpec, s: BagStreams) -> None:
         for t, by in s.joints_by_topic.items():
             if n in by:
                 named.append((f"[arm] joint_states, joint '{n}'", by[n]))
+    foreign = sorted(s.joint_names_seen - prefixed)
+    if foreign:
+        log.info("%s: JointState names %s are not joints of the URDF (with joint_prefix '%s'); not used", bag, foreign, a.joint_prefix)
     if a.temperature_topic:
         tp = s.extra.get(a.temperature_topic)
         if tp is None or len(tp) < 1:
