@@ -77,6 +77,7 @@ from ..errors import DataFormatError
 from ..robot import Robot, Transducer
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, median_period, sort_unique
+from .freeload import link_rotation
 from .counts import IngestCounts, IngestResult, check_not_backwards, seconds, summary
 from .mapfile import RecordingSpec, _get, output_name, recording_tables
 from .wire import TEMPERATURE_TYPE
@@ -153,8 +154,6 @@ def moving_joints(tree, link: str) -> tuple[str, ...]:
 
 def read_arm_map(d: dict, path: Path) -> ArmMap:
     """Validate a parsed arm map ``d`` (the file ``path``); errors name the map and the key."""
-    from .freeload import _link_rotation
-
     where, root = str(path), path.parent
     other = sorted(set(d) - set(TOP_KEYS))
     if other:
@@ -191,7 +190,7 @@ def read_arm_map(d: dict, path: Path) -> ArmMap:
     if sign not in (1, -1):
         raise DataFormatError(f"{wa}: key 'wrench_sign' = {sign!r} should be 1 or -1")
     gl = _get(a, "gravity_link", wa, str, tree.root)
-    R = _link_rotation(tree, gl, f"{wa} gravity_link")
+    R = link_rotation(tree, gl, f"{wa} gravity_link", "the link gravity_body is given in")
     gb = R @ _gravity(a.get("gravity_body", [0.0, 0.0, -1.0]), wa, "gravity_body")
     weighed = _get(a, "load_mass_kg", wa, (int, float), None)
     if weighed is not None and not 0 < weighed < 1e4:

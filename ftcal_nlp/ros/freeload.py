@@ -124,7 +124,7 @@ def read_free_keys(d: dict, where: str, robot, joint_topic: str | None) -> FreeK
         if "link" in t and "rotation" in t:
             raise DataFormatError(f"{w}: give 'link' or 'rotation', not both")
         if "link" in t:
-            R = _link_rotation(tree, t["link"], w)
+            R = link_rotation(tree, t["link"], w)
         else:
             R = np.asarray(t.get("rotation", np.eye(3)), dtype=float)
             if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
@@ -133,15 +133,17 @@ def read_free_keys(d: dict, where: str, robot, joint_topic: str | None) -> FreeK
     return FreeKeys(jc, imu)
 
 
-def _link_rotation(tree, link, where: str) -> np.ndarray:
+def link_rotation(tree, link, where: str, what: str = "an IMU giving B's orientation") -> np.ndarray:
+    """``R`` (3, 3) mapping ``link`` vectors to B (the URDF's root) vectors; ``link`` must be fixed to B (``what``
+    it is, for the error)."""
     if tree is None:
         raise DataFormatError(f"{where}: key 'link' needs a URDF: give robot = \"robot.toml\" with urdf = ...")
     if not isinstance(link, str) or link not in tree.links:
         raise DataFormatError(f"{where}: link {link!r} is not a link of the URDF (links: {list(tree.links)})")
     moving = [j.name for j in tree.path_to_root(link) if j.type != "fixed"]
     if moving:
-        raise DataFormatError(f"{where}: link '{link}' moves with joint(s) {moving} relative to B; an IMU giving B's "
-                              "orientation must be fixed to B (fixed joints only)")
+        raise DataFormatError(f"{where}: link '{link}' moves with joint(s) {moving} relative to B; {what} must be fixed "
+                              "to B (fixed joints only)")
     R, _ = tree.pose(tree.root, link, {}, 1)
     return R[0]
 
