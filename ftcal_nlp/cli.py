@@ -5,6 +5,7 @@ Commands (each also runs as its own module, ``python -m ftcal_nlp.run`` ...; the
 ========  ==========================================================  ===============================
 run       calibrate the transducers of a dataset (run config TOML)    :mod:`ftcal_nlp.run`
 correct   calibrated contact wrenches of a recording                  :mod:`ftcal_nlp.correct`
+holdout   validate a free-load calibration on a later session         :mod:`ftcal_nlp.holdout`
 plan      predicted se of a protocol, shortest protocol for targets   :mod:`ftcal_nlp.plan`
 export    the correction as C source for a controller                 :mod:`ftcal_nlp.export`
 ingest    ROS bags + URDF -> interchange dataset                      :mod:`ftcal_nlp.ros.cli`
@@ -59,6 +60,7 @@ class Command:
 COMMANDS: dict[str, Command] = {
     "run": Command("ftcal_nlp.run", "calibrate the transducers of a dataset: run config TOML -> calibration.json, report"),
     "correct": Command("ftcal_nlp.correct", "calibrated wrenches of a recording (contact wrenches with se; contact state for legs)"),
+    "holdout": Command("ftcal_nlp.holdout", "validate a free-load calibration on a later session: where it holds, where not"),
     "plan": Command("ftcal_nlp.plan", "predicted se of a protocol; --search: the shortest protocol meeting targets"),
     "export": Command("ftcal_nlp.export", "the correction as C source + header for a controller"),
     "ingest": Command("ftcal_nlp.ros.cli", "ROS bags (+ URDF) -> interchange dataset"),

@@ -11,7 +11,7 @@ The minimal config of ``OUTPUT_FORMAT.md`` works on any dataset::
 
 Every other table is a field of :class:`~ftcal_nlp.settings.CalibrationSettings`
 (``[hanging]``, ``[standing]`` with ``[standing.poses]``, ``[selection]``,
-``[diagnose]``, ``[correct]``) or ``[offsets_only]``; its keys are the fields of
+``[diagnose]``, ``[correct]``) or ``[offsets_only]`` or ``[holdout]`` (:class:`HoldoutSettings`); its keys are the fields of
 that settings dataclass, mapped generically (by the dataclass' fields and their
 types), so the defaults and the valid keys live in ``settings.py`` alone. An
 unknown key is a :class:`~ftcal_nlp.errors.ConfigError` naming the file and the
@@ -34,7 +34,19 @@ from typing import Any
 from .errors import ConfigError
 from .settings import CalibrationSettings, OffsetsOnlySettings
 
-__all__ = ["RunConfig", "load_config", "ConfigError"]
+__all__ = ["RunConfig", "HoldoutSettings", "load_config", "ConfigError"]
+
+
+@dataclass(frozen=True)
+class HoldoutSettings:
+    """``[holdout]``: later recordings of the free loads touching nothing, on which a run validates the calibration it
+    fitted (``holdout.py``; outputs in ``holdout/`` of the output folder). ``recordings`` paths relative to the config
+    (they must exist), ``alpha`` the test's size, ``gravity_body`` a fixed base's gravity direction in B for recordings
+    without orientation columns (None: the calibration's)."""
+
+    recordings: tuple[Path, ...] = ()
+    alpha: float = 0.01
+    gravity_body: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -50,10 +62,11 @@ class RunConfig:
     output_dir: Path
     settings: CalibrationSettings = field(default_factory=CalibrationSettings)
     offsets_only: OffsetsOnlySettings = field(default_factory=OffsetsOnlySettings)
+    holdout: HoldoutSettings = field(default_factory=HoldoutSettings)
 
 
 # tables of the config besides the fields of CalibrationSettings
-_RUN_TABLES = ("data", "simulate", "output", "offsets_only")
+_RUN_TABLES = ("data", "simulate", "output", "offsets_only", "holdout")
 # keys that were accepted once and are gone, with what to use instead
 _REMOVED = {"seed": "the top-level seed was read by nothing; the seeds are [simulate] seed (the simulated data), "
                     "[selection] seed and [diagnose] seed (their cross-validation splits)"}
@@ -153,6 +166,39 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML ({exc})", path=path) from exc
 
 
+def _holdout(table: Any, path: Path, base: Path) -> HoldoutSettings:
+    """``[holdout]`` checked: a table of known keys, ``recordings`` a non-empty list of existing files (a string is
+    one), ``alpha`` in (0, 1), ``gravity_body`` three numbers not all zero; errors name the file and the key."""
+    where = f"{path} [holdout]"
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: expected a table (recordings = [\"later.csv\"])", path=path, key="holdout")
+    known = [f.name for f in fields(HoldoutSettings)]
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; known keys: {known}", path=path, key=f"holdout.{unknown[0]}")
+    recs = table.get("recordings")
+    recs = [recs] if isinstance(recs, str) else recs
+    if not isinstance(recs, list) or not recs or not all(isinstance(r, str) for r in recs):
+        raise ConfigError(f"{where}.recordings: expected a non-empty list of recording files (paths relative to the "
+                          f"config), got {table.get('recordings')!r}", path=path, key="holdout.recordings")
+    paths = tuple(_at(base, r) for r in recs)
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise ConfigError(f"{where}.recordings: file(s) not found: {missing}", path=path, key="holdout.recordings")
+    alpha = table.get("alpha", HoldoutSettings.alpha)
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha < 1:
+        raise ConfigError(f"{where}.alpha: expected a number between 0 and 1 (the test's size, e.g. 0.01), got {alpha!r}",
+                          path=path, key="holdout.alpha")
+    gb = table.get("gravity_body")
+    if gb is not None:
+        ok = isinstance(gb, list) and len(gb) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in gb)
+        if not ok or not any(gb):
+            raise ConfigError(f"{where}.gravity_body: expected three numbers, not all zero (gravity's direction in B, "
+                              f"pointing down), got {gb!r}", path=path, key="holdout.gravity_body")
+        gb = tuple(float(v) for v in gb)
+    return HoldoutSettings(paths, float(alpha), gb)
+
+
 def load_config(path: str | Path) -> RunConfig:
     """Read and validate a run config; paths in it are relative to the config file."""
     path = Path(path)
@@ -200,4 +246,5 @@ def load_config(path: str | Path) -> RunConfig:
         output_dir=_at(base, out["dir"]),
         settings=settings,
         offsets_only=_build(OffsetsOnlySettings, d.get("offsets_only", {}), path, "offsets_only", base),
+        holdout=_holdout(d["holdout"], path, base) if "holdout" in d else HoldoutSettings(),
     )

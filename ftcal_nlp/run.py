@@ -127,6 +127,7 @@ def input_paths(cfg: RunConfig) -> dict[str, Path]:
         out["simulated dataset's folder"] = cfg.simulate_dir
     if cfg.manifest is not None:
         out.update(dataset_inputs(cfg.manifest))
+    out.update({f"[holdout] recording {p}": p for p in cfg.holdout.recordings})
     return out
 
 
@@ -159,6 +160,10 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     ds, truth = load_or_simulate(cfg, force)
     t_load = time.perf_counter() - t0
     log.info("%d recordings: %s", len(ds.recordings), ", ".join(f"{r.name} ({r.kind}, {r.n} rows)" for r in ds.recordings))
+    if cfg.holdout.recordings:   # [holdout]: checked before the fit, run after the report
+        from .holdout import check_run_holdout
+
+        check_run_holdout(cfg.holdout, ds)
     prior = None
     if cfg.offsets_only.calibration is not None:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
@@ -191,6 +196,11 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
             write_free_effect_calibration(res, folder)
     with stage("report", res.timings):
         write_report(res, folder)
+    if cfg.holdout.recordings:   # validation on a later session: holdout/ in the output folder
+        from .holdout import run_holdout
+
+        with stage("holdout", res.timings):
+            run_holdout(cfg.holdout, folder, cfg.output_dir)
     return res
 
 
