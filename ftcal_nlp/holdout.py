@@ -11,7 +11,7 @@ the mounting rotation, its world tilt applied) places it in one of 26 regions; `
 statistics and the test. Writes into ``DIR`` (beside whatever is there; ``outdir.write_guarded``): ``holdout.csv``
 (a row per transducer and region), ``holdout.md`` (the verdict, naming the regions where the calibration does not
 hold and a pose of each) and ``holdout.png`` (error per region with the test's limits; a Mollweide map of the
-gravity directions coloured by z).
+gravity directions coloured by each region's largest mean / se).
 
 A run does the same on its own calibration where its config has ``[holdout] recordings = ["later.csv", ...]``
 (``config.HoldoutSettings``), into ``holdout/`` of its output folder: calibrate on one session, validate on the other.
@@ -232,12 +232,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.holdout", description=__doc__.splitlines()[0])
     ap.add_argument("calibration", help="calibration.json of a free-load run (its calibration_cov.npz beside it)")
     ap.add_argument("recordings", nargs="+", help="later recording(s) of the free load touching nothing (CSV or Parquet)")
-    add_common(ap, output_help="output folder for holdout.csv, holdout.md, holdout.png", output_required=True)
-    ap.add_argument("--alpha", type=float, default=ALPHA,
-                    help="the test's size: the chance that a calibration that holds fails in some region (default 0.01)")
     ap.add_argument("--gravity-body", nargs=3, type=float, metavar=("X", "Y", "Z"),
                     help="a fixed base's gravity direction in B for recordings without qw..qz / gx..gz (default: the "
                          "calibration's gravity_body)")
+    ap.add_argument("--alpha", type=float, default=ALPHA,
+                    help="the test's size: the chance that a calibration that holds fails in some region (default 0.01)")
+    add_common(ap, output_help="output folder for holdout.csv, holdout.md, holdout.png", output_required=True)
     args = parse(ap, argv)
     setup(args)
     return guarded(lambda: _main(args), extra=(ValueError,))

@@ -183,3 +183,21 @@ def test_run_checks_holdout_recordings_before_the_fit(sessions, tmp_path, capsys
     assert "wrist_tz" in err and "[holdout]" in err and not (tmp_path / "out").exists()
     with pytest.raises(DataFormatError):
         validate(d / "out" / "calibration.json", [bad])
+
+
+def test_own_recording_is_said_and_hexapod_dataset_refused(sessions, caplog) -> None:
+    """Validating on the recording the calibration was fitted on is a warning (it checks the fit); a run config with
+    [holdout] on a hexapod dataset is refused before the fit."""
+    from conftest import require_sample
+
+    from ftcal_nlp.config import HoldoutSettings
+    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.holdout import check_run_holdout
+
+    d, _, _ = sessions
+    with caplog.at_level("WARNING"):
+        h, _ = validate(d / "out" / "calibration.json", [d / "data" / "wrist.csv"])
+    assert "a recording the calibration" in caplog.text and h.holds
+    ds = read_dataset(require_sample() / "dataset.toml")
+    with pytest.raises(ConfigError, match="hexapod legs"):
+        check_run_holdout(HoldoutSettings((d / "later.csv",)), ds)

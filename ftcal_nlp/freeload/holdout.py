@@ -302,7 +302,8 @@ def holdout_markdown(h: Holdout, sources: list[str] | None = None, calibration: 
 def plot_holdout(h: Holdout, samples: dict[str, LegSamples], path, max_points: int = 6000) -> None:
     """``holdout.png``: per transducer the mean force and torque error per region with the test's limit
     (``+- sqrt(threshold) x se``; failing regions in red) and a Mollweide map of gravity's direction in the sensor's
-    frame (longitude atan2(u_y, u_x), latitude asin(u_z)) coloured by each sample's RMS z over the six axes."""
+    frame (longitude atan2(u_y, u_x), latitude asin(u_z)), each sample coloured by its region's ``sqrt(X2)`` (the
+    test's limit marked on the colour bar)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -335,10 +336,13 @@ def plot_holdout(h: Holdout, samples: dict[str, LegSamples], path, max_points: i
         ax = fig.add_subplot(len(legs), 3, 3 * i + 3, projection="mollweide")
         step = max(1, len(s.u) // max_points)
         u = s.u[::step]
-        zr = np.sqrt(np.nanmean(s.z[::step] ** 2, axis=1))
-        sc = ax.scatter(np.arctan2(u[:, 1], u[:, 0]), np.arcsin(np.clip(u[:, 2], -1, 1)), c=zr, s=3, cmap="viridis",
-                        vmin=0, vmax=max(3.0, lim))
-        fig.colorbar(sc, ax=ax, shrink=0.7, label="RMS z over the six axes")
+        # each sample coloured by its region's largest |mean / se|: where the test looks, on the sphere
+        zr = np.full(len(REGION_NAMES), np.nan)
+        zr[[REGION_NAMES.index(r.name) for r in lh.regions]] = [np.sqrt(r.stat) for r in lh.regions]
+        sc = ax.scatter(np.arctan2(u[:, 1], u[:, 0]), np.arcsin(np.clip(u[:, 2], -1, 1)), c=zr[region_index(u)], s=3,
+                        cmap="viridis", vmin=0, vmax=2 * lim)
+        cb = fig.colorbar(sc, ax=ax, shrink=0.7, label="region's max |mean error / se|")
+        cb.ax.axhline(lim, color="red", lw=2)
         for r in lh.regions:
             c = r.centre
             ax.annotate(r.name, (np.arctan2(c[1], c[0]), np.arcsin(c[2])), fontsize=7, ha="center",
