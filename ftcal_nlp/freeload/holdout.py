@@ -132,8 +132,13 @@ class Region:
     pose: dict = field(default_factory=dict)
 
     @property
+    def tested(self) -> bool:
+        """Whether some axis has a finite se of its mean (none: the calibration gives no se, nothing to test)."""
+        return bool(np.isfinite(self.stat))
+
+    @property
     def worst_axis(self) -> str:
-        return AXES[int(np.nanargmax(np.abs(self.zbar)))]
+        return AXES[int(np.nanargmax(np.abs(self.zbar)))] if self.tested else AXES[0]
 
 
 @dataclass(frozen=True)
@@ -272,8 +277,13 @@ def holdout_markdown(h: Holdout, sources: list[str] | None = None, calibration: 
              f"Calibration: {calibration}. Recordings: {', '.join(sources) if sources else '-'}.", "",
              "Regions: the direction of gravity in the transducer's frame, to the nearest of 26 directions (6 axes, 12 "
              "edges, 8 corners); serial correlation within holds accounted for (freeload/holdout.py). Test: " + test + ".", ""]
-    if h.holds:
-        lines += [f"**The calibration holds in every region** ({sum(len(l.regions) for l in h.legs.values())} regions).", ""]
+    regions = [r for l in h.legs.values() for r in l.regions]
+    untested = sum(not r.tested for r in regions)
+    if h.holds and untested == len(regions):
+        lines += ["**Nothing tested**: the calibration gives no se (no covariance file, no noise sd stored).", ""]
+    elif h.holds:
+        lines += [f"**The calibration holds in every region** ({len(regions)} regions"
+                  + (f"; {untested} without se, untested" if untested else "") + ").", ""]
     else:
         names = "; ".join(f"{r.leg} gravity along {r.name} ({r.worst_axis} off by {r.mean[AXES.index(r.worst_axis)]:.3g} "
                           f"+- {r.mean_se[AXES.index(r.worst_axis)]:.2g})" for r in h.failing)
@@ -292,7 +302,8 @@ def holdout_markdown(h: Holdout, sources: list[str] | None = None, calibration: 
                   "|---|---|---|---|---|---|---|---|"]
         for r in sorted(lh.regions, key=lambda r: r.holds):
             a = AXES.index(r.worst_axis)
-            lines.append(f"| {r.name} | {'holds' if r.holds else '**does not hold**'} | {r.n} | {r.rms_force:.3g} "
+            verdict = "holds" if r.holds and r.tested else "untested (no se)" if r.holds else "**does not hold**"
+            lines.append(f"| {r.name} | {verdict} | {r.n} | {r.rms_force:.3g} "
                          f"({r.rms_force_se:.2g}) | {r.rms_torque:.3g} ({r.rms_torque_se:.2g}) | {r.worst_axis}: "
                          f"{r.mean[a]:.3g} +- {r.mean_se[a]:.2g} | {r.p:.2g} | {_fmt_pose(r.pose, sources)} |")
         lines.append("")
