@@ -337,7 +337,7 @@ def _num(d: dict, key: str, default, where: str, positive: bool = True) -> float
     v = d.get(key, default)
     if not isinstance(v, (int, float)) or isinstance(v, bool) or (positive and not v > 0) or (not positive and v < 0):
         raise PlanError(f"{where}: key '{key}' must be a {'positive' if positive else 'non-negative'} number, got {v!r}",
-                                key=key)
+                        key=key)
     return float(v)
 
 
@@ -349,6 +349,22 @@ def _quats(v, where: str, key: str) -> np.ndarray:
     if q is None or not len(q) or not np.all(np.isfinite(q)) or np.any(np.linalg.norm(q, axis=1) < 1e-9):
         raise PlanError(f"{where}: key '{key}' must be a list of [qw, qx, qy, qz] (nonzero), got {v!r}", key=key)
     return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _session(d: dict, where: str, g_default: float) -> tuple[int, np.ndarray, float, float, bool, bool]:
+    """The keys of a protocol of holds every load shares: samples per hold (``hold_s * rate_hz``), the reading noise sd
+    (6,), the orientation jitter (rad), ``g``, and whether the mount and the world tilt are estimated (the run's
+    defaults: both)."""
+    from ..settings import FreeLoadSettings
+
+    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
+    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
+    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
+    g = _num(d, "g", g_default, where)
+    for key, default in (("mount", True), ("gravity_tilt", FreeLoadSettings().gravity_tilt)):
+        if not isinstance(d.get(key, default), bool):
+            raise PlanError(f"{where}: key '{key}' must be true or false, got {d[key]!r}", key=key)
+    return n_per, sigma, jitter, g, d.get("mount", True), d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
 
 
 KNOWN = {"payload": {"kind", "orientations", "n_orientations", "seed", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
@@ -367,19 +383,8 @@ def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> F
     unknown = sorted(set(d) - KNOWN[kind])
     if unknown:
         raise PlanError(f"{where}: unknown key(s) {unknown}; known keys for kind = {kind!r}: {sorted(KNOWN[kind])}",
-                                key=unknown[0])
-    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
-    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
-    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
-    g = _num(d, "g", 9.81, where)
-    mount = d.get("mount", True)
-    if not isinstance(mount, bool):
-        raise PlanError(f"{where}: key 'mount' must be true or false, got {mount!r}", key="mount")
-    from ..settings import FreeLoadSettings
-
-    tilt = d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
-    if not isinstance(tilt, bool):
-        raise PlanError(f"{where}: key 'gravity_tilt' must be true or false, got {tilt!r}", key="gravity_tilt")
+                        key=unknown[0])
+    n_per, sigma, jitter, g, mount, tilt = _session(d, where, 9.81)
     if "orientations" in d:
         quats = _quats(d["orientations"], where, "orientations")
     else:
@@ -395,7 +400,7 @@ def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> F
     rpy = np.asarray(d.get("rotation_rpy", [0.0, 0.0, 0.0]), float)
     if rpy.shape != (3,):
         raise PlanError(f"{where}: key 'rotation_rpy' must be 3 numbers (rad), got {d.get('rotation_rpy')!r}",
-                                key="rotation_rpy")
+                        key="rotation_rpy")
     R_nom = rotvec_to_rotation(rpy[2] * np.eye(3)[2]) @ rotvec_to_rotation(rpy[1] * np.eye(3)[1]) @ rotvec_to_rotation(rpy[0] * np.eye(3)[0])
     g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
     g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
@@ -472,7 +477,7 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
         holds = d["holds"]
         if not isinstance(holds, list) or not holds or not all(isinstance(h, dict) for h in holds):
             raise PlanError(f"{where}: key 'holds' must be a non-empty list of tables {{quat = [qw, qx, qy, qz], "
-                                    "q = {joint = rad, ...}}", key="holds")
+                            "q = {joint = rad, ...}}", key="holds")
         for i, h in enumerate(holds):
             extra = sorted(set(h) - HOLD_KEYS)
             if extra:
@@ -490,23 +495,23 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
         gb = np.asarray(d["gravity_body"], float) if isinstance(d["gravity_body"], list) else np.zeros(0)
         if gb.shape != (3,) or not np.all(np.isfinite(gb)) or np.linalg.norm(gb) < 1e-9:
             raise PlanError(f"{where}: key 'gravity_body' must be 3 numbers (the direction of gravity in B, pointing "
-                                    f"down), got {d['gravity_body']!r}", key="gravity_body")
+                            f"down), got {d['gravity_body']!r}", key="gravity_body")
         gb = gb / np.linalg.norm(gb)
     missing = np.flatnonzero(~np.all(np.isfinite(quat), axis=1))
     if missing.size and gb is None:
         raise PlanError(f"{where}: holds {missing.tolist()} have no 'quat': give each hold's orientation, or "
-                                "gravity_body = [0, 0, -1] (a fixed, level base: the joint angles give the orientation)",
-                                key="gravity_body")
+                        "gravity_body = [0, 0, -1] (a fixed, level base: the joint angles give the orientation)",
+                        key="gravity_body")
     named = sorted({j for h in poses for j in h})
     if named:
         no_link = [k for k in legs if robot.transducers[k].link is None]
         if robot.tree is None or no_link:
             raise PlanError(f"{where}: key 'holds' names joints {named}, but {'the robot.toml has no urdf' if robot.tree is None else f'transducer(s) {no_link} have no link'}: "
-                                    "joint poses move a load only through the URDF ([transducers.X] link = ...)", key="holds")
+                            "joint poses move a load only through the URDF ([transducers.X] link = ...)", key="holds")
         bad = [j for j in named if j not in set(robot.tree.movable)]
         if bad:
             raise PlanError(f"{where}: key 'holds': joint(s) {bad} are not movable joints of the URDF (movable: "
-                                    f"{sorted(robot.tree.movable)})", key="holds")
+                            f"{sorted(robot.tree.movable)})", key="holds")
     joints = robot.tree.movable if robot.tree is not None else ()
     q = {j: np.array([float(h.get(j, 0.0)) for h in poses]) for j in joints}
     _check_hold_limits(q, robot, where)
@@ -541,11 +546,11 @@ def _robot_path(d: dict, path: Path, robot_path: Path | None, where: str) -> Pat
     if robot_path is None:
         if "robot" not in d:
             raise PlanError(f"{where}: key 'robot' missing: the robot.toml (DATA_FORMAT.md sections 2 and 5) whose "
-                                    "transducers the holds plan, relative to this file", key="robot")
+                            "transducers the holds plan, relative to this file", key="robot")
         return path.parent / str(d["robot"])
     if "robot" in d and (path.parent / str(d["robot"])).resolve() != Path(robot_path).resolve():
         raise PlanError(f"{where}: key 'robot' = {d['robot']!r}, but the command line gives {robot_path}: give the "
-                                "robot once", key="robot")
+                        "robot once", key="robot")
     return Path(robot_path)
 
 
@@ -588,7 +593,7 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
     if unknown:
         hint = " (the nominal rotation is the robot.toml's [transducers.X] rotation)" if "rotation_rpy" in unknown else ""
         raise PlanError(f"{where}: unknown key(s) {unknown}{hint}; known keys with a robot.toml: {sorted(ROBOT_KEYS)}",
-                                key=unknown[0])
+                        key=unknown[0])
     rpath = _robot_path(d, path, robot_path, where)
     if not rpath.is_file():
         raise PlanError(f"{where}: key 'robot' = {d.get('robot')!r}: {rpath} not found (relative to {path})", key="robot")
@@ -597,7 +602,7 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
         leg = d["transducer"]
         if leg not in robot.legs:
             raise PlanError(f"{where}: key 'transducer' = {leg!r}: not a transducer of {rpath} (legs = "
-                                    f"{list(robot.legs)})", key="transducer")
+                            f"{list(robot.legs)})", key="transducer")
         legs = (leg,)
     else:
         legs = tuple(robot.legs)
@@ -607,21 +612,14 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
         wrong = [k for k, (kd, _) in kinds.items() if kd != want]
         if want is None or wrong:
             raise PlanError(f"{where}: key 'kind' = {d['kind']!r}, but {rpath} makes the load of {wrong or legs} "
-                                    f"{sorted({kinds[k][0] for k in (wrong or legs)})} (a link with massive links below it: a "
-                                    "URDF load; else a rigid payload); leave 'kind' out", key="kind")
+                            f"{sorted({kinds[k][0] for k in (wrong or legs)})} (a link with massive links below it: a "
+                            "URDF load; else a rigid payload); leave 'kind' out", key="kind")
     holds = _read_holds(d, where, robot, legs)
-    n_per = round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where))
-    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
-    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
-    g = _num(d, "g", robot.g, where)
-    for key, default in (("mount", True), ("gravity_tilt", FreeLoadSettings().gravity_tilt)):
-        if not isinstance(d.get(key, default), bool):
-            raise PlanError(f"{where}: key '{key}' must be true or false, got {d[key]!r}", key=key)
-    mount, tilt = d.get("mount", True), d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
+    n_per, sigma, jitter, g, mount, tilt = _session(d, where, robot.g)
     payloads = [k for k, (kd, _) in kinds.items() if kd == "rigid_payload"]
     if not payloads and ("mass_kg" in d or "com_m" in d):
         raise PlanError(f"{where}: keys 'mass_kg' / 'com_m' give a rigid payload's expected mass and CoM; the load of "
-                                f"{list(legs)} is the URDF's bodies below the link (they are the expected load)", key="mass_kg")
+                        f"{list(legs)} is the URDF's bodies below the link (they are the expected load)", key="mass_kg")
     m = _num(d, "mass_kg", DEFAULT_MASS_KG, where)
     com = np.asarray(d.get("com_m", DEFAULT_COM_M), float)
     if com.shape != (3,):
