@@ -1,4 +1,4 @@
-"""The free-load rows of the bench (issue 22): accuracy against crb_loads' bound with the peers side by side, and
+"""The free-load rows of the bench (issue 22): accuracy against crb.free_load's bound with the peers side by side, and
 the speed rows. Statistics of the estimators themselves are tested in test_crb_loads.py (MC) and test_peers.py;
 here what the bench computes from them, at a tiny size."""
 

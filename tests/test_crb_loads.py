@@ -1,4 +1,4 @@
-"""Cramer-Rao bounds of the free loads (crb_loads.py): the Jacobian against the simulator's forward model, the
+"""Cramer-Rao bounds of the free loads (crb/free_load.py): the Jacobian against the simulator's forward model, the
 bound against the Monte-Carlo spread of least squares where the model is linear (kth ft_calib for a payload,
 the weighted LS of the joint groups for a URDF leg), and orientations that cannot determine the load flagged.
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ftcal_nlp import crb_loads as cl
+from ftcal_nlp import crb as cl
 from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
 from ftcal_nlp.peers import calib_force, ft_calib
 from ftcal_nlp.sim.free import (PayloadConfig, UrdfLegConfig, gravity_in_body, gravity_in_ft, load_tree, payload_readings,
@@ -247,7 +247,7 @@ def test_tilt_columns_match_the_forward_model_of_a_tilted_stream() -> None:
     R0 = rotvec_to_rotation(np.array([0.3, -0.2, 1.0]))
     m, c, off = 1.3, np.array([0.01, -0.02, 0.07]), rng.normal(size=6)
     dg = np.einsum("ji,njt->nit", R0, cl.tilt_directions(R_WB, 9.81))
-    J = cl._with_tilt(cl.payload_jacobian(gravity_in_ft(R_WB, R0, 9.81), m, c, mount=True), dg, m, m * c, True)
+    J = cl.free_load._with_tilt(cl.payload_jacobian(gravity_in_ft(R_WB, R0, 9.81), m, c, mount=True), dg, m, m * c, True)
     assert J.shape == (30, 6, 15) and cl.payload_names(True, True)[10:12] == cl.TILT_NAMES
     eps = 1e-6
     for k in range(2):

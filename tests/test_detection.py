@@ -1,4 +1,4 @@
-"""Detection size of the library effects (ftcal_nlp.detection, ``python -m ftcal_nlp.plan``).
+"""Detection size of the library effects (ftcal_nlp.plan.detection, ``python -m ftcal_nlp.plan``).
 
 Scaling law: the diagnosis compares held-out residuals with a noise floor, and the residual an
 effect leaves does not depend on the noise (the paired runs cancel it). Halving every noise source
@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ftcal_nlp.detection import POWER, power_at, size_at_power, threshold
+from ftcal_nlp.plan.detection import POWER, power_at, size_at_power, threshold
 from ftcal_nlp.plan import Protocol, main as plan_main, predict
 
 SMALL = Protocol(hanging_turns=2.0, turn_s=10.0, rate_hz=50.0, n_poses=40)

@@ -27,7 +27,7 @@ from ftcal_nlp.diagnose.free_model import context_for, model_jacobian
 from ftcal_nlp.freeload import fit_free_load, fit_free_loads
 from ftcal_nlp.freeload.problem import gravity_frame, predict, tilt_gravity
 from ftcal_nlp.geometry import rotation_to_quat, rotvec_to_rotation
-from ftcal_nlp.plan_loads import plan_from_dataset
+from ftcal_nlp.plan.free_load import plan_from_dataset
 from ftcal_nlp.settings import FreeLoadSettings
 
 Z = 4.0

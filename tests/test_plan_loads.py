@@ -1,4 +1,4 @@
-"""``plan`` for free loads (plan_loads.py, issue 22 item 5): the Cramer-Rao bound of crb_loads on a section-5
+"""``plan`` for free loads (plan/free_load.py, issue 22 item 5): the Cramer-Rao bound of crb.free_load on a section-5
 dataset (the pilot's own samples and noise) or on a protocol of held orientations, against the se the estimator
 reports on simulated data (white noise: the weighted fit attains the bound, so they agree to the few per cent the
 noise's own estimate moves them), the undetermined parameters named, and the errors of what does not apply."""
@@ -15,7 +15,7 @@ from ftcal_nlp import plan as plan_cli
 from ftcal_nlp.data import read_dataset
 from ftcal_nlp.freeload import fit_free_load
 from ftcal_nlp.geometry import rotation_to_quat
-from ftcal_nlp.plan_loads import plan_from_protocol
+from ftcal_nlp.plan.free_load import plan_from_protocol
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
 REL = 0.05   # the fit's se rest on its estimated noise sd (~1 % from 5000 samples) and first-order weights
@@ -34,7 +34,7 @@ def payload(tmp_path_factory):
 
 
 def _fit_se(fit) -> dict[str, float]:
-    """The fit's se under crb_loads' names (a payload's CoM se from the load report)."""
+    """The fit's se under crb.free_load's names (a payload's CoM se from the load report)."""
     rep = fit.load_report()
     out = {f"offset_{c}": s for c, s in zip(("fx", "fy", "fz", "tx", "ty", "tz"), fit.se[:6])}
     out["mass_kg"] = rep["load_mass_se_kg"]

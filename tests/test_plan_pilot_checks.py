@@ -13,7 +13,7 @@ import pytest
 
 from ftcal_nlp.data import read_dataset
 from ftcal_nlp.errors import ConfigError, DataFormatError, ImplausibleLoadFit
-from ftcal_nlp.plan_loads import plan_from_dataset, plan_from_robot
+from ftcal_nlp.plan.free_load import plan_from_dataset, plan_from_robot
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 
 

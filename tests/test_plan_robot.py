@@ -20,7 +20,7 @@ from ftcal_nlp.errors import ConfigError
 from ftcal_nlp.freeload import fit_free_load
 from ftcal_nlp.geometry import rotation_to_quat
 from test_plan_loads import fitted_payload
-from ftcal_nlp.plan_loads import FreeLoadPlan, plan_from_dataset, plan_from_robot
+from ftcal_nlp.plan.free_load import FreeLoadPlan, plan_from_dataset, plan_from_robot
 from ftcal_nlp.sim.free import (
     PayloadConfig,
     UrdfLegConfig,

@@ -23,7 +23,7 @@ minus truth):
   identifiable with six free translations, the total CoM (what the correction of
   walking data moves its torques to) is.
 
-Each error is divided by its bound (crb.py): ``z = e / sd_CRB``; standing
+Each error is divided by its bound (crb/hexapod.py): ``z = e / sd_CRB``; standing
 errors first have their unidentifiable components removed (``Bound.project``).
 A group's ratio is ``sqrt(mean z^2)`` over its parameters and the datasets: 1
 for an efficient unbiased estimator. The Mahalanobis version

@@ -1,5 +1,5 @@
 """Accuracy on free loads (issue 22, section 5): errors over simulated datasets against the Cramer-Rao bound
-(``crb_loads.py``), the NLP beside the peers' plain least squares on the same data.
+(``crb/free_load.py``), the NLP beside the peers' plain least squares on the same data.
 
 Scenarios (``sim.free``; a new truth and new noise per seed):
 
@@ -18,7 +18,7 @@ packages expect pose averages of held poses). Groups (estimate minus truth):
   ``Bound.project``), ``mount_rotation``.
 
 With the world tilt of the orientation stream (``[free_load] gravity_tilt``, the NLP's default) the NLP is scored
-against the bound that has the tilt's two parameters too (``crb_loads.free_load_bound(tilt=True)``; the
+against the bound that has the tilt's two parameters too (``crb.free_load_bound(tilt=True)``; the
 simulations have none: truth 0) and its tilt gets a row group ``gravity_tilt`` (deg); the peers, which have no
 tilt, against the bound without it.
 
@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from .. import crb_loads as cl
+from .. import crb as cl
 from ..geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
 from ..peers import calib_force, ft_calib
 from ..sim.free import PayloadConfig, UrdfLegConfig, gravity_in_ft, simulate_free
@@ -78,7 +78,7 @@ class LoadAccuracySettings:
 
 @dataclass(frozen=True)
 class LoadEstimate:
-    """An estimate in the bound's parameter order (``crb_loads.payload_names(True)`` or ``urdf_names``);
+    """An estimate in the bound's parameter order (``crb.payload_names(True)`` or ``urdf_names``);
     ``wall_s`` its time; ``kept`` the samples it used."""
 
     theta: np.ndarray

@@ -1,6 +1,6 @@
 """Does the plan's detection size detect? The diagnosis run on effects of the predicted size.
 
-For a protocol and a few library effects: the plan's detection size of each (:mod:`ftcal_nlp.detection`,
+For a protocol and a few library effects: the plan's detection size of each (:mod:`ftcal_nlp.plan.detection`,
 power 0.8 at the diagnosis' gap threshold, simulator seed 0); then, on ``seeds`` simulated datasets of the
 protocol with the effect at that size (simulator and injector seed = the seed), ``calibrate()`` with the
 diagnosis on (error model ``full``, every library candidate, no joint refit: the gap and the verdict do

@@ -1,6 +1,6 @@
 """The free-load NLP (``ftcal_nlp.freeload``) as the benches call it: a simulated dataset written in the
 interchange format, read by the section-5 reader, fitted by ``fit_free_load`` (the fit alone timed: quasi-static
-selection, compression, IPOPT, covariance), its estimate put in ``crb_loads``' parameter order."""
+selection, compression, IPOPT, covariance), its estimate put in ``crb.free_load``' parameter order."""
 
 from __future__ import annotations
 
@@ -33,10 +33,10 @@ def nlp_estimate(res, workdir: Path) -> tuple[np.ndarray, float, int]:
 
 
 def estimate_theta(fit) -> np.ndarray:
-    """A ``FreeLoadResult`` in ``crb_loads`` order: payload ``(offset 6, mass, CoM 3[, tilt 2], mount rotvec 3)`` (the
+    """A ``FreeLoadResult`` in ``crb.free_load`` order: payload ``(offset 6, mass, CoM 3[, tilt 2], mount rotvec 3)`` (the
     CoM ``h / m``); URDF load ``(offset 6, per joint group (mass, first moment 3)[, tilt 2], mount rotvec 3)`` (both
     group by the nearest movable joint, first moments in the frame of that joint's child link); the world tilt where
-    the fit has it (``crb_loads.TILT_NAMES``)."""
+    the fit has it (``crb.TILT_NAMES``)."""
     tilt = np.zeros(0) if fit.tilt is None else np.asarray(fit.tilt, float)
     if fit.load.kind == "rigid_payload":
         m, h = fit.theta[0], fit.theta[1:4]

@@ -307,7 +307,7 @@ def loads_markdown(acc: dict) -> list[str]:
            f"target NLP <= {TARGET_RATIO})", "",
            "Scenarios (`sim.free`): `payload_no_mount` a wrist tool without mounting rotation (the peers' model holds), "
            "`payload_mount` with the drawn ~1 deg mounting rotation, `urdf_leg` the bundled 4-joint leg. Bound "
-           "(`crb_loads.py`): the readings' Fisher information at the truth over the held samples, mounting rotation "
+           "(`crb/free_load.py`): the readings' Fisher information at the truth over the held samples, mounting rotation "
            "unknown; `/ known-mount CRB`: against the bound with the mounting known (ft_calib's assumption). URDF "
            "groups are compared on what the data determine (`Bound.project`; statics see the total mass and the "
            "base first moments). The peers get the simulator's held samples and the nominal ft orientation; the NLP "

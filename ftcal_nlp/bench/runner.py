@@ -1,11 +1,11 @@
 """The bench as one call: settings for the quick and the full run, and :func:`run_bench`.
 
-Parts (each optional): ``accuracy`` (accuracy.py, crb.py), ``speed``
+Parts (each optional): ``accuracy`` (accuracy.py, crb/hexapod.py), ``speed``
 (speed.py), ``scaling`` (scaling.py), ``profile`` (profile.py, on the speed
 bench's problem), ``correction`` (correction.py: se throughput, offset tracking), ``export`` (export_speed.py: the
 exported C and the batched numpy correction), ``plan`` (plan_check.py: the plan's predicted se against the
 calibration's reported se and the spread over seeds), ``detect`` (detect_check.py: the plan's detection
-sizes against the diagnosis' detection rate at them), ``loads`` (accuracy_loads.py, crb_loads.py: the free loads of
+sizes against the diagnosis' detection rate at them), ``loads`` (accuracy_loads.py, crb/free_load.py: the free loads of
 issue 22, NLP and the peers against the bound), ``load_speed`` (speed.py: payload of 1e5 samples, 6-joint URDF
 load of 1e4 held samples), ``diagnosis_ratio`` (speed.py: the diagnosis' stage against ``calibrate()`` without it, on
 the default problem and a payload of 1e5 samples; issue 23). Results are written by report.py into ``out``.

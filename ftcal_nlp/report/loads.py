@@ -85,8 +85,8 @@ def load_table(res: "CalibrationRun", leg: str) -> pd.DataFrame:
 
 
 def _group_truth(truth, load) -> tuple[np.ndarray, np.ndarray] | None:
-    """True masses and first moments of the load's joint groups (``crb_loads.group_truth``), or None."""
-    from ..crb_loads import group_truth
+    """True masses and first moments of the load's joint groups (``crb.group_truth``), or None."""
+    from ..crb import group_truth
 
     groups = getattr(load, "groups", ())
     if truth is None or not truth.bodies or not all(l in truth.bodies for g in groups for l in g.links):

@@ -65,11 +65,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import norm
 
-from .diagnose.attribute import kind_threshold
-from .diagnose.standing_fit import AugmentedProblem
-from .effects import StandingData
-from .selection import fold_indices
-from .settings import DiagnoseSettings
+from ..diagnose.attribute import kind_threshold
+from ..diagnose.standing_fit import AugmentedProblem
+from ..effects import StandingData
+from ..selection import fold_indices
+from ..settings import DiagnoseSettings
 
 log = logging.getLogger(__name__)
 
@@ -215,11 +215,11 @@ def local_exponent(s0: float, lam0: float, s1: float, lam1: float) -> float:
 def floors(sim, hang, poses, protocol) -> Floors:
     """The kinds' floors on the noisy simulated protocol ``sim`` with its hanging fit and poses (the diagnosis'
     ``standing_view`` on the calibration that fit gives, error model ``MODEL``)."""
-    from .diagnose.views import standing_view
-    from .models import ModelContext, resolve
-    from .standing import fit_standing
+    from ..diagnose.views import standing_view
+    from ..models import ModelContext, resolve
+    from ..standing import fit_standing
 
-    from .solver import SolverError
+    from ..solver import SolverError
 
     ds, robot = sim.dataset, sim.dataset.robot
     legs = tuple(robot.legs)
@@ -252,7 +252,7 @@ def _t_ref(ds) -> float:
 def signal_config(protocol, effect: dict | None, seed: int | None = None):
     """The protocol's simulator settings at ``SIGNAL_RATE_HZ`` with ``effect`` ({name, scale, seed}); the noise is
     the protocol's (the same draws with and without the effect: it cancels in their difference)."""
-    from .sim import SimConfig
+    from ..sim import SimConfig
 
     c = protocol.sim_config(seed)
     d = {f: getattr(c, f) for f in c.__dataclass_fields__ if f != "effects"}
@@ -276,9 +276,9 @@ def base_residuals(ds, smoothing: float, nlp_cache: dict | None = None, *, stand
     of the error model refit on them (``AugmentedProblem.cross_validate``, the diagnosis' folds, from ``x0``).
     ``nlp_cache``: shared by the runs of one protocol (``fit_hanging``). A standing fit that does not converge
     (too few poses for the model) leaves the standing part None (logged)."""
-    from .hanging import fit_hanging, hanging_residuals
-    from .solver import SolverError
-    from .standing import extract_poses
+    from ..hanging import fit_hanging, hanging_residuals
+    from ..solver import SolverError
+    from ..standing import extract_poses
 
     robot = ds.robot
     legs = tuple(robot.legs)
@@ -325,9 +325,9 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
     """Detection size (D4) of every library effect (or of ``effects``, names) on ``protocol``; ``sim``, ``hang``,
     ``poses`` the plan's noisy simulation of it (simulator seed ``seed``), its hanging fit and poses;
     ``smoothing`` the CoM weight its GCV picked."""
-    from .effects import resolve_effects
-    from .sim import simulate
-    from .solver import SolverError
+    from ..effects import resolve_effects
+    from ..sim import simulate
+    from ..solver import SolverError
 
     library = resolve_effects(effects)  # unknown names: a ValueError naming the known ones, before any work
     fl = floors(sim, hang, poses, protocol)

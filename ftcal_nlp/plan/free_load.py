@@ -1,6 +1,7 @@
-"""Plan a free-load calibration (``DATA_FORMAT.md`` section 5): the standard error each load parameter will have.
+"""The free loads' plan (``DATA_FORMAT.md`` section 5): the standard error each load parameter will have (``plan``'s
+free-load part).
 
-Three ways in (``plan.py`` dispatches; ``plan --help`` shows them):
+Three ways in (``plan/reading.py`` tells them apart; ``plan --help`` shows them):
 
 * ``plan DATASET.toml``: a recorded pilot (a section-5 manifest);
 * ``plan ROBOT.toml --protocol HOLDS.toml``: a section-5 ``robot.toml`` (as the run reads it: rigid payloads, URDF
@@ -12,16 +13,16 @@ A robot.toml alone is an error that says what to add: the robot fixes what the l
 session shows them, and neither guesses the other. The robot.toml is read by the run's reader (``data.read_robot``),
 so a robot.toml the run refuses, ``plan`` refuses with the same words.
 
-The prediction is the Cramer-Rao bound of :mod:`ftcal_nlp.crb_loads` (its own reading model, independent of
+The prediction is the Cramer-Rao bound of :mod:`ftcal_nlp.crb.free_load` (its own reading model, independent of
 the estimator): per quasi-static sample ``i`` the readings' derivative ``J_i`` with respect to the offsets, the
 load's parameters, the world tilt of the orientation stream (where the estimator fits it) and the mounting
 rotation, and
 
     F = sum_i J_i^T Sigma^-1 J_i,     se >= sqrt(diag F^+)   (on the directions F determines),
 
-``Sigma = diag(s^2)`` per channel (plus the orientation jitter's errors in variables, ``crb_loads``). Directions of
+``Sigma = diag(s^2)`` per channel (plus the orientation jitter's errors in variables, ``crb.free_load``). Directions of
 ``F`` below ``solver.REL_EIG_TOL`` of the largest are not determined: their parameters get se ``null`` in
-``plan.json`` and one line each names what cannot be separated from what (``crb_loads.describe_dropped``), e.g. a
+``plan.json`` and one line each names what cannot be separated from what (``crb.describe_dropped``), e.g. a
 CoM component along an axis gravity never turns about, a link group whose joint never moves.
 
 Noise, and the run's widening. The run weighs channel ``c`` by ``1 / (s_c^2 k_c)``, ``k_c`` the AR(1) variance
@@ -65,29 +66,25 @@ from pathlib import Path
 
 import numpy as np
 
-from . import crb_loads
-from .errors import ConfigError
-from .geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
+from .. import crb
+from ..geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
+from .reading import PlanError, PlanInput
 
 log = logging.getLogger(__name__)
 
 PROTOCOL_KINDS = ("payload", "urdf")
 
 
-class FreeLoadPlanError(ConfigError):
-    """A free-load protocol that cannot be planned; the message names the key."""
-
-
 @dataclass(frozen=True)
 class LoadPlan:
-    """One transducer's predicted se: ``bound`` (``crb_loads.LoadBound``), ``kind``, ``n_samples``, ``n_holds``
+    """One transducer's predicted se: ``bound`` (``crb.LoadBound``), ``kind``, ``n_samples``, ``n_holds``
     (None for a dataset), ``noise`` (6,) the per-sample sd, ``undetermined`` (names of parameters in a dropped
     direction), ``widening`` (6,) the run's se factor for serially correlated residuals already in ``bound``
     (a pilot's; None: white noise assumed) and ``lag1`` the correlation it comes from."""
 
     transducer: str
     kind: str
-    bound: crb_loads.LoadBound
+    bound: crb.LoadBound
     n_samples: int
     noise: np.ndarray
     n_holds: int | None = None
@@ -106,7 +103,7 @@ class LoadPlan:
         a = np.zeros(len(self.bound.names))
         for n, w in weights.items():
             a[self.bound.names.index(n)] = w
-        N = crb_loads._dropped_directions(self.bound.bound)
+        N = crb.dropped_directions(self.bound.bound)
         if N.shape[1]:
             a_s = a / self.bound.bound.scale                      # d(a . theta) along a scaled direction u: a_s . u
             if np.abs(a_s @ N).max() > tol * np.linalg.norm(a_s):
@@ -121,7 +118,7 @@ class LoadPlan:
             v = [se[n] for n in names if n in se]
             return None if not v or any(x is None for x in v) else float(factor * np.sqrt(np.mean(np.square(v))))
 
-        out = {"offsets_force": (rms(crb_loads.OFFSET_NAMES[:3]), "N"), "offsets_torque": (rms(crb_loads.OFFSET_NAMES[3:]), "N*m")}
+        out = {"offsets_force": (rms(crb.OFFSET_NAMES[:3]), "N"), "offsets_torque": (rms(crb.OFFSET_NAMES[3:]), "N*m")}
         mass_names = [n for n in self.bound.names if n.endswith("mass_kg")]
         total = None if not mass_names else self.sd_of({n: 1.0 for n in mass_names})
         out["load_mass"] = (total, "kg")
@@ -133,9 +130,9 @@ class LoadPlan:
                 out[f"{grp}.mass"] = (rms((n,)), "kg")
                 out[f"{grp}.first_moment"] = (rms(tuple(f"{grp}.moment_{c}" for c in "xyz"), 1e3), "kg*mm")
         if "tilt_rx" in self.bound.names:
-            out["gravity_tilt"] = (rms(crb_loads.TILT_NAMES, float(np.degrees(1.0))), "deg")
+            out["gravity_tilt"] = (rms(crb.TILT_NAMES, float(np.degrees(1.0))), "deg")
         if "mount_rx" in self.bound.names:
-            out["mount_rotation"] = (rms(crb_loads.ROT_NAMES, float(np.degrees(1.0))), "deg")
+            out["mount_rotation"] = (rms(crb.ROT_NAMES, float(np.degrees(1.0))), "deg")
         return out
 
     def to_json_dict(self) -> dict:
@@ -181,16 +178,16 @@ class FreeLoadPlan:
         return "\n".join(lines)
 
 
-def _undetermined(bound: crb_loads.LoadBound, tol: float = 1e-3) -> tuple[str, ...]:
+def _undetermined(bound: crb.LoadBound, tol: float = 1e-3) -> tuple[str, ...]:
     """Parameters with a component (scaled coordinates, relative size over ``tol``) in a dropped direction."""
-    N = crb_loads._dropped_directions(bound.bound)
+    N = crb.dropped_directions(bound.bound)
     if N.shape[1] == 0:
         return ()
     touched = np.abs(N).max(axis=1) > tol
     return tuple(n for n, t in zip(bound.names, touched) if t)
 
 
-def _plan(leg: str, kind: str, bound: crb_loads.LoadBound, n: int, noise: np.ndarray, holds: int | None,
+def _plan(leg: str, kind: str, bound: crb.LoadBound, n: int, noise: np.ndarray, holds: int | None,
           notes: tuple[str, ...] = (), serial: tuple[np.ndarray, np.ndarray] | None = None) -> LoadPlan:
     und = _undetermined(bound)
     for line in bound.unidentified:
@@ -203,7 +200,7 @@ def pilot_widening(ds, leg: str, fit) -> tuple[np.ndarray, np.ndarray]:
     """``(rho, factor)`` (6,) each: the lag-1 correlation of the pilot fit's residuals and the se factor the run
     applies for it (``sqrt`` of ``freeload.problem.serial_inflation``, the estimator's own function, on the same
     residuals: the samples the fit used, numbered by recording and row as the estimator numbers them)."""
-    from .freeload.problem import serial_inflation
+    from ..freeload.problem import serial_inflation
 
     res, src, idx = [], [], []
     for i, rec in enumerate(r for r in ds.hanging if r.hangs_free(leg)):
@@ -223,10 +220,10 @@ def pilot_widening(ds, leg: str, fit) -> tuple[np.ndarray, np.ndarray]:
 def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
     """The plan of a section-5 dataset's free loads (module docstring): each fitted, the bound at its estimate on
     the samples the fit used with the noise it measured."""
-    from .freeload import fit_free_load
-    from .checks import screen_sensor_faults
-    from .errors import SolverError
-    from .pipeline import check_free_load_fits, checked_free_load_samples, raise_free_load_causes
+    from ..freeload import fit_free_load
+    from ..checks import screen_sensor_faults
+    from ..errors import SolverError
+    from ..pipeline import check_free_load_fits, checked_free_load_samples, raise_free_load_causes
 
     # the run's checks before and after the fit: a pilot a run refuses is no ground for a plan
     ds, _ = screen_sensor_faults(ds, unit="transducer", every_recording_fatal=False)
@@ -252,7 +249,7 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
         if fit.tilt is not None and not np.all(np.isfinite(fit.se[6 + len(fit.theta):8 + len(fit.theta)])):
             notes = (TILT_HELD,)
         elif fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
-            from .freeload.problem import tilt_gravity
+            from ..freeload.problem import tilt_gravity
 
             gs, dBs = [], []
             for r in recs:   # the tilt acts through the orientation stream's recordings only
@@ -263,7 +260,7 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
                     continue
                 R_WB = quat_to_rotation(r.quat[m])
                 gs.append(ds.robot.g * np.einsum("nkj,k->nj", R_WB, tilt_gravity(fit.tilt)))
-                dBs.append(crb_loads.tilt_directions(R_WB, ds.robot.g))
+                dBs.append(crb.tilt_directions(R_WB, ds.robot.g))
             g_B, dB = np.concatenate(gs), np.concatenate(dBs)
         elif len(fit.recording_tilts) == 1:   # one gravity_body recording's tilt (the bound has one tilt block)
             g_B, dB = _recording_tilt(ds, recs, fit)
@@ -275,20 +272,20 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             R = fit.load.nominal_rotation(q, len(g_B)) @ fit.rotation
             g_ft = np.einsum("nji,nj->ni", R, g_B)
             m = float(fit.theta[0])
-            bound = crb_loads.payload_bound(g_ft, m, fit.theta[1:4] / m, sigma, mount=mount, offset=fit.offset,
+            bound = crb.payload_bound(g_ft, m, fit.theta[1:4] / m, sigma, mount=mount, offset=fit.offset,
                                             tilt_dirs=None if dB is None else np.einsum("nji,njt->nit", R, dB))
         else:
             tree, link = ds.robot.tree, ds.robot.transducers[leg].link
             joints = tuple(fit.load.base_joints) + tuple(fit.load.load_joints)
             q = {j: np.concatenate([r.q[j][fit.used[r.name]] if j in r.q else np.zeros(int(fit.used[r.name].sum()))
                                     for r in recs]) for j in joints}
-            g_ft = crb_loads.urdf_gravity_in_ft(tree, link, q, g_B, rv)
-            dg = None if dB is None else np.stack([crb_loads.urdf_gravity_in_ft(tree, link, q, dB[:, :, k], rv)
+            g_ft = crb.urdf_gravity_in_ft(tree, link, q, g_B, rv)
+            dg = None if dB is None else np.stack([crb.urdf_gravity_in_ft(tree, link, q, dB[:, :, k], rv)
                                                    for k in range(2)], axis=2)
             bodies = {l: (b.mass_kg, b.com_m) for l, b in tree.bodies.items()}
             # at the fit's groups (mass and first moment): the mount's rows scale with them, as the run's se do
-            same = [set(g.links) for g in crb_loads.joint_groups(tree, link)] == [set(g.links) for g in fit.load.groups]
-            bound = crb_loads.urdf_bound(tree, link, q, g_ft, bodies, sigma, mount=mount, offset=fit.offset,
+            same = [set(g.links) for g in crb.joint_groups(tree, link)] == [set(g.links) for g in fit.load.groups]
+            bound = crb.urdf_bound(tree, link, q, g_ft, bodies, sigma, mount=mount, offset=fit.offset,
                                          tilt_dirs=dg, group_theta=fit.theta.reshape(-1, 4) if same else None)[0]
             if not same:
                 notes += (("evaluated at the URDF's nominal bodies (the bound depends on them only through the mounting "
@@ -305,7 +302,7 @@ def _recording_tilt(ds, recs, fit) -> tuple[np.ndarray, np.ndarray]:
     """Gravity in B (N, 3) at the fit's tilt of its one ``gravity_body`` recording and ``d g_B / d tilt`` (N, 3, 2)
     (zero on the other recordings): that recording's gravity is ``g F u``, ``F`` the frame of its nominal direction
     (``freeload.problem.gravity_frame``), so it enters the bound as a world tilt does with ``R_WB = F^T``."""
-    from .freeload.problem import gravity_frame, tilt_gravity
+    from ..freeload.problem import gravity_frame, tilt_gravity
 
     (name, tilt), = fit.recording_tilts.items()
     gs, dBs = [], []
@@ -318,7 +315,7 @@ def _recording_tilt(ds, recs, fit) -> tuple[np.ndarray, np.ndarray]:
             continue
         F = gravity_frame(r.gravity_directions()[:1])[0]
         gs.append(np.broadcast_to(ds.robot.g * F @ tilt_gravity(tilt), (n, 3)))
-        dBs.append(crb_loads.tilt_directions(np.broadcast_to(F.T, (n, 3, 3)), ds.robot.g))
+        dBs.append(crb.tilt_directions(np.broadcast_to(F.T, (n, 3, 3)), ds.robot.g))
     return np.concatenate(gs), np.concatenate(dBs)
 
 
@@ -331,7 +328,7 @@ TILT_HELD = ("the world tilt of the orientation stream: held at 0 by the estimat
 
 def _tilt_held(g_ft: np.ndarray) -> bool:
     """Whether the estimator holds the world tilt at 0 for these gravity directions (one direction, a short arc)."""
-    from .freeload.estimate import NARROW, gravity_spread
+    from ..freeload.estimate import NARROW, gravity_spread
 
     return bool(gravity_spread(g_ft)[1] < NARROW)
 
@@ -339,8 +336,8 @@ def _tilt_held(g_ft: np.ndarray) -> bool:
 def _num(d: dict, key: str, default, where: str, positive: bool = True) -> float:
     v = d.get(key, default)
     if not isinstance(v, (int, float)) or isinstance(v, bool) or (positive and not v > 0) or (not positive and v < 0):
-        raise FreeLoadPlanError(f"{where}: key '{key}' must be a {'positive' if positive else 'non-negative'} number, got {v!r}",
-                                key=key)
+        raise PlanError(f"{where}: key '{key}' must be a {'positive' if positive else 'non-negative'} number, got {v!r}",
+                        key=key)
     return float(v)
 
 
@@ -350,8 +347,24 @@ def _quats(v, where: str, key: str) -> np.ndarray:
     except (TypeError, ValueError):
         q = None
     if q is None or not len(q) or not np.all(np.isfinite(q)) or np.any(np.linalg.norm(q, axis=1) < 1e-9):
-        raise FreeLoadPlanError(f"{where}: key '{key}' must be a list of [qw, qx, qy, qz] (nonzero), got {v!r}", key=key)
+        raise PlanError(f"{where}: key '{key}' must be a list of [qw, qx, qy, qz] (nonzero), got {v!r}", key=key)
     return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _session(d: dict, where: str, g_default: float) -> tuple[int, np.ndarray, float, float, bool, bool]:
+    """The keys of a protocol of holds every load shares: samples per hold (``hold_s * rate_hz``), the reading noise sd
+    (6,), the orientation jitter (rad), ``g``, and whether the mount and the world tilt are estimated (the run's
+    defaults: both)."""
+    from ..settings import FreeLoadSettings
+
+    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
+    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
+    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
+    g = _num(d, "g", g_default, where)
+    for key, default in (("mount", True), ("gravity_tilt", FreeLoadSettings().gravity_tilt)):
+        if not isinstance(d.get(key, default), bool):
+            raise PlanError(f"{where}: key '{key}' must be true or false, got {d[key]!r}", key=key)
+    return n_per, sigma, jitter, g, d.get("mount", True), d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
 
 
 KNOWN = {"payload": {"kind", "orientations", "n_orientations", "seed", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
@@ -366,45 +379,34 @@ def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> F
     where = f"{path} [protocol]"
     kind = d.get("kind")
     if kind not in PROTOCOL_KINDS:
-        raise FreeLoadPlanError(f"{where}: key 'kind' = {kind!r}; expected one of {list(PROTOCOL_KINDS)}", key="kind")
+        raise PlanError(f"{where}: key 'kind' = {kind!r}; expected one of {list(PROTOCOL_KINDS)}", key="kind")
     unknown = sorted(set(d) - KNOWN[kind])
     if unknown:
-        raise FreeLoadPlanError(f"{where}: unknown key(s) {unknown}; known keys for kind = {kind!r}: {sorted(KNOWN[kind])}",
-                                key=unknown[0])
-    n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
-    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
-    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
-    g = _num(d, "g", 9.81, where)
-    mount = d.get("mount", True)
-    if not isinstance(mount, bool):
-        raise FreeLoadPlanError(f"{where}: key 'mount' must be true or false, got {mount!r}", key="mount")
-    from .settings import FreeLoadSettings
-
-    tilt = d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
-    if not isinstance(tilt, bool):
-        raise FreeLoadPlanError(f"{where}: key 'gravity_tilt' must be true or false, got {tilt!r}", key="gravity_tilt")
+        raise PlanError(f"{where}: unknown key(s) {unknown}; known keys for kind = {kind!r}: {sorted(KNOWN[kind])}",
+                        key=unknown[0])
+    n_per, sigma, jitter, g, mount, tilt = _session(d, where, 9.81)
     if "orientations" in d:
         quats = _quats(d["orientations"], where, "orientations")
     else:
         n = d.get("n_orientations", 14)
         if not isinstance(n, int) or n < 1:
-            raise FreeLoadPlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
+            raise PlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
         q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
         quats = q / np.linalg.norm(q, axis=1, keepdims=True)
     m = _num(d, "mass_kg", 1.0, where)
     com = np.asarray(d.get("com_m", [0.0, 0.0, 0.05]), float)
     if com.shape != (3,):
-        raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
+        raise PlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
     rpy = np.asarray(d.get("rotation_rpy", [0.0, 0.0, 0.0]), float)
     if rpy.shape != (3,):
-        raise FreeLoadPlanError(f"{where}: key 'rotation_rpy' must be 3 numbers (rad), got {d.get('rotation_rpy')!r}",
-                                key="rotation_rpy")
+        raise PlanError(f"{where}: key 'rotation_rpy' must be 3 numbers (rad), got {d.get('rotation_rpy')!r}",
+                        key="rotation_rpy")
     R_nom = rotvec_to_rotation(rpy[2] * np.eye(3)[2]) @ rotvec_to_rotation(rpy[1] * np.eye(3)[1]) @ rotvec_to_rotation(rpy[0] * np.eye(3)[0])
     g_B = -g * quat_to_rotation(quats)[:, 2, :]                  # R_WB^T [0, 0, -g]
     g_ft = np.repeat(g_B @ R_nom, n_per, axis=0)
-    dg = np.repeat(np.einsum("ji,njt->nit", R_nom, crb_loads.tilt_directions(quat_to_rotation(quats), g)), n_per, axis=0)
+    dg = np.repeat(np.einsum("ji,njt->nit", R_nom, crb.tilt_directions(quat_to_rotation(quats), g)), n_per, axis=0)
     held = tilt and _tilt_held(g_ft)
-    bound = crb_loads.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
+    bound = crb.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
                                     tilt_dirs=dg if tilt and not held else None)
     plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ())
     proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
@@ -448,7 +450,7 @@ class Holds:
         tilts only the orientation stream's world)."""
         out = np.zeros((len(self.quat), 3, 2))
         t = self.tracked
-        out[t] = crb_loads.tilt_directions(quat_to_rotation(self.quat[t]), g)
+        out[t] = crb.tilt_directions(quat_to_rotation(self.quat[t]), g)
         return out
 
 
@@ -456,9 +458,9 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
     """The holds of ``d`` (``holds``, ``orientations`` or ``n_orientations``), checked against ``robot``."""
     given = [k for k in ("holds", "orientations", "n_orientations") if k in d]
     if len(given) > 1:
-        raise FreeLoadPlanError(f"{where}: keys {given} both give the holds; keep one", key=given[1])
+        raise PlanError(f"{where}: keys {given} both give the holds; keep one", key=given[1])
     if not given:
-        raise FreeLoadPlanError(
+        raise PlanError(
             f"{where}: no holds: add key 'holds' = [{{quat = [qw, qx, qy, qz], q = {{joint = rad, ...}}}}, ...] (each hold's "
             "orientation of B in W and joint angles; without quat, gravity_body = [0, 0, -1] for a fixed level base), "
             "or 'orientations' = [[qw, qx, qy, qz], ...], or 'n_orientations' (drawn on SO(3) with 'seed')", key="holds")
@@ -468,21 +470,21 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
     elif "n_orientations" in d:
         n = d["n_orientations"]
         if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-            raise FreeLoadPlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
+            raise PlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
         q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
         quat, poses = q / np.linalg.norm(q, axis=1, keepdims=True), [{}] * n
     else:
         holds = d["holds"]
         if not isinstance(holds, list) or not holds or not all(isinstance(h, dict) for h in holds):
-            raise FreeLoadPlanError(f"{where}: key 'holds' must be a non-empty list of tables {{quat = [qw, qx, qy, qz], "
-                                    "q = {joint = rad, ...}}", key="holds")
+            raise PlanError(f"{where}: key 'holds' must be a non-empty list of tables {{quat = [qw, qx, qy, qz], "
+                            "q = {joint = rad, ...}}", key="holds")
         for i, h in enumerate(holds):
             extra = sorted(set(h) - HOLD_KEYS)
             if extra:
-                raise FreeLoadPlanError(f"{where}: holds[{i}]: unknown key(s) {extra}; a hold takes {sorted(HOLD_KEYS)}", key="holds")
+                raise PlanError(f"{where}: holds[{i}]: unknown key(s) {extra}; a hold takes {sorted(HOLD_KEYS)}", key="holds")
             if "q" in h and not (isinstance(h["q"], dict) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                                   for v in h["q"].values())):
-                raise FreeLoadPlanError(f"{where}: holds[{i}].q must be a table {{joint = rad, ...}}, got {h['q']!r}", key="holds")
+                raise PlanError(f"{where}: holds[{i}].q must be a table {{joint = rad, ...}}, got {h['q']!r}", key="holds")
         quat = np.full((len(holds), 4), np.nan)
         with_quat = [i for i, h in enumerate(holds) if "quat" in h]
         if with_quat:
@@ -492,24 +494,24 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
     if "gravity_body" in d:
         gb = np.asarray(d["gravity_body"], float) if isinstance(d["gravity_body"], list) else np.zeros(0)
         if gb.shape != (3,) or not np.all(np.isfinite(gb)) or np.linalg.norm(gb) < 1e-9:
-            raise FreeLoadPlanError(f"{where}: key 'gravity_body' must be 3 numbers (the direction of gravity in B, pointing "
-                                    f"down), got {d['gravity_body']!r}", key="gravity_body")
+            raise PlanError(f"{where}: key 'gravity_body' must be 3 numbers (the direction of gravity in B, pointing "
+                            f"down), got {d['gravity_body']!r}", key="gravity_body")
         gb = gb / np.linalg.norm(gb)
     missing = np.flatnonzero(~np.all(np.isfinite(quat), axis=1))
     if missing.size and gb is None:
-        raise FreeLoadPlanError(f"{where}: holds {missing.tolist()} have no 'quat': give each hold's orientation, or "
-                                "gravity_body = [0, 0, -1] (a fixed, level base: the joint angles give the orientation)",
-                                key="gravity_body")
+        raise PlanError(f"{where}: holds {missing.tolist()} have no 'quat': give each hold's orientation, or "
+                        "gravity_body = [0, 0, -1] (a fixed, level base: the joint angles give the orientation)",
+                        key="gravity_body")
     named = sorted({j for h in poses for j in h})
     if named:
         no_link = [k for k in legs if robot.transducers[k].link is None]
         if robot.tree is None or no_link:
-            raise FreeLoadPlanError(f"{where}: key 'holds' names joints {named}, but {'the robot.toml has no urdf' if robot.tree is None else f'transducer(s) {no_link} have no link'}: "
-                                    "joint poses move a load only through the URDF ([transducers.X] link = ...)", key="holds")
+            raise PlanError(f"{where}: key 'holds' names joints {named}, but {'the robot.toml has no urdf' if robot.tree is None else f'transducer(s) {no_link} have no link'}: "
+                            "joint poses move a load only through the URDF ([transducers.X] link = ...)", key="holds")
         bad = [j for j in named if j not in set(robot.tree.movable)]
         if bad:
-            raise FreeLoadPlanError(f"{where}: key 'holds': joint(s) {bad} are not movable joints of the URDF (movable: "
-                                    f"{sorted(robot.tree.movable)})", key="holds")
+            raise PlanError(f"{where}: key 'holds': joint(s) {bad} are not movable joints of the URDF (movable: "
+                            f"{sorted(robot.tree.movable)})", key="holds")
     joints = robot.tree.movable if robot.tree is not None else ()
     q = {j: np.array([float(h.get(j, 0.0)) for h in poses]) for j in joints}
     _check_hold_limits(q, robot, where)
@@ -534,7 +536,7 @@ def _check_hold_limits(q: dict[str, np.ndarray], robot, where: str) -> None:
         if bad.size:
             i = int(bad[0])
             deg = bool(np.all((np.radians(v) >= lo - HOLD_LIMIT_TOL_RAD) & (np.radians(v) <= hi + HOLD_LIMIT_TOL_RAD)))
-            raise FreeLoadPlanError(
+            raise PlanError(
                 f"{where}: holds[{i}].q.{name} = {v[i]:g}{f' (and {bad.size - 1} more hold(s))' if bad.size > 1 else ''}: beyond "
                 f"the URDF's limits of joint '{name}' [{lo:.4g}, {hi:.4g}] rad; expected radians"
                 + (" (all of them fit read as degrees: degrees?)" if deg else ""), key="holds")
@@ -543,12 +545,12 @@ def _check_hold_limits(q: dict[str, np.ndarray], robot, where: str) -> None:
 def _robot_path(d: dict, path: Path, robot_path: Path | None, where: str) -> Path:
     if robot_path is None:
         if "robot" not in d:
-            raise FreeLoadPlanError(f"{where}: key 'robot' missing: the robot.toml (DATA_FORMAT.md sections 2 and 5) whose "
-                                    "transducers the holds plan, relative to this file", key="robot")
+            raise PlanError(f"{where}: key 'robot' missing: the robot.toml (DATA_FORMAT.md sections 2 and 5) whose "
+                            "transducers the holds plan, relative to this file", key="robot")
         return path.parent / str(d["robot"])
     if "robot" in d and (path.parent / str(d["robot"])).resolve() != Path(robot_path).resolve():
-        raise FreeLoadPlanError(f"{where}: key 'robot' = {d['robot']!r}, but the command line gives {robot_path}: give the "
-                                "robot once", key="robot")
+        raise PlanError(f"{where}: key 'robot' = {d['robot']!r}, but the command line gives {robot_path}: give the "
+                        "robot once", key="robot")
     return Path(robot_path)
 
 
@@ -556,7 +558,7 @@ def _load_kind(robot, leg: str) -> tuple[str, bool]:
     """``(kind, through_urdf)``: ``urdf_subtree`` where links with mass hang below the transducer's link, else a
     ``rigid_payload`` (its gravity through the URDF where the transducer has a link: an arm whose URDF leaves the
     tool out, ``DATA_FORMAT.md`` section 5)."""
-    from .data import has_mass_below
+    from ..data import has_mass_below
 
     link = robot.transducers[leg].link
     if link is None:
@@ -569,38 +571,38 @@ def _gravity_to_ft(robot, leg: str, q: dict[str, np.ndarray]):
     it has a link, else by its table's ``rotation`` (``R_nom^T g_B`` per row)."""
     link = robot.transducers[leg].link
     if link is not None:
-        return lambda v: crb_loads.urdf_gravity_in_ft(robot.tree, link, q, v)
+        return lambda v: crb.urdf_gravity_in_ft(robot.tree, link, q, v)
     R_nom = np.asarray(robot.transducers[leg].rotation, float)
     return lambda v: v @ R_nom
 
 
-def _urdf_bound(*args, **kw) -> crb_loads.LoadBound:
-    return crb_loads.urdf_bound(*args, **kw)[0]
+def _urdf_bound(*args, **kw) -> crb.LoadBound:
+    return crb.urdf_bound(*args, **kw)[0]
 
 
 def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> FreeLoadPlan:
     """The plan of a section-5 ``robot.toml``'s transducers held through a protocol's holds (module docstring);
     ``d`` the ``[protocol]`` table of ``path``, ``robot_path`` the robot.toml when the command line gives it (else
     the table's ``robot``, relative to ``path``)."""
-    from .data import read_robot
-    from .freeload.problem import gravity_frame
-    from .settings import FreeLoadSettings
+    from ..data import read_robot
+    from ..freeload.problem import gravity_frame
+    from ..settings import FreeLoadSettings
 
     where = f"{path} [protocol]"
     unknown = sorted(set(d) - ROBOT_KEYS)
     if unknown:
         hint = " (the nominal rotation is the robot.toml's [transducers.X] rotation)" if "rotation_rpy" in unknown else ""
-        raise FreeLoadPlanError(f"{where}: unknown key(s) {unknown}{hint}; known keys with a robot.toml: {sorted(ROBOT_KEYS)}",
-                                key=unknown[0])
+        raise PlanError(f"{where}: unknown key(s) {unknown}{hint}; known keys with a robot.toml: {sorted(ROBOT_KEYS)}",
+                        key=unknown[0])
     rpath = _robot_path(d, path, robot_path, where)
     if not rpath.is_file():
-        raise FreeLoadPlanError(f"{where}: key 'robot' = {d.get('robot')!r}: {rpath} not found (relative to {path})", key="robot")
+        raise PlanError(f"{where}: key 'robot' = {d.get('robot')!r}: {rpath} not found (relative to {path})", key="robot")
     robot = read_robot(rpath)
     if "transducer" in d:
         leg = d["transducer"]
         if leg not in robot.legs:
-            raise FreeLoadPlanError(f"{where}: key 'transducer' = {leg!r}: not a transducer of {rpath} (legs = "
-                                    f"{list(robot.legs)})", key="transducer")
+            raise PlanError(f"{where}: key 'transducer' = {leg!r}: not a transducer of {rpath} (legs = "
+                            f"{list(robot.legs)})", key="transducer")
         legs = (leg,)
     else:
         legs = tuple(robot.legs)
@@ -609,26 +611,19 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
         want = {"payload": "rigid_payload", "urdf": "urdf_subtree"}.get(d["kind"])
         wrong = [k for k, (kd, _) in kinds.items() if kd != want]
         if want is None or wrong:
-            raise FreeLoadPlanError(f"{where}: key 'kind' = {d['kind']!r}, but {rpath} makes the load of {wrong or legs} "
-                                    f"{sorted({kinds[k][0] for k in (wrong or legs)})} (a link with massive links below it: a "
-                                    "URDF load; else a rigid payload); leave 'kind' out", key="kind")
+            raise PlanError(f"{where}: key 'kind' = {d['kind']!r}, but {rpath} makes the load of {wrong or legs} "
+                            f"{sorted({kinds[k][0] for k in (wrong or legs)})} (a link with massive links below it: a "
+                            "URDF load; else a rigid payload); leave 'kind' out", key="kind")
     holds = _read_holds(d, where, robot, legs)
-    n_per = round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where))
-    sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
-    jitter = np.radians(_num(d, "mocap_jitter_deg", 0.0, where, positive=False))
-    g = _num(d, "g", robot.g, where)
-    for key, default in (("mount", True), ("gravity_tilt", FreeLoadSettings().gravity_tilt)):
-        if not isinstance(d.get(key, default), bool):
-            raise FreeLoadPlanError(f"{where}: key '{key}' must be true or false, got {d[key]!r}", key=key)
-    mount, tilt = d.get("mount", True), d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
+    n_per, sigma, jitter, g, mount, tilt = _session(d, where, robot.g)
     payloads = [k for k, (kd, _) in kinds.items() if kd == "rigid_payload"]
     if not payloads and ("mass_kg" in d or "com_m" in d):
-        raise FreeLoadPlanError(f"{where}: keys 'mass_kg' / 'com_m' give a rigid payload's expected mass and CoM; the load of "
-                                f"{list(legs)} is the URDF's bodies below the link (they are the expected load)", key="mass_kg")
+        raise PlanError(f"{where}: keys 'mass_kg' / 'com_m' give a rigid payload's expected mass and CoM; the load of "
+                        f"{list(legs)} is the URDF's bodies below the link (they are the expected load)", key="mass_kg")
     m = _num(d, "mass_kg", DEFAULT_MASS_KG, where)
     com = np.asarray(d.get("com_m", DEFAULT_COM_M), float)
     if com.shape != (3,):
-        raise FreeLoadPlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
+        raise PlanError(f"{where}: key 'com_m' must be 3 numbers (m, in ft), got {d.get('com_m')!r}", key="com_m")
     g_B, dB = np.repeat(holds.gravity_B(g), n_per, axis=0), np.repeat(holds.tilt_B(g), n_per, axis=0)
     q = {j: np.repeat(v, n_per) for j, v in holds.q.items()}     # every sample of a hold alike (white noise)
     on_stream = np.repeat(holds.tracked, n_per)
@@ -646,10 +641,10 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
                        "recording where the data fix it; not in the bound (taken as known here)"),)
         if rec_tilt:   # one gravity_body recording: its tilt, g F u (freeload.problem.gravity_frame), as a world tilt
             F = gravity_frame(holds.gravity_body[None])[0]
-            dBr = crb_loads.tilt_directions(np.broadcast_to(F.T, (len(g_B), 3, 3)), g)
+            dBr = crb.tilt_directions(np.broadcast_to(F.T, (len(g_B), 3, 3)), g)
             dg = np.stack([to_ft(dBr[:, :, k]) for k in range(2)], axis=2)
         if kind == "rigid_payload":
-            bound_of = partial(crb_loads.payload_bound, g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter)
+            bound_of = partial(crb.payload_bound, g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter)
             if "mass_kg" not in d or "com_m" not in d:
                 notes += ((f"evaluated at mass_kg = {m:g} kg, com_m = {com.tolist()} m (protocol keys; default where "
                            "not given): the CoM's and mount's se scale with the tool's mass and lever"),)
@@ -662,7 +657,7 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
                                orientation_sd_rad=jitter)
             notes += ("evaluated at the URDF's nominal bodies",)
         bound = bound_of(tilt_dirs=dg)
-        if rec_tilt and set(crb_loads.TILT_NAMES) & set(_undetermined(bound)):   # the estimator holds it, as "auto"
+        if rec_tilt and set(crb.TILT_NAMES) & set(_undetermined(bound)):   # the estimator holds it, as "auto"
             bound = bound_of(tilt_dirs=None)
             notes += (("the gravity_body holds' tilt is not separable from the mounting rotation here (the sensor "
                        "never turns relative to B): held at 0 by the run, as here"),)
@@ -673,3 +668,21 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
     proto = {"robot": str(rpath), "holds": len(holds.quat), "samples_per_hold": n_per,
              "noise_sd": sigma.tolist(), "transducers": list(legs)}
     return FreeLoadPlan(f"protocol {path}, robot {rpath}", loads, proto)
+
+
+def plan_for(inp: PlanInput, options) -> FreeLoadPlan:
+    """``plan``'s free-load part: a pilot dataset's loads (:func:`plan_from_dataset`), or a protocol of holds with its
+    robot.toml (:func:`plan_from_protocol`). ``--search`` and ``--detect`` plan hexapod sessions: an error here, as is
+    ``--protocol`` with anything but a robot.toml."""
+    for opt, name in ((options.search, "--search"), (options.detect, "--detect")):
+        if opt:
+            raise PlanError(f"{name} plans a hexapod session (hanging turns and standing poses, the hexapod diagnosis' "
+                            f"detection sizes); {options.input} is a free load: it takes no {name}", key=name)
+    if options.protocol and inp.kind != "robot":
+        raise PlanError(f"--protocol: {options.input} is a {'pilot dataset (planned on its own samples and noise)' if inp.kind == 'dataset' else 'protocol already'}; "
+                        "to plan other holds give the robot: plan ROBOT.toml --protocol HOLDS.toml", key="--protocol")
+    if inp.kind == "dataset":
+        return plan_from_dataset(inp.dataset)
+    if inp.kind == "robot":
+        return plan_from_protocol(inp.table, Path(inp.protocol_file), robot_path=Path(inp.source))
+    return plan_from_protocol(inp.table, Path(inp.source))

@@ -4,8 +4,8 @@ wrist transducer and a load of URDF links grouped by the joints that move them.
 Independent of the estimator: the reading model is written here in numpy with its
 analytic Jacobian (checked against finite differences of ``sim/free/physics.py``,
 the simulator's forward model, in ``tests/test_crb_loads.py``), and the bound
-comes from the generic pieces of :mod:`ftcal_nlp.crb` (``fisher_information``,
-``crb``: directions of ``F`` below ``REL_EIG_TOL`` of the largest are reported
+comes from the generic pieces of :mod:`ftcal_nlp.crb.bound` (``fisher_information``,
+``crb``, ``named_bound``: directions of ``F`` below ``REL_EIG_TOL`` of the largest are reported
 as not identifiable and removed).
 
 Reading of sample i in the TRUE ft frame, about its origin (``sim/free/physics.py``):
@@ -58,9 +58,9 @@ from typing import Mapping
 
 import numpy as np
 
-from .crb import Bound, crb, fisher_information
-from .geometry import rotvec_to_rotation, skew
-from .solver import REL_EIG_TOL
+from ..geometry import rotvec_to_rotation, skew
+from ..solver import REL_EIG_TOL
+from .bound import LoadBound, named_bound
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 OFFSET_NAMES = tuple(f"offset_{c}" for c in WRENCH)
@@ -83,84 +83,6 @@ def _with_tilt(J: np.ndarray, tilt_dirs: np.ndarray | None, M: float, S: np.ndar
     T = np.concatenate([M * dg, np.cross(S[:, :, None], dg, axis=1)], axis=1)
     at = J.shape[2] - (3 if mount else 0)
     return np.concatenate([J[:, :, :at], T, J[:, :, at:]], axis=2)
-
-
-# ----------------------------------------------------------------------------- the bound with names
-
-
-@dataclass(frozen=True)
-class LoadBound:
-    """A bound on named parameters: ``bound`` (crb.Bound), ``F`` the Fisher information, ``names`` (p,),
-    ``theta`` (p,) the truth it was evaluated at, ``unidentified`` one note per dropped direction."""
-
-    names: tuple[str, ...]
-    theta: np.ndarray
-    F: np.ndarray
-    bound: Bound
-    unidentified: tuple[str, ...]
-
-    @property
-    def se(self) -> dict[str, float]:
-        """Bound on the standard error of each parameter (on the identifiable subspace)."""
-        return dict(zip(self.names, self.bound.sd))
-
-    def sd(self, names) -> np.ndarray:
-        idx = [self.names.index(n) for n in names]
-        return self.bound.sd[idx]
-
-    def cov(self, names) -> np.ndarray:
-        idx = [self.names.index(n) for n in names]
-        return self.bound.cov[np.ix_(idx, idx)]
-
-    def sd_of(self, weights: Mapping[str, float]) -> float:
-        """Bound on the sd of a linear combination ``sum_n weights[n] theta_n`` (e.g. a URDF load's total mass)."""
-        a = np.zeros(len(self.names))
-        for n, w in weights.items():
-            a[self.names.index(n)] = w
-        return float(np.sqrt(max(a @ self.bound.cov @ a, 0.0)))
-
-    @property
-    def identifiable(self) -> bool:
-        return self.bound.n_dropped == 0
-
-
-def describe_dropped(bound: Bound, names: tuple[str, ...], tol: float = 0.05) -> tuple[str, ...]:
-    """One note per direction that ``F`` does not determine, as "``a`` is not separable from ``b``, ``c``".
-
-    The null space (scaled coordinates) is put in a reduced echelon form (column-pivoted QR picks one
-    parameter per direction, the basis is then 1 at its own pivot and 0 at the others'), so each note
-    names one parameter and the others that move with it (weight >= ``tol`` of the pivot's)."""
-    N = _dropped_directions(bound)
-    if N.shape[1] == 0:
-        return ()
-    from scipy.linalg import qr
-
-    _, _, piv = qr(N.T, pivoting=True)
-    piv = piv[: N.shape[1]]
-    B = N @ np.linalg.inv(N[piv, :])              # (n, d): B[piv[j], i] = delta_ij
-    notes = []
-    for j, pj in enumerate(piv):
-        others = [i for i in np.argsort(-np.abs(B[:, j])) if i != pj and abs(B[i, j]) >= tol]
-        with_ = ", ".join(names[i] for i in others) if others else "anything: no reading depends on it"
-        notes.append(f"{names[pj]} is not separable from {with_}")
-    return tuple(notes)
-
-
-def _dropped_directions(bound: Bound) -> np.ndarray:
-    """Orthonormal basis (n, d) of the scaled coordinates the bound left out (complement of ``bound.basis``)."""
-    n = bound.basis.shape[0]
-    if bound.n_dropped == 0:
-        return np.zeros((n, 0))
-    lam, V = np.linalg.eigh(np.eye(n) - bound.basis @ bound.basis.T)
-    return V[:, lam > 0.5]
-
-
-def named_bound(J: np.ndarray, Sigma: np.ndarray, names: tuple[str, ...], theta: np.ndarray,
-                rel_tol: float = REL_EIG_TOL) -> LoadBound:
-    """``LoadBound`` from per-sample Jacobians ``J`` (N, 6, p) and covariances ``Sigma`` (N, 6, 6) or (6, 6)."""
-    F = fisher_information(J, Sigma)
-    b = crb(F, rel_tol)
-    return LoadBound(tuple(names), np.asarray(theta, float), F, b, describe_dropped(b, tuple(names)))
 
 
 def reading_covariance(sigma: np.ndarray, A: np.ndarray | None = None, orientation_sd_rad: float = 0.0) -> np.ndarray:
@@ -332,8 +254,8 @@ def free_load_bound(res, *, mount: bool = True, held_only: bool = True, rel_tol:
     """The bound of a ``sim.free.simulate_free`` result at its truth, from its held (quasi-static) samples, its
     reading noise and its orientation jitter (a URDF result: ``LoadBound`` of the joint groups); ``tilt``: the
     world tilt of the orientation stream estimated too (the simulation has none: the bound at 0)."""
-    from .sim.free import gravity_in_body, gravity_in_ft, load_tree, true_rotation
-    from .sim.free.simulate import rpy_to_rotation
+    from ..sim.free import gravity_in_body, gravity_in_ft, load_tree, true_rotation
+    from ..sim.free.simulate import rpy_to_rotation
 
     cfg, truth = res.config, res.truth
     sel = res.held if held_only else np.ones(len(res.held), bool)

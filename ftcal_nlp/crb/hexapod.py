@@ -1,16 +1,6 @@
-"""Cramer-Rao bounds of the calibration from the models' Fisher information at the truth.
+"""Cramer-Rao bounds of the hexapod: the legs' hanging model (a CoM curve over the shaft angle) and the standing balance.
 
-Generic piece (any Gaussian model ``y = h(theta) + n``, ``n ~ N(0, Sigma)``):
-
-    F = sum J^T Sigma^-1 J,     Cov(theta_hat) >= F^-1        (J = dh/dtheta at the truth)
-
-Directions the data do not determine (tiny eigenvalues of ``F``) are removed:
-``F`` is scaled to unit diagonal (so parameters of different units compare),
-eigen-decomposed, and directions whose eigenvalue is below ``rel_tol`` times
-the largest are projected out of both the bound (pseudo-inverse on the kept
-subspace) and the errors compared with it (:class:`Bound`). The tolerance is
-the standing stage's own (``standing.result.REL_EIG_TOL``), so "identifiable"
-means what the estimator reports.
+The generic bound (``F``, directions it does not determine dropped) is :mod:`ftcal_nlp.crb.bound`'s.
 
 Hanging (report eqs. 4-7, exact rotation), leg k, recording j with true unit
 gravity direction ``u_j`` in ft_k (``R_k^T R_tilt,j gravity_body_j``): with the
@@ -57,73 +47,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import skew
-from .hanging.binning import interp_weights, periodic_grid
-from .standing.problem import K_DIAG
-from .settings import HangingSettings
-from .solver import REL_EIG_TOL
+from ..geometry import skew
+from ..hanging.binning import interp_weights, periodic_grid
+from ..standing.problem import K_DIAG
+from ..settings import HangingSettings
+from ..solver import REL_EIG_TOL
+from .bound import Bound, crb, fisher_information, marginal
 
 MEDIAN_EFFICIENCY = np.pi / 2  # var(median of n Gaussian samples) ~ (pi/2) sigma^2 / n
-
-
-# ----------------------------------------------------------------------------- generic
-
-
-def fisher_information(J: np.ndarray, Sigma: np.ndarray) -> np.ndarray:
-    """``sum_p J_p^T Sigma_p^-1 J_p``; ``J`` (P, m, n) or (m, n), ``Sigma`` (P, m, m) or (m, m)."""
-    J = np.asarray(J, float)
-    Sigma = np.asarray(Sigma, float)
-    if J.ndim == 2:
-        J = J[None]
-    if Sigma.ndim == 2:
-        Sigma = np.broadcast_to(Sigma, (J.shape[0],) + Sigma.shape)
-    SiJ = np.linalg.solve(Sigma, J)
-    return np.einsum("pmi,pmj->ij", J, SiJ)
-
-
-@dataclass(frozen=True)
-class Bound:
-    """A Cramer-Rao bound on the identifiable subspace of ``F``.
-
-    ``cov`` (n, n): pseudo-inverse of ``F`` on the kept directions; ``basis``
-    (n, r) their orthonormal basis in scaled coordinates ``theta * scale``;
-    ``n_dropped`` the directions removed (unidentifiable); ``eig_ratio`` every
-    eigenvalue of the scaled ``F`` over the largest.
-    """
-
-    cov: np.ndarray
-    basis: np.ndarray
-    scale: np.ndarray
-    n_dropped: int
-    eig_ratio: np.ndarray
-
-    @property
-    def sd(self) -> np.ndarray:
-        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
-
-    def project(self, e: np.ndarray) -> np.ndarray:
-        """Errors ``e`` (..., n) with the unidentifiable directions removed (same coordinates)."""
-        es = np.asarray(e, float) * self.scale
-        return (es @ self.basis) @ self.basis.T / self.scale
-
-
-def crb(F: np.ndarray, rel_tol: float = REL_EIG_TOL) -> Bound:
-    """The bound ``F^-1`` on the directions ``F`` determines (module docstring)."""
-    F = 0.5 * (np.asarray(F, float) + np.asarray(F, float).T)
-    s = np.sqrt(np.clip(np.diag(F), 0.0, None))
-    s = np.where(s > 0, s, 1.0)
-    lam, V = np.linalg.eigh(F / np.outer(s, s))
-    ratio = lam / lam.max()
-    keep = ratio >= rel_tol
-    Vk = V[:, keep]
-    cov = (Vk / lam[keep]) @ Vk.T / np.outer(s, s)
-    return Bound(cov, Vk, s, int((~keep).sum()), ratio)
-
-
-def marginal(bound: Bound, idx) -> np.ndarray:
-    """Covariance block of the parameters ``idx``."""
-    idx = np.asarray(idx)
-    return bound.cov[np.ix_(idx, idx)]
 
 
 # ----------------------------------------------------------------------------- hanging
@@ -470,7 +401,7 @@ def standing_bound(sim, poses, hbound: HangingBound | None = None, rel_tol: floa
     """CRB of the full model's transforms at the truth of ``sim`` for the extracted ``poses``.
 
     ``references=False`` skips the least-squares reference covariances (most of the time; left None)."""
-    from .physics import balance_residual_exact
+    from ..physics import balance_residual_exact
 
     tr = sim.true_robot
     cfg = sim.config

@@ -1,6 +1,4 @@
-"""Plan a calibration session: the standard error each parameter group will have, before recording.
-
-``python -m ftcal_nlp.plan [PROTOCOL.toml | DATASET.toml] [-o plan.json] [--search] [--no-detection | --detect NAME ...]``
+"""The hexapod's plan: the standard error each parameter group will have, before recording (``plan``'s hexapod part).
 
 A protocol (:class:`Protocol`) says what will be recorded: four hanging
 recordings (two opposite pairs, +-x and +-z) of ``hanging_turns`` leg turns of
@@ -27,7 +25,7 @@ ones about as ``1/sqrt(n_poses)``: :func:`search` uses these rules to size the
 shortest protocol meeting the targets of the protocol file's ``[targets]``
 table, then checks the result with a full prediction.
 
-Detection size (``detection`` in ``plan.json``, :mod:`ftcal_nlp.detection`; ``--no-detection`` skips it,
+Detection size (``detection`` in ``plan.json``, :mod:`ftcal_nlp.plan.detection`; ``--no-detection`` skips it,
 ``--detect NAME ...`` restricts it): for each effect of the diagnosis' library, the smallest size (in the
 unit of its ``Magnitude``) at which the diagnosis flags a gap with probability 0.8 (over the noise and the
 effect's own random parameters) at its decision threshold (``diagnose/attribute.py``: held-out excess over
@@ -47,23 +45,11 @@ mounting rotations and positions are bounded on the pilot's own poses with its
 calibration as the truth, scaled by ``sqrt(pilot poses / planned poses)``; the
 hanging groups and the total CoM use the simulator's BigAnt-like geometry with
 the pilot's mass and noise.
-
-Free loads (``DATA_FORMAT.md`` section 5): a section-5 pilot dataset, a section-5 ``robot.toml`` with
-``--protocol HOLDS.toml``, or a protocol TOML whose ``[protocol]`` names a ``robot`` (or has ``kind = "payload"``):
-:mod:`ftcal_nlp.plan_loads` predicts the se of the load parameters from ``crb_loads`` (from a pilot, widened
-as the run widens them for serially correlated residuals) and names what the holds leave undetermined. A
-robot.toml is a free-load one when it has a ``urdf``, a transducer ``link`` or no ``mass_kg`` (a hexapod's has
-it, section 2), or when ``--protocol`` gives holds; alone it is an error saying what to add. ``--search`` and the
-detection sizes are the hexapod's (an error with a free load, saying so).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import logging
-import os
-import tomllib
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -71,13 +57,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import crb
-from .errors import ConfigError
+from .. import crb
 from .detection import POWER, Detection, detection_sizes
-from .hanging import fit_hanging
-from .hanging.com_qp import second_difference
-from .hanging.problem import PRIOR_SD_M
-from .settings import HangingSettings
+from ..hanging import fit_hanging
+from ..hanging.com_qp import second_difference
+from ..hanging.problem import PRIOR_SD_M
+from ..settings import HangingSettings
+from .reading import PlanError, PlanInput, protocol_table, read_toml
 
 log = logging.getLogger(__name__)
 
@@ -96,10 +82,6 @@ GROUPS = {
 }
 HANGING_GROUPS = ("offsets_force", "offsets_torque", "leg_weights", "com_curves", "com_curves_unsmoothed")
 STANDING_GROUPS = ("rotations", "translations")
-
-
-class PlanError(ConfigError):
-    """A protocol or target that cannot be planned; the message names the key."""
 
 
 @dataclass(frozen=True)
@@ -148,7 +130,7 @@ class Protocol:
         return HANGING_RECORDINGS * self.hanging_turns * self.turn_s + self.n_poses * self.pose_s + self.walk_s
 
     def sim_config(self, seed: int | None = None):
-        from .sim import SimConfig
+        from ..sim import SimConfig
 
         return SimConfig(
             seed=self.seed if seed is None else seed, rate_hz=self.rate_hz, hanging_cycles=self.hanging_turns,
@@ -185,6 +167,7 @@ class Prediction:
     n_poses_found: int
     smoothing: dict[str, float]
     detection: Detection | None = None  # detection sizes of the library effects (detection.py); None: not asked for
+    search: tuple[dict, ...] = ()       # the protocols a search tried (:func:`search`), in plan.json when given
 
     def table(self) -> pd.DataFrame:
         rows = []
@@ -208,7 +191,21 @@ class Prediction:
                          for r in self.table().itertuples()}}
         if self.detection is not None:
             js["detection"] = self.detection.to_json_dict()
+        if self.search:
+            js["search"] = list(self.search)
         return js
+
+    def text(self) -> str:
+        """What ``plan`` prints: the protocol and its recording time, the groups' se against their targets, and the
+        detection sizes when predicted."""
+        p = self.protocol
+        lines = [f"protocol: {p.hanging_turns:g} turns x {p.turn_s:g} s per hanging recording (x{HANGING_RECORDINGS}), "
+                 f"{p.n_poses} poses x {p.pose_s:g} s ({100 * p.board_share:.0f} % on the board): {p.duration_s / 60:.1f} min recorded",
+                 self.table().to_string(index=False, float_format=lambda v: f"{v:.3g}")]
+        if self.detection is not None:
+            lines += [f"smallest effect size detected with power {POWER:g} (diagnosis' gap threshold):",
+                      self.detection_table().to_string(index=False, float_format=lambda v: f"{v:.3g}")]
+        return "\n".join(lines)
 
 
 def _rms(x: np.ndarray) -> float:
@@ -249,11 +246,11 @@ class Pilot:
 def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = None, detection: bool | tuple = False) -> Prediction:
     """The predicted se of every group for ``protocol`` (module docstring); with a ``pilot``, the mounting
     rotations and positions come from the pilot's own pose geometry; ``detection``: also the detection size
-    of every library effect (True) or of the effects named (:mod:`ftcal_nlp.detection`, ~30 s more on the
+    of every library effect (True) or of the effects named (:mod:`ftcal_nlp.plan.detection`, ~30 s more on the
     default protocol)."""
-    from .effects import resolve_effects
-    from .sim import simulate
-    from .standing import extract_poses
+    from ..effects import resolve_effects
+    from ..sim import simulate
+    from ..standing import extract_poses
 
     if detection not in (True, False):
         resolve_effects(list(detection))  # an unknown name fails now, not after the simulation
@@ -349,13 +346,14 @@ def search(protocol: Protocol, rounds: int = 4, pilot: Pilot | None = None, dete
 # ----------------------------------------------------------------------------- pilot dataset
 
 
-def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None) -> tuple[Protocol, Pilot]:
-    """The protocol and noise of a pilot dataset (module docstring), ``overrides`` changing keys; and its poses."""
-    from .data import read_dataset
-    from .pipeline import calibrate
-    from .settings import CalibrationSettings, DiagnoseSettings
+def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None, dataset=None) -> tuple[Protocol, Pilot]:
+    """The protocol and noise of a pilot dataset (module docstring), ``overrides`` changing keys; and its poses.
+    ``dataset``: the manifest's dataset when already read (else read here)."""
+    from ..data import read_dataset
+    from ..pipeline import calibrate
+    from ..settings import CalibrationSettings, DiagnoseSettings
 
-    ds = read_dataset(manifest)
+    ds = read_dataset(manifest) if dataset is None else dataset
     if not ds.hanging or not ds.standing:
         raise PlanError(f"{manifest}: a pilot dataset needs hanging and standing recordings")
     with warnings.catch_warnings():
@@ -376,181 +374,29 @@ def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None) -> 
     return Protocol.from_dict({**d, **(overrides or {})}, where=str(manifest)), Pilot(run.poses, run.calibration, d["pose_s"], d["rate_hz"])
 
 
-def _read_toml(path: Path) -> dict:
-    if not path.is_file():
-        raise PlanError(f"{path}: file not found", path=path)
-    try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{path}: not valid TOML ({exc})", path=path) from None
-
-
-def load_input(path: str | Path | None, protocol_file: str | Path | None = None) -> tuple[Protocol, Pilot | None]:
+def load_input(path: str | Path | None, protocol_file: str | Path | None = None, dataset=None) -> tuple[Protocol, Pilot | None]:
     """A protocol file, a pilot dataset manifest (it lists recordings), a ``robot.toml``, or nothing (defaults);
-    keys of ``protocol_file`` change the protocol. Returns the protocol and the pilot (or None)."""
-    over = _read_toml(Path(protocol_file)) if protocol_file else {}
-    over = over.get("protocol", over)
+    keys of ``protocol_file`` change the protocol. Returns the protocol and the pilot (or None). ``dataset``: the
+    pilot's dataset when already read."""
+    over = protocol_table(protocol_file)
     if path is None:
         return Protocol.from_dict(over, where=str(protocol_file or "defaults")), None
     path = Path(path)
-    d = _read_toml(path)
+    d = read_toml(path)
     if "recording" in d or "recordings" in d:
-        return protocol_from_pilot(path, over)
+        return protocol_from_pilot(path, over, dataset)
     if "transducers" in d and "mass_kg" in d:  # robot.toml: its mass, the stated (or default) noise
         return Protocol.from_dict({"mass_kg": d["mass_kg"], "g": d.get("g", 9.81), **over}, where=str(path)), None
     return Protocol.from_dict({**d.get("protocol", d), **over}, where=str(path)), None
 
 
-def main(argv: list[str] | None = None, prog: str | None = None) -> int:
-    from .cli import add_common, guarded, parse, setup
-
-    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.plan", description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=FREE_LOAD_HELP)
-    ap.add_argument("input", nargs="?", help="protocol TOML, robot.toml, or a pilot dataset.toml (default: the default "
-                    "hexapod protocol)")
-    ap.add_argument("--protocol", help="protocol TOML: with a hexapod robot.toml or pilot, keys that change its protocol; "
-                    "with a section-5 robot.toml, the holds to plan (below)")
-    add_common(ap, output_help="plan file (default plan.json)", output_default="plan.json", old_force=("--overwrite",),
-               force_help="overwrite the output")
-    ap.add_argument("--search", action="store_true", help="search the shortest protocol meeting [targets]")
-    ap.add_argument("--no-detection", action="store_true", help="skip the detection size of the library effects (~30 s)")
-    ap.add_argument("--detect", nargs="+", metavar="EFFECT", help="detection size of these library effects only")
-    args = parse(ap, argv)
-    setup(args)
-    return guarded(lambda: _main(args), extra=(ValueError,))
-
-
-FREE_LOAD_HELP = """free loads (DATA_FORMAT.md section 5: wrist payloads, URDF loads, arms):
-  plan dataset.toml                    a recorded pilot: each load fitted, the bound at its estimate on its samples,
-                                       with its noise and the widening the run applies to serially correlated residuals
-  plan robot.toml --protocol HOLDS.toml   the robot's transducers held as HOLDS.toml says
-  plan HOLDS.toml                      the same, HOLDS.toml's [protocol] naming robot = "robot.toml"
-HOLDS.toml:
-  [protocol]
-  transducer = "wrist"                 # default: every transducer of the robot.toml
-  orientations = [[1, 0, 0, 0], ...]   # held orientations of B in W (qw, qx, qy, qz); or n_orientations, seed
-  # or holds = [{quat = [qw, qx, qy, qz], q = {joint = rad}}, ...]: joint poses (URDF loads, arms); joints a hold does
-  # not name are at 0; gravity_body = [0, 0, -1] (a fixed level base) for holds without quat
-  hold_s = 5.0, rate_hz = 100.0, noise_force_N = 0.05, noise_torque_Nm = 0.003, mocap_jitter_deg = 0.0
-  mass_kg = 1.0, com_m = [0, 0, 0.05]  # a rigid payload's expected mass and CoM in ft (a URDF load: the URDF's bodies)
-  mount = true, gravity_tilt = true    # the mounting rotation and the world tilt estimated, as the run does
-  (ftcal_nlp/plan_loads.py: the bound, the undetermined parameters named; white noise unless planned from a pilot)"""
-FREE_LOAD_KEYS = ("holds", "orientations", "n_orientations", "transducer", "gravity_body", "robot")
-
-
-def _is_free_robot(d: dict) -> bool:
-    """A robot.toml that describes free loads (``DATA_FORMAT.md`` section 5): a URDF or a transducer ``link``, or no
-    ``mass_kg`` (a hexapod's robot.toml has it: section 2)."""
-    tables = d.get("transducers") if isinstance(d.get("transducers"), dict) else {}
-    return "mass_kg" not in d or "urdf" in d or any(isinstance(t, dict) and "link" in t for t in tables.values())
-
-
-def free_load_input(path: str | Path | None, protocol_file: str | Path | None = None):
-    """``("dataset", Dataset, None)`` for a section-5 dataset with free loads, ``("protocol", table, None)`` for a
-    protocol whose ``[protocol]`` has a free-load ``kind`` or names a ``robot``, ``("robot", table, robot.toml)`` for
-    a section-5 robot.toml with ``--protocol`` holds; else None (a hexapod plan). A section-5 robot.toml without
-    ``--protocol`` is an error saying what to add."""
-    if path is None:
-        return None
-    path = Path(path)
-    d = _read_toml(path)
-    if "recording" in d or "recordings" in d:
-        from .data import read_dataset
-
-        ds = read_dataset(path)
-        return ("dataset", ds, None) if ds.free_load_legs else None
-    if "legs" in d and "transducers" in d:   # a robot.toml
-        over = _read_toml(Path(protocol_file)) if protocol_file else {}
-        over = over.get("protocol", over)
-        if protocol_file and (_is_free_robot(d) or any(k in over for k in FREE_LOAD_KEYS) or over.get("kind") in ("payload", "urdf")):
-            return ("robot", over, path)
-        if not protocol_file and _is_free_robot(d):
-            raise PlanError(
-                f"{path}: a robot description (transducers {list(d['legs'])}) and no holds to plan: add a protocol of "
-                f"holds, 'plan {path} --protocol HOLDS.toml' with HOLDS.toml holding [protocol] orientations = [[qw, qx, "
-                "qy, qz], ...] (a payload's held orientations of B in W) or holds = [{quat = [qw, qx, qy, qz], q = {joint "
-                "= rad, ...}}, ...] (joint poses of a URDF load or arm; gravity_body = [0, 0, -1] for a fixed level base "
-                "instead of quat), hold_s, rate_hz, noise_force_N, noise_torque_Nm; or a protocol file whose [protocol] "
-                f"names robot = \"{path.name}\"; or plan a recorded pilot, 'plan dataset.toml' (plan --help)",
-                path=path, key="protocol")
-        return None
-    table = d.get("protocol", d)
-    if isinstance(table, dict) and ("kind" in table or "robot" in table):
-        return ("protocol", table, None)
-    return None
-
-
-def _free_load_main(args, out: Path, what) -> int:
-    from .plan_loads import plan_from_dataset, plan_from_protocol
-
-    for opt, name in ((args.search, "--search"), (args.detect, "--detect")):
-        if opt:
-            raise PlanError(f"{name} plans a hexapod session (hanging turns and standing poses, the hexapod diagnosis' "
-                            f"detection sizes); {args.input} is a free load: it takes no {name}", key=name)
-    kind, obj, robot = what
-    if args.protocol and kind != "robot":
-        raise PlanError(f"--protocol: {args.input} is a {'pilot dataset (planned on its own samples and noise)' if kind == 'dataset' else 'protocol already'}; "
-                        "to plan other holds give the robot: plan ROBOT.toml --protocol HOLDS.toml", key="--protocol")
-    if kind == "dataset":
-        plan = plan_from_dataset(obj)
-    elif kind == "robot":
-        plan = plan_from_protocol(obj, Path(args.protocol), robot_path=robot)
-    else:
-        plan = plan_from_protocol(obj, Path(args.input))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(plan.to_json_dict(), indent=1, default=float))
-    if not args.quiet:
-        print(plan.text())
-        print(f"wrote {out}")
-    return 0
-
-
-def plan_inputs(args) -> dict[str, Path]:
-    """What ``plan`` reads (``outdir.toml_inputs``: a pilot's files, a robot.toml's URDF, a protocol's robot.toml)."""
-    from .outdir import toml_inputs
-
-    out: dict[str, Path] = {}
-    if args.protocol:
-        out.update(toml_inputs(Path(args.protocol), "protocol"))
-    if args.input:
-        out.update(toml_inputs(Path(args.input), "input"))
-    return out
-
-
-def _main(args) -> int:
-    from .outdir import check_file_output
-
-    args.input = os.path.expanduser(args.input) if args.input else args.input
-    args.protocol = os.path.expanduser(args.protocol) if args.protocol else args.protocol
-    # the plan is JSON: a name of another type (.toml, .csv, .urdf) is refused, not given JSON bytes
-    out = check_file_output(args.output, plan_inputs(args), force=args.force, suffixes=(".json",))
-    what = free_load_input(args.input, args.protocol)
-    if what is not None:
-        return _free_load_main(args, out, what)
-    protocol, pilot = load_input(args.input, args.protocol)
-    detection = False if args.no_detection else (tuple(args.detect) if args.detect else True)
-    if args.search:
+def plan_for(inp: PlanInput, options) -> Prediction:
+    """``plan``'s hexapod part: the protocol of ``inp`` (defaults, a protocol file, a hexapod robot.toml or a pilot,
+    ``--protocol`` keys changing it) predicted, or with ``options.search`` the shortest protocol meeting its targets;
+    the detection sizes unless ``options.no_detection`` (``options.detect``: of those effects only)."""
+    protocol, pilot = load_input(inp.source, inp.protocol_file, inp.dataset)
+    detection = False if options.no_detection else (tuple(options.detect) if options.detect else True)
+    if options.search:
         pred, trail = search(protocol, pilot=pilot, detection=detection)
-    else:
-        pred, trail = predict(protocol, pilot=pilot, detection=detection), []
-    js = pred.to_json_dict()
-    if trail:
-        js["search"] = trail
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(js, indent=1, default=float))
-    if args.quiet:
-        return 0
-    t = pred.table()
-    p = pred.protocol
-    print(f"protocol: {p.hanging_turns:g} turns x {p.turn_s:g} s per hanging recording (x{HANGING_RECORDINGS}), "
-          f"{p.n_poses} poses x {p.pose_s:g} s ({100 * p.board_share:.0f} % on the board): {p.duration_s / 60:.1f} min recorded")
-    print(t.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    if pred.detection is not None:
-        print(f"smallest effect size detected with power {POWER:g} (diagnosis' gap threshold):")
-        print(pred.detection_table().to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    print(f"wrote {out}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+        return replace(pred, search=tuple(trail))
+    return predict(protocol, pilot=pilot, detection=detection)
