@@ -215,3 +215,16 @@ def test_second_session_table(tmp_path_factory):
     assert np.all(df["force_percent"].to_numpy()[3:] < 110.0), df
     text = table_text(df)
     assert text.startswith("| axis | factory_rms | force_rms | force_percent |") and "| fz |" in text
+
+
+def test_factory_weight_is_the_fit_without_the_matrix(tmp_path_factory):
+    """``sensor_matrix_ridge = [inf]``: the factory matrix, and on clean data the same optimum as the fit without it
+    (IPOPT there, Gauss-Newton here, the weights each fit's residual sd: equal well within their se), the load's se
+    those without ``D``."""
+    ds, _sim, leg = dataset(tmp_path_factory, "payload", 2, np.eye(6))
+    base = fit_free_loads(ds, FreeLoadSettings()).legs[leg]
+    r = fit_free_loads(ds, FreeLoadSettings(sensor_matrix="force", sensor_matrix_ridge=(float("inf"),))).legs[leg]
+    assert np.array_equal(r.sensor_matrix.C, np.eye(6)) and np.all(r.sensor_matrix.C_se == 0)
+    assert np.all(np.abs(r.theta - base.theta) < 0.05 * base.se[6:10])
+    assert np.all(np.abs(r.offset - base.offset) < 0.05 * base.se[:6])
+    assert np.isfinite(r.load_report()["load_mass_se_kg"]) and not r.undetermined

@@ -50,8 +50,8 @@ gives the blocks' scale, rotation and shear with se, each marked determined or n
 
 :func:`apply_sensor_matrix` is the correction that ``correct`` and ``export`` apply to raw readings:
 ``C (r - o)``. Keys written to the transducer's entry of ``calibration.json`` (:meth:`SensorMatrixResult.report`):
-``sensor_matrix`` (6x6, ``C``), ``sensor_matrix_se`` (6x6; 0 where held at the factory value by the mode, null
-where undetermined), ``sensor_matrix_mode``, ``sensor_matrix_ridge`` (the weight kept), ``sensor_matrix_heldout``
+``sensor_matrix`` (6x6, ``C``), ``sensor_matrix_se`` (6x6; 0 where held at the factory value, by the mode or
+because the ridge choice kept the factory matrix (``inf``), null where undetermined), ``sensor_matrix_mode``, ``sensor_matrix_ridge`` (the weight kept), ``sensor_matrix_heldout``
 (the grid's held-out scores and per-axis RMS), ``sensor_matrix_combinations`` (:func:`named_combinations`).
 """
 
@@ -494,8 +494,8 @@ def named_combinations(mode: str, C: np.ndarray, at: int, cov: np.ndarray, null:
 
 @dataclass
 class SensorMatrixResult:
-    """The recalibrated matrix of one transducer: ``C`` (6, 6), ``C_se`` (6, 6: 0 where the mode holds the factory
-    value, inf where undetermined), ``mode``, the ridge choice, the named combinations (:func:`named_combinations`),
+    """The recalibrated matrix of one transducer: ``C`` (6, 6), ``C_se`` (6, 6: 0 where held at the factory value by
+    the mode or by the ridge choice ``inf``, inf where undetermined), ``mode``, the ridge choice, the named combinations (:func:`named_combinations`),
     the per-axis residual RMS of the factory matrix and of ``C`` on the fit's samples."""
 
     mode: str
@@ -576,6 +576,12 @@ def fit_sensor_matrix(ds, res, s):
     for k, (i, j) in enumerate(pairs):
         C_se[i, j] = se[pr.d_at + k]
     combos = named_combinations(opt.mode, C, pr.d_at, cov, null, leg)
+    if not np.isfinite(choice.chosen):
+        # the factory matrix kept: D is not a parameter of the calibration; the load's se are those without it (the
+        # named combinations and their se above still say what the data could resolve)
+        C_se[:] = 0.0
+        k = pr.d_at
+        cov, se, null, undetermined, determined, _ident = _covariance(info[:k, :k], np.ones(k, bool), names[:k], x[:k], s)
     lam = "inf (the factory matrix kept)" if not np.isfinite(choice.chosen) else f"{choice.chosen:g}"
     notes = [f"{leg}: sensor matrix ({opt.mode}) refitted in situ: ridge weight {lam} by {len(folds_of(n, opt.folds))}-fold "
              f"held-out error; residual RMS {np.array2string(rms_factory, precision=3)} with the factory matrix -> "
