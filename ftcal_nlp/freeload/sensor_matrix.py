@@ -14,9 +14,11 @@ number of a run is then the same as without it. The identity is the factory ("wo
 readings are already in N and N*m through it.
 
 Fit (:func:`fit_sensor_matrix`, after the free-load fit of ``estimate.py`` / ``joint.py``, from its estimate):
-Gauss-Newton on the per-sample residual ``e_n = C (r_n - o) - w_n`` in corrected units, weighted by
-``W_c = 1 / sigma_c^2`` (the residual sd per channel of a first matrix fit), over ``x = [o (6), theta (p),
-delta (3), D (9 | 36)]`` with ``E = E* expm([delta]x)``, minimising
+Gauss-Newton on the per-sample residual in raw units ``e_n = r_n - o - C^-1 w_n`` (where the readings' noise is;
+the corrected residual ``C (r_n - o) - w_n`` would shrink with ``C`` and the load together, a trivial minimum at
+``C = 0``), weighted by ``W_c = 1 / sigma_c^2`` (the residual sd per channel of a first matrix fit without ridge),
+over ``x = [o (6), theta (p), tilts (2 per estimated group), delta (3), D (9 | 36)]`` with ``E = E* expm([delta]x)``
+and ``d C^-1 = -C^-1 dC C^-1``, minimising
 
     sum_n e_n^T W e_n  +  N lambda ||D||_F^2  +  ((mu . theta - m_w) / (rel_sd m_w))^2  +  tiny ridge,
 
@@ -24,10 +26,11 @@ the third term only where the transducer gives ``load_mass_kg`` (``DATA_FORMAT.m
 a measurement; ``sensor_matrix_mass_rel_sd`` its relative sd). The tiny ridge (``prior_weight`` times each
 parameter's information, toward the first fit; ``D_FLOOR`` times the mean information of ``D``'s entries, toward
 0) pins only what the data leave undetermined, and there it keeps the factory matrix: an undetermined direction
-that moves ``D`` and the load moves the load. The world tilt and each recording's tilt stay at the first fit's
-values (their information is the first fit's; the tilt is a rotation of gravity in the world, which ``D`` cannot
-mimic over several orientations). Each Gauss-Newton pass forms the normal equations chunk by chunk (no sample
-loop); the model is bilinear, a few passes converge.
+that moves ``D`` and the load moves the load. The world tilt and each recording's tilt are re-estimated where the
+first fit estimated them (a gain error biases them there), held elsewhere; transducers fitted together for a
+shared recording tilt (``joint.py``) are refitted one by one, so that tilt becomes each one's own. Each
+Gauss-Newton pass forms the normal equations chunk by chunk (no sample loop); the model is bilinear, a few passes
+converge.
 
 Ridge weight (``sensor_matrix_ridge``, a grid of ``lambda``, dimensionless: per sample, per unit ``D^2``, in the
 whitened residual's units; ``inf`` is the factory matrix kept): ``sensor_matrix_folds`` contiguous blocks of the
