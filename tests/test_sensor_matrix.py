@@ -29,9 +29,10 @@ from ftcal_nlp.settings import FreeLoadSettings
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
-# tolerance in se of a recovered combination: on clean payloads the nine force combinations' largest |z| over seeds
-# 1..6 is 0.8-4.1 (the se is ~1.3x optimistic on these short simulations), so 4.5 rather than 4
-Z = 4.5
+# tolerance in se of a recovered combination. Measured on clean payloads (10 holds of 4 s, seeds 1..8, 64 values):
+# |z| <= 1.9, as the base fit's parameters; with 6 s holds seeds 5 and 6 reach 3.8 and 4.1 (the base fit's offsets
+# there 3.1): these seeds stay well inside (largest |z| 2.3)
+Z = 4.0
 _cache: dict = {}
 
 
