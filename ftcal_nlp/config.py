@@ -89,8 +89,9 @@ def _is_type(value: Any, hint: Any) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if hint is Path:
         return isinstance(value, str)
-    if origin is tuple:
-        return isinstance(value, list) and all(isinstance(v, str) for v in value)
+    if origin is tuple:   # a list of names, or of numbers where the field says tuple[float, ...]
+        elem = float if typing.get_args(hint)[:1] == (float,) else str
+        return isinstance(value, list) and all(_is_type(v, elem) for v in value)
     return isinstance(value, hint)
 
 
@@ -98,14 +99,14 @@ def _expected(hint: Any) -> str:
     """What a field of type ``hint`` takes in TOML, in words."""
     args = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_origin(hint) in (typing.Union, types.UnionType) else [hint]
     words = {bool: "true or false", int: "an integer", float: "a number", str: "a string", Path: "a path string"}
-    return " or ".join(words.get(a, "a list of names" if typing.get_origin(a) is tuple else getattr(a, "__name__", str(a))) for a in args)
+    return " or ".join(words.get(a, ("a list of numbers" if typing.get_args(a)[:1] == (float,) else "a list of names") if typing.get_origin(a) is tuple else getattr(a, "__name__", str(a))) for a in args)
 
 
 def _convert(value: Any, hint: Any, base: Path) -> Any:
     """A checked TOML value as the field wants it: lists become tuples, numbers floats, paths relative to the config."""
     args = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
     if isinstance(value, list):
-        return tuple(value)
+        return tuple(float(v) for v in value) if any(typing.get_args(a)[:1] == (float,) for a in args) else tuple(value)
     if Path in args and isinstance(value, str):
         return _at(base, value)
     if float in args and int not in args and isinstance(value, int) and not isinstance(value, bool):

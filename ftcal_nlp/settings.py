@@ -222,7 +222,14 @@ class FreeLoadSettings:
     ``gravity_body`` only (2 parameters each; ``"auto"``: where the data determine it with everything else, else
     held at 0 with a note); ``loads``: transducer -> load name or
     ``module:Class`` instead of the dataset's kind. A recording whose samples lie farther apart than ``window_s`` is
-    a list of poses: every sample is a hold."""
+    a list of poses: every sample is a hold. ``sensor_matrix``: the sensor's own matrix refitted in situ
+    (``freeload/sensor_matrix.py``): ``"none"`` (the factory matrix kept; nothing else changes), ``"force"`` (the 3x3
+    force block of ``C``), ``"full"`` (6x6), ridge-regularised towards the factory matrix with the weight of
+    ``sensor_matrix_ridge`` (dimensionless, per sample per unit entry squared; ``inf``: the factory matrix) of least
+    held-out error over ``sensor_matrix_folds`` contiguous blocks (one-se rule); ``sensor_matrix_mass_rel_sd``: the
+    relative sd of a weighed ``load_mass_kg``, which fixes the force gain the load's mass otherwise absorbs."""
+
+    CHOICES: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {"sensor_matrix": ("sensor matrix mode", ("none", "force", "full"))}
 
     window_s: float = 0.31
     polyorder: int = 2
@@ -238,8 +245,21 @@ class FreeLoadSettings:
     prior_weight: float = 1e-8
     rel_eig_tol: float = REL_EIG_TOL
     loads: dict = field(default_factory=dict)
+    sensor_matrix: str = "none"
+    sensor_matrix_ridge: tuple[float, ...] = (0.0, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5, 1e6, float("inf"))
+    sensor_matrix_folds: int = 5
+    sensor_matrix_mass_rel_sd: float = 1e-3
 
     def __post_init__(self) -> None:
+        _check_choices(self, "free_load")
+        if not self.sensor_matrix_ridge or any(not v >= 0 for v in self.sensor_matrix_ridge):
+            raise ConfigError(f"sensor_matrix_ridge: expected a list of weights >= 0 (inf: the factory matrix), got "
+                              f"{self.sensor_matrix_ridge!r}", key="free_load.sensor_matrix_ridge")
+        if not self.sensor_matrix_folds >= 2:
+            raise ConfigError(f"sensor_matrix_folds: expected at least 2, got {self.sensor_matrix_folds!r}", key="free_load.sensor_matrix_folds")
+        if not self.sensor_matrix_mass_rel_sd > 0:
+            raise ConfigError(f"sensor_matrix_mass_rel_sd: expected a positive fraction, got {self.sensor_matrix_mass_rel_sd!r}",
+                              key="free_load.sensor_matrix_mass_rel_sd")
         for name in ("window_s", "rotation_rate_threshold_rad_s", "joint_rate_threshold_rad_s", "deriv_threshold_N_s", "max_gap_factor"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"FreeLoadSettings.{name}: expected a positive number, got {getattr(self, name)!r}")

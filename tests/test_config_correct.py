@@ -156,6 +156,7 @@ def test_every_settings_field_is_a_config_key(tmp_path):
             '[free_load]\nwindow_s = 0.5\npolyorder = 3\nrotation_rate_threshold_rad_s = 0.03\njoint_rate_threshold_rad_s = 0.03\n'
             'deriv_threshold_N_s = 2\nnoise_factor = 3\nmax_gap_factor = 4\nmin_samples = 10\nmount_rotation = false\n'
             'prior_weight = 1e-6\nrel_eig_tol = 1e-7\nloads = {wrist = "rigid_payload"}\ngravity_tilt = false\nrecording_tilt = true\n'
+                'sensor_matrix = "force"\nsensor_matrix_ridge = [0, 10]\nsensor_matrix_folds = 3\nsensor_matrix_mass_rel_sd = 0.01\n'
             '[diagnose]\nenabled = false\neffects = ["offset_drift"]\nfolds = 3\nseed = 2\njoint_refit = false\n'
             '[correct]\ntrack_offsets = true\nknot_s = 10\npenalty = 0.1\ncontact_window_s = 20\ncontact_quantile = 0.2\n'
             'contact_enter_z = 4\ncontact_leave_z = 8\ncontact_min_gap_N = 5\n'

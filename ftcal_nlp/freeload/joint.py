@@ -35,6 +35,8 @@ from .estimate import (_covariance, _leg_notes, _lin_map, _orientation_notes, _n
 from .nlp import _IPOPT, _lifted_mx, _tilted, nlp_for, square_root
 from .problem import compress, compress_tilted, n_tilted, predict, serial_inflation, tilt_gravity
 from .result import WRENCH, FreeLoadResult, FreeLoadResults
+from .sensor_matrix import fit_sensor_matrix
+from .sensor_matrix import options as sensor_matrix_options
 
 log = logging.getLogger(__name__)
 
@@ -277,4 +279,6 @@ def fit_free_loads(ds: Dataset, settings: FreeLoadSettings | None = None) -> Fre
     out: dict[str, FreeLoadResult] = {}
     for cl in clusters(ds, list(legs), s):   # transducers sharing a gravity_body recording's tilt: fitted together
         out.update({cl[0]: fit_free_load(ds, cl[0], s)} if len(cl) == 1 else fit_joint(ds, cl, s))
+    if sensor_matrix_options(s).on:   # the sensor's own matrix, refitted from each fit (sensor_matrix.py); off: untouched
+        out = {k: fit_sensor_matrix(ds, r, s) for k, r in out.items()}
     return FreeLoadResults({k: out[k] for k in legs})

@@ -4,7 +4,8 @@
 ``{leg}.offset.fx..tz`` N / N*m; the load's ``{leg}.<param>`` (kg, kg m); where estimated the world tilt of
 the orientation stream ``{leg}.tilt.rx, .ry`` rad (``calibration.json`` ``gravity_tilt_rad``) and the tilt of each
 ``gravity_body``-only recording ``{leg}.{recording}.tilt.rx, .ry`` rad (``recording_tilt_rad``); the
-mounting rotation vector ``{leg}.mount.rx..rz`` rad, ``R_true = R_nom expm(r)``),
+mounting rotation vector ``{leg}.mount.rx..rz`` rad, ``R_true = R_nom expm(r)``; where the sensor's matrix is
+refitted (``sensor_matrix.py``), ``sensor_matrix`` its result and the model readings ``o + C^-1 w``),
 ``bse`` (inf where undetermined), ``cov_params()``, ``conf_int()``,
 ``summary()``, and :meth:`FreeLoadResult.identifiability`, the notes naming what
 the data leave undetermined and the combinations they do determine.
@@ -58,6 +59,7 @@ class FreeLoadResult(ResultsMixin):
     used: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) samples the fit used
     tilt: np.ndarray | None = None   # world tilt of the orientation stream (rad, about x then y); None: not estimated
     recording_tilts: dict[str, np.ndarray] = field(default_factory=dict)   # gravity_body recording -> its tilt (rad)
+    sensor_matrix: Any = None   # sensor_matrix.SensorMatrixResult where the sensor's matrix was refitted; None: factory
 
     # ------------------------------------------------------------------ results protocol
 
@@ -105,6 +107,8 @@ class FreeLoadResult(ResultsMixin):
             out["recording_tilt_rad"] = {r: t.tolist() for r, t in self.recording_tilts.items()}
             out["recording_tilt_se_rad"] = {r: [float(self.se[at[f"{self.leg}.{r}.tilt.r{c}"]]) for c in "xy"]
                                             for r in self.recording_tilts}
+        if self.sensor_matrix is not None:   # the recalibrated matrix C of w = C (r - offset) (OUTPUT_FORMAT.md)
+            out.update(self.sensor_matrix.report())
         return out
 
     def identifiability(self) -> list[str]:
@@ -122,7 +126,11 @@ class FreeLoadResult(ResultsMixin):
         R = self.load.nominal_rotation(q, n)
         b = np.einsum("nji,nj->ni", R, gravity_B)
         K = self.load.lever(q, n)
-        return predict(b, K, self.theta, self.load.mass_row, self.rotation, self.offset)
+        if self.sensor_matrix is None:
+            return predict(b, K, self.theta, self.load.mass_row, self.rotation, self.offset)
+        # raw readings r = o + C^-1 w (sensor_matrix.py): the model wrench through the inverse of the correction
+        w = predict(b, K, self.theta, self.load.mass_row, self.rotation, np.zeros(6))
+        return np.linalg.solve(self.sensor_matrix.C, w.T).T + self.offset
 
     def predict_recording(self, rec, g: float) -> np.ndarray:
         """Model readings (N, 6) of every sample of recording ``rec`` (NaN where its gravity is unknown)."""
