@@ -229,3 +229,14 @@ def test_factory_weight_is_the_fit_without_the_matrix(tmp_path_factory):
     assert np.all(np.abs(r.theta - base.theta) < 0.05 * base.se[6:10])
     assert np.all(np.abs(r.offset - base.offset) < 0.05 * base.se[:6])
     assert np.isfinite(r.load_report()["load_mass_se_kg"]) and not r.undetermined
+
+
+def test_factory_kept_is_the_plain_fit_exactly(tmp_path_factory):
+    # the ridge choice "inf" keeps C = I: the calibration must be the plain fit's, not a re-weighted refit of it
+    A = gain(3)
+    ds, _sim, leg = dataset(tmp_path_factory, "payload", 3, A)
+    plain = fit_free_loads(ds, FreeLoadSettings()).legs[leg]
+    kept = fit_free_loads(ds, FreeLoadSettings(sensor_matrix="force", sensor_matrix_ridge=(float("inf"),))).legs[leg]
+    assert np.isinf(kept.sensor_matrix.ridge.chosen) and np.array_equal(kept.sensor_matrix.C, np.eye(6))
+    for name in ("offset", "theta", "rotation", "se", "cov"):
+        assert np.array_equal(getattr(kept, name), getattr(plain, name)), name

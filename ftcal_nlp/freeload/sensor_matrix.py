@@ -593,6 +593,11 @@ def fit_sensor_matrix(ds, res, s):
     if und:
         why = "" if weighed is not None else " (no load_mass_kg: a gain common to the forces is the load's mass)"
         notes.append(f"{leg}: sensor matrix: not determined by these data{why}: {', '.join(und)}; held at the factory value")
+    if not np.isfinite(choice.chosen):
+        # the factory matrix kept: the calibration is the plain fit's, to the last digit (re-solving with C = I under
+        # the first fit's residual weights would move the load and mount by up to 2 se on real data)
+        smr = SensorMatrixResult(opt.mode, np.eye(6), C_se, choice, combos, rms_factory, rms_factory, weighed, notes)
+        return dataclasses.replace(res, notes=list(res.notes) + notes, sensor_matrix=smr)
     smr = SensorMatrixResult(opt.mode, C, C_se, choice, combos, rms_factory, rms, weighed, notes)
     return _merged(res, st, data.groups, names, cov, se, null, undetermined, determined, rms, np.sqrt(1.0 / W), smr)
 
