@@ -36,7 +36,9 @@ too) compared by the rule, the text between them equal; PNG and other binary fil
 
 Volatile things, never compared (the one list; ``VOLATILE_*`` below): timings (files ``stage_times.*``, JSON keys
 naming seconds / times / wall or CPU time / dates / the tool's version, the ``stage times:`` line of the run's
-summary, ``IPOPT | N iterations, T s`` cells, numbers followed by ``s`` in a phrase about time), dates and clock
+summary, ``N iterations, T s`` and ``ipopt: STATUS, T ms`` cells, the cells of table columns (Markdown, HTML) whose
+header names a timing and the rows of transposed tables whose first cell does (``| time [s] | 4.18 | ...``),
+``wall time T s`` / ``in T s`` phrases), embedded figures (``data:image`` in report.html), dates and clock
 times in text, the tool's version, absolute paths (the OUT prefix and the checkout's path are replaced by
 ``<OUT>`` and ``<CHECKOUT>`` before comparing; ``_checkout`` and ``_outdir`` in the snapshot record them, so a
 snapshot may be moved), lock files (``*.lock``), the harness's own ``_timings.json`` and
@@ -75,6 +77,7 @@ VOLATILE_TEXT: list[tuple[re.Pattern[str], str]] = [
     (re.compile(r"\b\d{2}:\d{2}:\d{2}(\.\d+)?\b"), "<CLOCK>"),
     (re.compile(r"^stage times:.*$", re.M), "stage times: <VOLATILE>"),
     (re.compile(r"(\d+ iterations), [0-9.eE+-]+ s\b"), r"\1, <T> s"),
+    (re.compile(r"(ipopt: \w+), [0-9.eE+-]+ ?(ms|s)\b", re.I), r"\1, <T> \2"),
     (re.compile(r"\b(in|took|after|wall time|CPU time|elapsed)( [0-9.eE+-]+) ?(s|ms|min)\b"), r"\1 <T> \3"),
     (re.compile(r"\bftcal_nlp (\d+\.\d+\.\d+\S*)"), "ftcal_nlp <VERSION>"),
 ]
@@ -340,7 +343,11 @@ def _mask_table_columns(s: str) -> str:
         if masked is None:  # the header row of a new table
             masked = {j for j, c in enumerate(cells) if _volatile_name(c)}
             continue
-        if masked and not set(t) <= set("|:- "):
+        if set(t) <= set("|:- "):
+            continue
+        if _volatile_name(cells[0]):  # a row of timings in a transposed table ("| time [s] | 4.18 | 1.26 |")
+            lines[i] = "|" + cells[0] + "|" + "|".join(" <T> " for _ in cells[1:]) + "|"
+        elif masked:
             lines[i] = "|" + "|".join(" <T> " if j in masked else c for j, c in enumerate(cells)) + "|"
     return "\n".join(lines)
 
@@ -362,12 +369,16 @@ def _mask_html_columns(s: str) -> str:
             return t
         head = [re.sub(r"<[^>]+>", "", c.group(2)) for c in _CELL.finditer(rows[0].group(1))]
         masked = {j for j, c in enumerate(head) if _volatile_name(c)}
-        if not masked:
-            return t
 
         def row(r: re.Match[str]) -> str:
+            cells = list(_CELL.finditer(r.group(1)))
+            # a row of timings in a transposed table (its first cell names them), or the cells of a timing column
+            cols = set(range(1, len(cells))) if cells and _volatile_name(re.sub(r"<[^>]+>", "", cells[0].group(2))) \
+                else masked
+            if not cols:
+                return r.group(0)
             k = iter(range(10 ** 6))
-            return _CELL.sub(lambda c: c.group(1) + "<T>" + c.group(3) if next(k) in masked else c.group(0), r.group(0))
+            return _CELL.sub(lambda c: c.group(1) + "<T>" + c.group(3) if next(k) in cols else c.group(0), r.group(0))
         return t[:rows[0].end()] + _ROW.sub(row, t[rows[0].end():])
     return _TABLE.sub(table, s)
 
