@@ -38,7 +38,7 @@ Volatile things, never compared (the one list; ``VOLATILE_*`` below): timings (f
 naming seconds / times / wall or CPU time / dates / the tool's version, the ``stage times:`` line of the run's
 summary, ``N iterations, T s`` and ``ipopt: STATUS, T ms`` cells, the cells of table columns (Markdown, HTML) whose
 header names a timing and the rows of transposed tables whose first cell does (``| time [s] | 4.18 | ...``),
-``wall time T s`` / ``in T s`` phrases), embedded figures (``data:image`` in report.html), dates and clock
+``wall time T s`` / ``in T s`` / ``T s per run`` phrases), embedded figures (``data:image`` in report.html), dates and clock
 times in text, the tool's version, absolute paths (the OUT prefix and the checkout's path are replaced by
 ``<OUT>`` and ``<CHECKOUT>`` before comparing; ``_checkout`` and ``_outdir`` in the snapshot record them, so a
 snapshot may be moved), lock files (``*.lock``), the harness's own ``_timings.json`` and
@@ -79,6 +79,7 @@ VOLATILE_TEXT: list[tuple[re.Pattern[str], str]] = [
     (re.compile(r"(\d+ iterations), [0-9.eE+-]+ s\b"), r"\1, <T> s"),
     (re.compile(r"(ipopt: \w+), [0-9.eE+-]+ ?(ms|s)\b", re.I), r"\1, <T> \2"),
     (re.compile(r"\b(in|took|after|wall time|CPU time|elapsed)( [0-9.eE+-]+) ?(s|ms|min)\b"), r"\1 <T> \3"),
+    (re.compile(r"\b[0-9.eE+-]+ ?s per (run|dataset)\b"), r"<T> s per \1"),
     (re.compile(r"\bftcal_nlp (\d+\.\d+\.\d+\S*)"), "ftcal_nlp <VERSION>"),
 ]
 
