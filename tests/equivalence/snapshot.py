@@ -6,10 +6,12 @@ How to use (from a checkout's root, with the project's venv; ``OUT`` outside the
     /work/venv/bin/python tests/equivalence/snapshot.py take OUT --quick    # samples only (a few minutes)
     /work/venv/bin/python tests/equivalence/snapshot.py take OUT --sweeps   # full + the hexapod validation sweep
     /work/venv/bin/python tests/equivalence/snapshot.py take OUT --only payload urdf   # some cases only
-    /work/venv/bin/python tests/equivalence/snapshot.py compare BASE OUT [--rtol 1e-12]
+    /work/venv/bin/python tests/equivalence/snapshot.py compare BASE OUT [--rtol 1e-12] [--common]
 
 ``take`` runs ``python -m ftcal_nlp ...`` as subprocesses (cwd = the checkout, so the checkout's ``ftcal_nlp`` is
-the one imported, which is checked; ``OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1``) and writes each case into
+the one imported, which is checked; ``OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
+PYTHONHASHSEED=0``: one BLAS thread so that sums are added in one order, a fixed hash seed so that no set order
+can differ between two takes) and writes each case into
 ``OUT/<case>/``; the checkout is never written (temporary configs live in ``OUT/_configs``). A case folder that
 exists already is refused (``--force`` replaces it), so cases can be added to a snapshot later. Per case the
 wall time is printed and kept in ``OUT/_timings.json``; each command's stdout is ``OUT/<case>/stdout_<step>.txt``
@@ -24,8 +26,10 @@ holds file and of the URDF robot with joint holds), ``bigant`` (problems/bigant_
 into OUT with its seed 0, then run, correct of its walk, export; not in --quick), ``sweep_free``
 (problems/diagnose_validation_free_quick.toml; not in --quick) and ``sweep_hexapod``
 (problems/diagnose_validation_quick.toml: ~20 min on 2 idle cores, so only with --sweeps or --only).
+Wall time at the base commit on the 2 shared cores (load 6-10): full 27 min (hexapod 10, bigant 6, sweep_free 7,
+the other five 3), --quick 6 min on a lighter load; two full takes were equal (compare exit 0).
 
-``compare A B`` walks both trees and prints one line per differing file (worst relative difference and where) and
+``compare A B`` (``--common``: only the cases both hold, e.g. a --quick snapshot against a full one) walks both trees and prints one line per differing file (worst relative difference and where) and
 each file present in one tree only; exit status 1 on any difference, 0 when equal. Rules:
 numbers are equal when ``|a - b| <= rtol * max(|a|, |b|) + ATOL`` (ATOL = 1e-300: only so that exact zeros
 compare; NaN equals NaN, inf equals inf of the same sign); CSV (every float parsed exactly) and parquet:
@@ -570,8 +574,19 @@ class Normaliser:
         return s
 
 
-def compare(a: Path, b: Path, rtol: float) -> int:
+def _cases(root: Path) -> set[str]:
+    return {p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith("_")}
+
+
+def compare(a: Path, b: Path, rtol: float, common: bool = False) -> int:
     fa, fb = set(_walk(a)), set(_walk(b))
+    if common:  # only the cases both snapshots hold (a --quick snapshot against a full one)
+        keep = _cases(a) & _cases(b)
+        skipped = sorted((_cases(a) | _cases(b)) - keep)
+        if skipped:
+            print(f"cases in one snapshot only, not compared: {', '.join(skipped)}")
+        fa = {f for f in fa if f.split("/")[0] in keep}
+        fb = {f for f in fb if f.split("/")[0] in keep}
     fa -= {"_checkout", "_outdir"}
     fb -= {"_checkout", "_outdir"}
     na, nb = Normaliser(a), Normaliser(b)
@@ -606,6 +621,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("a", type=Path)
     c.add_argument("b", type=Path)
     c.add_argument("--rtol", type=float, default=1e-12)
+    c.add_argument("--common", action="store_true", help="compare only the cases both snapshots hold")
     args = ap.parse_args(argv)
     if args.cmd == "take":
         if args.quick and args.sweeps:
@@ -614,7 +630,7 @@ def main(argv: list[str] | None = None) -> int:
         (args.outdir / "_checkout").write_text(str(Path.cwd().resolve()) + "\n")
         (args.outdir / "_outdir").write_text(str(args.outdir.resolve()) + "\n")
         return take(args.outdir, args.quick, args.sweeps, args.only, args.force)
-    return compare(args.a, args.b, args.rtol)
+    return compare(args.a, args.b, args.rtol, args.common)
 
 
 if __name__ == "__main__":
