@@ -115,7 +115,7 @@ def test_constant_temperature_column_is_named_at_run_time(tmp_path, caplog, caps
     with caplog.at_level(logging.WARNING):
         assert run_main([str(tmp_path / "run.toml"), "-q"]) == 0
     msg = [r.getMessage() for r in caplog.records if "wrist_temp_C" in r.getMessage()]
-    assert msg and "cannot be told from the offsets" in msg[0] and "'temperature'" in msg[0]
+    assert msg and "cannot be told from the offsets" in msg[0] and "does not determine 'temperature'" in msg[0]
     diag = json.loads((tmp_path / "out" / "diagnosis.json").read_text())["free_loads"]["wrist"]
     assert not (tmp_path / "out" / "calibration_with_effect.json").exists() or "temperature" not in json.dumps(
         json.loads((tmp_path / "out" / "calibration_with_effect.json").read_text())["meta"]["effect"])

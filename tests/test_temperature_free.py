@@ -153,3 +153,22 @@ def test_later_warmer_recording_corrected_with_the_calibration_reference(case, r
     # relative to the recording's own mean the shift (coefficients x 8 degC) would stay: far above the noise
     lost = np.abs([pars[k]["value"] for k in d1]) * (np.mean(T_later) - ref)
     assert np.max(lost / noise) > 10.0
+
+
+def test_plan_of_the_calibration_session_predicts_the_coefficients_se(payload):
+    """``plan`` on the calibration session as a pilot (plan/temperature.py): the coefficients' predicted se against
+    those the run's joint refit gives (calibration_with_effect.json). The plan counts the quasi-static samples the
+    load fit uses (7 373 of 10 500 here) and widens by their serial correlation; the refit uses every sample: the
+    plan is the larger, by ~sqrt(10 500 / 7 373) = 1.19 times its widening (1.05..1.36): measured 1.26..1.79."""
+    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.plan.free_load import plan_from_dataset
+
+    folder, leg, *_ = payload
+    p = plan_from_dataset(read_dataset(folder / "data" / "dataset.toml")).loads[leg].temperature
+    pars = json.loads((folder / "out" / "calibration_with_effect.json").read_text())["meta"]["effect"]["legs"][leg][
+        "members"][0]["parameters"]
+    run_se = np.array([v["se"] for v in pars.values()])
+    ratio = p.se / run_se
+    assert np.all((ratio > 0.9) & (ratio < 2.0)), ratio
+    # 4 degC of swing determine the coefficients far below the default target (noise over 10 degC): well met
+    assert p.determined and np.all(p.se < p.target) and p.needed_range_C < p.range_C

@@ -37,8 +37,9 @@ Before fitting (:func:`check_free_load_data`, on each transducer's quasi-static 
   ``temp_C``) whose range over the samples is within ``TEMPERATURE_RESOLUTION_C`` is a warning, not an error: a
   temperature effect ``w = w_o + beta (T - T_ref)`` is then collinear with the offsets ``w_o`` (the regressor
   ``[1, T - T_ref]`` has rank 1: the Fisher information of ``beta`` is ``sum (T - Tbar)^2 / sigma^2``, zero), so the
-  session cannot tell it from them and the diagnosis does not offer ``temperature``. A column without any number is
-  the reader's error (``data.py``);
+  session cannot tell it from them and the diagnosis cannot name ``temperature`` (its face, ``effects/temperature.py``,
+  is offered for any range above zero; within the resolution its coefficients are the noise over that range). A
+  column without any number is the reader's error (``data.py``);
 * the clock (:func:`check_pose_list_clock`): samples further apart than the hexapod's ``MAX_SAMPLE_INTERVAL_S`` are a
   list of poses only when consecutive rows are other poses; ``gx..gz`` and ``qw..qz`` both given must agree
   (:func:`check_gravity_columns_agree`).
@@ -644,8 +645,9 @@ def check_temperature_varies(recs: Sequence[Recording], leg: str,
     span = f"ranges {np.ptp(T):.3g} degC (at {np.mean(T):.4g} degC)" if len(T) else "holds no number"
     msg = (f"transducer {leg}: temperature column '{leg}_temp_C' (or 'temp_C') {span} over the {len(T)} samples of "
            f"{sorted({r.name for r in recs if leg in r.temperature})}, within its resolution {resolution_c:g} degC: a "
-           f"temperature effect cannot be told from the offsets (collinear with them), the diagnosis does not offer "
-           f"'temperature'; a session over a range of temperatures determines it (plan: temperature)")
+           f"temperature effect cannot be told from the offsets (collinear with them): this session does not determine "
+           f"'temperature' (the diagnosis cannot name it, correct cannot apply it); a session over a range of "
+           f"temperatures does (plan says how much)")
     log.warning("%s", msg)
     return msg
 
