@@ -120,6 +120,17 @@ def test_constant_temperature_column_is_named_at_run_time(tmp_path, caplog, caps
     assert not (tmp_path / "out" / "calibration_with_effect.json").exists() or "temperature" not in json.dumps(
         json.loads((tmp_path / "out" / "calibration_with_effect.json").read_text())["meta"]["effect"])
     assert diag is not None
+    # plan on it as a pilot: the same warning, and the coefficients not determined with the range a ramp would need
+    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.plan.free_load import plan_from_dataset
+
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        t = plan_from_dataset(read_dataset(man), temperature_target=1e-3).loads["wrist"].temperature
+    assert any("wrist_temp_C" in r.getMessage() for r in caplog.records)
+    assert not t.determined and t.range_C == pytest.approx(0.005)
+    assert t.needed_range_C == pytest.approx(ramp_range(t.n_samples, t.noise * t.widening, t.target))
+    assert 1.0 < t.needed_range_C < 1.5 and "cannot be told from the offsets" in "\n".join(t.text())
     # a column without any number is the reader's error, naming it
     f["wrist_temp_C"] = np.nan
     f.to_csv(csv, index=False)
