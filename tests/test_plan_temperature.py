@@ -130,6 +130,7 @@ def test_constant_temperature_column_is_named_at_run_time(tmp_path, caplog, caps
     assert any("wrist_temp_C" in r.getMessage() for r in caplog.records)
     assert not t.determined and t.range_C == pytest.approx(0.005)
     assert t.needed_range_C == pytest.approx(ramp_range(t.n_samples, t.noise * t.widening, t.target))
+    # 0.02 N sqrt(12 / 3203 samples) / (1e-3 N/degC) = 1.2 degC
     assert 1.0 < t.needed_range_C < 1.5 and "cannot be told from the offsets" in "\n".join(t.text())
     # a column without any number is the reader's error, naming it
     f["wrist_temp_C"] = np.nan

@@ -53,6 +53,10 @@ Inputs:
   determines it (else held at 0, as the run's ``recording_tilt = "auto"``); mixed with ``quat`` holds it is taken
   as known (a note says so).
 
+Temperature (:mod:`.temperature`): a pilot whose recordings carry the transducer's temperature (``{X}_temp_C`` /
+``temp_C``), or a protocol with ``temperature_range_C``, adds per transducer the se of the temperature coefficients
+and the range a session needs for ``--temperature-target`` (``temperature`` in ``plan.json``, two lines of text).
+
 ``--search`` and ``--detect`` plan hexapod sessions (the detection sizes of the hexapod diagnosis); with a
 free load they are an error naming why.
 """
