@@ -33,6 +33,13 @@ Before fitting (:func:`check_free_load_data`, on each transducer's quasi-static 
   columns as given must not leave more than their spread when a signed permutation of them agrees (as the hexapod's
   ``check_torque_axes``). Negated torques mirror a payload's CoM: with no nominal to hold it against, that one
   case is not caught;
+* a temperature that never varies (:func:`check_temperature_varies`): the transducer's temperature (``{X}_temp_C`` or
+  ``temp_C``) whose range over the samples is within ``TEMPERATURE_RESOLUTION_C`` is a warning, not an error: a
+  temperature effect ``w = w_o + beta (T - T_ref)`` is then collinear with the offsets ``w_o`` (the regressor
+  ``[1, T - T_ref]`` has rank 1: the Fisher information of ``beta`` is ``sum (T - Tbar)^2 / sigma^2``, zero), so the
+  session cannot tell it from them and the diagnosis cannot name ``temperature`` (its face, ``effects/temperature.py``,
+  is offered for any range above zero; within the resolution its coefficients are the noise over that range). A
+  column without any number is the reader's error (``data.py``);
 * the clock (:func:`check_pose_list_clock`): samples further apart than the hexapod's ``MAX_SAMPLE_INTERVAL_S`` are a
   list of poses only when consecutive rows are other poses; ``gx..gz`` and ``qw..qz`` both given must agree
   (:func:`check_gravity_columns_agree`).
@@ -618,6 +625,33 @@ def grams_hint(leg: str, m: float, reference: Reference | None, floor: float) ->
             f"below {MIN_FORCE_NOISE_N:g} N): expected kilograms: is load_mass_kg in grams ({reference.kg / 1000:.6g} kg)?")
 
 
+#: degC: a temperature whose range (max - min) over a transducer's samples is within this is taken as constant: a
+#: transducer's internal sensor resolves ~0.01-0.1 degC, and a coefficient from a range at its resolution has an se
+#: of the noise over that range
+TEMPERATURE_RESOLUTION_C = 0.01
+
+
+def check_temperature_varies(recs: Sequence[Recording], leg: str,
+                             resolution_c: float = TEMPERATURE_RESOLUTION_C) -> str | None:
+    """The warning (logged and returned) when transducer ``leg``'s temperature over ``recs`` ranges within
+    ``resolution_c`` (module docstring); None when it varies more, or no recording carries it."""
+    temps = [np.asarray(r.temperature[leg], float) for r in recs if leg in r.temperature and len(r.temperature[leg])]
+    if not temps:
+        return None
+    T = np.concatenate(temps)
+    T = T[np.isfinite(T)]
+    if len(T) and np.ptp(T) > resolution_c:
+        return None
+    span = f"ranges {np.ptp(T):.3g} degC (at {np.mean(T):.4g} degC)" if len(T) else "holds no number"
+    msg = (f"transducer {leg}: temperature column '{leg}_temp_C' (or 'temp_C') {span} over the {len(T)} samples of "
+           f"{sorted({r.name for r in recs if leg in r.temperature})}, within its resolution {resolution_c:g} degC: a "
+           f"temperature effect cannot be told from the offsets (collinear with them): this session does not determine "
+           f"'temperature' (the diagnosis cannot name it, correct cannot apply it); a session over a range of "
+           f"temperatures does (plan says how much)")
+    log.warning("%s", msg)
+    return msg
+
+
 def check_free_load_data(recs: Sequence[Recording], leg: str, load, g: float, tree=None,
                          noise: np.ndarray | None = None, weighed_kg: float | None = None,
                          siblings_ok: Sequence[str] = (), data: AsGiven | None = None) -> None:
@@ -634,6 +668,7 @@ def check_free_load_data(recs: Sequence[Recording], leg: str, load, g: float, tr
     check_joint_degrees(recs, leg, load, g, tree, noise, data)
     check_units(recs, leg, load, g, noise, weighed_kg, data)
     check_torque_signs(recs, leg, load, g, data)
+    check_temperature_varies(recs, leg)
 
 
 # ----------------------------------------------------------------------------- after the fit

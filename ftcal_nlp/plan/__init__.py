@@ -1,7 +1,7 @@
 """Plan a calibration session: the standard error each parameter group will have, before recording.
 
 ``python -m ftcal_nlp.plan [PROTOCOL.toml | ROBOT.toml | DATASET.toml] [--protocol FILE] [-o plan.json] [--search]
-[--no-detection | --detect NAME ...]``
+[--no-detection | --detect NAME ...] [--temperature-target N_PER_DEGC]``
 
 One command for every load (:mod:`.command`): the input read and classified once (:mod:`.reading`), then planned by
 the part of its load, each a ``plan_for`` returning a plan that writes ``plan.json`` and prints itself:
@@ -13,7 +13,9 @@ the part of its load, each a ``plan_for`` returning a plan that writes ``plan.js
 * :mod:`.free_load` -- free loads (``DATA_FORMAT.md`` section 5): a section-5 pilot dataset, a section-5 ``robot.toml``
   with ``--protocol HOLDS.toml``, or a protocol TOML whose ``[protocol]`` names a ``robot`` (or has
   ``kind = "payload"``): the se of the load parameters from the free-load bound (from a pilot, widened as the run
-  widens them for serially correlated residuals), and what the holds leave undetermined, named. A robot.toml is a
+  widens them for serially correlated residuals), and what the holds leave undetermined, named; with a temperature
+  (a pilot's column, a protocol's ``temperature_range_C``) the se of the temperature coefficients and the range a
+  session needs (:mod:`.temperature`, ``--temperature-target``). A robot.toml is a
   free-load one when it has a ``urdf``, a transducer ``link`` or no ``mass_kg`` (a hexapod's has it, section 2), or
   when ``--protocol`` gives holds; alone it is an error saying what to add. ``--search`` and the detection sizes
   are the hexapod's (an error with a free load, saying so).

@@ -33,6 +33,10 @@ HOLDS.toml:
   hold_s = 5.0, rate_hz = 100.0, noise_force_N = 0.05, noise_torque_Nm = 0.003, mocap_jitter_deg = 0.0
   mass_kg = 1.0, com_m = [0, 0, 0.05]  # a rigid payload's expected mass and CoM in ft (a URDF load: the URDF's bodies)
   mount = true, gravity_tilt = true    # the mounting rotation and the world tilt estimated, as the run does
+  temperature_range_C = 5.0            # the temperature range the session sweeps (a ramp): the temperature
+                                       # coefficients' se and the range needed (plan/temperature.py); a pilot with
+                                       # {X}_temp_C / temp_C gets them from its own temperature
+  temperature_target_N_per_C = 0.001   # their target se (default: noise sd over a 10 degC working range)
   (ftcal_nlp/plan/free_load.py: the bound, the undetermined parameters named; white noise unless planned from a pilot)"""
 
 
@@ -50,6 +54,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     ap.add_argument("--search", action="store_true", help="search the shortest protocol meeting [targets]")
     ap.add_argument("--no-detection", action="store_true", help="skip the detection size of the library effects (~30 s)")
     ap.add_argument("--detect", nargs="+", metavar="EFFECT", help="detection size of these library effects only")
+    ap.add_argument("--temperature-target", type=float, metavar="N_PER_DEGC", help="free loads: the se (N/degC of "
+                    "force; torques the same multiple of their noise) the temperature coefficients should reach; the plan "
+                    "says the temperature range needed (default: the noise sd over a 10 degC working range)")
     args = parse(ap, argv)
     setup(args)
     return guarded(lambda: _main(args), extra=(ValueError,))

@@ -53,6 +53,10 @@ Inputs:
   determines it (else held at 0, as the run's ``recording_tilt = "auto"``); mixed with ``quat`` holds it is taken
   as known (a note says so).
 
+Temperature (:mod:`.temperature`): a pilot whose recordings carry the transducer's temperature (``{X}_temp_C`` /
+``temp_C``), or a protocol with ``temperature_range_C``, adds per transducer the se of the temperature coefficients
+and the range a session needs for ``--temperature-target`` (``temperature`` in ``plan.json``, two lines of text).
+
 ``--search`` and ``--detect`` plan hexapod sessions (the detection sizes of the hexapod diagnosis); with a
 free load they are an error naming why.
 """
@@ -60,7 +64,7 @@ free load they are an error naming why.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -69,6 +73,7 @@ import numpy as np
 from .. import crb
 from ..geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
 from .reading import PlanError, PlanInput
+from .temperature import TemperaturePlan, pilot_temperature, protocol_temperature
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +97,7 @@ class LoadPlan:
     notes: tuple[str, ...] = ()
     widening: np.ndarray | None = None      # (6,) se factor per channel for serially correlated residuals (pilot)
     lag1: np.ndarray | None = None          # (6,) the pilot residuals' lag-1 correlation behind it
+    temperature: TemperaturePlan | None = None   # the temperature coefficients' se and the range needed (plan/temperature.py)
 
     def se(self) -> dict[str, float | None]:
         """Predicted se per parameter (SI; mount: rad), None where undetermined."""
@@ -140,7 +146,8 @@ class LoadPlan:
                 "serial_widening": None if self.widening is None else self.widening.tolist(),
                 "lag1_correlation": None if self.lag1 is None else self.lag1.tolist(),
                 "groups": {k: {"se": v, "unit": u} for k, (v, u) in self.groups().items()},
-                "se": self.se(), "undetermined": list(self.bound.unidentified), "notes": list(self.notes)}
+                "se": self.se(), "undetermined": list(self.bound.unidentified), "notes": list(self.notes),
+                "temperature": None if self.temperature is None else self.temperature.to_json_dict()}
 
     def widening_text(self) -> str:
         """One line on the serial-correlation widening the se carry (or that they assume white noise)."""
@@ -174,6 +181,7 @@ class FreeLoadPlan:
                 lines.append(f"  {g:<28s} {'not determined' if v is None else f'{v:.3g}'} {'' if v is None else u}")
             lines += [f"  not determined: {n}" for n in p.bound.unidentified]
             lines.append(f"  noise: {p.widening_text()}")
+            lines += [] if p.temperature is None else p.temperature.text()
             lines += [f"  note: {n}" for n in p.notes]
         return "\n".join(lines)
 
@@ -217,9 +225,10 @@ def pilot_widening(ds, leg: str, fit) -> tuple[np.ndarray, np.ndarray]:
 # ----------------------------------------------------------------------------- a pilot dataset
 
 
-def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
+def plan_from_dataset(ds, settings=None, temperature_target: float | None = None) -> FreeLoadPlan:
     """The plan of a section-5 dataset's free loads (module docstring): each fitted, the bound at its estimate on
-    the samples the fit used with the noise it measured."""
+    the samples the fit used with the noise it measured; where the pilot carries a temperature, the temperature
+    coefficients' se and the range needed for ``temperature_target`` (N/degC; ``plan/temperature.py``)."""
     from ..freeload import fit_free_load
     from ..checks import screen_sensor_faults
     from ..errors import SolverError
@@ -294,7 +303,8 @@ def plan_from_dataset(ds, settings=None) -> FreeLoadPlan:
             # estimated by the fit, not in the bound: the bound is a little optimistic there
             notes += ((f"the tilts of the gravity_body recordings {list(fit.recording_tilts)} are estimated by the fit and "
                        "not in the bound (taken as known here)"),)
-        loads[leg] = _plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes, serial)
+        loads[leg] = replace(_plan(leg, fit.load.kind, bound, len(g_B), fit.sigma, None, notes, serial),
+                             temperature=pilot_temperature(ds, leg, fit, temperature_target))
     return FreeLoadPlan(f"pilot dataset {ds.manifest}", loads)
 
 
@@ -367,15 +377,18 @@ def _session(d: dict, where: str, g_default: float) -> tuple[int, np.ndarray, fl
     return n_per, sigma, jitter, g, d.get("mount", True), d.get("gravity_tilt", FreeLoadSettings().gravity_tilt)
 
 
+#: a protocol's planned temperature (plan/temperature.py): the range a session sweeps, the coefficients' target se
+TEMPERATURE_KEYS = ("temperature_range_C", "temperature_target_N_per_C")
 KNOWN = {"payload": {"kind", "orientations", "n_orientations", "seed", "hold_s", "rate_hz", "noise_force_N", "noise_torque_Nm",
-                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "gravity_tilt", "g"}}
+                     "mocap_jitter_deg", "mass_kg", "com_m", "rotation_rpy", "mount", "gravity_tilt", "g", *TEMPERATURE_KEYS}}
 
 
-def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> FreeLoadPlan:
+def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None,
+                       temperature_target: float | None = None) -> FreeLoadPlan:
     """The plan of a protocol of held orientations (module docstring); ``d`` the ``[protocol]`` table of ``path``;
     with a robot.toml (``robot_path``, or the table's ``robot``, or ``kind = "urdf"``) :func:`plan_from_robot`."""
     if robot_path is not None or "robot" in d or d.get("kind") == "urdf":
-        return plan_from_robot(d, path, robot_path)
+        return plan_from_robot(d, path, robot_path, temperature_target)
     where = f"{path} [protocol]"
     kind = d.get("kind")
     if kind not in PROTOCOL_KINDS:
@@ -408,7 +421,8 @@ def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> F
     held = tilt and _tilt_held(g_ft)
     bound = crb.payload_bound(g_ft, m, com, sigma, mount=mount, orientation_sd_rad=jitter,
                                     tilt_dirs=dg if tilt and not held else None)
-    plan = _plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ())
+    plan = replace(_plan("payload", "rigid_payload", bound, len(g_ft), sigma, len(quats), (TILT_HELD,) if held else ()),
+                   temperature=protocol_temperature(d, len(g_ft), sigma, where, temperature_target))
     proto = {"kind": kind, "holds": len(quats), "samples_per_hold": n_per, "mass_kg": m, "com_m": com.tolist()}
     return FreeLoadPlan(f"protocol {path}", {"payload": plan}, proto)
 
@@ -418,7 +432,7 @@ def plan_from_protocol(d: dict, path: Path, robot_path: Path | None = None) -> F
 
 ROBOT_KEYS = {"kind", "robot", "transducer", "holds", "orientations", "n_orientations", "seed", "gravity_body", "hold_s",
               "rate_hz", "noise_force_N", "noise_torque_Nm", "mocap_jitter_deg", "mass_kg", "com_m", "mount", "gravity_tilt",
-              "g"}
+              "g", *TEMPERATURE_KEYS}
 HOLD_KEYS = {"quat", "q"}
 DEFAULT_MASS_KG, DEFAULT_COM_M = 1.0, (0.0, 0.0, 0.05)
 
@@ -580,7 +594,8 @@ def _urdf_bound(*args, **kw) -> crb.LoadBound:
     return crb.urdf_bound(*args, **kw)[0]
 
 
-def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> FreeLoadPlan:
+def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None,
+                    temperature_target: float | None = None) -> FreeLoadPlan:
     """The plan of a section-5 ``robot.toml``'s transducers held through a protocol's holds (module docstring);
     ``d`` the ``[protocol]`` table of ``path``, ``robot_path`` the robot.toml when the command line gives it (else
     the table's ``robot``, relative to ``path``)."""
@@ -664,7 +679,8 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None) -> Free
         elif rec_tilt:
             notes += (("gravity_tilt: the tilt of the gravity_body holds' recording (the run's recording_tilt_rad), "
                        "estimated by the run and bounded here"),)
-        loads[leg] = _plan(leg, kind, bound, len(g_ft), sigma, len(holds.quat), notes)
+        loads[leg] = replace(_plan(leg, kind, bound, len(g_ft), sigma, len(holds.quat), notes),
+                             temperature=protocol_temperature(d, len(g_ft), sigma, where, temperature_target))
     proto = {"robot": str(rpath), "holds": len(holds.quat), "samples_per_hold": n_per,
              "noise_sd": sigma.tolist(), "transducers": list(legs)}
     return FreeLoadPlan(f"protocol {path}, robot {rpath}", loads, proto)
@@ -681,8 +697,11 @@ def plan_for(inp: PlanInput, options) -> FreeLoadPlan:
     if options.protocol and inp.kind != "robot":
         raise PlanError(f"--protocol: {options.input} is a {'pilot dataset (planned on its own samples and noise)' if inp.kind == 'dataset' else 'protocol already'}; "
                         "to plan other holds give the robot: plan ROBOT.toml --protocol HOLDS.toml", key="--protocol")
+    target = getattr(options, "temperature_target", None)
+    if target is not None and not target > 0:
+        raise PlanError(f"--temperature-target must be a positive number (N/degC), got {target!r}", key="--temperature-target")
     if inp.kind == "dataset":
-        return plan_from_dataset(inp.dataset)
+        return plan_from_dataset(inp.dataset, temperature_target=target)
     if inp.kind == "robot":
-        return plan_from_protocol(inp.table, Path(inp.protocol_file), robot_path=Path(inp.source))
-    return plan_from_protocol(inp.table, Path(inp.source))
+        return plan_from_protocol(inp.table, Path(inp.protocol_file), robot_path=Path(inp.source), temperature_target=target)
+    return plan_from_protocol(inp.table, Path(inp.source), temperature_target=target)

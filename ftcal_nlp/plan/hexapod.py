@@ -394,6 +394,10 @@ def plan_for(inp: PlanInput, options) -> Prediction:
     """``plan``'s hexapod part: the protocol of ``inp`` (defaults, a protocol file, a hexapod robot.toml or a pilot,
     ``--protocol`` keys changing it) predicted, or with ``options.search`` the shortest protocol meeting its targets;
     the detection sizes unless ``options.no_detection`` (``options.detect``: of those effects only)."""
+    if getattr(options, "temperature_target", None) is not None:   # a hexapod's correct has no temperature to read
+        raise PlanError("--temperature-target plans a free load's temperature coefficients (DATA_FORMAT.md section 5); "
+                        f"{inp.source or 'the default protocol'} is a hexapod: it takes no --temperature-target",
+                        key="--temperature-target")
     protocol, pilot = load_input(inp.source, inp.protocol_file, inp.dataset)
     detection = False if options.no_detection else (tuple(options.detect) if options.detect else True)
     if options.search:
