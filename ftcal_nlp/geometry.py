@@ -20,12 +20,15 @@ Notation of the report (Wu & Revzen, Sec. II-A):
 
 from __future__ import annotations
 
-from typing import Any, Union
+from typing import Any, TypeAlias
 
 import casadi as ca
 import numpy as np
 
-ArrayLike = Union[np.ndarray, ca.SX, ca.MX, ca.DM]
+# A numpy array or a CasADi SX/MX/DM: the functions below are duck-typed over both
+# (indexing and arithmetic mean the same), which no static union expresses; the
+# argument's own type picks the branch at run time (``_is_symbolic``).
+ArrayLike: TypeAlias = Any
 
 _CASADI_TYPES = (ca.SX, ca.MX, ca.DM)
 
