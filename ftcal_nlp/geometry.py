@@ -86,8 +86,8 @@ def cayley_inv(R: ArrayLike) -> ArrayLike:
         eye = ca.DM.eye(3)
         return unskew(ca.mtimes(eye - R, ca.inv(eye + R)))
     R = np.asarray(R, dtype=float)
-    eye = np.broadcast_to(np.eye(3), R.shape)
-    return unskew(np.swapaxes(np.linalg.solve(np.swapaxes(eye + R, -1, -2), np.swapaxes(eye - R, -1, -2)), -1, -2))
+    eye_n = np.broadcast_to(np.eye(3), R.shape)
+    return unskew(np.swapaxes(np.linalg.solve(np.swapaxes(eye_n + R, -1, -2), np.swapaxes(eye_n - R, -1, -2)), -1, -2))
 
 
 def se3(R: np.ndarray, p: np.ndarray) -> np.ndarray:
