@@ -85,7 +85,7 @@ def _seg(xi: ArrayLike, a: int, b: int) -> ArrayLike:
     return xi[a:b] if _is_symbolic(xi) else xi[:, a:b]
 
 
-def residual(xi: ArrayLike, R, p_prime, offsets, leg_weights_N, weight_N: float, balance: str) -> ArrayLike:
+def residual(xi: ArrayLike, R, p_prime, offsets, leg_weights_N, weight_N: ArrayLike, balance: str) -> ArrayLike:
     """``r_p = L(theta) xi_p`` of the module docstring, B axes (N, N*m).
 
     ``xi``: numpy (P, n_xi) or a CasADi column (n_xi,); ``R``: K rotations ft_k -> B

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 import pandas as pd
@@ -47,6 +47,7 @@ from .settings import CalibrationSettings
 from .standing.poses import Poses
 from .standing.result import StandingResult
 from .tracking import TrackedOffsets
+from .truth import LoadTruth
 from .uncertainty import CalibrationCovariance
 
 if TYPE_CHECKING:  # the diagnosis reads a CalibrationRun (diagnose_run): a run-time import here would be a cycle
@@ -93,8 +94,8 @@ def joint_covariance(hanging: HangingResult | None, standing: StandingResult | N
         cov[i : i + m, i : i + m] = np.nan_to_num(s._cov_array(), nan=0.0, posinf=0.0)
         i += m
     how = "free loads (independent blocks)" if free_loads is not None else "hanging only" if standing is None else "standing only (offsets-only run)" if hanging is None else "independent blocks"
-    G = standing.sensitivity if standing is not None and hanging is not None else None
-    if G is not None:
+    if standing is not None and hanging is not None and standing.sensitivity is not None:
+        G = standing.sensitivity
         nh = len(hanging.params)
         Gm = G.reindex(index=standing.params.index, columns=hanging.params.index).fillna(0.0).to_numpy()
         hb = hanging._bse_array()
@@ -118,9 +119,10 @@ class CalibrationRun(ResultsMixin):
     ``hanging``/``hanging_baseline``: None in an offsets-only run (the baseline also when it was not
     asked for or could not run); ``selection``: None for a fixed model; ``standing_baseline``: None
     unless asked for; ``diagnosis``: None when disabled or skipped; ``truth``: the dataset's
-    ``truth.json`` when it has one; ``corrected``: recording name -> ground-wrench table
+    ``truth.json`` when it has one (a :class:`~ftcal_nlp.calibration.Calibration` for hexapod legs, a
+    :class:`~ftcal_nlp.truth.LoadTruth` for a free load, as :func:`~ftcal_nlp.truth.load_truth` reads it); ``corrected``: recording name -> ground-wrench table
     (``OUTPUT_FORMAT.md`` columns, then se and contact columns); ``timings``/``cpu_timings``: stage
-    -> wall / CPU seconds; ``notes``: what was skipped or noticed, for the report; ``uncertainty``:
+    -> wall / CPU seconds (read-only: a stage timed after the run is built makes a new run with ``replace``); ``notes``: what was skipped or noticed, for the report; ``uncertainty``:
     the covariance and sensor noise the se columns come from; ``tracked_offsets``: per walking
     recording the offsets tracked from its swing phases (``[correct] track_offsets``).
     """
@@ -135,10 +137,10 @@ class CalibrationRun(ResultsMixin):
     standing: StandingResult | None = None
     standing_baseline: StandingResult | None = None
     diagnosis: DiagnosisResult | None = None
-    truth: Calibration | None = None
+    truth: Calibration | LoadTruth | None = None
     corrected: dict[str, pd.DataFrame] = field(default_factory=dict)
-    timings: dict[str, float] = field(default_factory=dict)
-    cpu_timings: dict[str, float] = field(default_factory=dict)
+    timings: Mapping[str, float] = field(default_factory=dict)
+    cpu_timings: Mapping[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     uncertainty: CalibrationCovariance | None = None
     tracked_offsets: dict[str, TrackedOffsets] = field(default_factory=dict)
@@ -195,14 +197,20 @@ class CalibrationRun(ResultsMixin):
 
     def naive_total_residuals(self) -> np.ndarray:
         """(P, 6) naive-tare total-wrench residual at the poses, W axes about B (``naive.py``)."""
-        robot = self.dataset.robot
-        return naive.naive_total_residuals(self.poses.w_m, self.poses.R_WB, naive.naive_bias(self.dataset.hanging, robot), robot)
+        robot, poses = self.dataset.robot, self._poses()
+        return naive.naive_total_residuals(poses.w_m, poses.R_WB, naive.naive_bias(self.dataset.hanging, robot), robot)
 
     def no_transformation_error_residuals(self) -> np.ndarray:
         """(P, 6) exact-balance residual with nominal transducer poses and one CoM shift (``naive.py``)."""
         robot = self.dataset.robot
         offsets, weights, _, _ = self.calibration.stacked(robot.legs)
-        return naive.no_transformation_error_residuals(self.poses.w_m, self.poses.R_WB, offsets, weights, robot)
+        poses = self._poses()
+        return naive.no_transformation_error_residuals(poses.w_m, poses.R_WB, offsets, weights, robot)
+
+    def _poses(self) -> Poses:
+        if self.poses is None:
+            raise ValueError("a free-load run has no standing poses: the naive baselines compare hexapod poses")
+        return self.poses
 
     def naive_ground_wrenches(self, rec: Recording) -> tuple[np.ndarray, np.ndarray]:
         """Naive-tare per-foot wrenches of recording ``rec`` and its row mask (``naive.py``)."""

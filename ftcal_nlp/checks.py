@@ -98,7 +98,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import ROTATION_TOL   # a stored rotation's tolerance: the one reader's
-from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs
+from .data import check_distinct_recordings, Dataset, DataFormatError, Recording, hanging_pairs, held_gravity_body
 from .errors import MisSignedChannel
 from .geometry import quat_to_rotation, rotation_to_rotvec, skew
 from .robot import Robot
@@ -176,7 +176,8 @@ def pair_forces(ds: Dataset) -> list[PairForces]:
     for p, m in hanging_pairs(ds.hanging):
         wp = np.stack([p.wrench[k].mean(axis=0) for k in legs])
         wm = np.stack([m.wrench[k].mean(axis=0) for k in legs])
-        axis = np.einsum("kji,j->ki", R_nom, p.gravity_body / np.linalg.norm(p.gravity_body))
+        gb = held_gravity_body(p)
+        axis = np.einsum("kji,j->ki", R_nom, gb / np.linalg.norm(gb))
         out.append(PairForces(p, m, (wp - wm)[:, :3] / 2, (wp + wm) / 2, axis, (wp - wm)[:, 3:] / 2))
     return out
 
@@ -214,7 +215,8 @@ def check_lever_arms(pairs: list[PairForces]) -> None:
 def check_force_directions(pairs: list[PairForces], robot: Robot, robot_source: str = "robot.toml") -> None:
     """Hanging force ``d_k`` along the nominal gravity axis (catches negated readings, a swapped ``gravity_body``,
     rotations of robot.toml in another frame); one leg off is logged for the diagnosis (module docstring)."""
-    reversed_pairs, faulty = [], {}
+    reversed_pairs: list[tuple[PairForces, np.ndarray]] = []
+    faulty: dict[str, list[str]] = {}
     for p in pairs:
         ang = _angle_deg(p.weight, p.axis)
         rev = ang > REVERSED_DEG
@@ -445,6 +447,7 @@ def check_quaternion(rec: Recording, S_B: np.ndarray, ok: np.ndarray) -> None:
     """The quaternion's up axis against the readings' (``S_B`` (N, 3) on the rows ``ok`` with an orientation):
     beyond ``TILT_DEG`` in ``TILT_PERCENTILE`` % of the samples, or, on the still rows, beyond ``TILT_MIN_DEG`` at
     the 99th percentile while another reading of the columns is ``QUAT_ORDER_RATIO`` times closer (module docstring)."""
+    assert rec.quat is not None  # both callers checked it (a recording on the ground has qw..qz)
     q = rec.quat[ok]
     phi = rec.phi_array()[ok]
     still = _still_rows(rec.t[ok], phi)
@@ -543,7 +546,7 @@ def check_torque_axes(rec: Recording, robot: Robot, offsets: np.ndarray) -> None
 
 def check_hanging_span(pairs: list[PairForces]) -> None:
     """The standing fit needs every offset and leg CoM: two non-parallel hanging pairs (``DATA_FORMAT.md`` section 4)."""
-    g = np.stack([p.plus.gravity_body / np.linalg.norm(p.plus.gravity_body) for p in pairs])
+    g = np.stack([gb / np.linalg.norm(gb) for gb in (held_gravity_body(p.plus) for p in pairs)])
     if np.linalg.matrix_rank(g, tol=0.2) < 2:
         names = "; ".join(p.where for p in pairs)
         raise DataFormatError(
@@ -653,9 +656,12 @@ def same_pose_share(step_deg: np.ndarray | None, joint_steps: np.ndarray | None,
     ``deg`` and every joint's step (``joint_steps`` (N-1, m)) within ``rad``; nan when neither is given (rows that cannot
     be told apart). Holds sampled at a rate share their pose; a list of single-row poses does not (the clock checks of
     ``run`` and ``correct`` on free loads)."""
-    if step_deg is None and joint_steps is None:
+    if step_deg is not None:
+        n = len(step_deg)
+    elif joint_steps is not None:
+        n = len(joint_steps)
+    else:
         return float("nan")
-    n = len(step_deg) if step_deg is not None else len(joint_steps)
     same = np.ones(n, bool)
     if step_deg is not None:
         same &= step_deg <= deg
@@ -741,12 +747,12 @@ def sensor_faults(rec: Recording, legs: tuple[str, ...] | None = None, min_run: 
         held = np.stack([_held_runs(W[:, j], min_run) for j in range(W.shape[1])], axis=1)
         if not held.any():
             continue
-        rows = held.any(axis=1)
+        rows = np.any(held, axis=1)  # np.any, not .any: numpy's stubs type the method's result as a scalar or an array
         chans = tuple(f"{k}_{c}" for j, c in enumerate(WRENCH_COMPONENTS) if held[:, j].any())
         j0 = int(np.flatnonzero(held.any(axis=0))[0])
         value = float(W[held[:, j0], j0][0])
         finite = W[np.isfinite(W[:, j0]), j0]
-        if held.all(axis=1)[rows].all() and np.all(W[rows] == 0):
+        if np.all(held, axis=1)[rows].all() and np.all(W[rows] == 0):
             kind = "dead"
         elif finite.size and value in (finite.max(), finite.min()) and np.any(W[~held[:, j0], j0] != value):
             kind = "saturated"

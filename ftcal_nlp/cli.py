@@ -28,6 +28,7 @@ lines) stay at WARNING.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import logging
 import os
@@ -48,7 +49,7 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 #: third-party loggers kept at WARNING under -v (their DEBUG lines are theirs, not the run's)
 QUIET_LIBRARIES = ("matplotlib", "PIL", "fontTools", "casadi", "cvxpy", "numba", "asyncio", "urllib3", "h5py",
                    "numexpr", "yourdfpy", "trimesh", "rosbags", "pyarrow", "fsspec", "concurrent", "filelock", "joblib")
-_UNDO: list[Callable[[], None]] = []   # what setup() changed, undone by guarded() when the command ends
+_UNDO: list[Callable[[], object]] = []   # what setup() changed, undone by guarded() when the command ends
 
 
 @dataclass(frozen=True)
@@ -141,7 +142,7 @@ def quiet_libraries(level: int) -> None:
         lg = logging.getLogger(name)
         before = lg.level
         lg.setLevel(logging.DEBUG if name == "ftcal_nlp" else logging.WARNING)
-        _UNDO.append(lambda lg=lg, before=before: lg.setLevel(before))
+        _UNDO.append(functools.partial(lg.setLevel, before))
 
 
 def disable_progress() -> None:
@@ -163,9 +164,13 @@ def disable_progress() -> None:
             k["disable"] = True  # over the caller's disable=None (shown on a terminal)
             _orig(self, *a, **k)
 
-        init._ftcal = True
+        init._ftcal = True  # type: ignore[attr-defined]  # a marker on the function: the patch is ours
         cls.__init__ = init
-        _UNDO.append(lambda cls=cls, orig=orig, had=had: setattr(cls, "__init__", orig) if had else delattr(cls, "__init__"))
+
+        def undo(cls: type = cls, orig: object = orig, had: bool = had) -> None:
+            setattr(cls, "__init__", orig) if had else delattr(cls, "__init__")
+
+        _UNDO.append(undo)
 
 
 def route_warnings() -> None:
@@ -176,7 +181,7 @@ def route_warnings() -> None:
 
     def undo() -> None:
         warnings.showwarning = shown
-        warnings.filters[:] = filters
+        warnings.filters[:] = filters  # type: ignore[index]  # typeshed declares a Sequence; it is the module's list
 
     _UNDO.append(undo)
 

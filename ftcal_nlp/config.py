@@ -131,7 +131,7 @@ def _build(cls: type, table: Any, path: Path, section: str, base: Path) -> Any:
     kwargs = {}
     for name, value in table.items():
         hint, key = hints[name], f"{section}.{name}" if section else name
-        if dataclasses.is_dataclass(hint):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):   # (a hint is a class, never an instance)
             kwargs[name] = _build(hint, value, path, key, base)
             continue
         if isinstance(value, str) and typing.get_origin(hint) is tuple:

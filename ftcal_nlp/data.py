@@ -26,7 +26,7 @@ import logging
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable, TypeVar, overload
 
 import numpy as np
 import pandas as pd
@@ -195,7 +195,16 @@ def _load_toml(path: Path) -> dict:
         raise DataFormatError(f"{path}: not valid TOML ({exc})", path=path) from exc
 
 
-def _require(d: dict, key: str, where: str, typ: type | tuple[type, ...]) -> object:
+_T = TypeVar("_T")
+_U = TypeVar("_U")
+
+
+@overload
+def _require(d: dict, key: str, where: str, typ: type[_T]) -> _T: ...
+@overload
+def _require(d: dict, key: str, where: str, typ: tuple[type[_T], type[_U]]) -> _T | _U: ...
+def _require(d: dict, key: str, where: str, typ: type | tuple[type, ...]) -> Any:
+    """``d[key]``, an instance of ``typ`` (its type as the return type), or a DataFormatError naming ``where``."""
     if key not in d:
         raise DataFormatError(f"{where}: missing key '{key}'")
     v = d[key]
@@ -505,7 +514,7 @@ def _temperatures(df: pd.DataFrame, cols: list[str], keep: np.ndarray, t: np.nda
     for k in legs:
         c = f"{k}{TEMP_SUFFIX}"
         if c in by_col or TEMP_COMMON in by_col:
-            out[k] = by_col.get(c, by_col.get(TEMP_COMMON)).copy()
+            out[k] = (by_col[c] if c in by_col else by_col[TEMP_COMMON]).copy()
     return out
 
 
@@ -679,9 +688,10 @@ def _nominal_gravity_body(ds: Dataset) -> Dataset:
     recs = []
     for r in ds.recordings:
         if r.kind == "hanging" and r.gravity_body is None:
-            gm = np.nanmean(r.gravity, axis=0)
+            g = r.gravity_directions()  # without gravity_body: the per-sample gravity (recording_from_frame requires one of them)
+            gm = np.nanmean(g, axis=0)
             gb = gm / np.linalg.norm(gm)
-            spread = np.degrees(np.arccos(np.clip(r.gravity[np.all(np.isfinite(r.gravity), axis=1)] @ gb, -1, 1))).max()
+            spread = np.degrees(np.arccos(np.clip(g[np.all(np.isfinite(g), axis=1)] @ gb, -1, 1))).max()
             if spread > 10.0:
                 raise DataFormatError(f"{r.path or r.name}: the hexapod legs' hanging fit needs one held orientation per recording "
                                       f"(gravity_body); the per-sample gravity spreads {spread:.0f} deg; expected within 10 deg")
@@ -710,12 +720,21 @@ def check_distinct_recordings(ds: Dataset) -> None:
 
 
 
+def held_gravity_body(r: Recording) -> np.ndarray:
+    """``r.gravity_body``, which every hanging recording of hexapod legs has once read (``_nominal_gravity_body``)."""
+    if r.gravity_body is None:
+        raise DataFormatError(f"{r.path or r.name}: hanging recording without gravity_body; expected one held orientation "
+                              "per recording to pair opposite recordings")
+    return r.gravity_body
+
+
 def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tuple[Recording, Recording]]:
     """Match hanging recordings into opposite pairs by ``gravity_body``.
 
     Raises :class:`DataFormatError` naming a recording that has no opposite.
     """
     recs = list(recs)
+    gbs = [held_gravity_body(r) for r in recs]
     used: set[int] = set()
     pairs = []
     cos_tol = np.cos(np.radians(tol_deg))
@@ -724,14 +743,14 @@ def hanging_pairs(recs: Iterable[Recording], tol_deg: float = 10.0) -> list[tupl
             continue
         match = None
         for j in range(i + 1, len(recs)):
-            if j not in used and float(a.gravity_body @ recs[j].gravity_body) < -cos_tol:
+            if j not in used and float(gbs[i] @ gbs[j]) < -cos_tol:
                 match = j
                 break
         if match is None:
             src = a.path or a.name
             raise DataFormatError(
-                f"{src}: hanging recording with gravity_body {a.gravity_body.tolist()} has no opposite recording "
-                f"(expected one with gravity_body {(-a.gravity_body).tolist()})"
+                f"{src}: hanging recording with gravity_body {gbs[i].tolist()} has no opposite recording "
+                f"(expected one with gravity_body {(-gbs[i]).tolist()})"
             )
         used |= {i, match}
         pairs.append((a, recs[match]))

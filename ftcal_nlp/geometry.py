@@ -20,12 +20,15 @@ Notation of the report (Wu & Revzen, Sec. II-A):
 
 from __future__ import annotations
 
-from typing import Any, Union
+from typing import Any, TypeAlias
 
 import casadi as ca
 import numpy as np
 
-ArrayLike = Union[np.ndarray, ca.SX, ca.MX, ca.DM]
+# A numpy array or a CasADi SX/MX/DM: the functions below are duck-typed over both
+# (indexing and arithmetic mean the same), which no static union expresses; the
+# argument's own type picks the branch at run time (``_is_symbolic``).
+ArrayLike: TypeAlias = Any
 
 _CASADI_TYPES = (ca.SX, ca.MX, ca.DM)
 
@@ -83,8 +86,8 @@ def cayley_inv(R: ArrayLike) -> ArrayLike:
         eye = ca.DM.eye(3)
         return unskew(ca.mtimes(eye - R, ca.inv(eye + R)))
     R = np.asarray(R, dtype=float)
-    eye = np.broadcast_to(np.eye(3), R.shape)
-    return unskew(np.swapaxes(np.linalg.solve(np.swapaxes(eye + R, -1, -2), np.swapaxes(eye - R, -1, -2)), -1, -2))
+    eye_n = np.broadcast_to(np.eye(3), R.shape)
+    return unskew(np.swapaxes(np.linalg.solve(np.swapaxes(eye_n + R, -1, -2), np.swapaxes(eye_n - R, -1, -2)), -1, -2))
 
 
 def se3(R: np.ndarray, p: np.ndarray) -> np.ndarray:

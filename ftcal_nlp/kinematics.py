@@ -95,9 +95,11 @@ class KinematicTree:
         """Joints on the path from ``upper`` down to ``lower`` (``upper`` must be an ancestor), top first."""
         path = self.path_to_root(lower)
         idx = next((i for i, j in enumerate(path) if j.parent == upper), None)
-        if idx is None and lower != upper:
+        if lower == upper:
+            return []
+        if idx is None:
             raise ValueError(f"link '{upper}' is not above '{lower}' in URDF '{self.name}'")
-        return [] if lower == upper else list(reversed(path[: idx + 1]))
+        return list(reversed(path[: idx + 1]))
 
     def pose(self, ref: str, link: str, q: Mapping[str, np.ndarray], n: int,
              extra: Mapping[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:

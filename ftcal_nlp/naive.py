@@ -65,8 +65,11 @@ def no_transformation_error_residuals(w_m: np.ndarray, R_WB: np.ndarray, offsets
 def naive_ground_wrenches(rec: Recording, bias: np.ndarray, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Naive-tare per-foot wrench (N_ok, K, 6) in the heading frame about B's origin, and the row mask
     of rows with a motion-capture orientation (N,)."""
-    ok = np.all(np.isfinite(rec.quat), axis=1)
-    R_HB = remove_yaw(quat_to_rotation(rec.quat[ok]))
+    q = rec.quat
+    if q is None:
+        raise DataFormatError(f"{rec.path or rec.name}: no columns qw, qx, qy, qz; the naive ground wrenches need the body's orientation")
+    ok = np.all(np.isfinite(q), axis=1)
+    R_HB = remove_yaw(quat_to_rotation(q[ok]))
     R = np.einsum("nij,kjl->nkil", R_HB, robot.nominal_rotations())
     pos = np.einsum("nij,kj->nki", R_HB, robot.nominal_positions())
     return transform_wrench(R, pos, rec.wrench_array(robot.legs)[ok] - bias), ok

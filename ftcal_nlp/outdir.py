@@ -267,10 +267,12 @@ def calibration_inputs(cal: Path) -> dict[str, Path]:
         d = json.loads(cal.read_text())
     except (OSError, ValueError):
         d = {}
-    meta = d.get("meta") if isinstance(d, dict) and isinstance(d.get("meta"), dict) else {}
+    raw_meta = d.get("meta") if isinstance(d, dict) else None
+    meta: dict = raw_meta if isinstance(raw_meta, dict) else {}
     cov = meta.get("covariance_file")
     out["calibration's covariance file"] = cal.parent / (cov if isinstance(cov, str) else "calibration_cov.npz")
-    legs = d.get("legs") if isinstance(d, dict) and isinstance(d.get("legs"), dict) else {}
+    raw_legs = d.get("legs") if isinstance(d, dict) else None
+    legs: dict = raw_legs if isinstance(raw_legs, dict) else {}
     for name, leg in legs.items():
         if isinstance(leg, dict) and isinstance(leg.get("urdf"), str):
             u = Path(os.path.expanduser(leg["urdf"]))

@@ -46,14 +46,15 @@ from .calibration import Calibration
 from .calibration_run import CalibrationRun, JointCovariance, joint_covariance
 from .checks import check_dataset, check_transducer_poses, screen_sensor_faults
 from .correct import correct_recording_full
-from .data import Dataset
+from .data import Dataset, Recording
 from .diagnose import DiagnosisResult, diagnose_run
 from .errors import DataFormatError, FtcalError, ImplausibleLoadFit, SolverError
 from .hanging import HangingResult, fit_hanging
 from .loads import LegComCurve
+from .loads.base import LinearLoad
 from .selection import select_models
 from .sensor_noise import SensorNoise, estimate_sensor_noise
-from .settings import CalibrationSettings
+from .settings import CalibrationSettings, FreeLoadSettings
 from .standing import Poses, extract_poses, fit_standing
 from .tracking import TrackedOffsets
 from .uncertainty import CalibrationCovariance
@@ -64,6 +65,9 @@ log = logging.getLogger("ftcal_nlp.pipeline")
 
 T = TypeVar("T")
 
+#: per free-load transducer: its recordings cut to the quasi-static samples, the readings' noise sd (6,) and its load
+FreeLoadSamples = dict[str, tuple[list[Recording], np.ndarray | None, LinearLoad]]
+
 
 def optional(what: str, notes: list[str], fn: Callable[[], T]) -> T | None:
     """Run an optional comparison or stage and return its result, or None (the main estimate stands without it).
@@ -72,6 +76,7 @@ def optional(what: str, notes: list[str], fn: Callable[[], T]) -> T | None:
     ``"<what> was skipped: <why>"``, recorded in ``notes`` (the report lists them). Anything else is a
     defect of the package, not of the data; it must not stop the run either, but it is named as one
     (``"... was skipped by a defect (TypeName: msg); please report it"``) and its traceback logged at debug."""
+    err: Exception
     try:
         return fn()
     except FtcalError as exc:
@@ -158,11 +163,11 @@ def _sensor_noise(ds: Dataset, s: CalibrationSettings, notes: list[str]) -> Sens
         return None
 
 
-def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> dict[str, tuple[list, np.ndarray, object]]:
+def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> FreeLoadSamples:
     return checked_free_load_samples(ds, s.free_load)
 
 
-def checked_free_load_samples(ds: Dataset, free_load=None) -> dict[str, tuple[list, np.ndarray, object]]:
+def checked_free_load_samples(ds: Dataset, free_load: FreeLoadSettings | None = None) -> FreeLoadSamples:
     """Per free-load transducer its quasi-static samples (the recordings cut to them), their per-sample noise and its load,
     checked before fitting (``freeload/plausibility.py``: quaternion order, gravity sign, joint angles in degrees, ...);
     ``free_load`` the :class:`~ftcal_nlp.settings.FreeLoadSettings` (None: the defaults). ``plan`` checks a pilot so."""
@@ -175,7 +180,7 @@ def checked_free_load_samples(ds: Dataset, free_load=None) -> dict[str, tuple[li
 
     if free_load is None:
         free_load = CalibrationSettings().free_load
-    out = {}
+    out: FreeLoadSamples = {}
     for leg in ds.free_load_legs:
         load = load_for(ds, leg, free_load.loads.get(leg))
         for r in ds.hanging:   # the clock first: milliseconds make every sample a hold of its own
@@ -195,7 +200,7 @@ def checked_free_load_samples(ds: Dataset, free_load=None) -> dict[str, tuple[li
     return out
 
 
-def raise_free_load_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarray, object]], exc: SolverError) -> None:
+def raise_free_load_causes(ds: Dataset, samples: FreeLoadSamples, exc: SolverError) -> None:
     """After a failed free-load fit: raise :class:`~ftcal_nlp.errors.ImplausibleLoadFit` naming the conventions whose
     fix makes a transducer's load plausible, if any (else return: the solver's error stands)."""
     from .freeload.plausibility import nominal_rotation_source, reference_mass, try_causes
@@ -209,7 +214,7 @@ def raise_free_load_causes(ds: Dataset, samples: dict[str, tuple[list, np.ndarra
                                      leg=leg, causes=tuple(t.name for t in found)) from exc
 
 
-def check_free_load_fits(ds: Dataset, fits: dict, samples: dict[str, tuple[list, np.ndarray, object]]) -> list[str]:
+def check_free_load_fits(ds: Dataset, fits: dict, samples: FreeLoadSamples) -> list[str]:
     """The checks after the free-load fits (``freeload/plausibility.py``: an implausible fit raises, naming the causes
     tried); returns the notes of a weighed mass the fit disagrees with (logged). ``plan`` checks a pilot so."""
     from .freeload.plausibility import check_free_load_fit, nominal_rotation_source, weighed_mass_note

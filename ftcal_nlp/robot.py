@@ -33,6 +33,25 @@ class Transducer:
     link: str | None = None          # the URDF link whose frame is ft_k (section 5)
     load_mass_kg: float | None = None   # the load's mass as weighed (section 5): a measurement, not a guess
 
+    def given_rotation(self) -> np.ndarray:
+        """``rotation``, which robot.toml gives for every transducer without a URDF ``link`` (hexapod legs, payloads)."""
+        if self.rotation is None:
+            raise _no_pose(self, "rotation")
+        return self.rotation
+
+    def given_position(self) -> np.ndarray:
+        """``position_m``, which robot.toml gives for every transducer without a URDF ``link``."""
+        if self.position_m is None:
+            raise _no_pose(self, "position_m")
+        return self.position_m
+
+
+def _no_pose(t: Transducer, key: str) -> Exception:
+    from .errors import DataFormatError
+
+    return DataFormatError(f"robot.toml [transducers.{t.leg}]: no '{key}'; its nominal pose is the URDF link "
+                           f"'{t.link}' per sample, and this step needs one fixed pose", column=key)
+
 
 @dataclass(frozen=True)
 class Robot:
@@ -67,11 +86,11 @@ class Robot:
 
     def nominal_rotations(self) -> np.ndarray:
         """Nominal ``R_ftk^B`` stacked in leg order, shape (K, 3, 3)."""
-        return np.stack([self.transducers[k].rotation for k in self.legs])
+        return np.stack([self.transducers[k].given_rotation() for k in self.legs])
 
     def nominal_positions(self) -> np.ndarray:
         """Nominal transducer origins in B stacked in leg order, shape (K, 3), m."""
-        return np.stack([self.transducers[k].position_m for k in self.legs])
+        return np.stack([self.transducers[k].given_position() for k in self.legs])
 
     def to_toml_dict(self) -> dict:
         out: dict = {"name": self.name}

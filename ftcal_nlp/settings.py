@@ -17,16 +17,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 from .errors import ConfigError
 from .models import REPORT_CANDIDATES
 from .solver import REL_EIG_TOL
 
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
 __all__ = ["PoseExtraction", "FreeLoadSettings", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
            "OffsetsOnlySettings", "CorrectSettings", "CalibrationSettings", "with_overrides"]
 
-T = TypeVar("T")
+T = TypeVar("T", bound="DataclassInstance")   # a settings dataclass
 
 
 def with_overrides(settings: T | None, cls: type[T], overrides: dict[str, Any], where: str) -> T:

@@ -219,7 +219,7 @@ def track_offsets(t: np.ndarray, y: np.ndarray, swing: np.ndarray, cal: Calibrat
     Dm = np.diff(np.eye(nb), n=2, axis=0)
     P = Dm.T @ Dm
     off_cal = np.stack([cal.legs[k].offset for k in legs])
-    off_se = np.stack([cal.legs[k].offset_se if cal.legs[k].offset_se is not None else np.full(6, np.nan) for k in legs])
+    off_se = np.stack([se if (se := cal.legs[k].offset_se) is not None else np.full(6, np.nan) for k in legs])
     coef = np.repeat(off_cal[:, None, :], nb, axis=1)
     unit = np.zeros((K, nb, nb))
     sigma = np.zeros((K, 6, 6))
@@ -262,7 +262,7 @@ def track_offsets(t: np.ndarray, y: np.ndarray, swing: np.ndarray, cal: Calibrat
         unit[i] = Ai @ BtB @ Ai
         coef[i] = beta
         tracked[i] = True
-        if cal_cov is not None:
+        if cal_cov is not None and phi is not None and R_WB is not None:   # (cal_cov is set only with both)
             G = _leg_weight_jacobian_mean(phi[m, i], R_WB[m], cal, k, cov)
             cal_cov[i] = G @ cov.cov @ G.T
             # the change since calibration, tracked - calibrated, errs by -(G d_theta + d_w_o): the same parameters'

@@ -18,10 +18,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
 from .errors import DataFormatError
+
+if TYPE_CHECKING:  # calibration.py is read only for a hexapod's truth (imported there)
+    from .calibration import Calibration
 
 FREE_KINDS = ("payload", "urdf_leg")
 
@@ -31,7 +35,7 @@ class LoadTruth:
     """The true free load of one transducer (module docstring); ``raw`` the whole file."""
 
     kind: str
-    transducer: str
+    transducer: str | None   # None: the file names none and robot.toml has more than one transducer
     offset: np.ndarray
     mount_rotvec: np.ndarray | None
     noise: np.ndarray
@@ -39,12 +43,24 @@ class LoadTruth:
     com_m: np.ndarray | None = None
     ft_link: str | None = None
     bodies: dict = field(default_factory=dict)
-    effects: tuple = ()
+    effects: tuple[str, ...] = ()
     raw: dict = field(default_factory=dict)
 
     def body_tuples(self) -> dict[str, tuple[float, np.ndarray]]:
         """``{link: (mass_kg, com_m in the link's frame)}`` of a URDF load (as ``sim.free.physics`` takes them)."""
         return {l: (float(b["mass_kg"]), np.asarray(b["com_m"], float)) for l, b in self.bodies.items()}
+
+
+class _CommonKeys(TypedDict):
+    """The fields of :class:`LoadTruth` both kinds of free load read alike."""
+
+    kind: str
+    transducer: str | None
+    offset: np.ndarray
+    noise: np.ndarray
+    mount_rotvec: np.ndarray | None
+    effects: tuple[str, ...]
+    raw: dict
 
 
 def free_load_kind(d: dict) -> str | None:
@@ -69,7 +85,7 @@ def load_truth_from_dict(d: dict, path: str | Path = "truth.json", robot=None) -
     legs = list(getattr(robot, "legs", []) or [])
     transducer = d.get("transducer", legs[0] if len(legs) == 1 else None)
     try:
-        common = dict(kind=kind, transducer=None if transducer is None else str(transducer),
+        common = _CommonKeys(kind=kind, transducer=None if transducer is None else str(transducer),
                       offset=np.asarray(d["offset"], float), noise=np.asarray(d["noise"], float),
                       mount_rotvec=_mount_rotvec(d),
                       effects=tuple(e["name"] if isinstance(e, dict) else str(e) for e in d.get("effects", ())), raw=d)
@@ -95,7 +111,7 @@ def _robot_link(robot, transducer) -> str | None:
     return t.get("link") if isinstance(t, dict) else getattr(t, "link", None)
 
 
-def load_truth(path: str | Path, *, mass_kg: float | None = None, g: float = 9.81, robot=None):
+def load_truth(path: str | Path, *, mass_kg: float | None = None, g: float = 9.81, robot=None) -> LoadTruth | Calibration:
     """The truth in ``path``: a :class:`LoadTruth` for a free load, else a :class:`Calibration` (hexapod)."""
     path = Path(path)
     d = json.loads(path.read_text())

@@ -50,6 +50,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -106,7 +107,7 @@ class CalibrationCovariance:
 
     def save(self, path: str | Path) -> None:
         """A compressed ``.npz`` (names, cov, undetermined); the noise lives in ``calibration.json``'s meta."""
-        extra = {} if self.null is None else {"null": self.null}
+        extra: dict[str, Any] = {} if self.null is None else {"null": self.null}   # (Any: not savez's allow_pickle)
         np.savez_compressed(path, names=np.array(self.names), cov=self.cov, undetermined=self.undetermined, **extra)
 
     def block(self, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:

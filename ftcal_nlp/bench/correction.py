@@ -73,6 +73,7 @@ def run_correction(settings: CorrectionBenchSettings = CorrectionBenchSettings()
     sim = simulate(replace(SimConfig(seed=s.seed), **s.sim_overrides))
     run = calibrate(sim.dataset, CALIBRATE)
     cal, cov = run.calibration, run.uncertainty
+    assert cov is not None  # a hexapod's run has its covariance
     legs = cal.leg_names
     cycles = s.walk_minutes * 60.0 * sim.config.walk_freq_hz
     moved = simulate_later_walk(sim, cycles=cycles)

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ..correct import correct_recording
+from ..calibration import Calibration
 from ..data import Recording
 from ..export import compile_shared, load_compiled, write_c
 from ..geometry import quat_to_rotation
@@ -49,9 +50,10 @@ def _best(fn, repeats: int) -> float:
     return best
 
 
-def _tiled_walk(cfg: SimConfig, n: int) -> tuple[Recording, object]:
+def _tiled_walk(cfg: SimConfig, n: int) -> tuple[Recording, Calibration]:
     sim = simulate(cfg)
     walk = sim.dataset.walking[0]
+    assert walk.quat is not None  # a walking recording has qw..qz
     walk = walk.select(np.all(np.isfinite(walk.quat), axis=1))
     reps = int(np.ceil(n / walk.n))
     idx = np.tile(np.arange(walk.n), reps)[:n]
@@ -65,6 +67,7 @@ def run_export_speed(settings: ExportSpeedSettings = ExportSpeedSettings()) -> d
     rec, cal = _tiled_walk(SimConfig(seed=settings.seed, hanging_cycles=0.25, n_poses=1, walk_cycles=2.0), settings.n_samples)
     legs = cal.leg_names
     w, phi, q = rec.wrench_array(legs), rec.phi_array(legs), rec.quat
+    assert q is not None  # (as _tiled_walk's)
     n = len(phi)
     with tempfile.TemporaryDirectory(prefix="ftcal_export_") as tmp:
         fn = load_compiled(compile_shared(write_c(cal, Path(tmp))), len(legs))

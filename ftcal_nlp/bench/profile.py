@@ -70,7 +70,7 @@ def profile_call(fn: Callable[[], object]) -> tuple[pd.DataFrame, float, str]:
     total = time.perf_counter() - t0
     st = pstats.Stats(prof)
     rows = []
-    for (file, line, name), (cc, nc, tt, ct, _) in st.stats.items():
+    for (file, line, name), (cc, nc, tt, ct, _) in st.stats.items():  # type: ignore[attr-defined]  # undocumented; typeshed omits it
         rows.append({"file": file, "line": line, "function": name, "ncalls": nc, "tottime_s": tt, "cumtime_s": ct})
     df = pd.DataFrame(rows)
     df["tottime_frac"] = df.tottime_s / total

@@ -421,8 +421,8 @@ def summary_markdown(acc: dict | None, sp: dict | None, sc: dict | None, prof: d
         ex = ex[["task", "size", "n_min", "n_max", "time_exponent", "time_exponent_upper", "memory_exponent", "time_at_max_s", "peak_rss_at_max_mb"]]
         out += ["### Scaling (log-log slope of wall time and of peak RSS growth; `upper`: upper half of the range)", "",
                 md_table(ex), "", "Target: linear or better (slope <= 1).", ""]
-        errs = sc["points"][sc["points"]["error"].notna()] if "error" in sc["points"] else []
-        if len(errs):
+        errs = sc["points"][sc["points"]["error"].notna()] if "error" in sc["points"] else None
+        if errs is not None and len(errs):
             out += [f"{len(errs)} scaling point(s) failed: " + "; ".join(f"{r.task} n={r.n}: {r.error}" for r in errs.itertuples()), ""]
     if corr is not None:
         out += correction_markdown(corr, md_table)

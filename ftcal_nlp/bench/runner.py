@@ -142,6 +142,7 @@ def run_bench(settings: BenchSettings, out: str | Path = "reports/bench", progre
         if "speed" in settings.parts or "profile" in settings.parts:
             sp = run_speed(settings.speed, progress=progress)
         if "profile" in settings.parts:
+            assert sp is not None  # the speed part ran above for the profile
             keep = None if settings.profile_all else _slowest(sp["times"], settings.profile_count)
             with tempfile.TemporaryDirectory(prefix="ftcal_profile_") as tmp:
                 prof = profile_stages(profile_targets(sp["context"], Path(tmp), keep))

@@ -152,7 +152,12 @@ def worker(task: str, n: int, data_path: Path | None, trace: bool = True) -> dic
 
     warnings.simplefilter("ignore")
     with threadpool_limits(1):
-        fn = _hanging_task(task, n) if task in HANGING_TASKS else _standing_task(task, n, data_path)
+        if task in HANGING_TASKS:
+            fn = _hanging_task(task, n)
+        elif data_path is None:
+            raise ValueError(f"scaling task {task!r} reads the standing dataset: give --data")
+        else:
+            fn = _standing_task(task, n, data_path)
         _release_free_memory()
         rss0 = _status_kb("VmRSS")
         reset = _reset_peak()

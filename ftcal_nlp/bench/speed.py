@@ -30,6 +30,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import pandas as pd
@@ -45,12 +46,12 @@ from ..standing import Poses, extract_poses, fit_standing
 
 CALIBRATION_STAGES = ("hanging", "model selection", "standing")
 PIPELINE_STAGES = ("poses", "hanging", "model selection", "standing")
-_OFF = dict(diagnose=DiagnoseSettings(enabled=False))
+_OFF = DiagnoseSettings(enabled=False)
 METHODS = {
-    "nlp": CalibrationSettings(hanging=HangingSettings(compare_baseline=False), standing=StandingSettings(compare_baseline=False), **_OFF),
+    "nlp": CalibrationSettings(hanging=HangingSettings(compare_baseline=False), standing=StandingSettings(compare_baseline=False), diagnose=_OFF),
     "baseline": CalibrationSettings(hanging=HangingSettings(method="baseline", compare_baseline=False),
                                     standing=StandingSettings(solver="baseline", balance="report", weighting="knorm",
-                                                              compare_baseline=False), **_OFF),
+                                                              compare_baseline=False), diagnose=_OFF),
 }
 
 
@@ -63,9 +64,13 @@ class SpeedSettings:
     whole_run: bool = True                               # also time ftcal_nlp.run.run (load .. report) with and without it
 
 
-def timed(fn: Callable, repeats: int) -> tuple[object, list[float], list[float]]:
+_R = TypeVar("_R")
+
+
+def timed(fn: Callable[[], _R], repeats: int) -> tuple[_R, list[float], list[float]]:
     """Call ``fn`` ``repeats`` times; returns the last result, wall and CPU seconds of each call."""
-    walls, cpus, out = [], [], None
+    walls: list[float] = []
+    cpus: list[float] = []
     for _ in range(max(1, repeats)):
         w0, c0 = time.perf_counter(), time.process_time()
         out = fn()
@@ -87,7 +92,9 @@ def _settings(method: str, folds: int, diagnosis: bool = False) -> CalibrationSe
 
 def _time_calibrate(ds, cs: CalibrationSettings, repeats: int):
     """``calibrate(ds, cs)`` ``repeats`` times: the last run, whole-call wall/CPU, per-stage wall/CPU lists."""
-    walls, cpus, stage_w, stage_c, run = [], [], {}, {}, None
+    walls, cpus, run = [], [], None
+    stage_w: dict[str, list[float]] = {}
+    stage_c: dict[str, list[float]] = {}
     for _ in range(max(1, repeats)):
         w0, c0 = time.perf_counter(), time.process_time()
         run = calibrate(ds, cs)

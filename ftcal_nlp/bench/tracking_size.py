@@ -41,6 +41,7 @@ def tracking_size(walks: int = 40, seed: int = 0, *, n_poses: int = 60, hanging_
         run = calibrate(sim.dataset, fast)
         walk = simulate_later_walk(sim, cycles=walk_cycles, shift_N=0.0, shift_Nm=0.0, drift_N=0.0, drift_Nm=0.0, seed=s)
         c = correct_recording_full(run.calibration, walk.recording, run.uncertainty, CorrectSettings(track_offsets=True))
+        assert c.tracking is not None  # track_offsets on a walk of many samples
         tab = c.tracking.change_table()
         for leg, r in tab.iterrows():
             if r["tracked"]:

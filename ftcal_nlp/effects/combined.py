@@ -85,7 +85,7 @@ class Combined(Effect):
         return any(m.design_face for m in self.members)
 
     @property
-    def explains(self):   # type: ignore[override]
+    def explains(self):
         return self.members[0].explains
 
     @property

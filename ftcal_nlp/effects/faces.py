@@ -88,7 +88,7 @@ class PoseSym:
     rcom: list
     rz: list
     tb: Any = None
-    harm: list = None
+    harm: list | None = None
     step: Any = None
 
 
@@ -134,9 +134,9 @@ class ParamBlock:
         return cls(names, np.zeros(len(names)), np.full(len(names), -float(bound)), np.full(len(names), float(bound)))
 
     names: tuple[str, ...]
-    x0: np.ndarray = None
-    lb: np.ndarray = None
-    ub: np.ndarray = None
+    x0: np.ndarray = None  # type: ignore[assignment]  # None: filled in __post_init__ (zeros)
+    lb: np.ndarray = None  # type: ignore[assignment]  # None: -inf, filled in __post_init__
+    ub: np.ndarray = None  # type: ignore[assignment]  # None: +inf, filled in __post_init__
 
     def __post_init__(self):
         m = len(self.names)
@@ -219,7 +219,8 @@ def stack_faces(faces: list[tuple[str, LinearFace]], legs: list[HangingLeg]) -> 
     if not faces:
         return None
     K = max(l.k for l in legs) + 1 if legs else 0
-    blocks, cols, names, off = [], [[] for _ in legs], [], 0
+    blocks, names, off = [], [], 0
+    cols: list[list] = [[] for _ in legs]
     for p, f in faces:
         if len(f.names) != f.size(K):
             raise ValueError(f"face {p!r}: {len(f.names)} names for {f.size(K)} parameters")
@@ -273,6 +274,7 @@ class StandingData:
 
     def time_basis(self) -> np.ndarray:
         """Legendre polynomials P_1..P_TIME_BASIS of the time scaled to [-1, 1] over ``t_span`` (P, TIME_BASIS)."""
+        assert self.t_span is not None  # set in __post_init__
         return legendre_time(self.t_h, *self.t_span, range(1, TIME_BASIS + 1))
 
     @property

@@ -141,8 +141,10 @@ class FreeFace:
                 m = self.basis.shape[1]
                 self._blocks = tuple((c, np.arange(i * m, (i + 1) * m), self.basis) for i, c in enumerate(self.channels))
             else:
-                nz = np.any(self._X != 0, axis=0)                      # (6, k): columns not identically zero per channel
-                self._blocks = tuple((c, np.flatnonzero(nz[c]), np.ascontiguousarray(self._X[:, c, nz[c]]))
+                X = self._X
+                assert X is not None  # one of X, basis and blocks (__init__)
+                nz = np.any(X != 0, axis=0)                            # (6, k): columns not identically zero per channel
+                self._blocks = tuple((c, np.flatnonzero(nz[c]), np.ascontiguousarray(X[:, c, nz[c]]))
                                      for c in range(6) if nz[c].any())
         return self._blocks
 
@@ -152,7 +154,7 @@ class FreeFace:
             return bool(np.any(self._X))
         if self.basis is not None:
             return bool(np.any(self.basis))
-        return any(bool(np.any(B)) for _, _, B in self._blocks)
+        return any(bool(np.any(B)) for _, _, B in self.channel_blocks())
 
     @property
     def X(self) -> np.ndarray:
@@ -176,7 +178,7 @@ class FreeFace:
         # channel blocks (a dense face once the diagnosis has found them): each channel's non-zero columns only
         n = len(np.arange(self.n)[rows]) if not isinstance(rows, slice) or rows != slice(None) else self.n
         out = np.zeros((n, 6))
-        for c, cols, B in self._blocks:
+        for c, cols, B in self.channel_blocks():
             out[:, c] = B[rows] @ beta[cols]
         return out
 
@@ -301,9 +303,9 @@ class FreeLoadContext:
         c = self.extra.get("_relaxation")
         # the cache is this context's (``select`` and ``dataclasses.replace`` share ``extra``): same arrays or rebuilt
         if c is None or c[0] is not self.t or c[1] is not self.rec or c[2] is not self.pred:
-            rows = [np.flatnonzero(self.rec == r) for r in np.unique(self.rec)]
+            idx = [np.flatnonzero(self.rec == r) for r in np.unique(self.rec)]
             # a recording's samples are one run (recording after recording): a slice, no gather
-            rows = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i for i in rows]
+            rows: list[slice | np.ndarray] = [slice(int(i[0]), int(i[-1]) + 1) if len(i) and i[-1] - i[0] + 1 == len(i) else i for i in idx]
             c = self.extra["_relaxation"] = (self.t, self.rec, self.pred, rows,
                                              [np.ascontiguousarray(self.pred[i].T) for i in rows], {},
                                              [_clock(self.t[i]) for i in rows])
@@ -493,7 +495,7 @@ def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:
     c = ctx.extra.get("_legendre")
     if c is None or c[0] is not ctx.t or c[1:3] != (lo, hi):   # the cache is of one clock over one span
         c = ctx.extra["_legendre"] = (ctx.t, lo, hi, {})
-    cols = c[3]
+    cols: dict[int, np.ndarray] = c[3]
     for j in range(1, degree + 1):
         if j not in cols:
             cols[j] = legendre_time(ctx.t, c[1], c[2], [j])[:, 0]

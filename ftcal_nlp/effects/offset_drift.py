@@ -51,7 +51,7 @@ class OffsetDriftInjector(EffectInjector):
     def __init__(self, scale: float | None = None, seed: int = 0, tau_s: float = 1200.0):
         super().__init__(scale, seed)
         self.tau_s = float(tau_s)
-        self._dir = None
+        self._dir: np.ndarray | None = None
 
     def _drift(self, K: int) -> np.ndarray:
         if self._dir is None or len(self._dir) != K:
@@ -195,7 +195,7 @@ class OffsetDrift(Effect):
             lo, hi = float(l.t.min()), float(l.t.max())
             if self.hanging == self.HANGING_CUBIC:
                 curves = list(legendre_time(l.t, lo, hi, (2, 3)).T)
-            elif self.hanging != "line":
+            elif isinstance(self.hanging, float):   # a warm-up time constant (__init__: not 'line')
                 curves = [np.exp(-(l.t - lo) / self.hanging)]
             X = np.zeros((len(l.t), 6, 6 * (1 + len(curves))))
             for j, c in enumerate([(l.t - l.t_ref) / HOUR_S, *curves]):

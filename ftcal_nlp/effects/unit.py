@@ -32,7 +32,7 @@ import numpy as np
 
 from .correction import correct_by_face
 from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym
-from .injection import EffectInjector, Magnitude, NoEffect
+from .injection import EffectInjector, Magnitude, NoEffect, OffFaceInjector
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ class Effect:
     magnitude: ClassVar[Magnitude] = Magnitude("", (0.0, 0.0), 0.0)
     injector_cls: ClassVar[type] = NoEffect
     #: off-face validation shapes: OffFaceInjector classes whose ``expect`` is this effect
-    shapes: ClassVar[tuple[type, ...]] = ()
+    shapes: ClassVar[tuple[type[OffFaceInjector], ...]] = ()
     #: the calibration settings under which the standing face is meaningful
     needs_report_balance: ClassVar[bool] = False
     #: the effect acts while hanging, so the hanging offsets absorbed part of it: the standing

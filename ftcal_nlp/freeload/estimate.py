@@ -186,7 +186,7 @@ def _null_penalty(A: np.ndarray, s: FreeLoadSettings, tilt) -> np.ndarray | None
     return P
 
 
-def _tilt_undetermined(A: np.ndarray, s: FreeLoadSettings, p: int, G: int, k: int) -> bool:
+def _tilt_undetermined(A: np.ndarray, s: FreeLoadSettings, p: int, G: int, k: int | np.integer) -> bool:
     """Whether an undetermined direction of the information ``A`` (local coordinates) with group ``k``'s tilt free
     (the other groups' held) moves that tilt."""
     free = np.zeros(G, bool)

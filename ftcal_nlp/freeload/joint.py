@@ -217,7 +217,9 @@ def fit_joint(ds: Dataset, legs: list[str], s: FreeLoadSettings) -> dict[str, Fr
         b_t = np.einsum("nik,nk->ni", d.a, U[gmap[k][d.group]])
         r_k = d.y - predict(b_t, d.K, x[base[k] + 6:base[k + 1]], mus[k], Es[k], x[base[k]:base[k] + 6])
         rho, inflation = serial_inflation(r_k, d.source, d.index)
-        res.append(r_k), rhos.append(rho), infl.append(inflation)
+        res.append(r_k)
+        rhos.append(rho)
+        infl.append(inflation)
     info = local_info(x, Es, [Ws[k] / infl[k] for k in range(K)])
     keep = keep_of(free)
     tnames = [[f"tilt.r{c}" for c in "xy"] if kd == "world" else [f"{nm}.tilt.r{c}" for c in "xy"] if kd == "recording"

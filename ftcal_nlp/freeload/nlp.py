@@ -37,6 +37,7 @@ the optimum (``result.py``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -45,7 +46,7 @@ from ..geometry import skew
 from ..solver import ipopt, solve_checked
 from .problem import n_tilted
 
-_IPOPT = {"tol": 1e-8, "acceptable_tol": 1e-6, "acceptable_iter": 3, "max_iter": 500}  # rounding floor of the gradient ~1e-9
+_IPOPT: dict[str, Any] = {"tol": 1e-8, "acceptable_tol": 1e-6, "acceptable_iter": 3, "max_iter": 500}  # rounding floor of the gradient ~1e-9
 
 
 def _lifted(w_o, theta, E, mu):

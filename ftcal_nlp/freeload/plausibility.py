@@ -489,7 +489,7 @@ def check_units(recs: Sequence[Recording], leg: str, load, g: float, noise: np.n
     ref = reference.kg if reference else None
     m = abs(fit.mass_kg)
     floor = _force_noise(noise)
-    if ref and np.isfinite(m) and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
+    if reference is not None and ref and np.isfinite(m) and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
         grams = grams_hint(leg, m, reference, floor)
         if grams:
             raise DataFormatError(f"{_where(recs, leg)}: {grams}", column=f"{leg}_fx")
@@ -753,7 +753,7 @@ def try_causes(recs: Sequence[Recording], leg: str, load, g: float, tree=None, n
     grams = grams_hint(leg, m, reference, floor) if ref and m > 0 else None
     if grams:
         out.append(Trial("units", True, grams))
-    elif ref and m > 0 and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
+    elif reference is not None and ref and m > 0 and not 1 / UNIT_FACTOR <= m / ref <= UNIT_FACTOR:
         unit = "kN" if m < ref else "mN"
         out.append(Trial("units", True, f"the load mass {m:.4g} kg is {ref / m if m < ref else m / ref:.3g}x "
                                         f"off {reference.what} {ref:.4g} kg ({m * (1000 if unit == 'kN' else 1e-3):.4g} kg "
@@ -845,7 +845,7 @@ def check_free_load_fit(result, recs: Sequence[Recording], g: float, tree=None, 
         problems.append(f"a residual of {100 * share[0]:.2g} % (forces) and {100 * share[1]:.2g} % (torques) of the readings' "
                         f"spread{vs} (expected below {UNEXPLAINED_SHARE:.0%} of the spread, or {RESIDUAL_NOISE_FACTOR:g}x the "
                         "noise)")
-    if ref and mass > 0 and mass_known and not 1 / UNIT_FACTOR <= mass / ref <= UNIT_FACTOR:
+    if reference is not None and ref and mass > 0 and mass_known and not 1 / UNIT_FACTOR <= mass / ref <= UNIT_FACTOR:
         problems.append(f"a load mass of {mass:.4g} kg against {reference.what} {ref:.4g} kg (expected within {UNIT_FACTOR:g}x)")
     floor = _force_noise(noise)
     if 0 < floor < MIN_FORCE_NOISE_N:

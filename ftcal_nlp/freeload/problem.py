@@ -25,7 +25,7 @@ columns a channel can reach (4 for a force channel, 1 + 6p for a torque one).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,15 +57,15 @@ class FreeLoadData:
     source: np.ndarray
     t: np.ndarray
     names: tuple[str, ...]
-    selection: dict[str, dict] = field(default_factory=dict)
-    noise0: np.ndarray | None = None
-    masks: dict[str, np.ndarray] = field(default_factory=dict)   # recording -> (N_rec,) the samples used
-    q: dict[str, np.ndarray] = field(default_factory=dict)       # joint -> (N,) angles of the samples used
-    index: np.ndarray | None = None                              # (N,) row of each sample in its recording
-    a: np.ndarray | None = None                                  # (N, 3, 3) b = a u: u the tilted gravity of the sample's group
-    tiltable: bool = False                                       # every recording has the orientation per sample
-    group: np.ndarray | None = None                              # (N,) tilt group of each sample (index into groups)
-    groups: tuple[tuple[str, str], ...] = ()                     # (kind, name): "world" "", "recording" name, "fixed" ""
+    selection: dict[str, dict]
+    noise0: np.ndarray
+    masks: dict[str, np.ndarray]        # recording -> (N_rec,) the samples used
+    q: dict[str, np.ndarray]            # joint -> (N,) angles of the samples used
+    index: np.ndarray                   # (N,) row of each sample in its recording
+    a: np.ndarray                       # (N, 3, 3) b = a u: u the tilted gravity of the sample's group
+    tiltable: bool                      # every recording has the orientation per sample
+    group: np.ndarray                   # (N,) tilt group of each sample (index into groups)
+    groups: tuple[tuple[str, str], ...]  # (kind, name): "world" "", "recording" name, "fixed" ""
 
     @property
     def n(self) -> int:

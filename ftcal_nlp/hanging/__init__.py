@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..data import Recording
+from ..data import Recording, held_gravity_body
 from ..robot import Robot
 from ..settings import HANGING_METHODS as METHODS
 from ..settings import HangingSettings, with_overrides
@@ -92,12 +92,13 @@ def hanging_residuals(
     """
     out = {}
     for leg, l in result.legs.items():
-        R_nom = robot.transducers[leg].rotation
+        R_nom = robot.transducers[leg].given_rotation()
         blocks = []
         for rec in recordings:
             if rec.name not in l.misalignment:
                 raise ValueError(f"recording '{rec.name}' was not part of the hanging fit of leg {leg} (fitted: {list(l.misalignment)})")
-            a = R_nom.T @ (rec.gravity_body / np.linalg.norm(rec.gravity_body))
+            gb = held_gravity_body(rec)
+            a = R_nom.T @ (gb / np.linalg.norm(gb))
             R = l.misalignment[rec.name] if with_misalignment else np.eye(3)
             blocks.append(rec.wrench[leg] - sample_prediction(rec.phi[leg], a, R, l.leg_weight_N, l.offset_fit, l.com_phi, l.com_xyz_fit))
         out[leg] = np.vstack(blocks)

@@ -45,7 +45,7 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.optimize import least_squares
 
-from ..data import Recording
+from ..data import Recording, held_gravity_body
 from ..geometry import rotation_between, rotvec_to_rotation, skew
 from ..robot import Robot
 from .binning import TWO_PI, periodic_grid
@@ -138,7 +138,7 @@ def _resolve_null_space(leg: str, steps: list[dict]) -> tuple[np.ndarray, np.nda
         b = np.floor(np.mod(st["phi"], TWO_PI) / TWO_PI * nb).astype(int) % nb
         cnt = np.bincount(b, minlength=nb)
         rb = np.stack([np.bincount(b, weights=st["r"][:, c], minlength=nb) for c in range(3)], 1) / np.maximum(cnt, 1)[:, None]
-        nbv = np.stack([np.bincount(b, weights=st["n"][:, c], minlength=nb) for c in range(3)], 1)
+        nbv: np.ndarray = np.stack([np.bincount(b, weights=st["n"][:, c], minlength=nb) for c in range(3)], 1)  # float (weights)
         nbv /= np.maximum(np.linalg.norm(nbv, axis=1, keepdims=True), 1e-300)
         P = np.eye(3) - np.einsum("bi,bj->bij", nbv, nbv)
         P[cnt == 0] = 0.0
@@ -172,8 +172,8 @@ def fit_leg_baseline(leg: str, recordings: Sequence[Recording], robot: Robot, pa
     """The report's hanging method for one leg (see module docstring)."""
     t0 = time.perf_counter()
     recordings = list(recordings)
-    R_nom = robot.transducers[leg].rotation
-    a = np.stack([R_nom.T @ (r.gravity_body / np.linalg.norm(r.gravity_body)) for r in recordings])
+    R_nom = robot.transducers[leg].given_rotation()
+    a = np.stack([R_nom.T @ (gb / np.linalg.norm(gb)) for gb in map(held_gravity_body, recordings)])
     _, null = _identified_components(np.stack([a[d] for d, _ in pairs]))
     if null is not None:
         raise HangingDataError(f"leg {leg}: the baseline (report Sec. III-A.3) needs two non-parallel opposite pairs; all pairs have gravity along one axis")

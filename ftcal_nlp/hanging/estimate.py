@@ -134,6 +134,7 @@ def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str, nlp_cache: dict 
             if lam_moved:  # otherwise keep lam, so that J stays one function between rounds
                 lam = lam_new
                 s = _qp_step(problem, qp, s, design, lam)
+        assert lam is not None  # set in round 1 (GCV_ROUNDS >= 1)
         J_start = joint_objective(problem, s, W, lam)
         s = nlp.solve(problem, s, W, lam)
         J_drop = J_start - joint_objective(problem, s, W, lam)
@@ -143,6 +144,7 @@ def fit_leg_nlp(problem: LegProblem, *, smoothing: float | str, nlp_cache: dict 
         if not lam_moved and not sigma_moved and J_drop < OBJECTIVE_TOL:
             converged = True
             break
+    assert lam is not None  # MAX_ROUNDS >= 1 rounds ran
     Jval = joint_objective(problem, s, W, lam)
     cov = leg_covariance(problem, nlp, s, W, lam)
     mask = problem.com_mask

@@ -43,6 +43,7 @@ Why these constraints:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -57,7 +58,7 @@ from .problem import LegProblem
 
 # With a stiff smoothing weight the gradient's rounding floor is ~1e-7; IPOPT's own
 # "acceptable" level then ends the solve as converged (success) instead of stalling.
-_IPOPT = {"tol": 1e-8, "acceptable_tol": 1e-6, "acceptable_iter": 3, "max_iter": 300}
+_IPOPT: dict[str, Any] = {"tol": 1e-8, "acceptable_tol": 1e-6, "acceptable_iter": 3, "max_iter": 300}
 
 
 def structure_key(problem: LegProblem) -> tuple:

@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..data import DataFormatError, Recording, hanging_pairs
+from ..data import DataFormatError, Recording, hanging_pairs, held_gravity_body
 from ..robot import Robot
 from ..solver import SolverError
 from .binning import RecordingStats, compress_recording, periodic_grid
@@ -176,8 +176,8 @@ def _identified_components(axes: np.ndarray) -> tuple[np.ndarray, np.ndarray | N
 def build_leg_problem(leg: str, recordings: Sequence[Recording], robot: Robot, pairs: Sequence[tuple[int, int]], n_grid: int) -> LegProblem:
     """Compress the hanging recordings of ``leg`` and work out what they identify."""
     recordings = list(recordings)
-    R_nom = robot.transducers[leg].rotation
-    a = np.stack([R_nom.T @ (r.gravity_body / np.linalg.norm(r.gravity_body)) for r in recordings])
+    R_nom = robot.transducers[leg].given_rotation()
+    a = np.stack([R_nom.T @ (gb / np.linalg.norm(gb)) for gb in map(held_gravity_body, recordings)])
     grid = periodic_grid(n_grid)
     stats = tuple(compress_recording(r.name, r.phi[leg], r.wrench[leg], n_grid) for r in recordings)
     means = np.stack([r.wrench[leg].mean(axis=0) for r in recordings])
@@ -226,7 +226,7 @@ def build_leg_problem(leg: str, recordings: Sequence[Recording], robot: Robot, p
             f"leg {leg}: at {int(partial.sum())} grid angles (phi {_ranges(grid[partial], step)}) only one gravity axis has data; "
             "the CoM component along it is NaN there"
         )
-    return LegProblem(leg, names, a, tuple(map(tuple, pairs)), grid, stats, means, mask, null, tuple(warnings), offset_mask)
+    return LegProblem(leg, names, a, tuple((d, u) for d, u in pairs), grid, stats, means, mask, null, tuple(warnings), offset_mask)
 
 
 def _ranges(values: np.ndarray, step: float) -> str:

@@ -61,10 +61,10 @@ class LegHangingResult:
     warnings: tuple[str, ...]
     solve_time_s: float
     converged: bool
-    com_mask: np.ndarray = field(default=None)
-    com_xyz_fit: np.ndarray = field(default=None)
-    offset_fit: np.ndarray = field(default=None)
-    noise_sd: np.ndarray = field(default=None)
+    com_mask: np.ndarray
+    com_xyz_fit: np.ndarray
+    offset_fit: np.ndarray
+    noise_sd: np.ndarray | None = None   # None: the baseline estimates no noise
     smoothing: float = float("nan")
     n_rounds: int = 0
     objective: float = float("nan")
@@ -181,10 +181,11 @@ class HangingResult(ResultsMixin):
                 leg_weight_N=float(l.leg_weight_N),
                 com_phi=l.com_phi.copy(),
                 com_xyz=l.com_xyz.copy(),
-                rotation_to_body=t.rotation.copy(),
-                position_from_com_m=t.position_m.copy(),
+                rotation_to_body=t.given_rotation().copy(),
+                position_from_com_m=t.given_position().copy(),
                 offset_se=l.offset_se.copy(),
                 leg_weight_se_N=float(l.leg_weight_se_N),
                 com_xyz_se=l.com_xyz_se.copy(),
             )
-        return Calibration(legs, robot.mass_kg, robot.g, model=f"hanging-{self.method}", com_body_m=None)
+        mass = np.nan if robot.mass_kg is None else robot.mass_kg   # unknown: NaN, as a free load's calibration
+        return Calibration(legs, mass, robot.g, model=f"hanging-{self.method}", com_body_m=None)

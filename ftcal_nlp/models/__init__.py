@@ -40,6 +40,8 @@ def _load_class(spec: str) -> type:
         if not path.is_file():
             raise ConfigError(f"error model {spec!r}: file {path} not found", path=path)
         mod_spec = importlib.util.spec_from_file_location(f"ftcal_user_model_{path.stem}", path)
+        if mod_spec is None or mod_spec.loader is None:   # a file Python cannot import (not .py)
+            raise ConfigError(f"error model {spec!r}: {path} is not a Python file; expected 'path/file.py:Class'", path=path)
         module = importlib.util.module_from_spec(mod_spec)
         mod_spec.loader.exec_module(module)
     else:

@@ -180,7 +180,9 @@ def vector_variable(name: str, x0: np.ndarray, bound: float = np.inf, labels=("x
 
 def make_spec(blocks: list[Block], R, p_prime, **kw) -> ModelSpec:
     """Concatenate ``blocks`` into a :class:`ModelSpec` with the given maps and options."""
-    cat = lambda xs: ca.vertcat(*xs) if xs else ca.SX(0, 1)
+    def cat(xs: list[ca.SX]) -> ca.SX:
+        return ca.vertcat(*xs) if xs else ca.SX(0, 1)
+
     return ModelSpec(
         x=cat([b.x for b in blocks]),
         x0=np.concatenate([b.x0 for b in blocks]) if blocks else np.zeros(0),

@@ -31,6 +31,8 @@ from .tables import hanging_comparison, parameter_table, stage_times, truth_tabl
 
 if TYPE_CHECKING:
     from ..calibration_run import CalibrationRun
+    from ..hanging.result import HangingResult
+    from ..selection import SelectionResult
 
 __all__ = ["Section", "write_report", "build_sections", "summary_paragraph", "notation_section", "diagnosis_section", "legs_as_columns"]
 
@@ -87,7 +89,7 @@ def summary_paragraph(res: "CalibrationRun") -> str:
                          f"{cal_rms[3:].max():.3g} N*m (naive comparison not available: {exc}).")
     if cal.com_body_m is not None:
         parts.append("CoM of the body without legs in B: (" + ", ".join(f"{1e3 * v:.1f}" for v in cal.com_body_m) + ") mm.")
-    if res.standing is not None and getattr(res.standing, "unidentified", ()):
+    if res.standing is not None and res.standing.unidentified:
         parts.append(f"{len(res.standing.unidentified)} direction(s) of the parameters are not determined by these poses "
                      "(standard error inf; listed under Standing calibration).")
     if res.diagnosis is not None:
@@ -133,8 +135,13 @@ _LIST_CELL = re.compile(r"^\s*([^:;]+):\s*([^;]+?)\s*$")
 
 def _split_list_cell(text: str) -> list[tuple[str, str]] | None:
     """``"a: 1 ± 0.1; b: 2 ± 0.1"`` -> ``[("a", "1 ± 0.1"), ("b", "2 ± 0.1")]``; None if the cell is not such a list."""
-    parts = [_LIST_CELL.match(p) for p in str(text).split(";")]
-    return [(m.group(1).strip(), m.group(2)) for m in parts] if parts and all(parts) else None
+    out = []
+    for p in str(text).split(";"):
+        m = _LIST_CELL.match(p)
+        if m is None:
+            return None
+        out.append((m.group(1).strip(), m.group(2)))
+    return out
 
 
 def legs_as_columns(df: pd.DataFrame) -> pd.DataFrame:
@@ -152,8 +159,9 @@ def legs_as_columns(df: pd.DataFrame) -> pd.DataFrame:
 
     for label, row in t.iterrows():
         label = str(label)
-        items = [_split_list_cell(v) for v in row]
-        names = [n for n, _ in items[0]] if items and all(items) else None
+        cells = [_split_list_cell(v) for v in row]
+        items = [it for it in cells if it]   # every cell a list, or the row is not spread by name
+        names = [n for n, _ in items[0]] if items and len(items) == len(cells) else None
         triples = [str(v).split() for v in row]
         if names and all([n for n, _ in it] == names for it in items):
             for j, n in enumerate(names):
@@ -202,8 +210,7 @@ def _parameters(res: "CalibrationRun", folder: Path) -> Section:
     return sec
 
 
-def _selection(res: "CalibrationRun", folder: Path) -> Section:
-    sel = res.selection
+def _selection(res: "CalibrationRun", sel: SelectionResult, folder: Path) -> Section:
     sec = Section("Model selection (cf. report Table I)")
     view = sel.report_table()
     best = _model_description(res, sel.best)
@@ -217,11 +224,11 @@ def _selection(res: "CalibrationRun", folder: Path) -> Section:
     return sec
 
 
-def _hanging(res: "CalibrationRun", folder: Path) -> Section:
+def _hanging(res: "CalibrationRun", hanging: HangingResult, folder: Path) -> Section:
     sec = Section("Hanging calibration")
-    summ = res.hanging.summary()
-    ht = res.hanging.table()
-    write_table(ht, folder, "hanging", f"Hanging calibration ({res.hanging.method}): offsets w_o (ft_k axes) and leg weights, "
+    summ = hanging.summary()
+    ht = hanging.table()
+    write_table(ht, folder, "hanging", f"Hanging calibration ({hanging.method}): offsets w_o (ft_k axes) and leg weights, "
                                         f"value {PM} standard error")
     sec.add(Text("Robot hung with its feet in the air in several orientations, legs turning: each transducer reads its "
                  "offset w_o plus its leg's weight m_k g acting at r_k(phi)."))
@@ -304,9 +311,9 @@ def build_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
     folder.mkdir(parents=True, exist_ok=True)
     secs = [Section("Summary", [Text(summary_paragraph(res))]), notation_section(), _parameters(res, folder)]
     if res.selection is not None:
-        secs.append(_selection(res, folder))
+        secs.append(_selection(res, res.selection, folder))
     if res.hanging is not None:
-        secs.append(_hanging(res, folder))
+        secs.append(_hanging(res, res.hanging, folder))
     secs.append(_standing(res, folder))
     if res.corrected:
         secs.append(_walking(res, folder))

@@ -14,15 +14,27 @@ choice (``run.py`` sets Agg); without a display matplotlib picks Agg itself.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from .tables import hexapod_truth
+
 if TYPE_CHECKING:
     from ..calibration_run import CalibrationRun
+
+_S = TypeVar("_S")
+
+
+def _stage(result: _S | None, what: str) -> _S:
+    """A stage's result the figure needs; a run without it is a ValueError (the report leaves the figure out)."""
+    if result is None:
+        raise ValueError(f"the run has no {what} result")
+    return result
 
 FORCE = ("Fx [N]", "Fy [N]", "Fz [N]")
 TORQUE = ("Tx [N*m]", "Ty [N*m]", "Tz [N*m]")
@@ -78,7 +90,7 @@ def fig_total_residuals(res: "CalibrationRun", path: Path) -> Path:
     """Top: the three models on one scale (Fig. 6); bottom: the calibrated residual alone, on its own scale."""
     naive = res.naive_total_residuals()
     no_tf = res.no_transformation_error_residuals()
-    cal = np.asarray(res.standing.residuals)
+    cal = np.asarray(_stage(res.standing, "standing").residuals)
     series = ((-0.27, naive, "tab:blue", "naive taring"),
               (0.0, no_tf, "tab:orange", "no transformation error (nominal poses, one CoM shift)"),
               (0.27, cal, "tab:green", f"calibrated (model {res.calibration.model})"))
@@ -124,8 +136,9 @@ def fig_leg_com(res: "CalibrationRun", path: Path) -> Path:
     ncol = (len(legs) + 1) // 2
     fig, axes = plt.subplots(2, ncol, figsize=(4 * ncol, 6.4), sharex=True, sharey=True, squeeze=False)
     colors = ("tab:blue", "tab:orange", "tab:green")
+    hanging, truth = _stage(res.hanging, "hanging"), hexapod_truth(res)
     for ax, k in zip(axes.flat, legs):
-        lg = res.hanging.legs[k]
+        lg = hanging.legs[k]
         phi = np.asarray(lg.com_phi)
         for j, (c, name) in enumerate(zip(colors, "xyz")):
             y = 1e3 * np.asarray(lg.com_xyz)[:, j]
@@ -135,8 +148,8 @@ def fig_leg_com(res: "CalibrationRun", path: Path) -> Path:
             ax.plot(phi, y, ".", color=c, ms=3)
             fit = _sinusoid_fit(phi, y) if name != "y" else np.full_like(y, np.nanmean(y))
             ax.plot(phi, fit, "--", color="red", lw=0.8)
-            if res.truth is not None:
-                ax.plot(phi, 1e3 * res.truth.legs[k].com(phi)[:, j], "-", color="k", lw=0.6, alpha=0.6)
+            if truth is not None:
+                ax.plot(phi, 1e3 * truth.legs[k].com(phi)[:, j], "-", color="k", lw=0.6, alpha=0.6)
         ax.set_title(k)
         ax.grid(alpha=0.3)
     for ax in axes[-1]:
@@ -145,10 +158,10 @@ def fig_leg_com(res: "CalibrationRun", path: Path) -> Path:
         ax.set_ylabel("r_k(phi) in ft_k [mm]")
     for ax in list(axes.flat)[len(legs):]:
         ax.set_visible(False)
-    handles = [Line2D([], [], ls="", marker=".", ms=8, color=c, label=f"{n} estimate") for c, n in zip(colors, "xyz")]
+    handles: list[Artist] = [Line2D([], [], ls="", marker=".", ms=8, color=c, label=f"{n} estimate") for c, n in zip(colors, "xyz")]
     handles += [Patch(facecolor="0.5", alpha=0.4, label="± 1 se band"), Patch(facecolor="0.5", alpha=0.2, label="± 2 se band"),
                 Line2D([], [], ls="--", color="red", lw=0.8, label="sinusoid fit (y: mean)")]
-    if res.truth is not None:
+    if truth is not None:
         handles.append(Line2D([], [], ls="-", color="k", lw=0.6, alpha=0.6, label="truth"))
     fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=8, bbox_to_anchor=(0.5, 0.95), frameon=False)
     fig.suptitle("Leg CoM r_k(phi) in ft_k vs shaft angle, from the hanging recordings (cf. report Figs. 4, 7)", fontsize=10)
@@ -159,9 +172,9 @@ def fig_leg_com(res: "CalibrationRun", path: Path) -> Path:
 def fig_hanging_residuals(res: "CalibrationRun", path: Path) -> Path:
     from ..hanging import hanging_residuals
 
-    robot = res.dataset.robot
-    with_s = hanging_residuals(res.hanging, res.dataset.hanging, robot, with_misalignment=True)
-    without = hanging_residuals(res.hanging, res.dataset.hanging, robot, with_misalignment=False)
+    robot, hanging = res.dataset.robot, _stage(res.hanging, "hanging")
+    with_s = hanging_residuals(hanging, res.dataset.hanging, robot, with_misalignment=True)
+    without = hanging_residuals(hanging, res.dataset.hanging, robot, with_misalignment=False)
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.4))
     pos = np.arange(len(robot.legs))
     for j, ax in enumerate(axes.flat):
@@ -185,7 +198,7 @@ def fig_walking(res: "CalibrationRun", rec, path: Path) -> Path:
     naive, _ = res.naive_ground_wrenches(rec)
     df = res.corrected[rec.name]
     t = df["t"].to_numpy()
-    tripods = (("FL", "MR", "HL"), ("FR", "ML", "HR"))
+    tripods: tuple[tuple[str, ...], ...] = (("FL", "MR", "HL"), ("FR", "ML", "HR"))
     tripods = tuple(tuple(k for k in tp if k in legs) for tp in tripods)
     if not all(tripods):
         tripods = (tuple(legs[::2]), tuple(legs[1::2]))
@@ -217,7 +230,7 @@ def fig_walking(res: "CalibrationRun", rec, path: Path) -> Path:
         ax.set_ylim(-0.5, 0.5)
         ax.set_ylabel("normal force near 0 [N]")
         ax.grid(alpha=0.3)
-        handles = [Line2D([], [], color=c, lw=2, label=k) for c, k in zip(colors, tp)]
+        handles: list[Artist] = [Line2D([], [], color=c, lw=2, label=k) for c, k in zip(colors, tp)]
         handles += [Line2D([], [], color="0.3", lw=1.5, label="calibrated"), Line2D([], [], color="0.3", lw=1.5, ls=":", label="naive taring")]
         if has_se:
             handles.append(Patch(color="0.3", alpha=0.3, label="± 1.96 se"))

@@ -30,11 +30,20 @@ from .tables import stage_times, write_table
 
 if TYPE_CHECKING:
     from ..calibration_run import CalibrationRun
+    from ..data import Recording
+    from ..freeload.result import FreeLoadResult
 
 log = logging.getLogger(__name__)
 
 TITLE = "Calibration report: free loads"
 UNITS = ("N", "N", "N", "N*m", "N*m", "N*m")
+
+
+def _fits(res: "CalibrationRun") -> dict[str, FreeLoadResult]:
+    """The run's free-load fits per transducer: every function here reads a run on free loads (``write_report`` sends
+    only those here)."""
+    assert res.free_loads is not None, "a run on free loads"
+    return res.free_loads.legs
 
 
 def _truth_for(res: "CalibrationRun", leg: str):
@@ -47,7 +56,7 @@ def _truth_for(res: "CalibrationRun", leg: str):
 def load_table(res: "CalibrationRun", leg: str) -> pd.DataFrame:
     """One row per reported quantity of ``leg``'s load: estimate ± se (and truth, when known), in SI units
     (mounting rotation in deg)."""
-    fit = res.free_loads.legs[leg]
+    fit = _fits(res)[leg]
     rep = fit.load_report()
     truth = _truth_for(res, leg)
     rows: list[tuple[str, str, float | None]] = []
@@ -94,12 +103,12 @@ def _group_truth(truth, load) -> tuple[np.ndarray, np.ndarray] | None:
     return group_truth(load.tree, groups, truth.body_tuples())
 
 
-def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[object, np.ndarray, np.ndarray]]:
+def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[Recording, np.ndarray, np.ndarray]]:
     """Per hanging recording in which ``leg``'s load hangs free: (recording, predicted (N, 6), quasi-static mask: the
     samples the fit used, ``FreeLoadResult.used``, else the estimator's selection recomputed)."""
     from ..freeload.quasistatic import select_quasi_static
 
-    fit = res.free_loads.legs[leg]
+    fit = _fits(res)[leg]
     s = res.settings.free_load
     joints = tuple(getattr(fit.load, "load_joints", ())) + tuple(getattr(fit.load, "base_joints", ()))
     out = []
@@ -119,7 +128,7 @@ def residual_table(res: "CalibrationRun") -> pd.DataFrame:
     """Residual RMS (measured - predicted) per transducer and component over the quasi-static samples and over
     all samples with a gravity direction, with the noise sd the fit weighted with."""
     rows = {}
-    for leg, fit in res.free_loads.legs.items():
+    for leg, fit in _fits(res).items():
         parts = predicted_readings(res, leg)
         r = np.concatenate([rec.wrench[leg] - pred for rec, pred, _ in parts])
         m = np.concatenate([mask for *_, mask in parts])
@@ -185,9 +194,9 @@ def _figure(fn, *args) -> Path | None:
 
 def load_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
     """The report's sections for a run on free loads; writes their tables and figures into ``folder``."""
-    fl = res.free_loads
+    fits = _fits(res)
     summ = []
-    for leg, fit in fl.legs.items():
+    for leg, fit in fits.items():
         rep = fit.load_report()
         summ.append(f"Transducer **{leg}** ({fit.load.kind}): load mass {fmt_pm(rep['load_mass_kg'], rep['load_mass_se_kg'])} kg, "
                     f"mounting rotation {np.degrees(np.linalg.norm(fit.mount_rotvec)):.3g} deg, "
@@ -200,11 +209,11 @@ def load_sections(res: "CalibrationRun", folder: Path) -> list[Section]:
     if res.truth is not None:
         summ.append("The dataset carries its truth (`truth.json`): it is shown beside the estimates.")
     secs = [Section("Summary", [Text(" ".join(summ))])]
-    shown = {n for fit in fl.legs.values() for n in fit.identifiability()}     # listed with their load below
+    shown = {n for fit in fits.values() for n in fit.identifiability()}     # listed with their load below
     notes = [n for n in res.notes if n not in shown]
     if notes:
         secs.append(Section("Notes", [Bullets(notes)]))
-    for leg, fit in fl.legs.items():
+    for leg, fit in fits.items():
         sec = Section(f"Load of {leg}")
         tab = load_table(res, leg)
         cap = f"Load of {leg} ({fit.load.kind}): estimate ± standard error" + (", truth beside it" if "truth" in tab else "")

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from ..calibration import Calibration
 from ..geometry import rotation_to_rotvec
 from ..results import fmt_pm, latex_table
 from .render import bold_md, md_table
@@ -60,7 +61,7 @@ def parameter_table(res: "CalibrationRun") -> pd.DataFrame:
     for k in robot.legs:
         l = cal.legs[k]
         se = l.offset_se if l.offset_se is not None else np.full(6, np.nan)
-        rv = rotation_to_rotvec(l.rotation_to_body @ robot.transducers[k].rotation.T)
+        rv = rotation_to_rotvec(l.rotation_to_body @ robot.transducers[k].given_rotation().T)
         rs = rse[k] if rse is not None else np.full(3, np.nan)
         pse = l.position_from_com_se_m if l.position_from_com_se_m is not None else np.full(3, np.nan)
         cols[k] = ([fmt_pm(l.offset[j], se[j]) for j in range(6)]
@@ -72,9 +73,16 @@ def parameter_table(res: "CalibrationRun") -> pd.DataFrame:
     return pd.DataFrame(cols, index=pd.Index(rows, name="parameter"))
 
 
+def hexapod_truth(res: "CalibrationRun") -> Calibration | None:
+    """The dataset's truth when it is a hexapod's calibration (a free load's, a ``LoadTruth``, is ``report/loads.py``'s)."""
+    return res.truth if isinstance(res.truth, Calibration) else None
+
+
 def truth_table(res: "CalibrationRun") -> pd.DataFrame:
     """Simulated data: per parameter group and leg, the largest |estimate - truth| and, in brackets, the largest |error| / se."""
-    cal, truth = res.calibration, res.truth
+    cal, truth = res.calibration, hexapod_truth(res)
+    if truth is None:
+        raise ValueError("truth_table compares the calibration with the dataset's truth.json: the run has no hexapod's truth")
     rse = rotvec_se(res)
     groups = (("force offset [mN]", 1e3), ("torque offset [mN*m]", 1e3), ("leg weight m g [mN]", 1e3),
               ("leg CoM r_k(phi), grid [mm]", 1e3), ("R_tilde [deg]", 180 / np.pi), ("p' [mm]", 1e3))
@@ -85,7 +93,7 @@ def truth_table(res: "CalibrationRun") -> pd.DataFrame:
         errs = (
             (l.offset[:3] - t.offset[:3], osd[:3]),
             (l.offset[3:] - t.offset[3:], osd[3:]),
-            (np.atleast_1d(l.leg_weight_N - t.leg_weight_N), np.atleast_1d(l.leg_weight_se_N)),
+            (np.atleast_1d(l.leg_weight_N - t.leg_weight_N), np.atleast_1d(np.nan if l.leg_weight_se_N is None else l.leg_weight_se_N)),
             (l.com_xyz - t.com(l.com_phi), l.com_xyz_se),
             (rotation_to_rotvec(l.rotation_to_body @ t.rotation_to_body.T), None if rse is None else rse[k]),
             (l.position_from_com_m - t.position_from_com_m, l.position_from_com_se_m),
@@ -118,8 +126,9 @@ def hanging_comparison(res: "CalibrationRun") -> pd.DataFrame | None:
                "m g baseline [N]": fmt_pm(b.leg_weight_N, b.leg_weight_se_N),
                "force offset, |NLP - baseline| [mN]": f"{1e3 * np.linalg.norm(np.asarray(a.offset[:3]) - b.offset[:3]):.3g}",
                "torque offset, |NLP - baseline| [mN*m]": f"{1e3 * np.linalg.norm(np.asarray(a.offset[3:]) - b.offset[3:]):.3g}"}
-        if res.truth is not None:
-            t = res.truth.legs[k]
+        truth = hexapod_truth(res)
+        if truth is not None:
+            t = truth.legs[k]
             row["force offset, |NLP - truth| [mN]"] = f"{1e3 * np.linalg.norm(np.asarray(a.offset[:3]) - t.offset[:3]):.3g}"
             row["force offset, |baseline - truth| [mN]"] = f"{1e3 * np.linalg.norm(np.asarray(b.offset[:3]) - t.offset[:3]):.3g}"
         rows[k] = row

@@ -74,7 +74,7 @@ def hanging_series(truth, cfg, gravity_body, t0: float, rng: np.random.Generator
     g_B = R_tilt @ np.asarray(gravity_body, float)
     omega = 2 * np.pi / cfg.hanging_cycle_s * (1 + rng.uniform(-cfg.hanging_speed_spread, cfg.hanging_speed_spread, K))
     phi = rng.uniform(0, 2 * np.pi, K) + np.outer(t - t0, omega)
-    R_WB = np.broadcast_to(rotation_between(g_B, [0.0, 0.0, -1.0]), (n, 3, 3))  # R_WB g_B = -z
+    R_WB = np.broadcast_to(rotation_between(g_B, np.array([0.0, 0.0, -1.0])), (n, 3, 3))  # R_WB g_B = -z
     w = applied_wrench(R_WB, phi, truth, None)
     return TrueSeries(name, "hanging", t, phi, np.ascontiguousarray(R_WB), w, np.full(n, -1),
                       gravity_body=np.asarray(gravity_body, float), extra={"R_tilt": R_tilt, "gravity_true_B": g_B})
@@ -127,7 +127,7 @@ def solve_poses(truth, cfg, phi_req: np.ndarray, rng: np.random.Generator, board
     com_B = truth.total_com_B(phi_req)
     board = np.zeros(len(phi_req), bool) if board_dir is None else np.isfinite(board_dir)
     ground = None
-    if board.any():
+    if board_dir is not None and board.any():   # (board is all False without board_dir)
         ground = np.broadcast_to(np.eye(3), (len(phi_req), 3, 3)).copy()
         ground[board] = board_rotation(np.radians(cfg.board_tilt_deg), board_dir[board])
     bumps = rng.normal(0.0, cfg.ground_roughness_mm * 1e-3, phi_req.shape)

@@ -58,8 +58,8 @@ class SimResult:
     truth_positions_m: dict[str, np.ndarray]
     walk_truth: pd.DataFrame
     pose_windows: np.ndarray
+    true_robot: TrueRobot
     config: SimConfig = field(default_factory=SimConfig)
-    true_robot: TrueRobot | None = None
     pose_phi: np.ndarray | None = None
     skipped_pose_phi: np.ndarray | None = None
     hanging_tilt: dict = field(default_factory=dict)
@@ -146,7 +146,7 @@ def simulate(cfg: SimConfig = SimConfig()) -> SimResult:
         w_m, quat = _sensor_readings(ser, truth, cfg, rng_sensor, effect_rngs, pose_error if ser.kind == "standing" else None)
         recs.append(_recording(ser, legs, w_m, quat, _temperature(ser, truth, cfg)))
     ds = Dataset(apply_robot(cfg.effects, truth.robot), tuple(recs))
-    wt = ground_wrench_frame(walk.t, ground, legs) if walk is not None else ground_wrench_frame(np.zeros(0), np.zeros((0, len(legs), 6)), legs)
+    wt = ground_wrench_frame(walk.t, ground, legs) if walk is not None and ground is not None else ground_wrench_frame(np.zeros(0), np.zeros((0, len(legs), 6)), legs)
     return SimResult(
         dataset=ds,
         truth=truth.calibration(),

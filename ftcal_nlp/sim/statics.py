@@ -261,6 +261,7 @@ def solve_stance(
     lam = np.linalg.eigvalsh(_potential(q, feet_B, com_level, weight_N, stiffness, bumps)[2])
     converged = (np.abs(r / scale).max(1) <= tol) & (lam.min(1) > 0)
     tilt = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0)))  # relative to the ground
+    R_ground: np.ndarray | None
     if sloped.any():
         i = np.flatnonzero(sloped)
         R_WG = np.asarray(ground, float)[i]

@@ -81,7 +81,7 @@ def solve_baseline(model: ErrorModel, ctx: ModelContext, xi: np.ndarray, balance
     # sum_p ||L xi_p||_K^2 = ||sqrt(K) L R_xi^T||_F^2 with xi = Q R_xi: the same least-squares problem
     # (same cost, same J^T J and J^T r, hence the same TRF steps) with 6 n_xi residuals instead of 6 P.
     if P > xi.shape[1]:
-        xi = np.linalg.qr(xi, mode="r")
+        xi = np.linalg.qr(xi, mode="r")  # type: ignore[assignment]  # numpy's stubs type every mode as QRResult; "r" returns R
 
     def res(q, t, o):
         R, p, off = _unpack(model, ctx, q, t, o)
@@ -110,8 +110,9 @@ def solve_baseline(model: ErrorModel, ctx: ModelContext, xi: np.ndarray, balance
     for passes in range(1, settings.max_passes + 1):
         change = 0.0
         for b in blocks:  # solve one block with the others fixed (the report's alternation)
-            def with_block(u, b=b):
-                return [u if k == b else v[k] for k in ("q", "t", "o")]
+            def with_block(u: np.ndarray, b: str = b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                q, t, o = (u if k == b else v[k] for k in ("q", "t", "o"))
+                return q, t, o
 
             sol = least_squares(lambda u: res(*with_block(u)), v[b], jac=lambda u, b=b: jac(*with_block(u), b),
                                 method="trf", ftol=settings.ftol)
@@ -137,16 +138,16 @@ def solve_baseline(model: ErrorModel, ctx: ModelContext, xi: np.ndarray, balance
 def to_model_x(spec, model: ErrorModel, ctx: ModelContext, R: np.ndarray, p: np.ndarray, off: np.ndarray) -> np.ndarray:
     """The built-in model's variable vector that reproduces (R, p', offsets) from the baseline."""
     K = ctx.K
-    x = []
+    parts: list[np.ndarray] = []
     if model.baseline_rotations == "each":
-        x += [R[k].reshape(9) for k in range(K)]
+        parts += [R[k].reshape(9) for k in range(K)]
     if model.baseline_translations == "each":
-        x += [p[k] for k in range(K)]
+        parts += [p[k] for k in range(K)]
     elif model.baseline_translations == "common":
-        x.append(ctx.p_nominal[0] - p[0])
+        parts.append(ctx.p_nominal[0] - p[0])
     if model.baseline_offsets:
-        x += [off[k] for k in range(K)]
-    x = np.concatenate(x)
+        parts += [off[k] for k in range(K)]
+    x = np.concatenate(parts)
     if x.shape != (spec.x.numel(),):
         raise ValueError(f"baseline: model {model.name!r} variables do not match the baseline blocks")
     return x

@@ -175,7 +175,7 @@ def make_result(problem: StandingProblem, poses: Poses, xi: np.ndarray, x: np.nd
         kept = np.all(np.isnan(p_se[k]))  # translations not estimated by this model: the prior's se stays
         kw = dict(rotation_to_body=phys.R[k], position_from_com_m=p_body[k],
                   position_from_com_se_m=l.position_from_com_se_m if kept else p_se[k])
-        if phys.offsets is not None:
+        if phys.offsets is not None and off_se is not None:   # (set together above)
             kw.update(offset=phys.offsets[k], offset_se=off_se[k])
         new_legs[leg] = replace(l, **kw)
     meta = dict(prior.meta)

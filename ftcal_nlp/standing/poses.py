@@ -186,6 +186,7 @@ def extract_poses(recording: Recording, robot: Robot, settings: PoseExtraction =
     steady, n_candidates = steady_runs(recording, robot, s)
 
     q = recording.quat
+    assert q is not None  # steady_runs raised otherwise
     keep = []
     for r0, r1 in steady:
         valid = np.all(np.isfinite(q[r0:r1]), axis=1)

@@ -77,9 +77,9 @@ def L_values(R, p_prime, offsets, leg_weights_N, weight_N: float, balance: str) 
     flat = [np.zeros(f.nnz_out(i)) for i in range(f.n_out())]  # dense outputs, column-major
     buf, trigger = f.buffer()
     for i, a in enumerate(args):
-        buf.set_arg(i, memoryview(a))
+        buf.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]  # stubs: CasADi's wants the byte size SWIG reads off the buffer; numpy's ndarray is a buffer
     for i, o in enumerate(flat):
-        buf.set_res(i, memoryview(o))
+        buf.set_res(i, memoryview(o))  # type: ignore[call-arg, arg-type]  # (as set_arg)
     trigger()
     return [o.reshape(f.size_out(i), order="F") for i, o in enumerate(flat)]
 

@@ -238,8 +238,8 @@ class StandingResult(ResultsMixin):
     model: str                           # what the fit used (StandingSettings or the caller), recorded
     balance: str
     solver: str
-    legs: tuple[str, ...] = ()
-    R_nominal: np.ndarray | None = None
+    legs: tuple[str, ...]
+    R_nominal: np.ndarray
     com_body_se_m: np.ndarray | None = None
     offsets: np.ndarray | None = None
     offsets_se: np.ndarray | None = None
@@ -300,7 +300,7 @@ class StandingResult(ResultsMixin):
             rows[f"R_tilde {c} [deg]"] = [fmt_pm(rv[k, j], rse[k, j], scale=180 / np.pi) for k in range(len(self.legs))]
         for j, c in enumerate("xyz"):
             rows[f"p' {c} [mm]"] = [fmt_pm(self.p_prime[k, j], self.p_prime_se[k, j], scale=1e3) for k in range(len(self.legs))]
-        if self.offsets is not None:
+        if self.offsets is not None and self.offsets_se is not None:   # (fitted together)
             for j, c in enumerate(_WRENCH):
                 unit = "N" if j < 3 else "N*m"
                 rows[f"w_o {c} [{unit}]"] = [fmt_pm(self.offsets[k, j], self.offsets_se[k, j]) for k in range(len(self.legs))]
