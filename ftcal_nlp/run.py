@@ -35,7 +35,7 @@ from .outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs
 from .correct import offsets_frame
 from .csvout import write_csv
 from .data import Dataset, read_dataset
-from .bench.validate import run_validation
+from .diagnose.validation import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
@@ -329,7 +329,7 @@ def _run_validation(path: str, force: bool, run_validation, output: Path | None 
     check_apart(folder, {"config file": p})
     with OutputFolder(folder, force=force) as staged:
         try:
-            run_validation(d["validation"], staged.path)
+            run_validation(d["validation"], staged.path, calibrate)
         except ValueError as exc:
             raise ConfigError(f"{p}: {exc}") from exc
         staged.commit()

@@ -298,7 +298,7 @@ def test_the_chains_calibration_corrects_a_walk_closer_to_the_truth(tmp_path):
     readings' noise floor, compared block by block over the walk, fall by ``Z_MIN`` se at least."""
     from dataclasses import replace
 
-    from ftcal_nlp.bench.validate import DEFAULTS, _settings
+    from ftcal_nlp.diagnose.validation import DEFAULTS, _settings
     from ftcal_nlp.correct import correct_recording
     from ftcal_nlp.pipeline import calibrate
     from ftcal_nlp.run import effect_calibration, last_joint
