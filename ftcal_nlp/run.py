@@ -168,7 +168,7 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     if cfg.offsets_only.calibration is not None:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
     res = calibrate(ds, cfg.settings, offsets_only=prior)
-    # a free-load run's covariance file holds the estimator's (correct_loads reads it back)
+    # a free-load run's covariance file holds the estimator's (loads.calibrated reads it back)
     covariance = res.uncertainty if res.uncertainty is not None else free_load_covariance(res.free_loads)
     cov_meta = {"covariance_file": COVARIANCE_FILE} if covariance is not None else {}
     origin = data_origin(cfg, truth)
@@ -256,8 +256,8 @@ def effect_calibration(res: CalibrationRun) -> Calibration:
 def write_free_effect_calibration(res: CalibrationRun, folder: Path) -> None:
     """A free-load run whose diagnosis named effects: ``calibration_with_effect.json`` (the free-load calibration refit
     jointly with the chain's effects, ``meta.effect``: every transducer's members, their parameters and the session's
-    reference) and its joint covariance file (``freeload/effects_correction.py``); nothing when none was named."""
-    from .freeload.effects_correction import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, free_effect_calibration
+    reference) and its joint covariance file (``diagnose/free_effect_file.py``); nothing when none was named."""
+    from .diagnose.free_effect_file import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, free_effect_calibration
 
     out = free_effect_calibration(res)
     if out is None:

@@ -26,7 +26,7 @@ import pytest
 
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.diagnose.joint import JointRefit, combined_members
-from ftcal_nlp.effect_correction import apply_effect, correct_for_effect
+from ftcal_nlp.effects.correction import apply_effect, correct_for_effect
 from ftcal_nlp.effects import EFFECTS, AugContext
 from ftcal_nlp.effects.combined import Combined
 from ftcal_nlp.effects.injection import HOUR_S

@@ -7,7 +7,7 @@ the effect's kind, injector, model faces, correction and off-face shapes; ``EFFE
 maps the names to those units. Adding an effect: write its unit and add its name here.
 
 Everything that needs effects (the simulator's injector names, the diagnosis' candidates,
-``effect_correction``, detection sizes, the validation sweep) reads this dict, or a copy
+``correction.py``, detection sizes, the validation sweep) reads this dict, or a copy
 of it passed as ``registry`` (a toy effect in a test: ``with_units(ToyEffect())``).
 """
 
