@@ -53,7 +53,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
 
     ``[simulate] kind = "payload" | "urdf_leg"`` simulates a section-5 dataset (``sim.free``); no ``kind``
     (or ``"hexapod"``) the BigAnt one."""
-    from .sim.free import KINDS as FREE_KINDS, simulate_free, write_free_load
+    from .sim.free import FREE_SIM_KINDS, simulate_free, write_free_load
     from .sim.free.writer import free_load_files
     from .sim.writer import simulation_files
     from .sim.free import config_from_dict as free_config
@@ -68,7 +68,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
         raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)", path=cfg.manifest)
     folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
     check_simulation_target(cfg, folder)
-    if cfg.simulate.get("kind", "hexapod") in FREE_KINDS:
+    if cfg.simulate.get("kind", "hexapod") in FREE_SIM_KINDS:
         try:
             free = simulate_free(free_config(cfg.simulate))
         except ValueError as exc:
@@ -79,7 +79,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
         return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
     if cfg.simulate.get("kind", "hexapod") != "hexapod":
         raise ConfigError(f"{cfg.path} [simulate]: kind = {cfg.simulate['kind']!r}; known kinds: "
-                          f"{['hexapod', *sorted(FREE_KINDS)]}", path=cfg.path, key="simulate.kind")
+                          f"{['hexapod', *sorted(FREE_SIM_KINDS)]}", path=cfg.path, key="simulate.kind")
     sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
     manifest = write_guarded(folder, simulation_files(res), lambda: write_simulation(res, folder, overwrite=True), force=force)

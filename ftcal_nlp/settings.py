@@ -19,8 +19,8 @@ from dataclasses import dataclass, field, fields, make_dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
+from .calibration import REPORT_CANDIDATES
 from .errors import ConfigError
-from .models import REPORT_CANDIDATES
 from .solver import REL_EIG_TOL
 
 if TYPE_CHECKING:

@@ -449,9 +449,9 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
     free = _at_noise(w[:, :3] - model[:, :3], sf)
     n_given = int(free.sum())
     cand: dict[str, int] = {}
-    from ..checks import _signed_permutations
+    from ..checks import signed_permutations
 
-    for P in _signed_permutations():
+    for P in signed_permutations():
         cand[_signed_fix_text(P, fc)] = int(_at_noise(w[:, :3] @ P.T - model[:, :3], sf).sum())
     for j in _continuous_joints(p, q):
         qq = {**q, j: q[j] * np.pi / 180}
@@ -499,7 +499,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
     if good >= 0.5 * n_given:
         return pending
     fixes = {what: int(_at_noise(rt * s - mt, st).sum()) for what, s in TORQUE_SCALES.items()}
-    for P in _signed_permutations():
+    for P in signed_permutations():
         fixes[_signed_fix_text(P, tc)] = int(_at_noise(rt @ P.T - mt, st).sum())
     fix = max(fixes, key=fixes.get)
     excess = float(np.median(np.linalg.norm(rt - mt, axis=1)))

@@ -141,6 +141,7 @@ from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, Effect, applies_
 from ..errors import DataFormatError, MisSignedChannel
 from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..sim import SimConfig, simulate
+from ..sim.free.config import CONFIG_OF_KIND, FREE_SIM_KINDS
 from ..sim.effects import EFFECTS as INJECTORS
 from ..sim.variants import VARIANTS
 
@@ -785,9 +786,8 @@ def check_numbers(c: dict, integers: tuple, workers_note: str) -> None:
 
 # ============================================================================= part 2: free loads
 
-FREE_KINDS = ("payload", "urdf_leg")
 FREE_KIND_LABEL = {"payload": "payload", "urdf_leg": "URDF (leg4)"}
-FREE_DEFAULTS = {"design": "free", "seed": 0, "kinds": list(FREE_KINDS), "n_clean": 6, "effects": None, "shapes": None,
+FREE_DEFAULTS = {"design": "free", "seed": 0, "kinds": list(FREE_SIM_KINDS), "n_clean": 6, "effects": None, "shapes": None,
                  "sizes": "realistic", "pairs": None, "tolerance": 1.5, "folds": 5, "workers": 1, "backend": "loky"}
 #: shapes whose default timing is a hexapod session's (a step in the middle of the standing recording: none in a
 #: free-load recording): the sweep puts that keyword in the middle of the recording (written in ``injectors``)
@@ -820,13 +820,13 @@ def _shape_class(name: str):
 def free_check_config(cfg: dict) -> tuple[dict, dict]:
     """``(settings, {kind: simulator overrides})`` of a ``[validation]`` table with ``design = "free"``;
     errors name the key."""
-    from ..sim.free.config import KINDS as SIM_KINDS
+
 
     unknown = sorted(set(cfg) - set(FREE_DEFAULTS) - {"simulate"})
     if unknown:
         raise ValueError(f"[validation] (design 'free'): unknown key(s) {unknown}; known keys: {sorted(FREE_DEFAULTS) + ['simulate']}")
     c = {**FREE_DEFAULTS, **{k: v for k, v in cfg.items() if k != "simulate"}}
-    c["kinds"] = config_names(c["kinds"], list(FREE_KINDS), "kinds", noun="kind")
+    c["kinds"] = config_names(c["kinds"], list(FREE_SIM_KINDS), "kinds", noun="kind")
     lib = free_effects()
     c["effects"] = lib if c["effects"] is None else config_names(c["effects"], lib, "effects")
     all_shapes = shapes_of(lib)
@@ -845,15 +845,15 @@ def free_check_config(cfg: dict) -> tuple[dict, dict]:
     sim = cfg.get("simulate", {})
     if not isinstance(sim, dict) or not all(isinstance(v, dict) for v in sim.values()):
         raise ValueError("[validation.simulate]: expected sub-tables [validation.simulate.payload] / [validation.simulate.urdf_leg]")
-    bad = sorted(set(sim) - set(FREE_KINDS))
+    bad = sorted(set(sim) - set(FREE_SIM_KINDS))
     if bad:
-        raise ValueError(f"[validation.simulate]: unknown kind(s) {bad}; kinds: {list(FREE_KINDS)}")
+        raise ValueError(f"[validation.simulate]: unknown kind(s) {bad}; kinds: {list(FREE_SIM_KINDS)}")
     over = {}
     for kind in c["kinds"]:
         o = dict(sim.get(kind, {}))
         if "seed" in o or "effects" in o or "kind" in o:
             raise ValueError(f"[validation.simulate.{kind}]: 'seed', 'effects' and 'kind' are set per dataset; remove them")
-        known = {f.name for f in fields(SIM_KINDS[kind])}
+        known = {f.name for f in fields(CONFIG_OF_KIND[kind])}
         if set(o) - known:
             raise ValueError(f"[validation.simulate.{kind}]: unknown key(s) {sorted(set(o) - known)}; known: {sorted(known)}")
         over[kind] = o

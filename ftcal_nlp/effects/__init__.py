@@ -60,10 +60,10 @@ from .registry import (
     shape_classes,
     with_units,
 )
-from .unit import KINDS, Effect
+from .unit import EFFECT_KINDS, Effect
 
 __all__ = [
-    "EFFECTS", "EXPECT_NONE", "EXPECT_UNEXPLAINED", "KINDS", "LIBRARY_EFFECTS",
+    "EFFECTS", "EXPECT_NONE", "EXPECT_UNEXPLAINED", "EFFECT_KINDS", "LIBRARY_EFFECTS",
     "AugContext", "Effect", "EffectInjector", "HangingLeg", "InjectionContext", "Injector", "LinearFace", "Magnitude",
     "NoEffect", "OffFaceInjector", "ParamBlock", "PoseSym", "StandingData", "applies_to",
     "check_unit", "design_check", "injector_classes", "pose_symbols", "resolve_effects", "shape_classes", "with_units",

@@ -38,7 +38,7 @@ from .injection import EffectInjector, Magnitude, NoEffect, OffFaceInjector
 
 log = logging.getLogger(__name__)
 
-KINDS = ("sensor", "body")
+EFFECT_KINDS = ("sensor", "body")
 
 
 class Effect:
