@@ -16,7 +16,7 @@ unknowns:
   ``var(pose median) ~ E[d d^T] / 4``, ``d = m_1 - m_2``. Pooled in B axes (the
   sensors are fixed in B) and scaled by each run's length,
   ``S_0 = mean_p n_p d_p d_p^T / 4``, ``Sigma_read,p = T_p (S_0 / n_p) T_p^T``
-  with ``T_p = blockdiag(R_p, R_p)`` (``bench/crb.py``'s ``sum_k Ad_k Sigma_w,p Ad_k^T``).
+  with ``T_p = blockdiag(R_p, R_p)`` (``crb/hexapod.py``'s ``sum_k Ad_k Sigma_w,p Ad_k^T``).
 * ``G_p`` (6, 2): the residual's sensitivity to a small tilt ``eps`` (rad, about
   the horizontal W axes) of the measured body orientation. With ``R_true =
   exp([eps]) R_meas`` the measured up vector is ``z_meas = z + R_meas^T (eps x e_z)``,
@@ -24,7 +24,7 @@ unknowns:
   ``balance.residual`` (linear in ``z``: unit differences are exact). Exact
   balance: ``G_p = M_b g [I_2; 0]`` (the weight rotating; no torque about the
   body CoM); report balance: also the torque of that force about C. This is the
-  ``(M_b g)^2 s_z^2 (I - z z^T)`` term of ``bench/crb.py``.
+  ``(M_b g)^2 s_z^2 (I - z z^T)`` term of ``crb/hexapod.py``.
 * ``s_theta``: the per-pose motion-capture tilt error (rad per axis, constant
   through a pose, so the within-run scatter cannot see it). ONE scalar.
 * ``X_p beta``: fixed effects, i.e. whatever is not noise: the calibration's own
@@ -65,7 +65,7 @@ the diagnosis' seed) under the noise model, pose p held out in fold f:
     E_p,f = J_h,p - J_p A_f^-1 sum_{q not in f} J_q^T K J_h,q
 
 the pose's own noise, the training fit's parameter error (the sandwich of
-``bench/crb.py``; with K weights a large horizontal-force noise moves the frames
+``crb/hexapod.py``; with K weights a large horizontal-force noise moves the frames
 and shows in the torques, which the scalar ``1 + d / (6 P_train)`` does not
 say, nor a pose's own leverage), and the hanging offsets' and leg weights'
 standard errors ``C_h`` (diagonal) carried through the refit. ``cv_inflation``
@@ -98,13 +98,13 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
 
-from ..balance import K_DIAG, check_balance, features, residual
-from ..calibration import Calibration
-from ..data import WRENCH_COMPONENTS
-from ..geometry import skew, transform_wrench
+from ..core.balance import K_DIAG, check_balance, features, residual
+from ..core.calibration import Calibration
+from ..core.data import WRENCH_COMPONENTS
+from ..core.geometry import skew, transform_wrench
 from ..models import ModelContext, resolve
-from ..selection import fold_indices
-from ..standing.result import physical
+from ..estimate.selection import fold_indices
+from ..estimate.standing.result import physical
 from ..effects.faces import legendre_time
 
 CHECK_ALPHA = 1e-3             # p-value below which the residual has more than the noise model

@@ -4,7 +4,7 @@ The hexapod diagnosis names effects one after another (``diagnose/hexchain.py``)
 the next candidate are fitted together with the calibration. :class:`Combined` makes of effect units ``E_1 .. E_n``
 (each a chosen variant) one :class:`~.unit.Effect`, so that the standing problem
 (``diagnose/standing_fit.AugmentedProblem``), the linear faces (``diagnose/linear_fit.py``) and the joint refit
-(``diagnose/joint.py``) take it as they take one effect:
+(``diagnose/refit.py``) take it as they take one effect:
 
 * standing (eq. (A) of ``faces.py``): ``eta = [eta_1; ..; eta_n]`` (names ``<effect>:<name>``); to first order the
   corrections add up,
@@ -18,7 +18,7 @@ the next candidate are fitted together with the calibration. :class:`Combined` m
 * ``standing_from_hanging``: each member's, its indices moved to its place in ``eta``;
 * the joint refit's variants: the last member's ``joint_variants`` (the members before it come as the chain's
   joint refits chose them);
-* the correction for ``correct`` (:meth:`Combined.correct`, a block with ``members``: ``diagnose/joint.py``,
+* the correction for ``correct`` (:meth:`Combined.correct`, a block with ``members``: ``diagnose/refit.py``,
   ``JointRefit.effect_block``): the same first-order sum the fit used, each member's correction evaluated on the
   recorded samples (not on the readings another member corrected),
 
@@ -44,7 +44,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 from .faces import ParamBlock, correct_by_face, joint_eta_cov, member_block, stack_faces
 from .unit import Effect, corrects_by_face
 

@@ -1,7 +1,7 @@
 """The named effects' correction of a recording, for every load: ``correct`` calls this module, each effect's own
 part is a hook on its unit (``ftcal_nlp/effects/<name>.py``); no effect is named here.
 
-**Hexapod legs** (``calibration_with_effect.json`` of a hexapod run, ``diagnose/joint.py``): ``meta["effect"]`` holds
+**Hexapod legs** (``calibration_with_effect.json`` of a hexapod run, ``diagnose/refit.py``): ``meta["effect"]`` holds
 the effect's name, its standing-face parameters ``eta`` (the scaled units of ``Effect.standing_params``) and their
 covariance, the hanging-face parameters, the reference time ``t_ref_s`` and the design rotations. Correcting a sample
 is the effect unit's own correction (``Effect.correct``), looked up in the effect registry:
@@ -69,8 +69,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..errors import DataFormatError
+from ..core.calibration import Calibration
+from ..core.errors import DataFormatError
 from ..loads.base import calibration_variance
 from .combined import Combined
 from .faces import AugContext

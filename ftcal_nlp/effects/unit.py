@@ -83,7 +83,7 @@ class Effect:
         return (self,)
 
     def joint_variant(self) -> Effect:
-        """The variant the joint refit uses (``diagnose/joint.py``); default: this one."""
+        """The variant the joint refit uses (``diagnose/refit.py``); default: this one."""
         return self
 
     def joint_variants(self) -> tuple[Effect, ...]:

@@ -15,10 +15,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from ..data import WRENCH_COMPONENTS
+from ..core.data import WRENCH_COMPONENTS
 from ..diagnose.chain import MIN_EXCESS_SHARE
-from ..settings import FreeLoadChain
-from ..results import PM
+from ..core.settings import FreeLoadChain
+from ..core.results import PM
 from .render import Figure, Section, Table, Text
 
 if TYPE_CHECKING:
@@ -56,7 +56,7 @@ def _named(d: "DiagnosisResult") -> list[str]:
 
 def joint_view(d: "DiagnosisResult") -> pd.DataFrame | None:
     """The joint refit with the named effect: per recording kind and component, held-out RMS
-    before / after and the joint model's floor (``diagnose/joint.py``)."""
+    before / after and the joint model's floor (``diagnose/refit.py``)."""
     j = d.joint
     if j is None:
         return None
