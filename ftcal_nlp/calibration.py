@@ -142,6 +142,10 @@ def urdf_rotation_at_zero(urdf: Path, link: str, where: str, tree=None) -> np.nd
     return tree.pose(tree.root, link, {}, 1)[0][0]
 
 
+#: Candidates of the report's Table I, in its order (the standing error models' names).
+REPORT_CANDIDATES: tuple[str, ...] = ("full", "rot6_trans1", "trans6", "trans1")
+
+
 class ModelName(str):
     """A calibration's ``model`` as read from a file: a name for the error-model registry only.
 

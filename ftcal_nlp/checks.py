@@ -508,7 +508,7 @@ def moment_residuals(rec: Recording, robot: Robot, offsets: np.ndarray, torque_m
     return np.asarray(out)
 
 
-def _signed_permutations() -> list[np.ndarray]:
+def signed_permutations() -> list[np.ndarray]:
     """The 47 signed permutation matrices other than the identity (torque columns reordered or mis-signed)."""
     out = []
     for perm in itertools.permutations(range(3)):
@@ -527,7 +527,7 @@ def _describe_map(P: np.ndarray) -> str:
 
 def check_torque_axes(rec: Recording, robot: Robot, offsets: np.ndarray) -> None:
     """Standing moment balance with the torque columns as given against every other order and sign (module docstring)."""
-    maps = _signed_permutations()
+    maps = signed_permutations()
     res = moment_residuals(rec, robot, offsets, [np.eye(3)] + maps)
     given = res[0]
     if not np.isfinite(given):

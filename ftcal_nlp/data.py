@@ -44,7 +44,7 @@ JOINT_PREFIX = "q_"
 TEMP_SUFFIX = "_temp_C"       # optional ``{leg}_temp_C``: that transducer's temperature, degC (docs/proposals/temperature.md)
 TEMP_COMMON = "temp_C"        # optional ``temp_C``: one temperature for the transducers without their own
 TEMP_RANGE_C = (-60.0, 150.0)  # a plausible transducer temperature in degC (outside: kelvin or degF?)
-KINDS = ("hanging", "standing", "walking")
+RECORDING_KINDS = ("hanging", "standing", "walking")
 
 # A torque column in N*mm or a force column in mN is ~1000x too large. Forces on a
 # transducer cannot exceed a few robot weights; torques in N*m cannot exceed the
@@ -393,8 +393,8 @@ def recording_from_frame(
     payloads, section 5; a transducer with a URDF ``link`` never has one). ``free``: the manifest's ``free``.
     """
     where = source or name
-    if kind not in KINDS:
-        raise DataFormatError(f"{where}: kind '{kind}' is not one of {KINDS}")
+    if kind not in RECORDING_KINDS:
+        raise DataFormatError(f"{where}: kind '{kind}' is not one of {RECORDING_KINDS}")
     no_phi = {k for k in robot.legs if robot.transducers[k].link is not None}
     if kind == "hanging":
         no_phi |= set(payload_legs)
@@ -646,8 +646,8 @@ def read_dataset(manifest: str | Path, *, kinds: Iterable[str] | None = None) ->
         w = f"{where} [[recording]] #{i + 1}"
         file = str(_require(e, "file", w, str))
         kind = str(_require(e, "kind", w, str))
-        if kind not in KINDS:
-            raise DataFormatError(f"{w}: kind '{kind}' is not one of {KINDS}")
+        if kind not in RECORDING_KINDS:
+            raise DataFormatError(f"{w}: kind '{kind}' is not one of {RECORDING_KINDS}")
         gb = free = None
         if kind == "hanging":
             if "gravity_body" in e:

@@ -4,7 +4,7 @@
 
 The recordings are of the free load touching nothing (``DATA_FORMAT.md`` section 5: a wrist payload with ``qw..qz``
 or ``gx..gz``, a URDF leg or an arm read through ``q_{joint}``), taken after the calibration. Each is corrected with
-the calibration (``correct_loads.contact_frame``: the contact wrench and its se per sample, the same checks as
+the calibration (``correct.free.contact_frame``: the contact wrench and its se per sample, the same checks as
 ``correct``); rows a stuck or clipped channel flags (``{X}_fault``) are left out. Per sample, gravity's direction in
 the transducer's frame (the calibration's estimated frame: the nominal or URDF rotation at the sample's joints times
 the mounting rotation, its world tilt applied) places it in one of 26 regions; ``freeload/holdout.py`` has the
@@ -41,7 +41,7 @@ RUN_FOLDER = "holdout"   # a run's holdout outputs, inside its output folder
 
 
 def _free_loads(cal_path: Path) -> dict:
-    from .correct_loads import read_calibration
+    from .loads.calibrated import read_calibration
 
     cal = read_calibration(cal_path)
     if not isinstance(cal, dict):
@@ -63,8 +63,9 @@ def _check_recording(cal: dict, df: pd.DataFrame, where: str) -> None:
 def gravity_in_sensor(p, sub: pd.DataFrame, where: str, base: np.ndarray | None) -> np.ndarray:
     """Unit direction of gravity (N, 3) in the estimated ft frame of calibration ``p`` for the numeric rows ``sub``:
     ``R_B,ft^T g_B``, ``R_B,ft`` the payload's fixed rotation or the URDF's at the rows' joints times the mounting
-    rotation, ``g_B`` with the calibration's world tilt (``correct_loads``' own functions)."""
-    from .correct_loads import PayloadCalibration, gravity_of_frame, orientation_of_frame, tilted_gravity
+    rotation, ``g_B`` with the calibration's world tilt (``correct``'s own functions)."""
+    from .correct.recording import gravity_of_frame, orientation_of_frame
+    from .loads.calibrated import PayloadCalibration, tilted_gravity
 
     g_B = tilted_gravity(p, gravity_of_frame(sub, p.g, where, base), orientation_of_frame(sub))[0]
     if isinstance(p, PayloadCalibration):
@@ -88,9 +89,10 @@ def samples_used(cal_path: Path | None) -> dict[str, int]:
 
 def leg_samples(cal: dict, path: Path, source: int, gravity_body=None, cal_path: Path | None = None) -> dict[str, LegSamples]:
     """Per transducer of the free-load calibration ``cal`` the samples of recording ``path`` (number ``source``):
-    contact wrench and se (``correct_loads.contact_frame``), the calibration's noise sd, gravity in the sensor's frame,
+    contact wrench and se (``correct.free.contact_frame``), the calibration's noise sd, gravity in the sensor's frame,
     row numbers, times and pose columns; ``cal_path`` the calibration's file (its ``samples_used``)."""
-    from .correct_loads import base_gravity, contact_frame
+    from .correct.free import contact_frame
+    from .correct.recording import base_gravity
 
     where = str(path)
     df = read_table(path)

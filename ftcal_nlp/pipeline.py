@@ -50,7 +50,6 @@ from .data import Dataset, Recording
 from .diagnose import DiagnosisResult, diagnose_run
 from .errors import DataFormatError, FtcalError, ImplausibleLoadFit, SolverError
 from .hanging import HangingResult, fit_hanging
-from .loads import LegComCurve
 from .loads.base import LinearLoad
 from .selection import select_models
 from .sensor_noise import SensorNoise, estimate_sensor_noise
@@ -103,7 +102,7 @@ def stage(name: str, timings: dict[str, float], cpu: dict[str, float] | None = N
 
 def _hanging(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float], notes: list[str]) -> tuple[HangingResult, HangingResult | None]:
     with stage("hanging", timings, cpu):
-        hang = LegComCurve().fit(ds.hanging, ds.robot, s.hanging)  # the hexapod legs' load: fit_hanging; logs its own warnings
+        hang = fit_hanging(ds.hanging, ds.robot, s.hanging)  # the hexapod legs' load (loads.LegComCurve); logs its own warnings
     base = None
     if s.hanging.compare_baseline and s.hanging.method != "baseline":
         with stage("hanging (baseline)", timings, cpu):

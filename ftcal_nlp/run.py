@@ -35,7 +35,7 @@ from .outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs
 from .correct import offsets_frame
 from .csvout import write_csv
 from .data import Dataset, read_dataset
-from .bench.validate import run_validation
+from .diagnose.validation import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
@@ -53,7 +53,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
 
     ``[simulate] kind = "payload" | "urdf_leg"`` simulates a section-5 dataset (``sim.free``); no ``kind``
     (or ``"hexapod"``) the BigAnt one."""
-    from .sim.free import KINDS as FREE_KINDS, simulate_free, write_free_load
+    from .sim.free import FREE_SIM_KINDS, simulate_free, write_free_load
     from .sim.free.writer import free_load_files
     from .sim.writer import simulation_files
     from .sim.free import config_from_dict as free_config
@@ -68,7 +68,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
         raise DataFormatError(f"{cfg.manifest}: file not found (and no [simulate] table to generate it)", path=cfg.manifest)
     folder = cfg.simulate_dir or (cfg.manifest.parent if cfg.manifest is not None else cfg.output_dir / "dataset")
     check_simulation_target(cfg, folder)
-    if cfg.simulate.get("kind", "hexapod") in FREE_KINDS:
+    if cfg.simulate.get("kind", "hexapod") in FREE_SIM_KINDS:
         try:
             free = simulate_free(free_config(cfg.simulate))
         except ValueError as exc:
@@ -79,7 +79,7 @@ def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | Non
         return ds, load_truth_from_dict(free.truth, manifest.parent / "truth.json", ds.robot)
     if cfg.simulate.get("kind", "hexapod") != "hexapod":
         raise ConfigError(f"{cfg.path} [simulate]: kind = {cfg.simulate['kind']!r}; known kinds: "
-                          f"{['hexapod', *sorted(FREE_KINDS)]}", path=cfg.path, key="simulate.kind")
+                          f"{['hexapod', *sorted(FREE_SIM_KINDS)]}", path=cfg.path, key="simulate.kind")
     sim_cfg = SimConfig.from_dict(cfg.simulate, where=f"{cfg.path} [simulate]")
     res = simulate(sim_cfg)
     manifest = write_guarded(folder, simulation_files(res), lambda: write_simulation(res, folder, overwrite=True), force=force)
@@ -168,7 +168,7 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     if cfg.offsets_only.calibration is not None:
         prior = Calibration.load(cfg.offsets_only.calibration, mass_kg=ds.robot.mass_kg, g=ds.robot.g)
     res = calibrate(ds, cfg.settings, offsets_only=prior)
-    # a free-load run's covariance file holds the estimator's (correct_loads reads it back)
+    # a free-load run's covariance file holds the estimator's (loads.calibrated reads it back)
     covariance = res.uncertainty if res.uncertainty is not None else free_load_covariance(res.free_loads)
     cov_meta = {"covariance_file": COVARIANCE_FILE} if covariance is not None else {}
     origin = data_origin(cfg, truth)
@@ -256,8 +256,8 @@ def effect_calibration(res: CalibrationRun) -> Calibration:
 def write_free_effect_calibration(res: CalibrationRun, folder: Path) -> None:
     """A free-load run whose diagnosis named effects: ``calibration_with_effect.json`` (the free-load calibration refit
     jointly with the chain's effects, ``meta.effect``: every transducer's members, their parameters and the session's
-    reference) and its joint covariance file (``freeload/effects_correction.py``); nothing when none was named."""
-    from .freeload.effects_correction import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, free_effect_calibration
+    reference) and its joint covariance file (``diagnose/free_effect_file.py``); nothing when none was named."""
+    from .diagnose.free_effect_file import COVARIANCE_FILE as EFFECT_COVARIANCE_FILE, free_effect_calibration
 
     out = free_effect_calibration(res)
     if out is None:
@@ -329,7 +329,7 @@ def _run_validation(path: str, force: bool, run_validation, output: Path | None 
     check_apart(folder, {"config file": p})
     with OutputFolder(folder, force=force) as staged:
         try:
-            run_validation(d["validation"], staged.path)
+            run_validation(d["validation"], staged.path, calibrate)
         except ValueError as exc:
             raise ConfigError(f"{p}: {exc}") from exc
         staged.commit()

@@ -15,18 +15,19 @@ from its caller, without defaults). A value out of range is a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, make_dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
+from .calibration import REPORT_CANDIDATES
 from .errors import ConfigError
-from .models import REPORT_CANDIDATES
 from .solver import REL_EIG_TOL
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 __all__ = ["PoseExtraction", "FreeLoadSettings", "HangingSettings", "StandingSettings", "SelectionSettings", "DiagnoseSettings",
+           "ChainThresholds", "HexapodChain", "FreeLoadChain",
            "OffsetsOnlySettings", "CorrectSettings", "CalibrationSettings", "with_overrides"]
 
 T = TypeVar("T", bound="DataclassInstance")   # a settings dataclass
@@ -158,16 +159,66 @@ class SelectionSettings:
 
 
 @dataclass(frozen=True)
+class ChainThresholds:
+    """The thresholds of the diagnosis' chain of effects (``diagnose/chain.py``), one set of names for every kind of
+    evidence; each kind (:class:`HexapodChain`, :class:`FreeLoadChain`) has its own values.
+
+    A candidate is named when the paired block-wise z of its held-out saving is ``z_min`` at least and the saving is
+    at least ``min_floor_share`` of the floor's variance; the chain names ``max_effects`` at most. ``explained_min``:
+    the share of the held-out excess over the floor that what is named must remove (hexapods: an effect, in the first
+    ranking and each later one; free loads: the correlate ``where.explains`` names)."""
+
+    SECTION: ClassVar[str] = "diagnose"
+
+    z_min: float
+    min_floor_share: float
+    max_effects: int
+    explained_min: float
+
+    def __post_init__(self) -> None:
+        key = f"{self.SECTION}.{{}}"
+        if not self.z_min > 0:
+            raise ConfigError(f"{type(self).__name__}.z_min: expected a positive number, got {self.z_min!r}", key=key.format("z_min"))
+        for name in ("min_floor_share", "explained_min"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"{type(self).__name__}.{name}: expected a fraction in [0, 1], got {getattr(self, name)!r}",
+                                  key=key.format(name))
+        if not (isinstance(self.max_effects, int) and not isinstance(self.max_effects, bool) and self.max_effects >= 1):
+            raise ConfigError(f"{type(self).__name__}.max_effects: expected an integer >= 1, got {self.max_effects!r}",
+                              key=key.format("max_effects"))
+
+
+def _kind_values(name: str, section: str, doc: str, **values: float) -> type:
+    """A kind of evidence's :class:`ChainThresholds`: ``values`` its defaults (a config table ``[section]`` may
+    override any of them, the others keep the kind's)."""
+    return make_dataclass(name, [(k, type(v), field(default=v)) for k, v in values.items()], bases=(ChainThresholds,),
+                          frozen=True, namespace={"SECTION": section, "__doc__": doc, "__module__": __name__})
+
+
+#: the hexapod's values (evidence: standing poses, hanging legs, walking swing; each link a joint refit of the whole
+#: calibration, ``diagnose/hexchain.py``)
+HexapodChain = _kind_values("HexapodChain", "diagnose.hexapod", "The hexapod's chain thresholds ([diagnose.hexapod]).",
+                            z_min=3.0, min_floor_share=0.05, max_effects=3, explained_min=0.5)
+#: the free loads' values (evidence: every sample of the load in blocks of holds, ``diagnose/chain.py``; the floor's
+#: variance there is ``6 N``, N samples in units of the noise variance)
+FreeLoadChain = _kind_values("FreeLoadChain", "diagnose.free_loads", "The free loads' chain thresholds ([diagnose.free_loads]).",
+                             z_min=3.0, min_floor_share=0.01, max_effects=4, explained_min=0.3)
+
+
+@dataclass(frozen=True)
 class DiagnoseSettings:
     """Sim-to-real gap diagnosis: ``effects`` the candidate names (None: the whole library),
     ``folds``/``seed`` its cross-validation; ``joint_refit``: refit the whole calibration with
-    the named effect (``diagnose/joint.py``) and report its shrinkage."""
+    the named effect (``diagnose/joint.py``) and report its shrinkage; ``hexapod``/``free_loads``:
+    the chain's thresholds (:class:`ChainThresholds`) for each kind of evidence."""
 
     enabled: bool = True
     effects: tuple[str, ...] | None = None
     folds: int = 5
     seed: int = 0
     joint_refit: bool = True
+    hexapod: HexapodChain = field(default_factory=HexapodChain)
+    free_loads: FreeLoadChain = field(default_factory=FreeLoadChain)
 
 
 @dataclass(frozen=True)

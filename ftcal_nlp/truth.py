@@ -27,7 +27,9 @@ from .errors import DataFormatError
 if TYPE_CHECKING:  # calibration.py is read only for a hexapod's truth (imported there)
     from .calibration import Calibration
 
-FREE_KINDS = ("payload", "urdf_leg")
+#: the simulated free loads' kinds (``sim/free/config.py`` FREE_SIM_KINDS), spelled here: truth files are read
+#: without the simulator
+FREE_SIM_KINDS = ("payload", "urdf_leg")
 
 
 @dataclass(frozen=True)
@@ -67,7 +69,7 @@ def free_load_kind(d: dict) -> str | None:
     """``"payload"``, ``"urdf_leg"`` or None (not a free load's truth)."""
     if not isinstance(d, dict):
         return None
-    if d.get("kind") in FREE_KINDS:
+    if d.get("kind") in FREE_SIM_KINDS:
         return d["kind"]
     if "bodies" in d and "load_mass_kg" in d:
         return "urdf_leg"

@@ -38,7 +38,7 @@ depends on them. Vectorised over samples in chunks (no per-sample Python loop).
 Free loads (``DATA_FORMAT.md`` section 5): :func:`free_load_covariance` is the same
 file's content for a free-load run, the estimator's covariance over each transducer's
 ``{X}.offset.*``, load parameters and ``{X}.mount.r*`` (independent blocks), which
-``correct_loads`` reads back with :meth:`CalibrationCovariance.block`. There ``cov`` is
+``loads.calibrated`` reads back with :meth:`CalibrationCovariance.block`. There ``cov`` is
 the covariance on the determined subspace (the rows of parameters that enter an
 undetermined direction are kept: a determined combination of them has a finite se) and
 ``null`` (P, r) holds the undetermined directions: an output whose derivative has a

@@ -100,7 +100,7 @@ def correct_arrays(cal: Calibration, t: np.ndarray, w_m: np.ndarray, phi: np.nda
     ``t`` (N,) s; ``w_m`` (N, K, 6) readings in ft_k; ``phi`` (N, K) rad; ``R_WB`` (N, 3, 3) finite;
     ``cov`` the calibration's covariance (None: se from the sensor noise in ``cal.meta`` alone, or NaN
     without one); ``reading_cov`` (N, K, 6, 6) a covariance of the readings beyond the sensor noise (the
-    correction of a named effect, ``effect_correction.effect_reading_cov``), added to it."""
+    correction of a named effect, ``effects.correction.effect_reading_cov``), added to it."""
     legs = cal.leg_names
     noise = cov.noise if cov is not None and cov.noise is not None else noise_of(cal)
     has_se = cov is not None or noise is not None

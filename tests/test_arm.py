@@ -20,7 +20,7 @@ import tomli_w
 
 from ftcal_nlp import correct
 from ftcal_nlp.calibration import read_calibration_json
-from ftcal_nlp.correct_loads import payload_calibrations
+from ftcal_nlp.loads.calibrated import payload_calibrations
 from ftcal_nlp.data import read_dataset
 from ftcal_nlp.errors import DataFormatError
 from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
@@ -196,7 +196,7 @@ def test_correct_joints_only_errors(arm, tmp_path, capsys) -> None:
 
 def test_export_of_the_arm_payload_equals_correct(arm, tmp_path) -> None:
     """The CasADi function export compiles gives what correct writes, with the fixed base's quaternion."""
-    from ftcal_nlp.export_loads import base_quaternion, correction_function, joint_order
+    from ftcal_nlp.export.free import base_quaternion, correction_function, joint_order
 
     cals = payload_calibrations(arm / "out" / "calibration.json")
     out = tmp_path / "contact.csv"

@@ -9,6 +9,7 @@ hanging recordings are checked to be bit-identical)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -21,7 +22,8 @@ from ftcal_nlp.diagnose import DiagnosisResult, diagnose
 from ftcal_nlp.effects import EFFECTS as LIBRARY, HangingLeg, LinearFace, design_check
 from ftcal_nlp.diagnose.linear_fit import score_linear
 from ftcal_nlp.diagnose.standing_fit import AugmentedProblem, StandingData
-from ftcal_nlp.bench.validate import plan, run_validation
+from ftcal_nlp.diagnose.validation import plan, run_validation
+from ftcal_nlp.pipeline import calibrate
 from ftcal_nlp.diagnose.views import LegSeries, to_world
 from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
 from ftcal_nlp.hanging import fit_hanging
@@ -362,4 +364,21 @@ def test_validation_plan_is_deterministic_and_balanced():
     with pytest.raises(ValueError, match="unknown effect"):
         plan({**cfg, "effects": ["tether"]})
     with pytest.raises(ValueError, match="unknown key"):
-        run_validation({"n_dataset": 2}, "/nonexistent")
+        run_validation({"n_dataset": 2}, "/nonexistent", calibrate)
+
+
+def test_the_docs_quote_the_chain_thresholds_from_the_settings():
+    """``docs/diagnosis.md``'s table of the chain's thresholds is ``DiagnoseSettings``' (one set of names, a value per
+    kind of evidence): a threshold changed in ``settings.py`` and not in the docs fails here."""
+    from dataclasses import fields
+
+    from ftcal_nlp.settings import ChainThresholds, DiagnoseSettings
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "diagnosis.md").read_text()
+    table = text.split("<!-- chain thresholds: settings.DiagnoseSettings -->", 1)[1].strip().split("\n\n", 1)[0]
+    rows = {cells[0].strip("` "): cells for cells in ([c.strip() for c in ln.strip("|").split("|")]
+                                                        for ln in table.splitlines()[2:])}
+    s = DiagnoseSettings()
+    assert set(rows) == {f.name for f in fields(ChainThresholds)}
+    for name, cells in rows.items():
+        assert float(cells[2]) == getattr(s.hexapod, name) and float(cells[3]) == getattr(s.free_loads, name), name

@@ -26,7 +26,7 @@ import pytest
 
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.diagnose.joint import JointRefit, combined_members
-from ftcal_nlp.effect_correction import apply_effect, correct_for_effect
+from ftcal_nlp.effects.correction import apply_effect, correct_for_effect
 from ftcal_nlp.effects import EFFECTS, AugContext
 from ftcal_nlp.effects.combined import Combined
 from ftcal_nlp.effects.injection import HOUR_S
@@ -298,7 +298,7 @@ def test_the_chains_calibration_corrects_a_walk_closer_to_the_truth(tmp_path):
     readings' noise floor, compared block by block over the walk, fall by ``Z_MIN`` se at least."""
     from dataclasses import replace
 
-    from ftcal_nlp.bench.validate import DEFAULTS, _settings
+    from ftcal_nlp.diagnose.validation import DEFAULTS, _settings
     from ftcal_nlp.correct import correct_recording
     from ftcal_nlp.pipeline import calibrate
     from ftcal_nlp.run import effect_calibration, last_joint

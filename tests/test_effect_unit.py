@@ -17,7 +17,7 @@ import pytest
 
 from ftcal_nlp import CalibrationSettings, DiagnoseSettings, StandingSettings, calibrate
 from ftcal_nlp.diagnose import diagnose
-from ftcal_nlp.effect_correction import correct_for_effect
+from ftcal_nlp.effects.correction import correct_for_effect
 from ftcal_nlp.effects import EFFECTS, Effect, EffectInjector, LinearFace, Magnitude, ParamBlock, injector_classes, with_units
 from ftcal_nlp.effects.injection import HOUR_S
 from ftcal_nlp.sim import EFFECTS as SIM_EFFECTS, SimConfig, simulate

@@ -46,7 +46,7 @@ def random_calibration(rng: np.random.Generator, n_legs: int = 4, uniform: bool 
 
 def export_and_load(cal, folder):
     files = write_c(cal, folder)
-    return load_compiled(compile_shared(files), len(cal.leg_names))
+    return load_compiled(compile_shared(files), cal)
 
 
 @pytest.mark.parametrize("uniform", [False, True])

@@ -1,5 +1,5 @@
 """``calibration_with_effect.json`` of free loads and what ``correct`` applies (issue 23 item 3;
-freeload/effects_correction.py): a payload and a URDF leg with a clock offset and creep injected are run with the
+effects/correction.py, diagnose/free_effect_file.py): a payload and a URDF leg with a clock offset and creep injected are run with the
 diagnosis; a fresh recording of the same rig (another seed: other orientations, other noise) corrected with that file
 lands on the simulator's truth (no contact: zero) within the noise, and clearly closer than with calibration.json
 (paired block-wise z); the se carry the noise; a saved and reloaded file corrects bit-identically; a face that needs
@@ -17,11 +17,11 @@ import pandas as pd
 import pytest
 
 from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.correct import main as correct_main
-from ftcal_nlp.correct_loads import PayloadCalibration, contact_frame, contact_wrench, payload_calibrations
+from ftcal_nlp.correct import contact_frame, contact_wrench, main as correct_main
+from ftcal_nlp.effects.correction import FreeEffects, Member
 from ftcal_nlp.effects.faces import legendre_time
 from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.freeload.effects_correction import FreeEffects, Member
+from ftcal_nlp.loads.calibrated import PayloadCalibration, payload_calibrations
 from ftcal_nlp.run import main as run_main
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
@@ -257,7 +257,7 @@ def test_a_time_polynomial_keeps_the_calibration_session_span(caplog):
 
 def test_export_of_a_calibration_with_effects_is_an_error(payload, tmp_path):
     # the C function is the per-sample load model: the effects would be dropped silently
-    from ftcal_nlp.export_loads import write_c
+    from ftcal_nlp.export import write_c
 
     folder, _ = payload
     with pytest.raises(DataFormatError) as exc:
@@ -271,7 +271,7 @@ def test_se_of_the_corrected_wrench_match_the_spread_of_refits(tmp_path):
     # corrected wrench over them matches the se's calibration part sqrt(se^2 - sigma^2), which carries the joint
     # covariance of the load parameters and beta (pooled per channel; 1 +- 3 / sqrt(2 (R - 1)) for R refits)
     from ftcal_nlp.data import read_dataset
-    from ftcal_nlp.freeload.effects_correction import COVARIANCE_FILE, free_effect_calibration
+    from ftcal_nlp.diagnose.free_effect_file import COVARIANCE_FILE, free_effect_calibration
     from ftcal_nlp.pipeline import calibrate
     from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
 
@@ -310,3 +310,23 @@ def test_a_list_of_single_row_poses_is_not_corrected_for_stream_effects(payload)
     assert exc.value.column == "t" and "single-row poses" in str(exc.value) and "clock_offset" in str(exc.value)
     out = contact_frame(payload_calibrations(folder / "out" / "calibration.json"), poses, "poses.csv")
     assert len(out) == len(poses)
+
+
+def test_the_effect_specific_parts_of_the_correction_are_hooks_on_the_units():
+    # what the free-load correction asks of a member is its unit's (effects/<name>.py), named nowhere else: the
+    # units that follow the stream's clock (the list correction used to keep by name) and no effect name as a
+    # string in the commands, the loads or the one effect correction
+    import ast
+    from pathlib import Path
+
+    import ftcal_nlp
+    from ftcal_nlp.effects import EFFECTS, LIBRARY_EFFECTS
+
+    assert {n for n, u in EFFECTS.items() if u.follows_stream_clock} == {"clock_offset", "creep", "inertial_load"}
+    assert {n for n, u in EFFECTS.items() if u.free_reference_keys} == {"offset_drift", "temperature"}
+    root = Path(ftcal_nlp.__file__).parent
+    files = [*(root / "correct").glob("*.py"), *(root / "export").glob("*.py"), *(root / "loads").glob("*.py"),
+             root / "effects" / "correction.py", root / "diagnose" / "free_effect_file.py"]
+    named = {(f.relative_to(root).as_posix(), node.value) for f in files for node in ast.walk(ast.parse(f.read_text()))
+             if isinstance(node, ast.Constant) and node.value in LIBRARY_EFFECTS}
+    assert not named, named

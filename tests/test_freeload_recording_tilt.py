@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 import tomli_w
 
-from ftcal_nlp.correct_loads import payload_from_fit
+from ftcal_nlp.loads.calibrated import payload_from_fit
 from ftcal_nlp.data import read_dataset
 from ftcal_nlp.diagnose.free_model import context_for, model_jacobian
 from ftcal_nlp.freeload import fit_free_load, fit_free_loads

@@ -18,6 +18,10 @@ import numpy as np
 import pytest
 
 from ftcal_nlp.diagnose.hexchain import paired_z
+from ftcal_nlp.settings import HexapodChain
+
+HEX = HexapodChain()   # the hexapod chain's thresholds (DiagnoseSettings.hexapod)
+Z_MIN = HEX.z_min
 from ftcal_nlp.diagnose.linear_fit import rebase, score_linear
 from ftcal_nlp.diagnose.scores import KindScore
 from ftcal_nlp.diagnose.views import LegSeries
@@ -138,7 +142,7 @@ SMALL = {"n_poses": 100, "hanging_cycles": 2.0, "walk_cycles": 1.0}
 
 
 def _diagnosis(seed: int, effects: list[tuple[str, float]], library: tuple[str, ...] | None = None):
-    from ftcal_nlp.bench.validate import DEFAULTS, _settings
+    from ftcal_nlp.diagnose.validation import DEFAULTS, _settings
     from ftcal_nlp.pipeline import calibrate
     from ftcal_nlp.sim import SimConfig, simulate
 
@@ -197,17 +201,17 @@ def test_the_stated_test_and_the_joint_check():
         return KindScore("standing", np.ones(6), np.ones(6), np.ones(6), b0.sum(), b1.sum(), 1.0, 1.0, 600, 6, b0, b1)
 
     good = SimpleNamespace(kinds={"standing": ks(b0 / 2.5)}, design=None)
-    assert passes(good, {"standing": 2.0})[0]
+    assert passes(good, {"standing": 2.0}, HEX)[0]
     noise = SimpleNamespace(kinds={"standing": ks(b0 * rng.uniform(0.9, 1.1, 100))}, design=None)
-    assert not passes(SimpleNamespace(kinds={"walking swing": ks(b0 / 2.5)}, design=None), {"walking swing": 2.0})[0]
-    ok, why, kind, z = passes(noise, {"standing": 2.0})
+    assert not passes(SimpleNamespace(kinds={"walking swing": ks(b0 / 2.5)}, design=None), {"walking swing": 2.0}, HEX)[0]
+    ok, why, kind, z = passes(noise, {"standing": 2.0}, HEX)
     assert not ok and "paired block-wise z" in why and kind == "standing"
     tiny = SimpleNamespace(kinds={"standing": ks(b0 - 0.01 * b0.mean())}, design=None)  # significant, not material
-    ok, why, _, _ = passes(tiny, {"standing": 2.0})
+    ok, why, _, _ = passes(tiny, {"standing": 2.0}, HEX)
     assert not ok and "floor's variance" in why
     tilt = SimpleNamespace(kinds={}, design={"delta_bic": -20.0})
-    assert passes(tilt, {"design": 2.0})[:3] == (True, "", "design")
-    assert not passes(SimpleNamespace(kinds={}, design=None), {"standing": 2.0})[0]
+    assert passes(tilt, {"design": 2.0}, HEX)[:3] == (True, "", "design")
+    assert not passes(SimpleNamespace(kinds={}, design=None), {"standing": 2.0}, HEX)[0]
 
     fl = np.full(6, 0.1)
     refit = lambda **kinds: SimpleNamespace(kinds={k: KindRefit(k, fl, fl * r, fl, 100) for k, r in kinds.items()})  # noqa: E731
@@ -229,7 +233,7 @@ def test_held_out_evidence_where_the_joint_refit_left_its_gap():
     gap on, largest z first; noise, immaterial savings, other kinds, failed or excluded candidates are not tried."""
     from types import SimpleNamespace
 
-    from ftcal_nlp.diagnose.hexchain import Z_MIN, held_out_evidence
+    from ftcal_nlp.diagnose.hexchain import held_out_evidence
 
     rng = np.random.default_rng(8)
     b0 = rng.chisquare(6, 100) * 3.0
@@ -247,12 +251,12 @@ def test_held_out_evidence_where_the_joint_refit_left_its_gap():
     elsewhere = cand("e", {"hanging": ks(b0 / 3.0)})
     failed = cand("f", {"standing": ks(b0 / 3.0)}, status="failed: x")
     att = SimpleNamespace(scores=[weaker, noise, tiny, elsewhere, failed, strong])
-    got = held_out_evidence(att, {"standing": 7.7}, set())
+    got = held_out_evidence(att, {"standing": 7.7}, set(), HEX)
     assert [t[0].effect for t in got] == ["a", "b"] and all(t[1] == "standing" and t[2] >= Z_MIN and t[3] == "held-out" for t in got)
     assert got[0][2] > got[1][2]
-    assert [t[0].effect for t in held_out_evidence(att, {"standing": 7.7}, {"a"})] == ["b"]
-    assert held_out_evidence(att, {"hanging": 1.0}, set())[0][0].effect == "e"
-    assert held_out_evidence(att, {}, set()) == []
+    assert [t[0].effect for t in held_out_evidence(att, {"standing": 7.7}, {"a"}, HEX)] == ["b"]
+    assert held_out_evidence(att, {"hanging": 1.0}, set(), HEX)[0][0].effect == "e"
+    assert held_out_evidence(att, {}, set(), HEX) == []
 
 
 def _refit(blocks: dict, n_par: int):
@@ -270,7 +274,7 @@ def test_a_swap_passes_when_significant_or_with_fewer_parameters():
     """``swap_better``: the joint check on a kind of the gap, and a paired z >= Z_MIN or fewer parameters; an alternative
     that predicts worse, or spoils another kind, never passes. ``choose_swap``: the least excess, then of those it does
     not beat by Z_MIN the fewest parameters."""
-    from ftcal_nlp.diagnose.hexchain import Z_MIN, blocks_z, choose_swap, excess, swap_better
+    from ftcal_nlp.diagnose.hexchain import blocks_z, choose_swap, excess, swap_better
 
     rng = np.random.default_rng(11)
     P = 100
@@ -284,26 +288,26 @@ def test_a_swap_passes_when_significant_or_with_fewer_parameters():
     assert left["standing"] > 2.0
     alt_b = floor_like
     assert blocks_z(cur_b, alt_b) < Z_MIN          # the premise: heavy-tailed, not significant by the paired test
-    ok, kind, z = swap_better(cur, _refit({"standing": alt_b, "hanging": hang}, 1), left)
+    ok, kind, z = swap_better(cur, _refit({"standing": alt_b, "hanging": hang}, 1), left, HEX)
     assert ok and kind == "standing" and z < Z_MIN
     # the same fall with more parameters needs the paired test
-    assert not swap_better(cur, _refit({"standing": alt_b, "hanging": hang}, 60), left)[0]
+    assert not swap_better(cur, _refit({"standing": alt_b, "hanging": hang}, 60), left, HEX)[0]
     # a consistent fall passes it whatever the parameters
     steady = _refit({"standing": cur_b / 3.0 * rng.lognormal(0.0, 0.5, P), "hanging": hang}, 60)
-    ok, kind, z = swap_better(cur, steady, left)
+    ok, kind, z = swap_better(cur, steady, left, HEX)
     assert ok and kind == "standing" and Z_MIN <= z < 50
     # fewer parameters but no better held out; or better there and worse on the hanging legs
-    assert not swap_better(cur, _refit({"standing": cur_b * 1.01, "hanging": hang}, 1), left)[0]
-    assert not swap_better(cur, _refit({"standing": alt_b, "hanging": hang * 3.0}, 1), left)[0]
+    assert not swap_better(cur, _refit({"standing": cur_b * 1.01, "hanging": hang}, 1), left, HEX)[0]
+    assert not swap_better(cur, _refit({"standing": alt_b, "hanging": hang * 3.0}, 1), left, HEX)[0]
     # choose: the least excess (a), and of those a does not beat by Z_MIN the fewest parameters (b, not the worse c)
     a = (0, "a", _refit({"standing": alt_b, "hanging": hang}, 20), "standing", 5.0)
     b = (1, "b", _refit({"standing": alt_b * rng.lognormal(0.0, 0.3, P), "hanging": hang}, 6), "standing", 5.0)
     c = (1, "c", _refit({"standing": alt_b * 1.6 * rng.lognormal(0.0, 0.3, P), "hanging": hang}, 1), "standing", 5.0)
     assert blocks_z(b[2].kinds["standing"].blocks, alt_b) < Z_MIN <= blocks_z(c[2].kinds["standing"].blocks, alt_b)
-    assert choose_swap([c, a, b])[1] == "b"
-    assert choose_swap([c])[1] == "c" and choose_swap([]) is None
+    assert choose_swap([c, a, b], HEX)[1] == "b"
+    assert choose_swap([c], HEX)[1] == "c" and choose_swap([], HEX) is None
     # a refit that lost a kind (its standing fit failed) never passes
-    assert not swap_better(cur, _refit({"hanging": hang}, 1), left)[0]
+    assert not swap_better(cur, _refit({"hanging": hang}, 1), left, HEX)[0]
     # parameters held at their hanging estimates (se 0) or undetermined (se inf) are not spent
     from types import SimpleNamespace
 
@@ -316,7 +320,7 @@ def test_a_swap_names_the_pair_the_greedy_first_step_aliased():
     force channel along up is a robot mass error in the standing balance), the chain adds the hysteresis beside it, and
     the swap replaces the crosstalk's 54 parameters by the robot mass, which predicts the held-out poses better. Both
     named; the mass error recovered within 4 se; the swap in diagnosis.json and the statement."""
-    from ftcal_nlp.bench.validate import INJECTORS
+    from ftcal_nlp.diagnose.validation import INJECTORS
 
     hi = {n: float(INJECTORS[n].magnitude.realistic[1]) for n in ("hysteresis", "robot_mass")}
     # the library: the pair and the candidates that explain the whole gap on their own here (as gain_crosstalk does)

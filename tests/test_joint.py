@@ -16,7 +16,7 @@ from ftcal_nlp import CalibrationSettings, calibrate
 from ftcal_nlp.calibration import Calibration
 from ftcal_nlp.correct import correct_recording
 from ftcal_nlp.data import WRENCH_COMPONENTS
-from ftcal_nlp.effect_correction import apply_effect
+from ftcal_nlp.effects.correction import apply_effect
 from ftcal_nlp.geometry import cayley, rotvec_to_rotation
 from ftcal_nlp.sim import SimConfig, simulate
 
@@ -184,7 +184,7 @@ def test_effect_reading_covariance_is_the_faces_jacobian_through_eta_cov():
     """A casing load's corrected fx, fy are linear in its parameters (a, b, c, d per leg): their
     variance under ``eta_cov`` is ``cos^2 var(a) + sin^2 var(b)`` (and ``c``, ``d`` for fy), torques none;
     an offset drift's is the rate's variance times the squared hours from the reference."""
-    from ftcal_nlp.effect_correction import effect_reading_cov
+    from ftcal_nlp.effects.correction import effect_reading_cov
 
     rng, K, N, w, phi, R, t = _samples(1, 5, 7200.0)
     s = rng.uniform(0.1, 1.0, 4 * K)

@@ -297,3 +297,10 @@ def test_inertial_load_only_in_moves() -> None:
     assert np.array_equal(d[a.held], np.zeros_like(d[a.held]))               # held: at rest, the static wrench
     assert np.abs(d[~a.held, :3]).max() > 5 * a.config.noise_force_N         # moves: not quasi-static
     assert b.truth["effects"] == [{"name": "inertial_load", "scale": 1.0}]
+
+
+def test_truth_files_know_the_simulators_kinds():
+    from ftcal_nlp.sim.free.config import FREE_SIM_KINDS as simulated
+    from ftcal_nlp.truth import FREE_SIM_KINDS as read
+
+    assert tuple(simulated) == tuple(read)

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.bench.validate import (
+from ftcal_nlp.diagnose.validation import (
     check_config,
     effect_sizes,
     is_right,
@@ -24,6 +24,7 @@ from ftcal_nlp.bench.validate import (
     score,
     sweep_plan,
 )
+from ftcal_nlp.pipeline import calibrate
 from ftcal_nlp.geometry import quat_to_rotation, rotation_to_rotvec
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
 from ftcal_nlp.effects import EFFECTS as LIBRARY, LIBRARY_EFFECTS, applies_to
@@ -208,7 +209,7 @@ def test_sweep_plan_is_deterministic_and_complete():
     assert [x["index"] for x in a] == list(range(len(a)))
     clean = [x for x in a if x["role"] == "clean"]
     assert len(clean) >= 6
-    from ftcal_nlp.bench.validate import HEXAPOD_EFFECTS, HEXAPOD_VARIANTS
+    from ftcal_nlp.diagnose.validation import HEXAPOD_EFFECTS, HEXAPOD_VARIANTS
 
     # the hexapod sweep: the effects with hexapod faces and the shapes a hexapod takes (free-load ones apart)
     assert set(HEXAPOD_EFFECTS) == {n for n, u in LIBRARY.items() if "hexapod" in u.diagnosed_on} and "offset_drift" in HEXAPOD_EFFECTS
@@ -245,7 +246,7 @@ def test_config_errors_name_the_key(tmp_path):
                      ({"simulate": {"seed": 3}}, "validation.simulate"), ({"n_datasets": 2, "oops": 1}, "unknown key"),
                      ({"n_datasets": 2, "n_clean": 3}, "n_clean"), ({"design": "sweep", "clean_share": 0.2}, "clean_share")):
         with pytest.raises(ValueError, match=key.replace(".", r"\.")):
-            run_validation(cfg, tmp_path)
+            run_validation(cfg, tmp_path, calibrate)
 
 
 def test_scoring_against_the_twin():
@@ -276,7 +277,7 @@ def test_tiny_sweep_through_joblib(tmp_path):
     items = sweep_plan(cfg)
     hi = next(x for x in items if x["size"] == "hi")
     items = [items[0], hi, items[hi["twin"]]]                       # a clean dataset, one effect and its twin
-    summary = run_items(items, cfg, sim_over, tmp_path)
+    summary = run_items(items, cfg, sim_over, tmp_path, calibrate)
     assert summary["finished"] == (3, 3) and summary["workers"] == 2 and summary["backend"] == "LokyBackend"
     assert summary["clean"][1] == 1 and summary["library"][1] == 1
     table = (tmp_path / "validation.md").read_text()
@@ -294,7 +295,7 @@ def test_pairs_in_the_plan_and_their_rows_of_the_table():
     """Issue 23, item 2: pairs of library effects (each at the high end of its realistic range, own seeds, after the
     twins), restricted to the effects withheld; the table counts pairs with both named and single effects with a
     false second."""
-    from ftcal_nlp.bench.validate import PAIRS, sweep_summary, validation_table
+    from ftcal_nlp.diagnose.validation import PAIRS, sweep_summary, validation_table
 
     a = sweep_plan(sweep_cfg())
     pairs = [x for x in a if x["role"] == "pair"]
@@ -333,7 +334,7 @@ def test_pairs_in_the_plan_and_their_rows_of_the_table():
 
 def test_a_sweep_of_pairs_alone_is_summarised():
     """A sweep of pairs only (no single effect, no clean dataset) is counted, not a KeyError on the empty scores."""
-    from ftcal_nlp.bench.validate import sweep_summary, validation_table
+    from ftcal_nlp.diagnose.validation import sweep_summary, validation_table
 
     rows = pd.DataFrame([{"index": 0, "seed": 0, "role": "pair", "effect": "offset_drift+casing_load",
                           "expect": "offset_drift+casing_load", "expect_legs": "", "named": "casing_load", "legs": "",
@@ -348,7 +349,7 @@ def test_a_sweep_of_pairs_alone_is_summarised():
 def test_a_dataset_rejected_naming_its_leg_counts_as_placed():
     """An input check that refuses a dataset with an error naming the faulty leg's column (``rejected``) has placed a
     fault outside the library on its leg; one naming another leg, or no column, has not (an error)."""
-    from ftcal_nlp.bench.validate import REJECTED, rejected_leg, sweep_summary, validation_table
+    from ftcal_nlp.diagnose.validation import REJECTED, rejected_leg, sweep_summary, validation_table
     from ftcal_nlp.errors import DataFormatError, MisSignedChannel
 
     legs = ("FL", "ML", "HL", "FR", "MR", "HR")

@@ -1,4 +1,4 @@
-"""The free-load validation sweep (issue 23, item 5; ``ftcal_nlp/bench/validate_free.py``): its plan (explicit
+"""The free-load validation sweep (issue 23, item 5; ``ftcal_nlp/diagnose/validation.py``, part 2): its plan (explicit
 seeds, every effect at two sizes, every off-face shape, pairs, clean data; what a kind cannot take left out and
 said so), its scoring, config errors that name the key, and a small sweep through ``python -m ftcal_nlp.run``."""
 
@@ -9,7 +9,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.bench.validate_free import check_config, free_effects, plan, score, shapes_of, summarise
+from ftcal_nlp.diagnose.validation import free_check_config as check_config
+from ftcal_nlp.diagnose.validation import free_effects, shapes_of
+from ftcal_nlp.diagnose.validation import free_plan as plan
+from ftcal_nlp.diagnose.validation import free_score as score
+from ftcal_nlp.diagnose.validation import free_summarise as summarise
 from ftcal_nlp.effects import EFFECTS
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -70,7 +70,7 @@ def run_export_speed(settings: ExportSpeedSettings = ExportSpeedSettings()) -> d
     assert q is not None  # (as _tiled_walk's)
     n = len(phi)
     with tempfile.TemporaryDirectory(prefix="ftcal_export_") as tmp:
-        fn = load_compiled(compile_shared(write_c(cal, Path(tmp))), len(legs))
+        fn = load_compiled(compile_shared(write_c(cal, Path(tmp))), cal)
         t_c = _best(lambda: fn(w, phi, q), settings.repeats)
         err = np.abs(fn(w[:10000], phi[:10000], q[:10000]) - ground_wrenches(w[:10000], phi[:10000], quat_to_rotation(q[:10000]), cal)).max()
     t_gw = _best(lambda: ground_wrenches(w, phi, quat_to_rotation(q), cal), settings.repeats)

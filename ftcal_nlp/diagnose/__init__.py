@@ -16,7 +16,10 @@ Map of the package (``diagnose(...)``, ``diagnose_run(run)`` in ``core.py`` run 
   each leg's weight refit on its swing phases).
 * ``joint.py``: the named effect(s) refit with the whole calibration (``calibration_with_effect.json`` holds the
   chain's last joint refit).
-* ``hexchain.py``: several effects (issue 23): while a gap is left after the joint refit, the remaining candidates
+* ``evidence.py``: the chain of several effects, one loop for every kind of evidence (name the strongest by held-out
+  evidence, refit jointly, look again; thresholds ``DiagnoseSettings.hexapod`` / ``.free_loads``,
+  :class:`~ftcal_nlp.settings.ChainThresholds`); each kind behind :class:`~.evidence.EvidenceKind`:
+* ``hexchain.py``: the hexapod's kind (issue 23): while a gap is left after the joint refit, the remaining candidates
   are scored with the named effects in the base model (``attribute(..., base_effect=Combined(named))``,
   ``effects/combined.py``), the best is added when it passes a stated paired fold-wise held-out test and the joint
   refit with the named ones predicts better (else up to two candidates by their held-out evidence where the joint
@@ -31,8 +34,8 @@ in ``free.py``, which the pipeline runs for them:
   the noise floor from held, still stretches of the readings;
 * ``free_cv.py``: blocked cross-validation (holds or time blocks) of the model linearised around the fit plus
   effect faces (``effects/free_faces.py``), cached per-fold normal equations;
-* ``chain.py``: several effects: the strongest by held-out evidence, refit jointly, look again, stop by a stated
-  paired block-wise test; the joint refit's parameters with se;
+* ``chain.py``: the free loads' kind of evidence for ``evidence.py``: the strongest by held-out evidence, refit
+  jointly, look again, stop by a stated paired block-wise test; the joint refit's parameters with se;
 * ``correlates.py``: where the gap lies: time, each joint angle, motion, the load's history, temperature.
 
 On hexapod datasets the first effect is the single-effect diagnosis above, unchanged (its name, parameters and
@@ -41,8 +44,8 @@ joint refit); ``hexchain.py`` looks again only when the joint refit leaves a gap
 The candidate effects are not here: each is one unit of :mod:`ftcal_nlp.effects` (its
 injector, model faces and their variants, correction and off-face shapes), read from
 the registry ``ftcal_nlp.effects.EFFECTS`` (or a ``registry`` argument). The
-withheld-effect validation of the diagnosis is a benchmark:
-:mod:`ftcal_nlp.bench.validate` (``python -m ftcal_nlp.run problems/diagnose_validation.toml``).
+withheld-effect validation of the diagnosis, for both kinds of evidence, is ``validation.py``
+(``python -m ftcal_nlp.run problems/diagnose_validation.toml``; ``calibrate`` passed in by ``run.py``).
 """
 
 from .core import diagnose, diagnose_run

@@ -23,7 +23,8 @@ improvement says whether it beats the floor). Verdict (``decide``):
   the design kind when its ``delta_bic < -10``;
 * ``none``: no gap anywhere;
 * ``effect``: the candidate with the lowest ``delta_bic`` among those with
-  ``delta_bic < -10`` (strong evidence) that remove at least half of the excess,
+  ``delta_bic < -10`` (strong evidence) that remove at least ``explained_min`` of the excess
+  (``DiagnoseSettings.hexapod``, :func:`explaining`),
   averaged over the kinds with a gap (weights ``log(1 + excess)``) (a candidate that only fits the calibration's
   own small errors, e.g. a mass term absorbing the hanging leg weights' error,
   does not explain a gap elsewhere);
@@ -52,7 +53,6 @@ from .views import Views
 log = logging.getLogger(__name__)
 
 DBIC_STRONG = -10.0
-EXPLAINED_MIN = 0.5
 GAP_THRESHOLD = {"standing": 0.5, "hanging": 0.1, "walking swing": 1.0}
 
 
@@ -312,13 +312,19 @@ def explained_fraction(score: EffectScore, gap: dict) -> float:
     return float(np.average(fr, weights=wt)) if wt.sum() > 0 else float(np.mean(fr))
 
 
-def decide(att: Attribution) -> tuple[str, str | None, dict]:
+def explaining(att: Attribution, gap: dict, explained_min: float) -> list[EffectScore]:
+    """The candidates that explain the gap ``gap``: strong evidence by ``delta_bic`` where it lies (``< DBIC_STRONG``)
+    and at least ``explained_min`` of its excess removed (:func:`explained_fraction`)."""
+    return [s for s in att.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap)) and ranking_bic(s, gap) < DBIC_STRONG
+            and explained_fraction(s, gap) >= explained_min]
+
+
+def decide(att: Attribution, explained_min: float) -> tuple[str, str | None, dict]:
     """``(verdict, effect, gaps)`` (module docstring)."""
     gap = gaps(att)
     if not gap:
         return "none", None, gap
-    ok = [s for s in att.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap)) and ranking_bic(s, gap) < DBIC_STRONG
-          and explained_fraction(s, gap) >= EXPLAINED_MIN]
+    ok = explaining(att, gap, explained_min)
     if ok:
         return "effect", min(ok, key=lambda s: (ranking_bic(s, gap), s.delta_bic)).effect, gap
     return "unexplained", None, gap

@@ -1,5 +1,7 @@
-"""Several effects at once (issue 23, item 2): name the strongest by held-out evidence, refit jointly with it,
-look again, stop when the next adds nothing significant on held-out data. Free loads (``free.py``).
+"""The free loads' kind of evidence for the chain of effects (``evidence.py``; issue 23, item 2): name the strongest
+by held-out evidence, refit jointly with it, look again, stop when the next adds nothing significant on held-out data.
+Free loads (``free.py``); thresholds ``z_min``, ``min_floor_share``, ``max_effects`` of
+:class:`~ftcal_nlp.settings.FreeLoadChain` (``DiagnoseSettings.free_loads``).
 
 A step scores every candidate effect not yet named: each shape of its free face (``free_shapes``) is added to
 the design ``[J, X_1 .. X_m]`` of the free-load Jacobian and the faces named so far, and cross-validated
@@ -8,9 +10,9 @@ candidate is added when all of these hold (the stated test):
 
 * a gap remains: some channel's held-out RMS exceeds the noise floor by more than ``GAP_REL`` (relative);
 * the paired block-wise comparison favours it: the log ratio of the held-out sums of squares without and with
-  it, block by block (``d_b``), has ``mean(d) / se(d) >= Z_MIN`` over the blocks;
-* the saving is material against the floor: at least ``MIN_FLOOR_SHARE`` of the floor's sum of squares
-  (``6 N`` in units of the noise variance: a saving smaller than 1 % of the noise is not an effect worth
+  it, block by block (``d_b``), has ``mean(d) / se(d) >= z_min`` over the blocks;
+* the saving is material against the floor: at least ``min_floor_share`` of the floor's sum of squares
+  (``6 N`` in units of the noise variance: a saving smaller than that share of the noise is not an effect worth
   naming however significant), and at least ``MIN_EXCESS_SHARE`` of the held-out excess still over the floor
   or ``MIN_CHANNEL_SHARE`` of one component's (an effect confined to the forces, beside a remainder in the
   torques that no candidate explains).
@@ -29,7 +31,7 @@ the joint refit use (later candidates are compared with that design, ``Chain.cur
 Among the candidates that pass, the best by held-out sum of squares is added, unless one with fewer parameters
 explains at least ``PARSIMONY`` of what the best does: that one goes first (a flexible face can mimic a simpler
 effect, e.g. a creep with a sub-second time constant a clock offset; the flexible one is scored again next
-round). The chain ends after ``MAX_EFFECTS`` effects. :func:`joint_fit` refits the named effects together on every
+round). The chain ends after ``max_effects`` effects. :func:`joint_fit` refits the named effects together on every
 sample (linearised around the free-load fit) and gives their parameters with se: ``cov = s^2 (A^T A)^+``,
 ``s^2`` the weighted residual variance times the AR(1) inflation of serially correlated residuals
 (``freeload.problem.serial_inflation``: what a model error that stays through a hold does to the se).
@@ -44,14 +46,13 @@ import numpy as np
 from ..effects import Effect
 from ..effects.free_faces import FreeFace, FreeLoadContext
 from ..freeload.problem import serial_inflation
+from ..settings import ChainThresholds
+from .evidence import name_effects
 from .free_cv import CVFit, Design, paired_gain, pinv
 
 GAP_REL = 0.15
-Z_MIN = 3.0
-MIN_FLOOR_SHARE = 0.01
 MIN_EXCESS_SHARE = 0.25
 MIN_CHANNEL_SHARE = 0.6
-MAX_EFFECTS = 4
 PARSIMONY = 0.85
 MIN_GAIN_NO_FLOOR = 0.05
 #: a face's refined shape (``free_refine``) is scored with each fold's shape tuned on the other folds' blocks alone
@@ -175,20 +176,20 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
                      base=base_cv)
 
 
-def accepted(c: Candidate, cur: CVFit, design: Design, floor_known: bool = True,
+def accepted(c: Candidate, cur: CVFit, design: Design, t: ChainThresholds, floor_known: bool = True,
              floor: np.ndarray | None = None) -> tuple[bool, str]:
     """Whether candidate ``c`` passes the stated test (module docstring) and why not."""
     if c.cv is None:
         return False, c.note
     saved = cur.sse - c.cv.sse
-    if c.z < Z_MIN:
-        return False, f"paired block-wise z {c.z:.1f} < {Z_MIN:g}"
+    if c.z < t.z_min:
+        return False, f"paired block-wise z {c.z:.1f} < {t.z_min:g}"
     if not floor_known:
         if c.gain < MIN_GAIN_NO_FLOOR:
             return False, f"saves {100 * c.gain:.1f} % of the held-out sum of squares (< {100 * MIN_GAIN_NO_FLOOR:g} %; no floor known)"
         return True, ""
-    if saved < MIN_FLOOR_SHARE * 6.0 * design.n:
-        return False, f"saves {100 * saved / (6.0 * design.n):.2f} % of the floor's variance (< {100 * MIN_FLOOR_SHARE:g} %)"
+    if saved < t.min_floor_share * 6.0 * design.n:
+        return False, f"saves {100 * saved / (6.0 * design.n):.2f} % of the floor's variance (< {100 * t.min_floor_share:g} %)"
     ch = channel_share(cur, c.cv, floor)
     if c.excess_share < MIN_EXCESS_SHARE and ch < MIN_CHANNEL_SHARE:
         return False, (f"removes {100 * c.excess_share:.0f} % of the remaining excess (< {100 * MIN_EXCESS_SHARE:g} %) and at most "
@@ -207,42 +208,64 @@ def channel_share(cur: CVFit, new: CVFit, floor: np.ndarray) -> float:
     return float(np.max(((e0 - np.maximum(e1, 0.0)) / e0)[gap]))
 
 
-def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray,
-              floor_known: bool = True) -> Chain:
-    """The chain of the module docstring (``J`` the free-load model's Jacobian as a face)."""
-    ch = Chain(design.fit([J]))
-    memo: dict = {}
-    while True:
+class FreeLoadEvidence:
+    """The free loads' samples as a kind of evidence for :func:`evidence.name_effects` (module docstring): the design,
+    the free-load model's Jacobian ``J`` as a face, the candidates and the floor; ``chain`` the named effects and
+    every round."""
+
+    def __init__(self, design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray,
+                 floor_known: bool, t: ChainThresholds) -> None:
+        self.design, self.J, self.ctx, self.effects, self.floor, self.floor_known, self.t = (
+            design, J, ctx, effects, floor, floor_known, t)
+        self.chain = Chain(design.fit([J]))
+        self.memo: dict = {}   # each (effect, shape)'s face across rounds (its cached blocks stay valid)
+
+    def no_gap(self) -> str | None:
+        ch = self.chain
+        if self.floor_known and np.max(excess_ratio(ch.current_design, self.floor)) <= 1.0 + GAP_REL:
+            return "no gap above the floor remains" if ch.steps else "no gap above the floor"
+        return None
+
+    def n_named(self) -> int:
+        return len(self.chain.steps)
+
+    def next_link(self, why_not: list[str]) -> bool:
+        ch, design, floor_known, floor, t = self.chain, self.design, self.floor_known, self.floor, self.t
         cur = ch.current_design
-        if floor_known and np.max(excess_ratio(cur, floor)) <= 1.0 + GAP_REL:
-            ch.stop = "no gap above the floor remains" if ch.steps else "no gap above the floor"
-            break
-        if len(ch.steps) >= MAX_EFFECTS:
-            ch.stop = f"{MAX_EFFECTS} effects named (the most the chain adds)"
-            break
-        X0 = [J] + [s.face for s in ch.steps]
+        X0 = [self.J] + [s.face for s in ch.steps]
         named = {s.effect.name for s in ch.steps}
-        cands = [score(design, X0, cur, ctx, e, memo, floor_known) for e in effects if e.name not in named]
-        ctx.forget_relaxations()   # the faces keep their columns; the next round's trials are new time constants
+        cands = [score(design, X0, cur, self.ctx, e, self.memo, floor_known) for e in self.effects if e.name not in named]
+        self.ctx.forget_relaxations()   # the faces keep their columns; the next round's trials are new time constants
         cands.sort(key=lambda c: (c.cv is None, c.cv.sse if c.cv is not None else 0.0))
         ch.rounds.append(cands)
         ok = [c for c in cands if c.cv is not None]
         if not ok:
-            ch.stop = "no candidate effect has a face for these data"
-            break
+            why_not.append("no candidate effect has a face for these data")
+            return False
         best = ok[0]
-        good, why = accepted(best, cur, design, floor_known, floor)
+        good, why = accepted(best, cur, design, t, floor_known, floor)
         if not good:
-            ch.stop = f"the next candidate, {best.effect.name}, adds nothing significant on held-out data ({why})"
-            break
+            why_not.append(f"the next candidate, {best.effect.name}, adds nothing significant on held-out data ({why})")
+            return False
         # parsimony: a candidate with fewer parameters that explains nearly as much goes first (a flexible face can
         # mimic a simpler effect; the flexible one is looked at again in the next round)
         for c in ok[1:]:
             if (c.face.k < best.face.k and c.excess_share >= PARSIMONY * ok[0].excess_share
-                    and accepted(c, cur, design, floor_known, floor)[0]):
+                    and accepted(c, cur, design, t, floor_known, floor)[0]):
                 best = c
         ch.steps.append(best)
-    return ch
+        return True
+
+    def replace(self, why_not: list[str]) -> bool:
+        return False   # no swap on free loads: every candidate is scored beside the named faces each round
+
+
+def run_chain(design: Design, J: FreeFace, ctx: FreeLoadContext, effects: list[Effect], floor: np.ndarray,
+              t: ChainThresholds, floor_known: bool = True) -> Chain:
+    """The chain of the module docstring (``J`` the free-load model's Jacobian as a face)."""
+    ev = FreeLoadEvidence(design, J, ctx, effects, floor, floor_known, t)
+    ev.chain.stop = name_effects(ev, t)
+    return ev.chain
 
 
 @dataclass(frozen=True)

@@ -13,17 +13,16 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from ..calibration import Calibration
-from ..calibration_run import CalibrationRun
 from ..data import Dataset
 from ..effects import Effect, resolve_effects
 from ..models import ModelContext, resolve
 from ..robot import Robot
-from ..settings import DiagnoseSettings
+from ..settings import CalibrationSettings, ChainThresholds, DiagnoseSettings
 from ..solver import SolverError
 from .attribute import (
     GAP_THRESHOLD,
@@ -33,7 +32,7 @@ from .attribute import (
     gap_threshold,
     ranking_bic,
 )
-from .hexchain import Z_MIN, run_chain
+from .hexchain import run_chain
 from .joint import joint_refit
 from .perleg import perleg_checks
 from .localise import (
@@ -99,7 +98,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     sw, wt = walking_views(dataset.walking, calibration, robot, t_ref) if dataset.walking else (None, None)
     views = Views(sv, hs, sw, wt, t_ref, legs, notes)
     att = attribute(views, effects, model, prior, robot, balance, folds=s.folds, seed=s.seed, x_start=x_start)
-    verdict, effect, gap = decide(att)
+    verdict, effect, gap = decide(att, s.hexapod.explained_min)
     views = att.views or views
 
     loc = {}
@@ -110,7 +109,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
             loc[key] = localise_series(series, len(legs), s.folds)
 
     phys = {k: v for k, v in gap.items() if k != "design"}
-    primary = _primary(phys, att, verdict, effect)
+    primary = _primary(phys, att, verdict, effect, s.hexapod.explained_min)
     where = {"recordings": [], "legs": [], "components": [], "explains": None}
     if gap:
         recs = []
@@ -155,7 +154,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
     chain = None
     if joint is not None:   # several effects: look again while a gap is left (hexchain.py)
         chain = run_chain(views, att, by_name[effect].model_effect or resolve_effects([effect], registry)[0], joint, effects, model,
-                          prior, calibration, robot, balance, primary, folds=s.folds, seed=s.seed, x_start=x_start)
+                          prior, calibration, robot, balance, primary, s.hexapod, folds=s.folds, seed=s.seed, x_start=x_start)
         if chain.first is not None:   # a swap took the ranking's first out: the first named is the chain's
             effect, joint = chain.first.name, chain.first.joint
         if chain.links and primary in chain.links[-1].joint.kinds:   # the shrinkage: after every named effect
@@ -170,12 +169,13 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
                         "variant": dict(sc.model_effect.variant) if sc.model_effect is not None else {}})
     kinds = {k: {"excess": float(v.excess_before), "threshold": float(gap_threshold(k, v)), "n": int(v.n),
                  "heldout_rms": [float(x) for x in v.rms_before], "noise_floor": [float(x) for x in v.floor]} for k, v in att.base.items()}
-    statement = _statement(verdict, effect, gap, loc, att, ranking, shrink, where) + _chain_statement(chain, shrink) + list(evidence_notes)
+    statement = (_statement(verdict, effect, gap, loc, att, ranking, shrink, where, s.hexapod.explained_min)
+                 + _chain_statement(chain, shrink, s.hexapod) + list(evidence_notes))
     effect_fit = by_name[effect].fit if verdict == "effect" and effect in by_name else None
     return DiagnosisResult(verdict, effect, where, shrink, ranking, loc, tuple(statement), att.design, gap, kinds,
                            str(att.model), balance, time.perf_counter() - t0, tuple(views.notes), effect_fit, perleg,
                            views.standing.floor_parts.get("noise_model") if views.standing is not None else None, joint,
-                           chain=chain)
+                           chain=chain, thresholds=s.hexapod)
 
 
 PRIORITY = ("standing", "hanging", "walking swing")
@@ -225,21 +225,22 @@ def _weigh_evidence(verdict: str, effect: str | None, where: dict, perleg, loc: 
     return verdict, effect, where, notes
 
 
-def _primary(phys: dict, att, verdict: str, effect: str | None) -> str | None:
+def _primary(phys: dict, att, verdict: str, effect: str | None, explained_min: float) -> str | None:
     """The kind the shrinkage is reported on: by priority (the standing poses are the calibration's
-    own data), among the kinds with a gap that the named effect explains (any gap kind otherwise)."""
+    own data), among the kinds with a gap that the named effect explains (``explained_min`` of the kind's excess; any
+    gap kind otherwise)."""
     if not phys:
         return "standing" if "standing" in att.base else next(iter(att.base), None)
     order = [k for k in PRIORITY if k in phys] + [k for k in phys if k not in PRIORITY]
     if verdict == "effect":
         sc = next(s for s in att.scores if s.effect == effect)
-        good = [k for k in order if k in sc.kinds and sc.kinds[k].explained >= 0.5]
+        good = [k for k in order if k in sc.kinds and sc.kinds[k].explained >= explained_min]
         if good:
             return good[0]
     return order[0]
 
 
-def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[str]:
+def _statement(verdict, effect, gap, loc, att, ranking, shrink, where, explained_min: float) -> list[str]:
     out = []
     if verdict == "none" and not gap:
         out.append("No gap above the noise floor: every recording kind's held-out residual is at its floor, so no candidate effect is called.")
@@ -268,12 +269,12 @@ def _statement(verdict, effect, gap, loc, att, ranking, shrink, where) -> list[s
     if good:
         out.append("Candidates by dBIC where the gap lies: " + ", ".join(f"{r['effect']} {r['delta_bic']:.0f} (explains {100 * r['explained']:.0f}%)"
                                                                          for r in good[:4]) + ".")
-        if verdict == "effect" and len(good) > 1 and good[1]["explained"] >= 0.5 and good[1]["delta_bic"] - good[0]["delta_bic"] < 0.05 * abs(good[0]["delta_bic"]):
+        if verdict == "effect" and len(good) > 1 and good[1]["explained"] >= explained_min and good[1]["delta_bic"] - good[0]["delta_bic"] < 0.05 * abs(good[0]["delta_bic"]):
             out.append(f"{good[0]['effect']} and {good[1]['effect']} explain this gap almost equally well here; they are confusable on these recordings.")
     return out
 
 
-def _chain_statement(chain, shrink) -> list[str]:
+def _chain_statement(chain, shrink, t: ChainThresholds) -> list[str]:
     """The effects the chain named (in the order they stand), the swaps it made and why it stopped (when it looked
     again)."""
     if chain is None or not chain.rounds:
@@ -299,7 +300,7 @@ def _chain_statement(chain, shrink) -> list[str]:
     for sw in chain.swaps:
         e0, e1, z = sw["excess_before"].get(sw["kind"]), sw["excess_after"].get(sw["kind"]), sw["paired_z"]
         g = lambda v, f=".3g": "n/a" if v is None else format(v, f)  # noqa: E731  (diagnosis.json holds None, not NaN)
-        how = "" if z is not None and z >= Z_MIN else " with fewer parameters"
+        how = "" if z is not None and z >= t.z_min else " with fewer parameters"
         out.append(f"With {', '.join(n for n in sw['named_before'] if n != sw['out'])} named, {sw['in']} in place of "
                    f"{sw['out']} predicts held-out data better{how} (excess over the floor {g(e0)} -> {g(e1)} on the "
                    f"{sw['kind']} recordings, paired block-wise z {g(z, '.1f')}): {sw['out']} is swapped out.")
@@ -307,7 +308,20 @@ def _chain_statement(chain, shrink) -> list[str]:
     return out
 
 
-def diagnose_run(run: CalibrationRun, registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
+class CalibratedRun(Protocol):
+    """What :func:`diagnose_run` reads of a calibration run (:class:`~ftcal_nlp.calibration_run.CalibrationRun`, which
+    holds the diagnosis' result: a Protocol here keeps the diagnosis below it): the dataset, the stage results and the
+    settings."""
+
+    dataset: Dataset
+    hanging: Any
+    poses: Any
+    standing: Any
+    calibration: Calibration
+    settings: CalibrationSettings
+
+
+def diagnose_run(run: CalibratedRun, registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
     """The diagnosis of a calibration run with its own diagnose settings, model and balance (candidate
     effects from ``registry``, None: ``ftcal_nlp.effects.EFFECTS``)."""
     st = run.standing

@@ -17,8 +17,8 @@ share of the held-out excess over the floor it removes:
 * ``pose_history``: the last change of load itself, held through the hold (where the load came from);
 * ``temperature``: hat functions of the temperature, when the recordings carry it.
 
-The top correlate (the largest ``explained``, at least ``EXPLAINED_MIN``) is ``where.explains``; the
-residual's channel with the largest gap against it is what the report plots.
+The top correlate (the largest ``explained``, at least ``explained_min`` of ``DiagnoseSettings.free_loads``) is
+``where.explains`` (``free.py``); the residual's channel with the largest gap against it is what the report plots.
 """
 
 from __future__ import annotations
@@ -34,8 +34,6 @@ from .free_cv import CVFit, Design
 
 HAT_KNOTS = 8
 LOAD_TAUS_S = (0.5, 2.0, 8.0, 30.0)
-#: a correlate explains the gap when it removes at least this share of the held-out excess over the floor
-EXPLAINED_MIN = 0.3
 
 
 def hats(x: np.ndarray, knots: int = HAT_KNOTS) -> np.ndarray:

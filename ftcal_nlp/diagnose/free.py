@@ -16,7 +16,7 @@ Per transducer with a free load (``freeload``'s fit ``x* = [w_o, theta, r]``):
 
 Verdict (per transducer, then the dataset's: the first transducer with an effect, else with a gap):
 ``effect`` when the chain named one; else ``unexplained`` when a gap remains that a correlate follows
-(``correlates.EXPLAINED_MIN``) or that is far above the floor (``FAR``: held-out RMS ``FAR`` x the floor);
+(``explained_min`` of ``DiagnoseSettings.free_loads``) or that is far above the floor (``FAR``: held-out RMS ``FAR`` x the floor);
 else ``none`` (a gap without structure is reported as noise the floor underrates, with its size).
 """
 
@@ -35,7 +35,7 @@ from ..effects import Effect, resolve_effects
 from ..effects.free_refine import use_model_face
 from ..settings import DiagnoseSettings
 from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
-from .correlates import EXPLAINED_MIN, CorrelateScore, score_correlates
+from .correlates import CorrelateScore, score_correlates
 from .free_cv import Design, cv_blocks, fold_of_blocks
 from .free_model import context_for, hold_floor, model_face
 from .result import DiagnosisResult
@@ -140,7 +140,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
         return _undiagnosed(leg, ctx, floor, n_floor, notes)
     fold = fold_of_blocks(block, s.folds, s.seed)
     design = Design(ctx.y - ctx.pred, 1.0 / floor, block, fold)
-    ch = run_chain(design, J, ctx, effects, floor, floor_known)
+    ch = run_chain(design, J, ctx, effects, floor, s.free_loads, floor_known)
     base, cur = ch.base, ch.current
     jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
     # each effect's parameters as the chain added it (refit with those before it only): when later effects are
@@ -158,7 +158,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
         rest = score_correlates(design, J, ch.current_design, ctx, extra)
     else:
         rest = []
-    top = corr[0] if corr and corr[0].explained >= EXPLAINED_MIN else None
+    top = corr[0] if corr and corr[0].explained >= s.free_loads.explained_min else None
     if ch.steps:
         verdict = "effect"
     elif gap_before and (top is not None or np.max(excess_ratio(base, floor)) > FAR):
@@ -180,7 +180,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     explains = first_explains or (top.name if top is not None else None)
     where = {"recordings": list(ctx.names) if verdict != "none" else [], "legs": [leg] if verdict != "none" else [],
              "components": comps, "explains": explains if verdict != "none" else None}
-    rest_top = rest[0] if rest and rest[0].explained >= EXPLAINED_MIN else None
+    rest_top = rest[0] if rest and rest[0].explained >= s.free_loads.explained_min else None
     if ch.steps and gap_after:
         where["remaining"] = {"components": [c for c, r in zip(WRENCH, ratio_after) if r > 1.0 + GAP_REL],
                               "explains": rest_top.name if rest_top is not None else None,
@@ -247,7 +247,8 @@ def diagnose_free(dataset: Dataset, free_loads, settings: DiagnoseSettings | Non
              for d in legs.values()}
     gaps = {f"free load {d.leg}": float(np.max(d.before / d.floor) - 1.0) for d in legs.values() if d.verdict != "none"}
     return DiagnosisResult(verdict, effect, main.where, shrink, ranking, {}, tuple(statement), None, gaps, kinds,
-                           "free_load", "n/a", time.perf_counter() - t0, notes, effects=effects_json, free=legs)
+                           "free_load", "n/a", time.perf_counter() - t0, notes, effects=effects_json, free=legs,
+                           thresholds=s.free_loads)
 
 
 def _fmt(v) -> str:

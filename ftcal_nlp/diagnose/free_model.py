@@ -28,22 +28,13 @@ from ..data import Dataset
 from ..effects.free_faces import FreeFace, FreeLoadContext, make_context
 from ..freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
 from ..geometry import quat_to_rotation
+from ..loads.base import joint_limits
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
 FLOOR_WINDOW_S = 0.5
 FLOOR_MIN_SAMPLES = 6
 #: a floor window is still when gravity's direction in ft and every joint move less than this (rad) across it
 STILL_RAD = 3e-3
-
-
-def _limits(load) -> dict[str, tuple[float, float]]:
-    tree = getattr(load, "tree", None)
-    out = {}
-    for j in tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ())):
-        jt = tree.joint(j) if tree is not None else None
-        if jt is not None and jt.lower is not None and jt.upper is not None and jt.upper > jt.lower:
-            out[j] = (float(jt.lower), float(jt.upper))
-    return out
 
 
 def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]:
@@ -93,7 +84,7 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     # joints that never move carry no information on where a gap lies
     moving_q = {j: v for j, v in q.items() if np.ptp(v) > 1e-6}
     ctx = make_context(leg, cat("t"), cat("y"), pred, b @ fit.rotation, rec=cat("rec"), names=tuple(r.name for r in recs),
-                       still=still, g_B=g_B, q=moving_q, joint_limits=_limits(load), quat=quat, temperature=temp,
+                       still=still, g_B=g_B, q=moving_q, joint_limits=joint_limits(load), quat=quat, temperature=temp,
                        index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation)
     pos = ds.robot.transducers[leg].position_m
     ctx.extra.update(b=b, K=K, **({} if pos is None else {"position_m": np.asarray(pos, float)}))  # inertial_load's O in B

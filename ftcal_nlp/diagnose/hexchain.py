@@ -1,5 +1,7 @@
-"""Several effects on hexapod datasets (issue 23, item 2): after the first effect is named and refit with the whole
-calibration (``joint.py``), look again; the free-load counterpart is ``chain.py``.
+"""The hexapod's kind of evidence for the chain of effects (``evidence.py``; issue 23, item 2): after the first effect
+is named and refit with the whole calibration (``joint.py``), look again; the free-load counterpart is ``chain.py``.
+Thresholds ``z_min``, ``explained_min``, ``min_floor_share``, ``max_effects`` of
+:class:`~ftcal_nlp.settings.HexapodChain` (``DiagnoseSettings.hexapod``).
 
 The first link is the single-effect diagnosis as it stands (``attribute.decide``, ``joint.joint_refit``): its name,
 parameters and held-out RMS are unchanged by what follows unless a swap (below) takes it out. Then, while a gap is
@@ -17,14 +19,14 @@ left:
   ``base_effect``: the standing problem with all the named faces plus the candidate's,
   :class:`~ftcal_nlp.effects.combined.Combined`; the hanging and swing faces stacked and cross-validated on the same
   folds; each candidate's variants as in the first step), against the named effects alone;
-* the best candidate by ``delta_bic`` where the gap lies, among those that remove at least ``EXPLAINED_MIN`` of the
+* the best candidate by ``delta_bic`` where the gap lies, among those that remove at least ``explained_min`` of the
   excess the named effects leave (``attribute.explained_fraction``) with ``delta_bic < DBIC_STRONG``, is added when
   it passes the stated held-out test (of candidates within ``BIC_TIE`` of the best, the one that adds the fewest
   parameters is taken): on the kind of ``EVIDENCE_KINDS`` where it removes most of the excess, the paired
   comparison of the held-out sums of squares without and with it, block by block (standing: each pose; hanging:
-  each fold's time block of each leg), ``d_b = ln(SS0_b / SS1_b)``, has ``mean(d) / se(d) >= Z_MIN``
+  each fold's time block of each leg), ``d_b = ln(SS0_b / SS1_b)``, has ``mean(d) / se(d) >= z_min``
   (a candidate named for the design gap alone: the design check's ``delta_bic < DBIC_STRONG`` is its test), and its
-  saving is material: at least ``MIN_FLOOR_SHARE`` of the floor's variance on that kind;
+  saving is material: at least ``min_floor_share`` of the floor's variance on that kind;
 * the named effects and the new one are refit with the whole calibration (``joint.joint_refit`` of the combined
   effect; the new effect's joint variant chosen there, the others kept as chosen): the link's parameters with se
   and the held-out RMS after it on the kind the shrinkage is reported on. The link stands when that joint model
@@ -35,7 +37,7 @@ left:
   A link named for the design gap alone is not judged so (free rotations absorb what it explains).
 * when the ranking offers no link (no candidate passes, or the joint refit rejects the one that does), the joint
   refit tries up to ``JOINT_TRIES`` candidates by their held-out evidence where the joint refit left its gap
-  (:func:`held_out_evidence`: paired block-wise z >= ``Z_MIN`` and a saving of ``MIN_FLOOR_SHARE`` of the floor's
+  (:func:`held_out_evidence`: paired block-wise z >= ``z_min`` and a saving of ``min_floor_share`` of the floor's
   variance on such a kind, largest z first), each judged as above. The attribution fits the standing poses with the
   named faces but without the joint hanging fit's offsets and leg weights as a prior, so it can see no gap where the
   joint refit leaves one: there the ranking is silent, the held-out evidence is not.
@@ -44,16 +46,14 @@ left:
   replaced by each candidate the first attribution scored (none swapped out before), and the others refit jointly with
   it (``joint.joint_refit``). A swap passes when the joint check passes on a kind of the gap (its excess falls by
   ``JOINT_MIN``, no kind's rises: as a link's) and either its paired block-wise z (the joint refits' held-out blocks,
-  ``KindRefit.blocks``) is ``Z_MIN`` at least or it spends fewer parameters: a swap to fewer parameters adds nothing a
+  ``KindRefit.blocks``) is ``z_min`` at least or it spends fewer parameters: a swap to fewer parameters adds nothing a
   test would have to justify, and a held-out residual that falls is what cross-validation prefers. Of those that pass,
-  the one with the least held-out excess, and of those it does not beat by ``Z_MIN``, the one with the fewest
+  the one with the least held-out excess, and of those it does not beat by ``z_min``, the one with the fewest
   parameters (:func:`choose_swap`). Then the chain looks again (``MAX_SWAPS`` at most); at its end the links are rebuilt
   as nested joint refits of the effects in the order they stand (a swapped-in effect last; ``HexChain.first`` when the
   ranking's first was swapped out). Why: greedy selection names first the candidate that explains the sum of two
   effects best on its own, and a many-parameter face can hold part of another effect (a common gain of every leg's
-  force channel along up is a robot mass error in the standing balance, so a 54-parameter crosstalk takes up a robot
-  mass error beside a hysteresis: its held-out poses far from the others carry the extra parameters' scatter, where a
-  robot mass with the hysteresis is at the floor).
+  force channel along up is a robot mass error in the standing balance; ``docs/diagnosis.md`` has the case).
 
 The walking swing kind counts where the gap lies (ranking, the share explained) but is no evidence of its own: the
 joint refit predicts a swing leg's weight by extrapolating the hanging faces (a drift's rate, a crosstalk read as
@@ -62,8 +62,8 @@ still missing (a face fitted to that remainder would be a false second). Once an
 face (a common tilt of the frames: ``mocap_bias``, ``tether_force``) is named, it is left out of the gaps too
 (``SKIP_AFTER_DESIGN``).
 
-The chain stops when no gap is left, or when neither a link nor a swap is made (a link: at most ``MAX_EFFECTS``
-effects).
+The chain stops when no gap is left, or when neither a link nor a swap is made (a link: at most ``max_effects``
+effects named): the loop of ``evidence.name_effects``, with :class:`HexapodEvidence` the kind.
 """
 
 from __future__ import annotations
@@ -76,26 +76,25 @@ import numpy as np
 
 from ..effects import Effect, design_check
 from ..effects.combined import Combined
+from ..settings import ChainThresholds
 from ..solver import SolverError
 from .attribute import (
     DBIC_STRONG,
     Attribution,
     attribute,
     explained_fraction,
+    explaining,
     gaps,
     kind_threshold,
     ranking_bic,
 )
+from .evidence import name_effects
 from .joint import JointRefit, joint_refit
 from .scores import KindScore
 from .views import Views
 
 log = logging.getLogger(__name__)
 
-Z_MIN = 3.0              # paired block-wise z of the held-out saving
-EXPLAINED_MIN = 0.5      # share of the excess the named effects leave that the next must remove
-MIN_FLOOR_SHARE = 0.05   # ... and at least this share of the floor's variance on its kind
-MAX_EFFECTS = 3          # the most effects the chain names
 EVIDENCE_KINDS = ("standing", "hanging")   # the calibration's own recordings: where a gap is left and a link's test lies
 SKIP_AFTER_DESIGN = ("walking swing",)   # kinds not looked at once a design-face effect is named (below)
 BIC_TIE = 2.0            # candidates this close in delta BIC are as good: the one with fewer parameters goes first
@@ -207,7 +206,7 @@ def blocks_z(before, after) -> float:
     return float(d.mean() / se) if se > 0 else (float("inf") if d.mean() > 0 else 0.0)
 
 
-def passes(sc, gap: dict) -> tuple[bool, str, str, float]:
+def passes(sc, gap: dict, t: ChainThresholds) -> tuple[bool, str, str, float]:
     """Whether candidate ``sc`` (an ``attribute.EffectScore`` against the named effects) passes the module
     docstring's test where the gap lies (``gap``); returns ``(passes, why not, kind, z)``."""
     kinds = [k for k in gap if k in EVIDENCE_KINDS and k in sc.kinds]
@@ -218,20 +217,20 @@ def passes(sc, gap: dict) -> tuple[bool, str, str, float]:
     kind = max(kinds, key=lambda k: sc.kinds[k].explained)
     ks = sc.kinds[kind]
     z = paired_z(ks)
-    if "design" in gap and sc.design is not None and not ks.explained >= EXPLAINED_MIN:
+    if "design" in gap and sc.design is not None and not ks.explained >= t.explained_min:
         return True, "", "design", z
-    if not (z >= Z_MIN):
-        return False, f"paired block-wise z {z:.1f} < {Z_MIN:g} on the {kind} recordings", kind, z
+    if not (z >= t.z_min):
+        return False, f"paired block-wise z {z:.1f} < {t.z_min:g} on the {kind} recordings", kind, z
     saved = (ks.z_before - ks.z_after) / ks.n
-    if saved < MIN_FLOOR_SHARE:
-        return False, f"saves {100 * saved:.1f} % of the floor's variance on the {kind} recordings (< {100 * MIN_FLOOR_SHARE:g} %)", kind, z
+    if saved < t.min_floor_share:
+        return False, f"saves {100 * saved:.1f} % of the floor's variance on the {kind} recordings (< {100 * t.min_floor_share:g} %)", kind, z
     return True, "", kind, z
 
 
-def _round(att: Attribution, gap: dict) -> list[dict]:
+def _round(att: Attribution, gap: dict, t: ChainThresholds) -> list[dict]:
     out = []
     for sc in att.scores:
-        ok_, why, kind, z = passes(sc, gap) if sc.status == "ok" and gap else (False, sc.note or sc.status, "", float("nan"))
+        ok_, why, kind, z = passes(sc, gap, t) if sc.status == "ok" and gap else (False, sc.note or sc.status, "", float("nan"))
         out.append({"effect": sc.effect, "variant": dict(sc.model_effect.variant) if sc.model_effect is not None else {},
                     "delta_bic": None if not np.isfinite(ranking_bic(sc, gap)) else float(ranking_bic(sc, gap)),
                     "explained": float(explained_fraction(sc, gap)) if gap else 0.0, "status": sc.status,
@@ -240,10 +239,10 @@ def _round(att: Attribution, gap: dict) -> list[dict]:
     return out
 
 
-def held_out_evidence(att: Attribution, left: dict, exclude: set) -> list[tuple]:
+def held_out_evidence(att: Attribution, left: dict, exclude: set, t: ChainThresholds) -> list[tuple]:
     """Candidates the joint refit tries when the ranking offers none that makes a link (module docstring):
     ``(score, kind, z, "held-out")`` of every scored candidate not in ``exclude`` whose paired block-wise z on a kind
-    of ``left`` (the joint refit's gaps) is ``>= Z_MIN`` with a saving of ``>= MIN_FLOOR_SHARE`` of the floor's
+    of ``left`` (the joint refit's gaps) is ``>= z_min`` with a saving of ``>= min_floor_share`` of the floor's
     variance there, largest z first."""
     out = []
     for sc in att.scores:
@@ -255,7 +254,7 @@ def held_out_evidence(att: Attribution, left: dict, exclude: set) -> list[tuple]
             if ks is None:
                 continue
             z = paired_z(ks)
-            if z >= Z_MIN and (ks.z_before - ks.z_after) / ks.n >= MIN_FLOOR_SHARE and (best is None or z > best[2]):
+            if z >= t.z_min and (ks.z_before - ks.z_after) / ks.n >= t.min_floor_share and (best is None or z > best[2]):
                 best = (sc, kind, z, "held-out")
         if best is not None:
             out.append(best)
@@ -288,11 +287,11 @@ def removed_share(cur: JointRefit, new: JointRefit, kind: str) -> float:
     return 1.0 - e1 / e0 if e0 > 0 else 0.0
 
 
-def swap_better(cur: JointRefit, alt: JointRefit, left: dict) -> tuple[bool, str, float]:
+def swap_better(cur: JointRefit, alt: JointRefit, left: dict, t: ChainThresholds) -> tuple[bool, str, float]:
     """Whether ``alt`` (the joint refit with one named effect replaced by another) predicts held-out data better than
     ``cur`` (module docstring, the swap): on a kind of ``left`` the joint check passes (:func:`joint_better`: its excess
     falls by ``JOINT_MIN`` at least and no kind's rises), and either the paired block-wise z (``cur`` -> ``alt``) is
-    ``Z_MIN`` at least or ``alt`` spends fewer parameters (nothing is added that a test would have to justify).
+    ``z_min`` at least or ``alt`` spends fewer parameters (nothing is added that a test would have to justify).
     Returns ``(better, kind, z)``: the kind of the largest z among those that pass (else the largest z at all)."""
     if any(k in EVIDENCE_KINDS and k not in alt.kinds for k in cur.kinds):   # a failed part of the refit
         return False, "", float("nan")
@@ -303,7 +302,7 @@ def swap_better(cur: JointRefit, alt: JointRefit, left: dict) -> tuple[bool, str
         if a is None or b is None:
             continue
         z = blocks_z(b.blocks, a.blocks)
-        good = (z >= Z_MIN or fewer) and joint_better(cur, alt, kind)[0]
+        good = (z >= t.z_min or fewer) and joint_better(cur, alt, kind)[0]
         if (good and not out[0]) or (good == out[0] and np.isfinite(z) and not z <= out[2]):
             out = (bool(good), kind, z)
     return out
@@ -320,21 +319,21 @@ def n_parameters(j: JointRefit) -> int:
     return int(sum(1 for _, se in j.parameters.values() if np.isfinite(se) and se > 0))
 
 
-def choose_swap(passing: list):
+def choose_swap(passing: list, th: ChainThresholds):
     """Of the swaps that pass (``(i, unit, joint, kind, z)``), the best by the summed excess (:func:`evidence_excess`);
-    of those it does not beat on held-out data (paired block-wise z < ``Z_MIN`` on the best's kind), the one that spends
+    of those it does not beat on held-out data (paired block-wise z < ``z_min`` on the best's kind), the one that spends
     the fewest parameters (as the ranking's ``BIC_TIE``: a robot mass and a cable both take up a mass error)."""
     if not passing:
         return None
     best = min(passing, key=lambda t: evidence_excess(t[2]))
     kind = best[3]
     ref = best[2].kinds[kind].blocks
-    tied = [t for t in passing if t is best or (kind in t[2].kinds and not blocks_z(t[2].kinds[kind].blocks, ref) >= Z_MIN)]
+    tied = [t for t in passing if t is best or (kind in t[2].kinds and not blocks_z(t[2].kinds[kind].blocks, ref) >= th.z_min)]
     return min(tied, key=lambda t: (n_parameters(t[2]), evidence_excess(t[2])))
 
 
 def try_swaps(views: Views, named: tuple, cur: JointRefit, left: dict, units: dict, exclude: set, model: Any, prior,
-              calibration, robot, balance: str, *, folds: int, seed: int, x_start) -> tuple[Any, list]:
+              calibration, robot, balance: str, t: ChainThresholds, *, folds: int, seed: int, x_start) -> tuple[Any, list]:
     """Every named effect replaced in turn by every candidate of ``units`` (name -> the unit the first attribution
     scored; none of ``exclude`` or ``named``), refit jointly with the others (``joint.joint_refit``) and judged by
     :func:`swap_better`; returns the chosen swap ``(i, unit, joint, kind, z)`` (:func:`choose_swap`) or None, and a row
@@ -354,82 +353,108 @@ def try_swaps(views: Views, named: tuple, cur: JointRefit, left: dict, units: di
             except (SolverError, np.linalg.LinAlgError) as exc:
                 rows.append({"out": m.name, "in": name, "outcome": f"failed: {exc}"})
                 continue
-            good, kind, z = swap_better(cur, j, left)
+            good, kind, z = swap_better(cur, j, left, t)
             rows.append({"out": m.name, "in": name, "kind": kind or None, "paired_z": _finite(z),
                          "excess": evidence_excesses(j),
                          "outcome": "better" if good else "not better"})
             if good:
                 passing.append((i, c, j, kind, z))
-    return choose_swap(passing), rows
+    return choose_swap(passing, t), rows
+
+
+class HexapodEvidence:
+    """The hexapod's recordings (standing poses, hanging legs, walking swing) as a kind of evidence for
+    :func:`evidence.name_effects` (module docstring): the named effects (``named``, the first included), the last
+    joint refit (``cur``), each named effect's test (``tests``), the joint refits made (``refits``), the effects swapped
+    out, and ``chain`` (the links after the first, every round, the swaps)."""
+
+    def __init__(self, views: Views, att: Attribution, first: Effect, joint: JointRefit, effects: list[Effect], model: Any,
+                 prior, calibration, robot, balance: str, primary: str | None, t: ChainThresholds, **kw) -> None:
+        self.views, self.att, self.effects, self.model, self.prior = views, att, effects, model, prior
+        self.calibration, self.robot, self.balance, self.primary, self.t, self.kw = calibration, robot, balance, primary, t, kw
+        self.chain = HexChain()
+        self.named = rebuild((first,), joint)
+        # name -> (kind, z, explained, delta_bic, via, the names in the model when tested) of every effect named after the first
+        self.tests: dict = {}
+        self.refits = {(self.named[0].name,): joint}   # the joint refits made, by the names fitted (what a rebuild reuses)
+        self.swapped_out: set = set()
+        self.units = {sc.effect: sc.model_effect for sc in att.scores if sc.status == "ok" and sc.model_effect is not None}
+        self.cur = joint
+        self.left: dict = {}
+        self.skip: tuple = ()
+
+    def no_gap(self) -> str | None:
+        named = self.named
+        # the swing legs' weights are predicted with the transducer frames, which a named design-face effect (a common
+        # tilt) turns: after one, the swing kind says nothing about what is left (SKIP_AFTER_DESIGN)
+        self.skip = SKIP_AFTER_DESIGN if any(m.design_face for m in named) else ()
+        self.left = left = gap_left(self.cur)
+        design_open = self.att.design is not None and not any(m.design_face for m in named) and design_gap(self.cur, self.robot)
+        log.debug("diagnosis: chain after %s: gap left %s, design %s", [m.name for m in named], left, design_open)
+        if not left and not design_open:
+            return "no gap above the floor is left after the joint refit"
+        return None
+
+    def n_named(self) -> int:
+        return len(self.named)
+
+    def next_link(self, why_not: list[str]) -> bool:
+        link = _next_link(self.views, self.att, self.named, self.cur, self.left, self.skip, self.effects, self.swapped_out,
+                          self.model, self.prior, self.calibration, self.robot, self.balance, self.chain, why_not, self.t,
+                          **self.kw)
+        if link is None:
+            return False
+        best, kind, z, both, j2, via, explained, dbic = link
+        before = _names(self.named)
+        self.named = named = rebuild(both.members, j2)
+        self.tests[named[-1].name] = (kind, z, explained, dbic, via, before)
+        self.refits[_names(named)] = j2
+        self.chain.links.append(_link(named, j2, self.primary, self.tests))
+        log.info("diagnosis: chain adds %s (%s: z %.1f on %s, explains %.0f %%)", best.effect, via, z, kind, 100 * explained)
+        self.cur = j2
+        return True
+
+    def replace(self, why_not: list[str]) -> bool:
+        """Would one named effect replaced by another predict held-out data better (module docstring)?"""
+        named, cur, left, ch = self.named, self.cur, self.left, self.chain
+        if not (len(named) >= 2 and len(ch.swaps) < MAX_SWAPS and left):
+            return False
+        sw, rows = try_swaps(self.views, named, cur, left, self.units, self.swapped_out, self.model, self.prior,
+                             self.calibration, self.robot, self.balance, self.t, **self.kw)
+        if sw is None:
+            why_not.append(f"no named effect replaced by another candidate predicts held-out data better ({len(rows)} tried)")
+            return False
+        i, unit, j2, kind, z = sw
+        out = named[i]
+        ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": _finite(z),
+                         "excess_before": evidence_excesses(cur), "excess_after": evidence_excesses(j2),
+                         "named_before": list(_names(named)), "tried": rows})
+        self.swapped_out.add(out.name)
+        self.tests.pop(out.name, None)
+        rest = named[:i] + named[i + 1 :]
+        self.tests[unit.name] = (kind, z, removed_share(cur, j2, kind), float("nan"), "swap", _names(rest))
+        self.named = rebuild(rest + (unit,), j2)
+        self.refits[_names(self.named)] = j2
+        log.info("diagnosis: chain swaps %s for %s (z %.1f on %s)", out.name, unit.name, z, kind)
+        self.cur = j2
+        return True
 
 
 def run_chain(views: Views, att: Attribution, first: Effect, joint: JointRefit, effects: list[Effect], model: Any, prior,
-              calibration, robot, balance: str, primary: str | None, *, folds: int, seed: int,
+              calibration, robot, balance: str, primary: str | None, t: ChainThresholds, *, folds: int, seed: int,
               x_start: np.ndarray | None = None) -> HexChain:
     """The chain after the first link (module docstring). ``first``: the named effect's unit (the variant the
     attribution scored); ``joint``: its joint refit; ``att``: the first attribution (its design check, the units a swap
     tries); ``primary``: the kind the shrinkage is reported on."""
-    ch = HexChain()
-    named = rebuild((first,), joint)
-    # name -> (kind, z, explained, delta_bic, via, the names in the model when tested) of every effect named after the first
-    tests: dict = {}
-    refits = {(named[0].name,): joint}   # the joint refits made, by the names fitted (what a rebuild reuses)
-    swapped_out: set = set()
-    units = {sc.effect: sc.model_effect for sc in att.scores if sc.status == "ok" and sc.model_effect is not None}
     kw = dict(folds=folds, seed=seed, x_start=x_start)
-    cur = joint
-    while True:
-        # the swing legs' weights are predicted with the transducer frames, which a named design-face effect (a common
-        # tilt) turns: after one, the swing kind says nothing about what is left (SKIP_AFTER_DESIGN)
-        skip = SKIP_AFTER_DESIGN if any(m.design_face for m in named) else ()
-        left = gap_left(cur)
-        design_open = att.design is not None and not any(m.design_face for m in named) and design_gap(cur, robot)
-        log.debug("diagnosis: chain after %s: gap left %s, design %s", [m.name for m in named], left, design_open)
-        if not left and not design_open:
-            ch.stop = "no gap above the floor is left after the joint refit"
-            break
-        why_not: list = []
-        link = None
-        if len(named) >= MAX_EFFECTS:
-            why_not.append(f"{MAX_EFFECTS} effects named (the most the chain adds)")
-        else:
-            link = _next_link(views, att, named, cur, left, skip, effects, swapped_out, model, prior, calibration, robot, balance,
-                              ch, why_not, **kw)
-        if link is not None:
-            best, kind, z, both, j2, via, explained, dbic = link
-            before = _names(named)
-            named = rebuild(both.members, j2)
-            tests[named[-1].name] = (kind, z, explained, dbic, via, before)
-            refits[_names(named)] = j2
-            ch.links.append(_link(named, j2, primary, tests))
-            log.info("diagnosis: chain adds %s (%s: z %.1f on %s, explains %.0f %%)", best.effect, via, z, kind, 100 * explained)
-            cur = j2
-            continue
-        # no link: would one named effect replaced by another predict held-out data better (module docstring)?
-        if len(named) >= 2 and len(ch.swaps) < MAX_SWAPS and left:
-            sw, rows = try_swaps(views, named, cur, left, units, swapped_out, model, prior, calibration, robot, balance, **kw)
-            if sw is not None:
-                i, unit, j2, kind, z = sw
-                out = named[i]
-                ch.swaps.append({"out": out.name, "in": unit.name, "kind": kind, "paired_z": _finite(z),
-                                 "excess_before": evidence_excesses(cur), "excess_after": evidence_excesses(j2),
-                                 "named_before": list(_names(named)), "tried": rows})
-                swapped_out.add(out.name)
-                tests.pop(out.name, None)
-                rest = named[:i] + named[i + 1 :]
-                tests[unit.name] = (kind, z, removed_share(cur, j2, kind), float("nan"), "swap", _names(rest))
-                named = rebuild(rest + (unit,), j2)
-                refits[_names(named)] = j2
-                log.info("diagnosis: chain swaps %s for %s (z %.1f on %s)", out.name, unit.name, z, kind)
-                cur = j2
-                continue
-            why_not.append(f"no named effect replaced by another candidate predicts held-out data better ({len(rows)} tried)")
-        ch.stop = "; ".join(why_not)
-        break
+    ev = HexapodEvidence(views, att, first, joint, effects, model, prior, calibration, robot, balance, primary, t, **kw)
+    ch = ev.chain
+    ch.stop = name_effects(ev, t)
     if ch.swaps:
+        named, tests = ev.named, ev.tests
         if named[0].name != joint.effect:   # the ranking's first swapped out: the new first's test is the first attribution's
             tests[named[0].name] = first_test(att, named[0].name)
-        _rebuild_links(ch, views, named, joint.effect, refits, tests, primary, model, prior, calibration, robot, balance, **kw)
+        _rebuild_links(ch, views, named, joint.effect, ev.refits, tests, primary, model, prior, calibration, robot, balance, **kw)
     return ch
 
 
@@ -494,8 +519,8 @@ def _rebuild_links(ch: HexChain, views: Views, named: tuple, first_name: str, re
 
 
 def _next_link(views: Views, att: Attribution, named: tuple, cur: JointRefit, left: dict, skip: tuple, effects: list,
-               swapped_out: set, model: Any, prior, calibration, robot, balance: str, ch: HexChain, why_not: list, *,
-               folds: int, seed: int, x_start) -> tuple | None:
+               swapped_out: set, model: Any, prior, calibration, robot, balance: str, ch: HexChain, why_not: list,
+               t: ChainThresholds, *, folds: int, seed: int, x_start) -> tuple | None:
     """One round of the chain (module docstring): score the candidates beside the named effects, try the ranking's
     best and those with held-out evidence in the joint refit; the link ``(score, kind, z, Combined, joint, via,
     explained, delta_bic)`` or None (the reasons appended to ``why_not``)."""
@@ -507,14 +532,13 @@ def _next_link(views: Views, att: Attribution, named: tuple, cur: JointRefit, le
         why_not.append(f"scoring the candidates beside {base.name} failed: {exc}")
         return None
     gap = {k: v for k, v in gaps(att2).items() if k not in skip}
-    ch.rounds.append(_round(att2, gap))
+    ch.rounds.append(_round(att2, gap, t))
     tries = []
-    ok = [s for s in att2.scores if s.status == "ok" and np.isfinite(ranking_bic(s, gap)) and ranking_bic(s, gap) < DBIC_STRONG
-          and explained_fraction(s, gap) >= EXPLAINED_MIN] if gap else []
+    ok = explaining(att2, gap, t.explained_min) if gap else []
     if not gap:
         why_not.append("with the named effects in the model no gap above the floor is left")
     elif not ok:
-        why_not.append(f"no candidate removes {100 * EXPLAINED_MIN:g} % of the excess the named effects leave with "
+        why_not.append(f"no candidate removes {100 * t.explained_min:g} % of the excess the named effects leave with "
                        f"delta BIC < {DBIC_STRONG:g}")
     else:
         best = min(ok, key=lambda s: (ranking_bic(s, gap), s.delta_bic))
@@ -522,12 +546,12 @@ def _next_link(views: Views, att: Attribution, named: tuple, cur: JointRefit, le
         # explain a common tilt of the frames; the cable spends parameters on every face)
         best = min((s for s in ok if ranking_bic(s, gap) <= ranking_bic(best, gap) + BIC_TIE),
                    key=lambda s: (sum(k.dof for k in s.kinds.values()), ranking_bic(s, gap), s.delta_bic))
-        passes_, why, kind, z = passes(best, gap)
+        passes_, why, kind, z = passes(best, gap, t)
         if passes_:
             tries.append((best, kind, z, "ranking"))
         else:
             why_not.append(f"the next candidate, {best.effect}, adds nothing significant on held-out data ({why})")
-    tries += held_out_evidence(att2, left, {t[0].effect for t in tries})[:JOINT_TRIES]
+    tries += held_out_evidence(att2, left, {c[0].effect for c in tries}, t)[:JOINT_TRIES]
     for sc, kind, z, via in tries:
         both = Combined(named + (sc.model_effect,))
         try:

@@ -37,7 +37,7 @@ held-out residual of one joint model on every recording kind, beside its floor.
 The result carries, per kind and component, the held-out RMS before and after
 and the floor of ``views.py`` (never estimated from these residuals), the joint
 calibration (``Calibration``, writable as ``calibration.json``) and the effect's
-parameters with standard errors, so that :mod:`ftcal_nlp.effect_correction`
+parameters with standard errors, so that :mod:`ftcal_nlp.effects.correction`
 can apply the effect's reading corrections when correcting a recording.
 """
 
@@ -100,7 +100,7 @@ class JointRefit:
     refit calibration (offsets and leg weights from the joint hanging fit, or the standing
     model's offsets where it fits them; rotations and, with the exact balance, positions
     from the joint standing fit); ``eta`` the standing face's parameter vector (scaled units
-    of ``Effect.standing_params``), what :mod:`ftcal_nlp.effect_correction` evaluates, and
+    of ``Effect.standing_params``), what :mod:`ftcal_nlp.effects.correction` evaluates, and
     ``eta_cov`` its covariance (what the correction's standard errors carry).
     """
 
@@ -122,7 +122,7 @@ class JointRefit:
                 **({"notes": list(self.notes)} if self.notes else {})}
 
     def effect_block(self) -> dict:
-        """What ``calibration.json`` carries about the effect (``effect_correction.py`` reads it).
+        """What ``calibration.json`` carries about the effect (``effects/correction.py`` reads it).
 
         Several effects fitted together (``effects.combined.Combined``, the hexapod chain's links): the name is
         ``"a+b"``, ``variant`` per member, ``eta`` / ``eta_cov`` / ``parameters`` the joint ones (names

@@ -54,6 +54,7 @@ class DiagnosisResult:
     effects: list | None = None  # the chain of named effects (free loads, ``chain.py``); None: the single named effect
     free: dict | None = None     # free loads: transducer -> free.FreeLegDiagnosis
     chain: Any = None            # hexapods: the chain after the first effect, swaps included (hexchain.HexChain) or None
+    thresholds: Any = None       # the chain's thresholds it ran with (settings.ChainThresholds: the report quotes them)
 
     def __post_init__(self):
         if self.verdict not in VERDICTS:

@@ -16,8 +16,10 @@ Modules:
 * ``faces.py``: the model faces' building blocks (:class:`PoseSym`, :class:`StandingData`,
   :func:`pose_symbols`, :class:`AugContext`, :class:`ParamBlock`, :class:`HangingLeg`,
   :class:`LinearFace`, :func:`legendre_time`, :func:`design_check`).
-* ``unit.py``: :class:`Effect`, what a unit declares; ``correction.py``: a sensor
-  effect's correction (its standing face evaluated on samples).
+* ``unit.py``: :class:`Effect`, what a unit declares; ``correction.py``: the one effect correction
+  ``correct`` calls for every load (a hexapod calibration's block through ``Effect.correct``, a sensor
+  effect's standing face evaluated on samples by ``faces.correct_by_face``; a free load's members through
+  ``free_correct`` and the units' hooks).
 * ``free_faces.py``: the free-load face protocol (issue 23): :class:`FreeLoadContext`,
   :class:`FreeFace`, :func:`make_context`; units declare ``free_shapes``/``free_face``/``free_correct``.
 * ``combined.py``: :class:`~.combined.Combined`, several units as one augmentation (the hexapod chain of
@@ -33,8 +35,8 @@ Modules:
 
 Nothing here imports the diagnosis, the pipeline, ``correct`` or the simulator: they
 import this package (the simulator registers :func:`injector_classes` under its
-effect names; the diagnosis scores :data:`EFFECTS`; ``effect_correction`` calls
-:meth:`Effect.correct`).
+effect names; the diagnosis scores :data:`EFFECTS`; ``correction.py`` calls
+:meth:`Effect.correct` and the free-load hooks).
 """
 
 from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym, StandingData, design_check, pose_symbols
@@ -58,10 +60,10 @@ from .registry import (
     shape_classes,
     with_units,
 )
-from .unit import KINDS, Effect
+from .unit import EFFECT_KINDS, Effect
 
 __all__ = [
-    "EFFECTS", "EXPECT_NONE", "EXPECT_UNEXPLAINED", "KINDS", "LIBRARY_EFFECTS",
+    "EFFECTS", "EXPECT_NONE", "EXPECT_UNEXPLAINED", "EFFECT_KINDS", "LIBRARY_EFFECTS",
     "AugContext", "Effect", "EffectInjector", "HangingLeg", "InjectionContext", "Injector", "LinearFace", "Magnitude",
     "NoEffect", "OffFaceInjector", "ParamBlock", "PoseSym", "StandingData", "applies_to",
     "check_unit", "design_check", "injector_classes", "pose_symbols", "resolve_effects", "shape_classes", "with_units",

@@ -37,6 +37,7 @@ import logging
 
 import numpy as np
 
+from ..errors import DataFormatError
 from .free_faces import WRENCH, FreeFace, rate
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
 from .signals import delayed
@@ -148,6 +149,12 @@ class ClockOffset(Effect):
     diagnosed_on = frozenset({"free"})
     free_explains = "motion"
     FREE_SHAPES = (("all", 1), ("all", 3), ("force", 1))
+    follows_stream_clock = True   # the readings re-sampled delay_s later on their own clock
+
+    def free_require(self, ctx, shape, leg, where):
+        if ctx.n < 4:
+            raise DataFormatError(f"{where}: the calibration's effect clock_offset re-samples the readings: at least 4 "
+                                  f"rows needed, got {ctx.n}", path=where, column="t")
 
     def free_shapes(self, ctx):
         return tuple({"channels": c, "order": o} for c, o in self.FREE_SHAPES)

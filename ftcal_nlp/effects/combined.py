@@ -34,7 +34,7 @@ the next candidate are fitted together with the calibration. :class:`Combined` m
   covariance of the corrected readings
   ``J Sigma_eta J^T`` uses the joint ``eta_cov`` with its cross-member terms; the others (an offset drift's rates,
   a motion-capture bias on the orientations, body effects: nothing per foot) apply their own correction with their
-  block (``correction.member_block``), and their covariances add: the drift rates' correlations with the standing
+  block (``faces.member_block``), and their covariances add: the drift rates' correlations with the standing
   face's ``eta`` are not stored (they come from the hanging regression); a motion-capture bias leaves the readings
   as they are (no term is left out), its orientation map is not propagated.
 """
@@ -44,9 +44,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .correction import correct_by_face, joint_eta_cov, member_block
 from ..errors import DataFormatError
-from .faces import ParamBlock, stack_faces
+from .faces import ParamBlock, correct_by_face, joint_eta_cov, member_block, stack_faces
 from .unit import Effect, corrects_by_face
 
 SEP = ":"

@@ -135,6 +135,7 @@ class Creep(Effect):
     TAUS_S = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
     PAIRS_S = ((0.5, 4.0), (1.0, 8.0), (2.0, 16.0), (4.0, 32.0))   # a fast and a slow relaxation at once
     DLN = 0.05     # the step of ln tau for the derivative column (central difference)
+    follows_stream_clock = True   # the relaxation after each change of load runs on the stream's clock
 
     def free_shapes(self, ctx):
         return tuple({"tau_s": tau} for tau in self.TAUS_S) + tuple({"tau_s": a, "tau2_s": b} for a, b in self.PAIRS_S)

@@ -489,7 +489,7 @@ def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:
     ``P_j`` formed once per context (the drift face's degrees and the time correlate share them)."""
     from .faces import legendre_time
 
-    # a correction on a new recording keeps the calibration session's span (ctx.extra["t_span"]: freeload/effects_correction.py)
+    # a correction on a new recording keeps the calibration session's span (ctx.extra["t_span"]: effects/correction.py)
     span = ctx.extra.get("t_span")
     lo, hi = (float(v) for v in span) if span is not None else (float(ctx.t.min()), float(ctx.t.max()))
     c = ctx.extra.get("_legendre")

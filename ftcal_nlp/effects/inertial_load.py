@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import DataFormatError
 from ..geometry import quat_to_rotation, unskew
 from .free_faces import WRENCH, FreeFace, rate
 from .injection import EffectInjector, Magnitude, OffFaceInjector
@@ -262,6 +263,13 @@ class InertialLoad(Effect):
     applies_to = frozenset({"free"})
     diagnosed_on = frozenset({"free"})
     free_explains = "motion"
+    follows_stream_clock = True   # a rate of turn differentiates the orientation over the stream's clock
+
+    def free_require(self, ctx, shape, leg, where):
+        if ctx.quat is None:
+            raise DataFormatError(f"{where}: the calibration's effect inertial_load of transducer {leg} needs the "
+                                  "orientation stream: columns qw, qx, qy, qz (gx..gz give no rate of turn)",
+                                  path=where, column="qw")
 
     def free_shapes(self, ctx):
         if ctx.quat is None:

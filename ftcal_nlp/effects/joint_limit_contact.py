@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import DataFormatError
 from .free_faces import WRENCH, FreeFace
 from .injection import EffectInjector, Magnitude, OffFaceInjector
 from .unit import Effect
@@ -128,6 +129,12 @@ class JointLimitContact(Effect):
     free_explains = "joint"
     ONSETS = (0.5, 0.7)
     MIN_SHARE = 0.01   # a side the data reach past the onset with fewer samples than this carries no evidence
+
+    def free_require(self, ctx, shape, leg, where):
+        if shape.get("joint") not in ctx.q:
+            col = f"q_{shape.get('joint')}"
+            raise DataFormatError(f"{where}: the calibration's effect joint_limit_contact of transducer {leg} needs "
+                                  f"the joint's angle: column '{col}' (rad)", path=where, column=col)
 
     def free_shapes(self, ctx):
         out = []

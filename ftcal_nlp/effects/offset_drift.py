@@ -210,6 +210,26 @@ class OffsetDrift(Effect):
 
     # ---- free loads (``free_faces.py``): a Legendre polynomial of the session time per channel
     FREE_DEGREES = (1, 2, 3, 5, 8)
+    #: samples this far (share of the session's span) outside it are named: a time polynomial extrapolated
+    SPAN_MARGIN = 0.01
+    free_reference_keys = ("change_point_s",)
+
+    def free_reference(self, ctx, shape):
+        """The step's session time (a new recording's step is the calibration's, not its own change point)."""
+        return {"change_point_s": change_point(ctx)} if shape.get("step") else {}
+
+    def free_session_check(self, ctx, shape, reference, leg, where):
+        """A warning when samples lie outside the calibration session's span (``reference["t_span_s"]``): the
+        recording must share the session's clock, and beyond the span the polynomial is extrapolated."""
+        if "t_span_s" not in reference:
+            return
+        lo, hi = (float(v) for v in reference["t_span_s"])
+        pad = self.SPAN_MARGIN * (hi - lo)
+        out = int(np.sum((ctx.t < lo - pad) | (ctx.t > hi + pad)))
+        if out:
+            log.warning("%s: %d of %d samples lie outside the calibration session's span t = %.6g..%.6g s: the offset_drift "
+                        "polynomial of %s is extrapolated there (the recording must share the session's clock)",
+                        where, out, ctx.n, lo, hi, leg)
 
     def free_shapes(self, ctx):
         # the degree is the shape: a line, a bend, an S, flexible curves (held-out evidence picks one); and a line

@@ -7,7 +7,7 @@ the effect's kind, injector, model faces, correction and off-face shapes; ``EFFE
 maps the names to those units. Adding an effect: write its unit and add its name here.
 
 Everything that needs effects (the simulator's injector names, the diagnosis' candidates,
-``effect_correction``, detection sizes, the validation sweep) reads this dict, or a copy
+``correction.py``, detection sizes, the validation sweep) reads this dict, or a copy
 of it passed as ``registry`` (a toy effect in a test: ``with_units(ToyEffect())``).
 """
 
@@ -18,7 +18,7 @@ from collections.abc import Mapping
 
 from ..errors import ConfigError
 from .injection import EXPECT_NONE, EXPECT_UNEXPLAINED, EffectInjector, OffFaceInjector
-from .unit import KINDS, Effect
+from .unit import EFFECT_KINDS, Effect
 
 LIBRARY_EFFECTS = (
     "offset_drift", "gain_crosstalk", "casing_load", "mocap_bias", "chassis_flex", "tether_force",
@@ -34,8 +34,8 @@ def check_unit(unit: Effect, name: str | None = None) -> Effect:
         raise TypeError(f"{where}: expected an Effect instance, got {type(unit).__name__}")
     if name is not None and unit.name != name:
         raise TypeError(f"{where}: its EFFECT is named {unit.name!r}")
-    if unit.kind not in KINDS:
-        raise TypeError(f"{where}: kind must be one of {list(KINDS)}, got {unit.kind!r}")
+    if unit.kind not in EFFECT_KINDS:
+        raise TypeError(f"{where}: kind must be one of {list(EFFECT_KINDS)}, got {unit.kind!r}")
     inj = unit.injector_cls
     if not (isinstance(inj, type) and issubclass(inj, EffectInjector) and inj.name == unit.name):
         raise TypeError(f"{where}: injector_cls must be an EffectInjector subclass named {unit.name!r}, got {inj!r}")

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import DataFormatError
 from .free_faces import WRENCH, FreeFace
 from .free_refine import refine_scalar
 from .injection import EffectInjector, Magnitude, OffFaceInjector
@@ -113,6 +114,20 @@ class Temperature(Effect):
     free_explains = "temperature"
     DEGREES = (1, 2)
     LAGS_S = (0.0, 20.0, 60.0)
+    free_reference_keys = ("temperature_mean_C",)
+
+    def free_reference(self, ctx, shape):
+        """The lagged temperature's mean over the calibration session (the face is centred on it, a new recording's
+        correction on the calibration's); nothing without a temperature."""
+        if ctx.temperature is None:
+            return {}
+        return {"temperature_mean_C": float(np.mean(self.lagged(ctx, float(shape["lag_s"]))))}
+
+    def free_require(self, ctx, shape, leg, where):
+        if ctx.temperature is None:
+            raise DataFormatError(f"{where}: the calibration's effect temperature of transducer {leg} needs the "
+                                  f"transducer's temperature: column '{leg}_temp_C' (or 'temp_C'), degC",
+                                  path=where, column=f"{leg}_temp_C")
 
     def free_shapes(self, ctx):
         if ctx.temperature is None:
@@ -141,7 +156,7 @@ class Temperature(Effect):
     def _basis(self, ctx, lag: float, degree: int) -> np.ndarray:
         """``(T_lag - Tbar)^j``, j = 1..degree (N, degree), the temperature lagged within each recording."""
         Tl = self.lagged(ctx, lag)
-        dT = Tl - ctx.extra.get("temperature_mean_C", Tl.mean())   # a new recording: the calibration's mean (effects_correction)
+        dT = Tl - ctx.extra.get("temperature_mean_C", Tl.mean())   # a new recording: the calibration's mean (free_reference)
         return np.stack([dT**j for j in range(1, degree + 1)], axis=1)
 
     def free_refine(self, ctx, shape, resid):

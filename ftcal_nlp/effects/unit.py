@@ -13,9 +13,12 @@ An effect unit (``ftcal_nlp/effects/<name>.py``, one per name of the contract's 
   frames) and their flexibility, ``variants`` (attribution) and ``joint_variants``
   (the joint refit);
 * the correction for ``correct``: :meth:`Effect.correct` (default: a sensor effect's
-  standing face evaluated on the samples, :func:`.correction.correct_by_face`; a body
+  standing face evaluated on the samples, :func:`.faces.correct_by_face`; a body
   effect changes no per-foot wrench);
 * the free-load face (``free_faces.py``): ``free_shapes``, ``free_face``, ``free_correct``, ``free_explains``;
+  and what its correction of a new recording needs (``correction.py``): ``follows_stream_clock``,
+  ``free_reference``/``free_reference_keys`` (what the face takes from the whole calibration session),
+  ``free_require`` (a signal the recording must carry), ``free_session_check`` (a warning where it extrapolates);
 * the off-face validation shapes: ``shapes``, :class:`~.injection.OffFaceInjector`
   classes of the same effect with other shapes (what the validation sweep injects to
   test that the diagnosis is not tuned to the face's own formula).
@@ -30,13 +33,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from .correction import correct_by_face
-from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym
+from .faces import AugContext, HangingLeg, LinearFace, ParamBlock, PoseSym, correct_by_face
 from .injection import EffectInjector, Magnitude, NoEffect, OffFaceInjector
 
 log = logging.getLogger(__name__)
 
-KINDS = ("sensor", "body")
+EFFECT_KINDS = ("sensor", "body")
 
 
 class Effect:
@@ -158,13 +160,32 @@ class Effect:
         face = self.free_face(ctx, shape)
         return ctx.y if face is None else ctx.y - face.wrench(beta)
 
+    # ---- the free-load correction of a new recording (``correction.py``): the hooks its generic flow calls
+    #: the correction follows the readings' own clock between changes of load (re-sampling, relaxation, a rate of
+    #: turn): the recording to correct must be a stream with t in seconds (``correction.stream_members``)
+    follows_stream_clock: ClassVar[bool] = False
+    #: the keys of :meth:`free_reference` (read back into a new recording's ``ctx.extra`` under the same keys)
+    free_reference_keys: ClassVar[tuple[str, ...]] = ()
+
+    def free_reference(self, ctx, shape: dict) -> dict:
+        """What the free face computes from the whole calibration session ``ctx`` that a new recording cannot
+        (``meta.effect.legs.X.reference``, keys :attr:`free_reference_keys`); default nothing."""
+        return {}
+
+    def free_require(self, ctx, shape: dict, leg: str, where: str) -> None:
+        """A DataFormatError naming the column when the recording ``ctx`` to correct lacks a signal this effect's
+        correction needs; default nothing needed."""
+
+    def free_session_check(self, ctx, shape: dict, reference: dict, leg: str, where: str) -> None:
+        """A warning when the correction of ``ctx`` extrapolates what the calibration session saw; default none."""
+
     # ---- the correction for `correct`
     def correct(self, cal, block: dict, ctx: AugContext, w: np.ndarray, phi: np.ndarray, R_WB: np.ndarray, t_h: np.ndarray,
                 *, with_cov: bool = True, source: str = "calibration"):
         """``(w', R_WB', cov)``: readings (N, K, 6) and orientations (N, 3, 3) of samples at ``t_h`` hours since
         the block's ``t_ref_s`` corrected for this effect with the parameters of ``block`` (``meta["effect"]``),
         and the covariance (N, K, 6, 6) of the corrected readings (None: not propagated). A sensor effect: its
-        standing face (:func:`.correction.correct_by_face`); a body effect acts on the body as a whole, not on the
+        standing face (:func:`.faces.correct_by_face`); a body effect acts on the body as a whole, not on the
         transducers' readings: per-foot wrenches are unchanged (logged)."""
         if self.kind == "body":
             log.info("%s: %s acts on the body, not on the transducers' readings: per-foot wrenches are unchanged", source, self.name)

@@ -1,7 +1,7 @@
 """Validation of a free-load calibration on a later session (issue 32 item 6): where it holds, where it does not.
 
 Input, per transducer, from recordings of the free load touching nothing, corrected with the calibration
-(``correct_loads``): per sample ``n`` the contact wrench ``w_n`` (6,), its se ``s_n`` (6,) (the calibration's
+(``correct.free``): per sample ``n`` the contact wrench ``w_n`` (6,), its se ``s_n`` (6,) (the calibration's
 covariance and the readings' noise), the readings' noise sd ``sigma`` (6,) of the calibration, and the direction of
 gravity in the transducer's frame ``u_n`` (unit). Touching nothing, ``w_n`` is the calibration's error plus noise, so
 per axis ``z_n = w_n / s_n`` is ~N(0, 1) where the calibration holds.

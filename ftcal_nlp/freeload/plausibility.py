@@ -79,7 +79,7 @@ from ..checks import (
     QUAT_ORDER_RATIO,
     RESIDUAL_NOISE_FACTOR,
     ROTATION_BOUND_DEG,
-    _signed_permutations,
+    signed_permutations,
 )
 from ..data import Recording
 from ..errors import DataFormatError, ImplausibleLoadFit
@@ -363,7 +363,7 @@ def follows_gravity(recs: Sequence[Recording], leg: str, load, g: float, data: A
 def signed_permutation_near(Q: np.ndarray, det: float | None = None) -> tuple[np.ndarray, float]:
     """The signed permutation (of determinant ``det``, any where None) nearest the orthogonal ``Q``, and the angle (deg)
     between them."""
-    maps = [np.eye(3)] + _signed_permutations()
+    maps = [np.eye(3)] + signed_permutations()
     if det is not None:
         maps = [P for P in maps if np.sign(np.linalg.det(P)) == np.sign(det)]
     P = max(maps, key=lambda P: float(np.sum(P * Q)))
@@ -601,7 +601,7 @@ def check_torque_signs(recs: Sequence[Recording], leg: str, load, g: float, data
     given = _nominal_torque_share(w[:, 3:], pred)
     if given <= NOMINAL_WORSE:
         return
-    best, P = _simplest([(_nominal_torque_share(w[:, 3:] @ P, pred), P) for P in _signed_permutations()])
+    best, P = _simplest([(_nominal_torque_share(w[:, 3:] @ P, pred), P) for P in signed_permutations()])
     if best < NOMINAL_FIXED and best * NOMINAL_GAIN < given:
         what = (f"the torque readings negated ({leg}_tx..{leg}_tz: their sign convention reversed)"
                 if np.allclose(P, -np.eye(3)) else f"the torque columns in another order or sign ({describe_columns(P, leg, 't')})")
@@ -792,7 +792,7 @@ def _torque_trials(recs: Sequence[Recording], leg: str, load, g: float, noise: n
 
     out = []
     fits = {}
-    for i, P in enumerate(_signed_permutations()):
+    for i, P in enumerate(signed_permutations()):
         lf = refit(P)
         if _load_plausible(load, lf, noise if nz is None else np.r_[nz[:3], np.abs(P).T @ nz[3:]], leg):
             fits[i] = (P, lf)

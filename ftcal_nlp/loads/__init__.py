@@ -19,7 +19,7 @@ builds the load of a transducer from the dataset (its ``load_kind``).
 
 from __future__ import annotations
 
-from ..models import _load_class
+from ..plugins import load_class
 from .base import LinearLoad, se_of
 from .leg_com_curve import LegComCurve
 from .rigid_payload import RigidPayload
@@ -34,7 +34,7 @@ def resolve(name: str) -> type:
         return LOADS[name]
     if ":" not in name:
         raise ValueError(f"unknown load {name!r}; known loads: {sorted(LOADS)} (or 'module:Class' / 'file.py:Class')")
-    return _load_class(name)
+    return load_class(name, "load")
 
 
 def load_for(dataset, leg: str, name: str | None = None) -> LinearLoad:

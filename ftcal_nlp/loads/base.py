@@ -80,9 +80,21 @@ def se_of(cov: np.ndarray, J: np.ndarray, null: np.ndarray | None = None, tol: f
     return out
 
 
+def joint_limits(load) -> dict[str, tuple[float, float]]:
+    """``(lower, upper)`` of the URDF joints of ``load`` (below and above its sensor) that have limits
+    (``lower < upper``): where a joint's end stop lies, for an effect's face (``joint_limit_contact``)."""
+    tree = getattr(load, "tree", None)
+    out = {}
+    for j in tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ())):
+        jt = tree.joint(j) if tree is not None else None
+        if jt is not None and jt.lower is not None and jt.upper is not None and jt.upper > jt.lower:
+            out[j] = (float(jt.lower), float(jt.upper))
+    return out
+
+
 def calibration_variance(p, J: np.ndarray, tol: float = 1e-3) -> np.ndarray:
     """``diag(J C J^T)`` (N, 6): the calibration's part of the variance of a correction (``p`` a free-load
-    calibration: ``cov``, ``null``, ``undetermined``; ``correct_loads``, ``freeload/effects_correction.py``). Inf where ``J`` has a component along an
+    calibration: ``cov``, ``null``, ``undetermined``; ``correct``, ``effects/correction.py``). Inf where ``J`` has a component along an
     undetermined direction (``p.null``, relative size over ``tol``, as :func:`se_of`) or, without the
     directions, where it touches an undetermined parameter at all."""
     var = np.einsum("nij,jk,nik->ni", J, p.cov, J)

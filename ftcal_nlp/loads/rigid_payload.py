@@ -76,6 +76,18 @@ class RigidPayload(LinearLoad):
     def prior(self) -> np.ndarray | None:
         return self._prior
 
+    def symbolic_lever(self, theta: np.ndarray, q: dict):
+        """The first moment ``h`` (3,) as a CasADi constant (fixed to the sensor: ``q`` unused), what ``export``
+        compiles."""
+        import casadi as ca
+
+        return ca.DM(self.lever({}, 1)[0] @ theta)
+
+    def description(self) -> str:
+        if self.tree is None:
+            return "rigid payload"
+        return f"rigid payload oriented by the joints through {self.ft_link}"
+
     def com(self, theta: np.ndarray, cov: np.ndarray, null: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """CoM ``c = h / m`` (m, in the true ft frame) and its se (delta method)."""
         m, h = theta[0], theta[1:]

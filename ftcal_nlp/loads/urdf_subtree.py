@@ -24,8 +24,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping
 
+import casadi as ca
 import numpy as np
 
+from ..errors import DataFormatError
 from ..kinematics import MOVABLE, KinematicTree
 from .base import LinearLoad, se_of
 
@@ -53,6 +55,35 @@ def groups_below(tree: KinematicTree, ft_link: str) -> tuple[Group, ...]:
         by_frame.setdefault(frame, []).append(link)
         joint_of[frame] = moving[-1].name if moving else None
     return tuple(Group(joint_of[f] or "fixed", f, tuple(ls), joint_of[f]) for f, ls in by_frame.items())
+
+
+def _skew(a: np.ndarray):
+    return ca.DM([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+
+
+def _joint(j, q):
+    """``T_child^parent(q)`` of URDF joint ``j`` as ``(R, p)`` (CasADi), ``kinematics.joint_transform``."""
+    R0, p0 = ca.DM(j.origin[:3, :3]), ca.DM(j.origin[:3, 3])
+    if j.type == "fixed" or q is None:
+        return R0, p0
+    if j.type == "prismatic":
+        return R0, p0 + ca.mtimes(R0, q * ca.DM(j.axis))
+    if j.type in ("revolute", "continuous"):
+        A = _skew(j.axis)
+        return ca.mtimes(R0, ca.DM.eye(3) + ca.sin(q) * A + (1 - ca.cos(q)) * ca.mtimes(A, A)), p0
+    raise DataFormatError(f"joint '{j.name}': type '{j.type}' is not supported (fixed, revolute, continuous, prismatic)")
+
+
+def symbolic_pose(tree, ref: str, link: str, q: dict):
+    """Pose of ``link`` in ``ref`` (``ref`` above ``link`` in the tree): ``R`` (3, 3), ``p`` (3,), CasADi
+    (``KinematicTree.pose`` for one symbolic sample; joints without an entry held at 0): what ``export`` compiles."""
+    R, p = ca.DM.eye(3), ca.DM.zeros(3)
+    for j in tree.joints_between(ref, link):
+        Rj, pj = _joint(j, q.get(j.name))
+        p = p + ca.mtimes(R, pj)
+        R = ca.mtimes(R, Rj)
+    return R, p
+
 
 
 class UrdfSubtree(LinearLoad):
@@ -95,6 +126,22 @@ class UrdfSubtree(LinearLoad):
 
     def nominal_rotation(self, q: Mapping[str, np.ndarray], n: int) -> np.ndarray:
         return self.tree.pose(self.tree.root, self.ft_link, q, n)[0]
+
+    def symbolic_lever(self, theta: np.ndarray, q: dict) -> ca.MX:
+        """``s(q) = sum_G M_G p_G(q) + R_G(q) H_G`` (3,) for joint angles ``q`` (CasADi symbols by joint; what
+        :meth:`lever` gives numerically, :func:`symbolic_pose`), ``theta`` fixed: what ``export`` compiles."""
+        s = ca.DM.zeros(3)
+        for gi, grp in enumerate(self.groups):
+            M_G, H_G = float(theta[4 * gi]), ca.DM(theta[4 * gi + 1: 4 * gi + 4])
+            if grp.frame == self.ft_link:
+                s = s + H_G
+                continue
+            R_G, p_G = symbolic_pose(self.tree, self.ft_link, grp.frame, q)
+            s = s + M_G * p_G + ca.mtimes(R_G, H_G)
+        return s
+
+    def description(self) -> str:
+        return f"URDF links below {self.ft_link}"
 
     def prior(self) -> np.ndarray:
         """The URDF's nominal ``[M_G, H_G]`` per group."""

@@ -10,12 +10,9 @@ code named in a data file is never imported.
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-from pathlib import Path
-
-from ..calibration import ModelName
+from ..calibration import REPORT_CANDIDATES, ModelName
 from ..errors import ConfigError
+from ..plugins import load_class
 from .base import Block, ErrorModel, ModelContext, ModelSpec, make_spec, so3_variable, vector_variable
 from .builtin import Full, OffsetsOnly, Rot6Trans1, Trans1, Trans6
 
@@ -26,33 +23,6 @@ MODELS: dict[str, type[ErrorModel]] = {
     "trans1": Trans1,
     "offsets": OffsetsOnly,
 }
-
-#: Candidates of the report's Table I, in its order.
-REPORT_CANDIDATES: tuple[str, ...] = ("full", "rot6_trans1", "trans6", "trans1")
-
-
-def _load_class(spec: str) -> type:
-    target, _, cls_name = spec.rpartition(":")
-    if not target or not cls_name:
-        raise ConfigError(f"error model {spec!r}: expected 'module:Class' or 'path/file.py:Class'")
-    if target.endswith(".py") or "/" in target or "\\" in target:
-        path = Path(target)
-        if not path.is_file():
-            raise ConfigError(f"error model {spec!r}: file {path} not found", path=path)
-        mod_spec = importlib.util.spec_from_file_location(f"ftcal_user_model_{path.stem}", path)
-        if mod_spec is None or mod_spec.loader is None:   # a file Python cannot import (not .py)
-            raise ConfigError(f"error model {spec!r}: {path} is not a Python file; expected 'path/file.py:Class'", path=path)
-        module = importlib.util.module_from_spec(mod_spec)
-        mod_spec.loader.exec_module(module)
-    else:
-        try:
-            module = importlib.import_module(target)
-        except ImportError as exc:
-            raise ConfigError(f"error model {spec!r}: cannot import module {target!r} ({exc})") from exc
-    if not hasattr(module, cls_name):
-        raise ConfigError(f"error model {spec!r}: module {target!r} has no attribute {cls_name!r}")
-    return getattr(module, cls_name)
-
 
 def resolve(name_or_path: str | ErrorModel | type) -> ErrorModel:
     """An error-model instance from a registered name, ``module:Class``, a path, a class or an instance."""
@@ -67,7 +37,7 @@ def resolve(name_or_path: str | ErrorModel | type) -> ErrorModel:
                               f"{sorted(MODELS)} (a calibration names its model; code is never imported from a data file)")
         if ":" not in obj:
             raise ConfigError(f"unknown error model {obj!r}; known models: {sorted(MODELS)} (or 'module:Class' / 'file.py:Class')")
-        obj = _load_class(obj)
+        obj = load_class(obj, "error model")
     if isinstance(obj, type):
         inst = obj()
     else:

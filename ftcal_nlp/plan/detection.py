@@ -75,7 +75,7 @@ log = logging.getLogger(__name__)
 
 POWER = 0.8
 SIGNAL_RATE_HZ = 20.0     # signal runs: the rate does not change the mean square of a slow residual, only the run time
-KINDS = ("standing", "hanging")
+DETECTION_RECORDINGS = ("standing", "hanging")
 DIAGNOSIS_FOLDS = DiagnoseSettings().folds   # the diagnosis' defaults (settings.py)
 DIAGNOSIS_SEED = DiagnoseSettings().seed
 MODEL = "full"            # what the default model selection picks on the simulator's protocols
@@ -348,7 +348,7 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
             return signal(clean, base_residuals(ds, smoothing, cache, standing=clean.x is not None, x0=clean.x), scale, fl).a
         except SolverError as exc:  # the hanging fit fails on this dataset: no prediction from it
             log.warning("detection: %s at %.3g: %s", name, scale, exc)
-            return {k: float("nan") for k in KINDS}
+            return {k: float("nan") for k in DETECTION_RECORDINGS}
 
     out = []
     for eff in library:
@@ -367,25 +367,25 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
         test = float(mag.test)
         a1 = a_at(name, test, 0)
         evals = [(test, a1)]
-        s_next = min(size_for(a1[k], detection_lambda(*spec[k])) if np.isfinite(a1[k]) else np.inf for k in KINDS)
-        per = {k: float("inf") for k in KINDS}
+        s_next = min(size_for(a1[k], detection_lambda(*spec[k])) if np.isfinite(a1[k]) else np.inf for k in DETECTION_RECORDINGS)
+        per = {k: float("inf") for k in DETECTION_RECORDINGS}
         expo: dict = {}
         while s_next <= EXTRAPOLATION_MAX * test and len(evals) <= MAX_STEPS:
             s_e = s_next
             evals.append((s_e, a_at(name, s_e, 0)))
             (s0, a0), (_, ae) = evals[-2], evals[-1]
-            expo = {k: local_exponent(s0, a0[k] * s0**2, s_e, ae[k] * s_e**2) for k in KINDS}
+            expo = {k: local_exponent(s0, a0[k] * s0**2, s_e, ae[k] * s_e**2) for k in DETECTION_RECORDINGS}
             guess = {k: s_e * (detection_lambda(*spec[k]) / (ae[k] * s_e**2)) ** (1 / expo[k]) if ae[k] > 0 else np.inf
-                     for k in KINDS}
+                     for k in DETECTION_RECORDINGS}
             s_next = min(guess.values())
             if abs(np.log(s_next / s_e)) < np.log(1.5) or len(evals) > MAX_STEPS:
                 draws = [ae] + [a_at(name, s_e, r) for r in range(1, REALISATIONS)]
-                for k in KINDS:
+                for k in DETECTION_RECORDINGS:
                     ak = np.array([d[k] for d in draws])
                     if np.all(np.isfinite(ak)) and np.all(ak > 0):  # lam_r(s) = lam_r(s_e) (s / s_e)^p (D4, D5)
                         per[k] = size_at_power(np.log(ak * s_e**2) - expo[k] * np.log(s_e), *spec[k], p=expo[k])
                 log.info("detection %s: sizes tried %s %s; per draw at the last %s, exponents %s -> sizes %s", name,
-                         [f"{x:.3g}" for x, _ in evals], mag.unit, {k: [f"{d[k]:.3g}" for d in draws] for k in KINDS},
+                         [f"{x:.3g}" for x, _ in evals], mag.unit, {k: [f"{d[k]:.3g}" for d in draws] for k in DETECTION_RECORDINGS},
                          {k: round(v, 2) for k, v in expo.items()}, {k: f"{v:.3g}" for k, v in per.items()})
                 break
         per = {k: (v if v <= EXTRAPOLATION_MAX * test else float("inf")) for k, v in per.items()}

@@ -16,6 +16,8 @@ import numpy as np
 import pandas as pd
 
 from ..data import WRENCH_COMPONENTS
+from ..diagnose.chain import MIN_EXCESS_SHARE
+from ..settings import FreeLoadChain
 from ..results import PM
 from .render import Figure, Section, Table, Text
 
@@ -195,6 +197,7 @@ def free_diagnosis_section(d: "DiagnosisResult", folder: Path) -> Section:
     """The diagnosis section of a free-load dataset (``diagnose/free.py``): verdict, the chain of effects, the held-out
     RMS per component beside the floor, where the gap lies (correlates) and its figure."""
     sec = Section("Sim-to-real gap diagnosis")
+    t = d.thresholds if d.thresholds is not None else FreeLoadChain()   # a result built by hand: the defaults
     sec.add(Text(f"**Verdict: {d.verdict}**" + (f" (first effect **{d.effect}**)." if d.effect else ".")))
     for line in d.statement:
         sec.add(Text(line))
@@ -203,7 +206,8 @@ def free_diagnosis_section(d: "DiagnosisResult", folder: Path) -> Section:
                  "noise floor is the readings' scatter within short windows of held, still stretches (no fit enters it). "
                  "Effects are added one at a time, the strongest by held-out evidence first, and refit jointly; the chain "
                  "stops when the next adds nothing significant (paired block-wise z of the log held-out sums of squares "
-                 "below 3, or a saving under 1 % of the floor's variance or 25 % of the remaining excess)."))
+                 f"below {t.z_min:g}, or a saving under {100 * t.min_floor_share:g} % of the floor's variance or "
+                 f"{100 * MIN_EXCESS_SHARE:g} % of the remaining excess)."))
     _add_shrinkage(sec, d, folder, "the free-load model" + (", after the named effects," if d.effect else ""))
     cv = chain_view(d)
     if cv is not None:

@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..data import KINDS, DataFormatError, read_robot
+from ..data import RECORDING_KINDS, DataFormatError, read_robot
 from ..robot import Robot
 
 if TYPE_CHECKING:
@@ -223,8 +223,8 @@ def _recordings(d: dict, where: str, root: Path, orientation_per_sample: bool = 
     for e, w in recording_tables(d, where):
         bag = root / _get(e, "bag", w, str)
         kind = _get(e, "kind", w, str)
-        if kind not in KINDS:
-            raise DataFormatError(f"{w}: kind '{kind}' is not one of {KINDS}")
+        if kind not in RECORDING_KINDS:
+            raise DataFormatError(f"{w}: kind '{kind}' is not one of {RECORDING_KINDS}")
         gb = None
         if kind == "hanging" and orientation_per_sample and "gravity_body" not in e:
             pass                              # section 5: gravity per sample from [imu] or [body_pose]

@@ -19,14 +19,14 @@ settings, ``config_from_dict``), ``physics`` (noise-free readings), ``simulate``
 forward kinematics are :mod:`ftcal_nlp.kinematics`, shared with the free-load estimator.
 """
 
-from .config import KINDS, LEG4_URDF, PayloadConfig, UrdfLegConfig, config_from_dict
+from .config import FREE_SIM_KINDS, LEG4_URDF, PayloadConfig, UrdfLegConfig, config_from_dict
 from ...kinematics import KinematicTree, load_tree
 from .physics import gravity_in_body, gravity_in_ft, payload_readings, true_rotation, urdf_load_readings
 from .simulate import FreeLoadResult, simulate_free, simulate_payload, simulate_urdf_leg
 from .writer import simulate_to_folder, write_free_load
 
 __all__ = [
-    "KINDS", "LEG4_URDF", "FreeLoadResult", "KinematicTree", "PayloadConfig", "UrdfLegConfig",
+    "FREE_SIM_KINDS", "LEG4_URDF", "FreeLoadResult", "KinematicTree", "PayloadConfig", "UrdfLegConfig",
     "config_from_dict", "gravity_in_body", "gravity_in_ft", "load_tree", "payload_readings", "simulate_free",
     "simulate_payload", "simulate_to_folder", "simulate_urdf_leg", "true_rotation", "urdf_load_readings",
     "write_free_load",

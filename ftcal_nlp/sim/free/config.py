@@ -135,16 +135,17 @@ class UrdfLegConfig(_Common):
         return Path(self.urdf) if self.urdf else LEG4_URDF
 
 
-KINDS: dict[str, type] = {"payload": PayloadConfig, "urdf_leg": UrdfLegConfig}
+CONFIG_OF_KIND: dict[str, type] = {"payload": PayloadConfig, "urdf_leg": UrdfLegConfig}
+FREE_SIM_KINDS: tuple[str, ...] = tuple(CONFIG_OF_KIND)   # = truth.FREE_SIM_KINDS (tests/test_sim_freeload.py)
 
 
 def config_from_dict(d: dict[str, Any], *, where: str = "[simulate]") -> PayloadConfig | UrdfLegConfig:
     """A config from a TOML table with ``kind = "payload" | "urdf_leg"``; unknown keys are errors."""
     d = dict(d)
     kind = d.pop("kind", None)
-    if kind not in KINDS:
-        raise ValueError(f"{where}: kind = {kind!r}; free-load kinds: {sorted(KINDS)}")
-    cls = KINDS[kind]
+    if kind not in FREE_SIM_KINDS:
+        raise ValueError(f"{where}: kind = {kind!r}; free-load kinds: {sorted(FREE_SIM_KINDS)}")
+    cls = CONFIG_OF_KIND[kind]
     known = {f.name: f for f in fields(cls)}
     unknown = sorted(set(d) - set(known))
     if unknown:

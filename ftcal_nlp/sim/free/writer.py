@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .config import KINDS, config_from_dict
+from .config import FREE_SIM_KINDS, config_from_dict
 from .simulate import FreeLoadResult, simulate_free
 
 
@@ -57,11 +57,11 @@ def simulate_to_folder(table: dict[str, Any], folder: str | Path, *, overwrite: 
     from ...outdir import write_guarded
 
     kind = table.get("kind", "hexapod")
-    if kind in KINDS:
+    if kind in FREE_SIM_KINDS:
         res = simulate_free(config_from_dict(table))
         names, write = free_load_files(res), lambda: write_free_load(res, folder, overwrite=True)
     elif kind != "hexapod":
-        raise ValueError(f"[simulate] kind = {kind!r}; known kinds: {['hexapod', *sorted(KINDS)]}")
+        raise ValueError(f"[simulate] kind = {kind!r}; known kinds: {['hexapod', *sorted(FREE_SIM_KINDS)]}")
     else:
         from ..config import SimConfig
         from ..simulate import simulate

@@ -3,7 +3,7 @@ and its transducers, the URDF it was made with, joint columns the URDF lacks, fa
 readings whose forces or torques are in another frame or unit, found on the rows without contact. Each through the
 CLI (exit 2, one ``error:`` line naming the column or key), for a rigid payload and a URDF leg alike; and the
 clean later recordings (with contact pushes) pass with no false error. Fixtures: one fast simulated calibration per
-load kind for the module (as ``test_correct_loads_guards.py``)."""
+load kind for the module (as ``test_correct_free_guards.py``)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import pytest
 
 from ftcal_nlp import correct
 
-from test_correct_loads_guards import SIM, cal_edited, error_line, simulated_case
+from test_correct_free_guards import SIM, cal_edited, error_line, simulated_case
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 
@@ -218,7 +218,8 @@ def test_a_dead_or_stuck_channel_is_warned_and_flagged(case, tmp_path, caplog, f
 def test_a_quaternion_off_by_less_than_the_direction_bound_is_named(case, tmp_path, capsys) -> None:
     """Held about one orientation tilted 10 deg: the conjugate quaternion puts gravity 20 deg off, within the
     direction test's 30 deg; the rows without contact still tell (the forces are at the noise only as conjugated)."""
-    from ftcal_nlp.correct_loads import orientation_of_frame, gravity_of_frame, payload_calibrations
+    from ftcal_nlp.correct.recording import gravity_of_frame, orientation_of_frame
+    from ftcal_nlp.loads.calibrated import payload_calibrations
 
     p = payload_calibrations(case.cal)[case.leg]
     rec = case.rec.iloc[:600].copy().reset_index(drop=True)

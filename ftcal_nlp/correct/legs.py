@@ -1,7 +1,4 @@
-"""Turn any recording into contact wrenches with a finished calibration: per foot (legged robot) or per transducer (free load).
-
-``python -m ftcal_nlp.correct calibration.json recording.csv -o out.csv [--bag out_bag] [--track-offsets]``
-(free loads: ``[--gravity-body X Y Z]`` for a fixed base's recording without orientation columns, ``correct_loads.py``)
+"""``correct`` for hexapod legs (the ``leg_com_curve`` load): per foot the ground contact wrench.
 
 Each foot's ground wrench is the reading less the offset less the leg's weight
 wrench (report eq. 3), moved to the heading frame about the robot's CoM at that
@@ -21,26 +18,24 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .calibration import Calibration
-from .correct_loads import correct_free_load_file, read_calibration
-from .checks import SensorFault, check_calibration, check_recording_to_correct, with_fault_columns
-from .data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
-from .effect_correction import correct_for_effect
-from .csvout import write_csv
-from .errors import ConfigError, OutputError
-from .geometry import quat_to_rotation
-from .robot import Robot, Transducer
-from .settings import CorrectSettings
-from .tracking import TrackedOffsets, log_changes
-from .uncertainty import CalibrationCovariance
-from .wrenches import Correction, correct_arrays, noise_of
+from ..calibration import Calibration
+from ..checks import SensorFault, check_calibration, check_recording_to_correct, with_fault_columns
+from ..csvout import write_csv
+from ..data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
+from ..effects.correction import correct_for_effect
+from ..errors import ConfigError
+from ..geometry import quat_to_rotation
+from ..robot import Robot, Transducer
+from ..settings import CorrectSettings
+from ..tracking import TrackedOffsets, log_changes
+from ..uncertainty import CalibrationCovariance
+from ..wrenches import Correction, correct_arrays, noise_of
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +114,12 @@ def correct_file_full(cal: Calibration, path: str | Path, cov: CalibrationCovari
                       settings: CorrectSettings = CorrectSettings()) -> Correction:
     """:func:`correct_file` with everything the correction found (``wrenches.Correction``)."""
     path = Path(path)
-    df = read_table(path)
+    return correct_table_full(cal, read_table(path), path, cov, settings)
+
+
+def correct_table_full(cal: Calibration, df: pd.DataFrame, path: Path, cov: CalibrationCovariance | None = None,
+                       settings: CorrectSettings = CorrectSettings()) -> Correction:
+    """:func:`correct_file_full` of the table ``df`` read from ``path``."""
     uncovered = [k for k in legs_in_frame(df) if k not in cal.legs]
     if uncovered:  # a total without those legs would be silently wrong
         raise DataFormatError(f"{path}: columns of leg(s) {uncovered} ({uncovered[0]}_fx ...) but the calibration covers only "
@@ -139,75 +139,51 @@ def offsets_frame(t: np.ndarray, tr: TrackedOffsets) -> pd.DataFrame:
     return pd.DataFrame(cols)
 
 
-def main(argv: list[str] | None = None, prog: str | None = None) -> int:
-    from .cli import add_common, guarded, parse, setup
+# ---------------------------------------------------------------------------------------------- the command's hooks
+# (the same names in ``free.py``; ``correct/__init__.py`` calls them)
 
-    ap = argparse.ArgumentParser(prog=prog or "python -m ftcal_nlp.correct", description=__doc__.splitlines()[0],
-                                 epilog="The calibration's covariance file (meta.covariance_file, calibration_cov.npz written "
-                                        "beside calibration.json by a run) gives the se columns; without it the se rest on the "
-                                        "sensor noise alone (logged).")
-    ap.add_argument("calibration", help="calibration.json written by a run")
-    ap.add_argument("recording", help="recording in the interchange format (CSV or Parquet)")
-    add_common(ap, output_help="output CSV of ground contact wrenches", output_required=True, old_force=("--overwrite",))
-    ap.add_argument("--bag", help="also write a ROS 2 MCAP bag with one WrenchStamped topic per foot")
-    ap.add_argument("--track-offsets", action="store_true",
-                    help="re-estimate each leg's offsets over the recording from its swing phases and correct with them")
-    ap.add_argument("--gravity-body", nargs=3, type=float, metavar=("X", "Y", "Z"),
-                    help="free loads on a fixed base (an arm logging joints only): gravity's direction in B for a recording "
-                         "without qw..qz / gx..gz (default: the calibration's gravity_body, kept by the run)")
-    args = parse(ap, argv)
-    setup(args)
-    return guarded(lambda: _main(args), extra=(ValueError,))
+def wrote(cal: Calibration) -> str:
+    """What the command's log says it wrote (the table's rows say it)."""
+    return ""
 
 
-def _main(args) -> int:
-    from .outdir import calibration_inputs, check_apart, check_file_output, output_path
-
-    given = Path(os.path.expanduser(args.output))
-    cal_path = Path(os.path.expanduser(args.calibration))
-    inputs = {"recording": Path(os.path.expanduser(args.recording)), **calibration_inputs(cal_path)}
-    # the output's format is CSV (every value to the last bit, csvout.py): a .parquet name is refused, not given CSV bytes
-    out = check_file_output(given, inputs, force=args.force, suffixes=(".csv",))
-    off_out = check_file_output(given.with_name(given.stem + "_offsets.csv"), inputs, force=args.force) if args.track_offsets else None
-    if args.bag:
-        bag = Path(os.path.expanduser(args.bag))
-        check_apart(bag, inputs)   # a ROS 2 bag is a folder, replaced whole with --force
-        if bag.exists() and not args.force:
-            raise OutputError(f"{bag} exists; pass --force to replace it", path=bag)
-        bag = output_path(bag)
-    args.calibration, args.recording = str(cal_path), str(inputs["recording"])
-
-    cal = read_calibration(args.calibration)   # checked as read; free loads (DATA_FORMAT.md section 5) or legs
-    if not isinstance(cal, Calibration):
-        return correct_free_load_file(cal, args, out)
+def check_options(args: argparse.Namespace) -> None:
+    """The options that apply to free loads only are refused."""
     if args.gravity_body is not None:
         raise ConfigError("--gravity-body applies to free-load calibrations (a fixed base's gravity); "
                           f"{args.calibration} holds hexapod legs, whose recordings carry qw..qz", key="--gravity-body")
+
+
+def prepare(cal: Calibration, args: argparse.Namespace) -> CalibrationCovariance | None:
+    """Before the recording is read: the calibration checked, its covariance file (an error when it names one that
+    is not there)."""
     check_calibration(cal, args.calibration)
+    return load_covariance(cal, args.calibration, warn=False)
+
+
+def correct_table(cal: Calibration, df: pd.DataFrame, args: argparse.Namespace,
+                  cov: CalibrationCovariance | None) -> tuple[pd.DataFrame, TrackedOffsets | None]:
+    """The corrected table of the recording ``df`` and the tracked offsets (``--track-offsets``; else None)."""
+    res = correct_table_full(cal, df, Path(args.recording), cov, CorrectSettings(track_offsets=args.track_offsets))
     # the missing-covariance warning comes after the correction succeeded: a failure is one line
-    res = correct_file_full(cal, args.recording, load_covariance(cal, args.calibration, warn=False),
-                            CorrectSettings(track_offsets=args.track_offsets))
-    df = res.frame
     if cal.meta.get("covariance_file") is None:
         load_covariance(cal, args.calibration)   # logs what the se then rest on
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_csv(df, out)  # t and every value to the last bit, whatever the epoch (csvout.py)
-    log.info("wrote %s (%d rows)", out, len(df))
-    if res.tracking is not None:
-        write_csv(offsets_frame(df["t"].to_numpy(), res.tracking), off_out)
+    return res.frame, res.tracking
+
+
+def write_extras(cal: Calibration, df: pd.DataFrame, tracking: TrackedOffsets | None, args: argparse.Namespace,
+                 off_out: Path | None, bag: Path | None) -> None:
+    """Beside the table: the tracked offsets (``<out>_offsets.csv``, their changes printed) and the ROS 2 bag."""
+    if tracking is not None:
+        write_csv(offsets_frame(df["t"].to_numpy(), tracking), off_out)
         log.info("wrote %s (tracked offsets)", off_out)
-        for line in log_changes(res.tracking):
+        for line in log_changes(tracking):
             if not args.quiet:
                 print(line)
-    if args.bag:
-        from .ros.bagio import write_ground_wrench_bag
+    if bag is not None:
+        from ..ros.bagio import write_ground_wrench_bag
 
         legs = cal.leg_names + ("total",)
         wr = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy() for k in legs}
         write_ground_wrench_bag(bag, df["t"].to_numpy(), wr, overwrite=args.force)
         log.info("wrote bag %s", args.bag)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,4 +1,4 @@
-"""``correct`` for a wrist sensor (correct_loads.py, issue 22 item 5): contact wrench = reading - offset - payload
+"""``correct`` for a wrist sensor (correct/free.py, loads/calibrated.py, issue 22 item 5): contact wrench = reading - offset - payload
 wrench, with se per sample; the Jacobian against finite differences, contacts recovered within their se on
 simulated data, the se from the run's full covariance file against a Monte-Carlo of refits, the CLI dispatch and
 its errors."""
@@ -15,8 +15,10 @@ import pytest
 
 from ftcal_nlp import correct
 from ftcal_nlp.config import load_config
-from ftcal_nlp.correct_loads import (PayloadCalibration, calibration_variance, contact_frame, payload_calibrations,
-                                     payload_from_fit, payload_from_json, predicted_load)
+from ftcal_nlp.correct import contact_frame
+from ftcal_nlp.loads.base import calibration_variance
+from ftcal_nlp.loads.calibrated import (PayloadCalibration, payload_calibrations, payload_from_fit, payload_from_json,
+                                        predicted_load)
 from ftcal_nlp.geometry import rotvec_to_rotation
 from ftcal_nlp.run import run
 
@@ -126,7 +128,7 @@ def leg_calibrated(tmp_path_factory):
 
 def _true_urdf_calibration(tmp, res):
     """The calibration the data would give without noise: the simulator's truth in a UrdfLoadCalibration."""
-    from ftcal_nlp.correct_loads import UrdfLoadCalibration
+    from ftcal_nlp.loads.calibrated import UrdfLoadCalibration
     from ftcal_nlp.loads import UrdfSubtree
 
     truth = json.loads((tmp / "data" / "truth.json").read_text())
@@ -148,7 +150,7 @@ def _true_urdf_calibration(tmp, res):
 def test_urdf_load_model_is_the_simulators_and_its_jacobian_exact(leg_calibrated) -> None:
     """With the true parameters, the predicted reading at each sample's joint angles and orientation is the
     simulator's noise-free reading (the kinematics agree); the derivative matches central differences."""
-    from ftcal_nlp.correct_loads import gravity_of_frame, joint_angles
+    from ftcal_nlp.correct.recording import gravity_of_frame, joint_angles
     from ftcal_nlp.sim.free import UrdfLegConfig, simulate_urdf_leg
 
     tmp, res = leg_calibrated
@@ -188,7 +190,7 @@ def test_urdf_contact_recovered_within_its_se(leg_calibrated, tmp_path, capsys, 
     df.to_csv(rec, index=False)
     cal = tmp / "out" / "calibration.json"
     assert len(json.loads(cal.read_text())["legs"]["r_leg"]["undetermined"]) > 0
-    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct_loads"):
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.loads.calibrated"):
         assert correct.main([str(cal), str(rec), "-o", str(out)]) == 0
     assert "from the full covariance of calibration_cov.npz" in caplog.text
     got = pd.read_csv(out)
@@ -218,7 +220,7 @@ def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
     cal = tmp / "out" / "calibration.json"
     d = json.loads(cal.read_text())
     assert d["meta"]["covariance_file"] == "calibration_cov.npz" and (tmp / "out" / "calibration_cov.npz").is_file()
-    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct_loads"):
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.loads.calibrated"):
         p = payload_calibrations(cal)["wrist"]
     assert p.full_cov and "from the full covariance of calibration_cov.npz" in caplog.text
     p_diag = payload_from_json(d["legs"]["wrist"], "wrist", d["g"])
@@ -260,7 +262,7 @@ def test_fallback_without_the_covariance_file_and_undetermined_parameters(calibr
     d = json.loads((tmp / "out" / "calibration.json").read_text())
     cal = tmp_path / "calibration.json"
     cal.write_text(json.dumps(d))                                  # names calibration_cov.npz, which is not beside it
-    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct_loads"):
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.loads.calibrated"):
         p = payload_calibrations(cal)["wrist"]
     assert not p.full_cov and "is not there" in caplog.text and "from the stored standard errors" in caplog.text
     assert np.allclose(np.sqrt(np.diag(p.cov))[:6], d["legs"]["wrist"]["offset_se"])
@@ -293,7 +295,7 @@ def test_urdf_se_at_new_joint_angles_matches_refits() -> None:
     angles and orientations against the sd of 60 refits to fresh noise (Monte-Carlo error 1/sqrt(2 * 59) = 9 %
     relative; 4 of those): finite everywhere although six directions are undetermined (they are kinematic
     invariants: no wrench at any angles depends on them), and of the refits' size."""
-    from ftcal_nlp.correct_loads import UrdfLoadCalibration, param_names
+    from ftcal_nlp.loads.calibrated import UrdfLoadCalibration, param_names
     from ftcal_nlp.data import read_dataset
     from ftcal_nlp.freeload import FreeLoadResults, fit_free_load
     from ftcal_nlp.sim.free import UrdfLegConfig, simulate_urdf_leg, write_free_load

@@ -1,5 +1,5 @@
-"""``export`` of free-load calibrations (export_loads.py, issue 22 item 5): the generated C, compiled, gives the
-contact wrench that ``correct`` computes (numpy, correct_loads.py) for a wrist payload and for the leg4 URDF load,
+"""``export`` of free-load calibrations (export/free.py, issue 22 item 5): the generated C, compiled, gives the
+contact wrench that ``correct`` computes (numpy, correct/free.py) for a wrist payload and for the leg4 URDF load,
 sample by sample, to rounding."""
 
 from __future__ import annotations
@@ -12,9 +12,10 @@ import pytest
 
 from ftcal_nlp import export
 from ftcal_nlp.config import load_config
-from ftcal_nlp.correct_loads import contact_frame, payload_calibrations
-from ftcal_nlp.export import ExportedFiles, compile_shared
-from ftcal_nlp.export_loads import joint_order, load_compiled
+from ftcal_nlp.correct import contact_frame
+from ftcal_nlp.loads.calibrated import payload_calibrations
+from ftcal_nlp.export import ExportedFiles, compile_shared, load_compiled
+from ftcal_nlp.export.free import joint_order
 from ftcal_nlp.run import run
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -39,7 +40,7 @@ def test_exported_c_is_the_correction(kind, tmp_path, capsys) -> None:
     legs, joints = list(cals), joint_order(cals)
     assert (len(joints) == 6) == (kind == "urdf_leg")              # leg4: two hip joints above the sensor, four below
     lib = compile_shared(ExportedFiles(tmp_path / "c" / "contact.c", tmp_path / "c" / "contact.h", tmp_path / "c" / "USAGE.md"))
-    fn = load_compiled(lib, len(legs), len(joints), "contact")
+    fn = load_compiled(lib, cals, "contact")
     df = pd.read_csv(tmp_path / "data" / f"{rec_name}.csv")
     rng = np.random.default_rng(0)
     cols = [f"{k}_{c}" for k in legs for c in WRENCH]

@@ -1,0 +1,5 @@
+"""``python -m ftcal_nlp.correct``."""
+
+from . import main
+
+raise SystemExit(main())

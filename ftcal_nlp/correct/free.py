@@ -1,0 +1,125 @@
+"""``correct`` for free loads (``DATA_FORMAT.md`` section 5, issue 22): per transducer the contact wrench.
+
+A rigid payload on a wrist, or the URDF links below a sensor (``load_kind`` ``"rigid_payload"`` or
+``"urdf_subtree"`` in ``calibration.json``): per sample, in the estimated (true) ft frame about its origin,
+
+    w_contact = w_m - w_o - w_load
+
+``w_o + w_load`` and its derivative the calibrated load's (``loads.calibrated``: its model, the se's delta method,
+the URDF and arm cases), the readings first corrected for the named effects of a ``calibration_with_effect.json``
+(``effects/correction.py``). The contact wrench is what the environment adds to the tool's weight: zero (within
+noise) while the tool touches nothing. The recording is read and checked by ``correct/recording.py`` (gravity per
+sample or the fixed base's, joint angles, what a run checks, the readings against the calibration); rows without
+gravity or with NaN readings are dropped and counted in the log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..checks import with_fault_columns
+from ..data import QUAT_COLUMNS, WRENCH_COMPONENTS
+from ..effects import correction as fx
+from ..errors import ConfigError
+from ..loads.base import calibration_variance
+from ..loads.calibrated import PayloadCalibration, UrdfLoadCalibration, tilted_gravity
+from .recording import (base_gravity, channel_faults, check_against_calibration, clean_rows, gravity_of_frame, joint_angles,
+                        orientation_of_frame, transducer_temperature)
+
+log = logging.getLogger(__name__)
+
+
+def contact_wrench(p: PayloadCalibration | UrdfLoadCalibration, w_m: np.ndarray, g_B: np.ndarray,
+                   q: dict[str, np.ndarray] | None = None, R_WB: np.ndarray | None = None, *, t: np.ndarray | None = None,
+                   quat: np.ndarray | None = None, temperature: np.ndarray | None = None,
+                   where: str = "recording") -> tuple[np.ndarray, np.ndarray]:
+    """Contact wrench (N, 6) and its se (N, 6) (module docstring) for readings ``w_m`` (N, 6), gravity ``g_B``,
+    joint angles ``q`` (joint -> (N,); URDF loads) and the orientations ``R_WB`` (N, 3, 3) ``g_B`` came from
+    (None: ``gx..gz``; a calibration's world tilt acts through them). A calibration with named effects
+    (``p.effects``, ``calibration_with_effect.json``) corrects the readings for them first
+    (``effects/correction.py``: needs the samples' times ``t``, and where the effects ask for them the
+    orientation ``quat`` (N, 4) and the ``temperature`` (N,)); the se then carry the effects' parameters."""
+    q = {} if q is None else q
+    model, J = p.predict(g_B, q, R_WB)
+    if p.effects is None:
+        var = calibration_variance(p, J) + p.sigma**2
+        return w_m - model, np.sqrt(np.clip(var, 0.0, None))
+    if t is None:
+        raise ValueError("contact_wrench: a calibration with effects needs the samples' times t")
+    g_t = tilted_gravity(p, g_B, R_WB)[0]
+    ctx = fx.context(p, p.effects, np.asarray(t, float), w_m, model, g_t, quat, q, temperature)
+    yc, parts = fx.correct_readings(p, p.effects, ctx, where)
+    var = fx.joint_variance(J, p.effects, parts) + p.sigma**2
+    return yc - model, np.sqrt(np.clip(var, 0.0, None))
+
+
+def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration], df: pd.DataFrame, where: str,
+                  gravity_body=None) -> pd.DataFrame:
+    """The output table: ``t``, per transducer ``{X}_fx..tz`` (contact wrench, ft frame about its origin) and
+    ``{X}_fx_se..tz_se``. The recording is checked first (:func:`clean_rows`, :func:`check_against_calibration`:
+    what a run checks that applies to a recording to correct); rows without gravity or with NaN readings are
+    dropped (counted in the log). Without orientation columns, gravity is the fixed base's (``gravity_body``: the
+    ``--gravity-body`` option, else the calibration's; :func:`base_gravity`)."""
+    legs = list(cal_legs)
+    clean, keep = clean_rows(cal_legs, df, where)
+    base = base_gravity(cal_legs, clean, where, gravity_body)
+    q: dict[str, np.ndarray] = {}
+    for c in cal_legs.values():
+        if c.tree is not None:   # a load oriented or moved by the joints: their columns read against its URDF
+            q.update(joint_angles(clean, c.joints, c.tree, where))
+    faults = channel_faults(cal_legs, df, where)
+    check_against_calibration(cal_legs, clean, where, base,
+                              "--gravity-body" if gravity_body is not None else "the calibration's gravity_body",
+                              {f.leg: f.rows[keep] for f in faults})
+    R_WB = orientation_of_frame(clean)
+    out: dict[str, np.ndarray] = {"t": clean["t"].to_numpy(float)}
+    ses: dict[str, np.ndarray] = {}
+    quat = None
+    if R_WB is not None:
+        quat = clean[list(QUAT_COLUMNS)].to_numpy(float)
+        quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    for k in legs:
+        p = cal_legs[k]
+        g_B = gravity_of_frame(clean, p.g, where, base[k])
+        temp = transducer_temperature(df, k, keep, out["t"], where) if p.effects is not None else None
+        wc, se = contact_wrench(p, clean[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].to_numpy(float), g_B, q, R_WB,
+                                t=out["t"], quat=quat, temperature=temp, where=where)
+        for j, c in enumerate(WRENCH_COMPONENTS):
+            out[f"{k}_{c}"] = wc[:, j]
+            ses[f"{k}_{c}_se"] = se[:, j]
+    return with_fault_columns(pd.DataFrame({**out, **ses}), faults, keep)
+
+
+# ---------------------------------------------------------------------------------------------- the command's hooks
+# (the same names in ``legs.py``; ``correct/__init__.py`` calls them)
+
+def wrote(cal: dict) -> str:
+    """What the command's log says it wrote."""
+    return f": contact wrench of {list(cal)} in their ft frames"
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """The options that apply to hexapod legs only are refused."""
+    for opt, name in ((args.bag, "--bag"), (args.track_offsets, "--track-offsets")):
+        if opt:
+            raise ConfigError(f"{name} applies to hexapod calibrations; {args.calibration} holds free loads", key=name)
+
+
+def prepare(cal: dict, args: argparse.Namespace) -> None:
+    """Nothing before the recording is read (the reader checked the calibration and read its covariance)."""
+    return None
+
+
+def correct_table(cal: dict, df: pd.DataFrame, args: argparse.Namespace, prepared: None = None) -> tuple[pd.DataFrame, None]:
+    """The contact wrench of each transducer over the recording ``df`` (:func:`contact_frame`); no tracked offsets."""
+    return contact_frame(cal, df, str(args.recording), getattr(args, "gravity_body", None)), None
+
+
+def write_extras(cal: dict, df: pd.DataFrame, tracking: None, args: argparse.Namespace, off_out: Path | None,
+                 bag: Path | None) -> None:
+    """Nothing beside the table (``--bag`` and ``--track-offsets`` are refused by :func:`check_options`)."""

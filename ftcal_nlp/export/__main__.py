@@ -1,0 +1,5 @@
+"""``python -m ftcal_nlp.export``."""
+
+from . import main
+
+raise SystemExit(main())
