@@ -2,14 +2,14 @@
 
 ``calibrate(dataset, settings) -> CalibrationRun`` runs the whole method (Wu & Revzen:
 hanging, standing poses, model selection, standing, per-foot ground wrenches, and the
-sim-to-real gap diagnosis); :mod:`ftcal_nlp.settings` holds every setting with its default.
+sim-to-real gap diagnosis); :mod:`ftcal_nlp.core.settings` holds every setting with its default.
 Datasets of any robot (``DATA_FORMAT.md`` section 5: payloads, URDF loads) go through the same
-``calibrate`` to the free-load estimator (:mod:`ftcal_nlp.freeload`, loads in :mod:`ftcal_nlp.loads`).
+``calibrate`` to the free-load estimator (:mod:`ftcal_nlp.estimate.freeload`, loads in :mod:`ftcal_nlp.loads`).
 """
 
 from typing import TYPE_CHECKING
 
-from .settings import (
+from .core.settings import (
     CalibrationSettings,
     DiagnoseSettings,
     FreeLoadSettings,

@@ -2,7 +2,7 @@
 
 It holds the stage results (hanging, pose extraction, model selection,
 standing, the report's baselines beside them, the diagnosis), the
-:class:`~ftcal_nlp.calibration.Calibration` they make, the per-foot ground
+:class:`~ftcal_nlp.core.calibration.Calibration` they make, the per-foot ground
 wrenches of the walking recordings, stage times and notes. Reports render from
 it; ``run.py`` writes it to files. It follows the results protocol of
 ``results.py``: ``params``, ``bse``, ``cov_params()``, ``conf_int()`` and
@@ -37,22 +37,22 @@ from typing import TYPE_CHECKING, Mapping
 import numpy as np
 import pandas as pd
 
-from . import naive
-from .calibration import Calibration
-from .data import Dataset, Recording
-from .hanging.result import HangingResult
-from .results import ResultsMixin, Summary, fmt_pm
-from .selection import SelectionResult
-from .settings import CalibrationSettings
-from .standing.poses import Poses
-from .standing.result import StandingResult
-from .tracking import TrackedOffsets
+from .estimate import naive
+from .core.calibration import Calibration
+from .core.data import Dataset, Recording
+from .estimate.hanging.result import HangingResult
+from .core.results import ResultsMixin, Summary, fmt_pm
+from .estimate.selection import SelectionResult
+from .core.settings import CalibrationSettings
+from .estimate.standing.poses import Poses
+from .estimate.standing.result import StandingResult
+from .correct.tracking import TrackedOffsets
 from .truth import LoadTruth
-from .uncertainty import CalibrationCovariance
+from .estimate.uncertainty import CalibrationCovariance
 
 if TYPE_CHECKING:  # the diagnosis reads a CalibrationRun (diagnose_run): a run-time import here would be a cycle
     from .diagnose.result import DiagnosisResult
-    from .freeload import FreeLoadResults
+    from .estimate.freeload import FreeLoadResults
 
 __all__ = ["CalibrationRun", "JointCovariance", "joint_covariance"]
 
@@ -119,7 +119,7 @@ class CalibrationRun(ResultsMixin):
     ``hanging``/``hanging_baseline``: None in an offsets-only run (the baseline also when it was not
     asked for or could not run); ``selection``: None for a fixed model; ``standing_baseline``: None
     unless asked for; ``diagnosis``: None when disabled or skipped; ``truth``: the dataset's
-    ``truth.json`` when it has one (a :class:`~ftcal_nlp.calibration.Calibration` for hexapod legs, a
+    ``truth.json`` when it has one (a :class:`~ftcal_nlp.core.calibration.Calibration` for hexapod legs, a
     :class:`~ftcal_nlp.truth.LoadTruth` for a free load, as :func:`~ftcal_nlp.truth.load_truth` reads it); ``corrected``: recording name -> ground-wrench table
     (``OUTPUT_FORMAT.md`` columns, then se and contact columns); ``timings``/``cpu_timings``: stage
     -> wall / CPU seconds (read-only: a stage timed after the run is built makes a new run with ``replace``); ``notes``: what was skipped or noticed, for the report; ``uncertainty``:

@@ -16,7 +16,7 @@ simulate  write the dataset a ``[simulate]`` table describes          this modul
 Every command takes the same common flags (:func:`add_common`): ``-o/--output``,
 ``--force`` (replace what the tool wrote before; ``outdir.py``), ``-v/--verbose``, ``-q/--quiet``, ``--no-progress``; the
 spellings used before (``--overwrite``, ``--out``) are kept as hidden aliases.
-:func:`guarded` turns every error meant for the user (the :class:`~ftcal_nlp.errors.FtcalError`
+:func:`guarded` turns every error meant for the user (the :class:`~ftcal_nlp.core.errors.FtcalError`
 family and the operating system's file errors) into one ``error: ...`` line on stderr and exit
 status 2; anything else is a defect and keeps its traceback. :func:`setup` routes Python
 warnings (numpy's ``RuntimeWarning`` included) to the log at DEBUG level (seen with ``-v``),
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .errors import ConfigError, FtcalError
+from .core.errors import ConfigError, FtcalError
 
 log = logging.getLogger("ftcal_nlp.cli")
 
@@ -237,7 +237,7 @@ def simulate_main(argv: Sequence[str] | None = None, prog: str | None = None) ->
 
 def _simulate(path: Path, output: str | None, force: bool, *, quiet: bool = False) -> int:
     from .config import read_toml
-    from .outdir import check_files_apart, output_path
+    from .core.outdir import check_files_apart, output_path
     from .sim import simulate_to_folder
 
     d = read_toml(path)

@@ -9,12 +9,12 @@ The minimal config of ``OUTPUT_FORMAT.md`` works on any dataset::
     [diagnose]
     enabled = true
 
-Every other table is a field of :class:`~ftcal_nlp.settings.CalibrationSettings`
+Every other table is a field of :class:`~ftcal_nlp.core.settings.CalibrationSettings`
 (``[hanging]``, ``[standing]`` with ``[standing.poses]``, ``[selection]``,
 ``[diagnose]``, ``[correct]``) or ``[offsets_only]`` or ``[holdout]`` (:class:`HoldoutSettings`); its keys are the fields of
 that settings dataclass, mapped generically (by the dataclass' fields and their
 types), so the defaults and the valid keys live in ``settings.py`` alone. An
-unknown key is a :class:`~ftcal_nlp.errors.ConfigError` naming the file and the
+unknown key is a :class:`~ftcal_nlp.core.errors.ConfigError` naming the file and the
 key and listing the valid ones. Instead of ``[data] manifest`` a ``[simulate]``
 table may describe a dataset to generate with :mod:`ftcal_nlp.sim` (written to
 ``[simulate] dir`` when given, else into the output folder).
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .settings import CalibrationSettings, OffsetsOnlySettings
+from .core.errors import ConfigError
+from .core.settings import CalibrationSettings, OffsetsOnlySettings
 
 __all__ = ["RunConfig", "HoldoutSettings", "load_config", "ConfigError"]
 

@@ -30,9 +30,9 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from .data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
-from .errors import ConfigError, DataFormatError
-from .freeload.holdout import ALPHA, Holdout, LegSamples, holdout, holdout_markdown, holdout_table, plot_holdout
+from .core.data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS, read_table
+from .core.errors import ConfigError, DataFormatError
+from .estimate.freeload.holdout import ALPHA, Holdout, LegSamples, holdout, holdout_markdown, holdout_table, plot_holdout
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ RUN_FOLDER = "holdout"   # a run's holdout outputs, inside its output folder
 
 
 def _free_loads(cal_path: Path) -> dict:
-    from .loads.calibrated import read_calibration
+    from .correct.calibrated import read_calibration
 
     cal = read_calibration(cal_path)
     if not isinstance(cal, dict):
@@ -65,7 +65,7 @@ def gravity_in_sensor(p, sub: pd.DataFrame, where: str, base: np.ndarray | None)
     ``R_B,ft^T g_B``, ``R_B,ft`` the payload's fixed rotation or the URDF's at the rows' joints times the mounting
     rotation, ``g_B`` with the calibration's world tilt (``correct``'s own functions)."""
     from .correct.recording import gravity_of_frame, orientation_of_frame
-    from .loads.calibrated import PayloadCalibration, tilted_gravity
+    from .correct.calibrated import PayloadCalibration, tilted_gravity
 
     g_B = tilted_gravity(p, gravity_of_frame(sub, p.g, where, base), orientation_of_frame(sub))[0]
     if isinstance(p, PayloadCalibration):
@@ -139,7 +139,7 @@ def _concat(parts: list[LegSamples]) -> LegSamples:
 def own_recordings(cal_path: Path) -> list[Path]:
     """The recordings of the dataset the calibration was fitted on, where its ``meta.config`` (a run's config) names
     one that is still there (read as TOML and JSON only); [] otherwise."""
-    from .outdir import dataset_inputs
+    from .core.outdir import dataset_inputs
 
     try:
         cfg = Path(json.loads(cal_path.read_text()).get("meta", {}).get("config", ""))
@@ -173,7 +173,7 @@ def write_holdout(cal_path: str | Path, recordings: Sequence[str | Path], folder
     ``holdout.md`` names the calibration (default its path)."""
     h, samples = validate(cal_path, recordings, gravity_body=gravity_body, alpha=alpha)
     folder.mkdir(parents=True, exist_ok=True)
-    from .csvout import write_csv
+    from .core.csvout import write_csv
 
     write_csv(holdout_table(h), folder / FILES[0])
     (folder / FILES[1]).write_text(holdout_markdown(h, [str(r) for r in recordings], label or str(cal_path)))
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
-    from .outdir import calibration_inputs, check_files_apart, output_path, write_guarded
+    from .core.outdir import calibration_inputs, check_files_apart, output_path, write_guarded
 
     if not 0 < args.alpha < 1:
         raise ConfigError(f"--alpha {args.alpha}: expected a number between 0 and 1 (e.g. 0.01)", key="--alpha")

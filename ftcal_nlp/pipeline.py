@@ -15,7 +15,7 @@ bars (tqdm, off when not on a terminal). ``run.py`` is the command line around
 it (config, files, printing); the diagnosis' validation and every benchmark call
 it too, so what they measure is what a run does.
 
-Before any fit, :mod:`ftcal_nlp.checks` tests the physics of the data (units,
+Before any fit, :mod:`ftcal_nlp.core.checks` tests the physics of the data (units,
 signs, quaternion order, shaft angles in radians); after the standing fit it
 bounds the rotations against the design. Optional comparisons (the report's
 baselines) and the diagnosis that cannot run on a dataset are skipped with one
@@ -23,7 +23,7 @@ warning and a note in ``run.notes`` (the report lists them).
 
 A dataset whose transducers all carry free loads (``DATA_FORMAT.md`` section 5:
 rigid payloads, URDF links) takes one stage instead, the free-load estimator
-(:func:`ftcal_nlp.freeload.fit_free_loads`); its standing and walking stages are
+(:func:`ftcal_nlp.estimate.freeload.fit_free_loads`); its standing and walking stages are
 skipped (logged), and so is the diagnosis for now (issue 23 extends it).
 
 With ``offsets_only=<earlier Calibration>`` only the offsets are re-estimated
@@ -42,21 +42,21 @@ from typing import Callable, Iterator, TypeVar
 import numpy as np
 import pandas as pd
 
-from .calibration import Calibration
+from .core.calibration import Calibration
 from .calibration_run import CalibrationRun, JointCovariance, joint_covariance
-from .checks import check_dataset, check_transducer_poses, screen_sensor_faults
+from .core.checks import check_dataset, check_transducer_poses, screen_sensor_faults
 from .correct import correct_recording_full
-from .data import Dataset, Recording
+from .core.data import Dataset, Recording
 from .diagnose import DiagnosisResult, diagnose_run
-from .errors import DataFormatError, FtcalError, ImplausibleLoadFit, SolverError
-from .hanging import HangingResult, fit_hanging
+from .core.errors import DataFormatError, FtcalError, ImplausibleLoadFit, SolverError
+from .estimate.hanging import HangingResult, fit_hanging
 from .loads.base import LinearLoad
-from .selection import select_models
-from .sensor_noise import SensorNoise, estimate_sensor_noise
-from .settings import CalibrationSettings, FreeLoadSettings
-from .standing import Poses, extract_poses, fit_standing
-from .tracking import TrackedOffsets
-from .uncertainty import CalibrationCovariance
+from .estimate.selection import select_models
+from .estimate.sensor_noise import SensorNoise, estimate_sensor_noise
+from .core.settings import CalibrationSettings, FreeLoadSettings
+from .estimate.standing import Poses, extract_poses, fit_standing
+from .correct.tracking import TrackedOffsets
+from .estimate.uncertainty import CalibrationCovariance
 
 __all__ = ["calibrate"]
 
@@ -71,7 +71,7 @@ FreeLoadSamples = dict[str, tuple[list[Recording], np.ndarray | None, LinearLoad
 def optional(what: str, notes: list[str], fn: Callable[[], T]) -> T | None:
     """Run an optional comparison or stage and return its result, or None (the main estimate stands without it).
 
-    A :class:`~ftcal_nlp.errors.FtcalError` says why it cannot run on this dataset: one warning
+    A :class:`~ftcal_nlp.core.errors.FtcalError` says why it cannot run on this dataset: one warning
     ``"<what> was skipped: <why>"``, recorded in ``notes`` (the report lists them). Anything else is a
     defect of the package, not of the data; it must not stop the run either, but it is named as one
     (``"... was skipped by a defect (TypeName: msg); please report it"``) and its traceback logged at debug."""
@@ -169,13 +169,13 @@ def _free_load_samples(ds: Dataset, s: CalibrationSettings) -> FreeLoadSamples:
 def checked_free_load_samples(ds: Dataset, free_load: FreeLoadSettings | None = None) -> FreeLoadSamples:
     """Per free-load transducer its quasi-static samples (the recordings cut to them), their per-sample noise and its load,
     checked before fitting (``freeload/plausibility.py``: quaternion order, gravity sign, joint angles in degrees, ...);
-    ``free_load`` the :class:`~ftcal_nlp.settings.FreeLoadSettings` (None: the defaults). ``plan`` checks a pilot so."""
-    from .freeload import free_load_data
-    from .freeload.plausibility import THRESHOLDS, check_free_load_data
+    ``free_load`` the :class:`~ftcal_nlp.core.settings.FreeLoadSettings` (None: the defaults). ``plan`` checks a pilot so."""
+    from .estimate.freeload import free_load_data
+    from .estimate.freeload.plausibility import THRESHOLDS, check_free_load_data
     from .loads import load_for
 
     log.info("plausibility checks: %s", THRESHOLDS)
-    from .freeload.plausibility import as_given, check_pose_list_clock, follows_gravity
+    from .estimate.freeload.plausibility import as_given, check_pose_list_clock, follows_gravity
 
     if free_load is None:
         free_load = CalibrationSettings().free_load
@@ -200,9 +200,9 @@ def checked_free_load_samples(ds: Dataset, free_load: FreeLoadSettings | None = 
 
 
 def raise_free_load_causes(ds: Dataset, samples: FreeLoadSamples, exc: SolverError) -> None:
-    """After a failed free-load fit: raise :class:`~ftcal_nlp.errors.ImplausibleLoadFit` naming the conventions whose
+    """After a failed free-load fit: raise :class:`~ftcal_nlp.core.errors.ImplausibleLoadFit` naming the conventions whose
     fix makes a transducer's load plausible, if any (else return: the solver's error stands)."""
-    from .freeload.plausibility import nominal_rotation_source, reference_mass, try_causes
+    from .estimate.freeload.plausibility import nominal_rotation_source, reference_mass, try_causes
 
     for leg, (recs, noise, load) in samples.items():
         found = [t for t in try_causes(recs, leg, load, ds.robot.g, ds.robot.tree, noise, nominal_rotation_source(ds, leg),
@@ -216,7 +216,7 @@ def raise_free_load_causes(ds: Dataset, samples: FreeLoadSamples, exc: SolverErr
 def check_free_load_fits(ds: Dataset, fits: dict, samples: FreeLoadSamples) -> list[str]:
     """The checks after the free-load fits (``freeload/plausibility.py``: an implausible fit raises, naming the causes
     tried); returns the notes of a weighed mass the fit disagrees with (logged). ``plan`` checks a pilot so."""
-    from .freeload.plausibility import check_free_load_fit, nominal_rotation_source, weighed_mass_note
+    from .estimate.freeload.plausibility import check_free_load_fit, nominal_rotation_source, weighed_mass_note
 
     notes = []
     for leg, r in fits.items():
@@ -233,7 +233,7 @@ def check_free_load_fits(ds: Dataset, fits: dict, samples: FreeLoadSamples) -> l
 def _calibrate_free_loads(ds: Dataset, s: CalibrationSettings, timings: dict[str, float], cpu: dict[str, float],
                           notes: list[str]) -> CalibrationRun:
     """Section-5 datasets: every transducer's free load by the free-load estimator; the hexapod stages do not apply."""
-    from .freeload import fit_free_loads, free_load_calibration
+    from .estimate.freeload import fit_free_loads, free_load_calibration
     hexapod = [k for k in ds.robot.legs if k not in ds.free_load_legs]
     if hexapod:
         raise DataFormatError(f"{ds.manifest or 'dataset'}: transducers {hexapod} have {{leg}}_phi columns (hexapod legs) and "
@@ -271,9 +271,9 @@ def calibrate(dataset: Dataset, settings: CalibrationSettings | None = None, *,
     """Calibrate ``dataset`` (interchange format, ``data.read_dataset``) with ``settings`` (module docstring).
 
     Builds every part first and the frozen :class:`CalibrationRun` from them (the diagnosis reads the
-    run as calibrated; the run returned holds it too). Raises :class:`~ftcal_nlp.errors.DataFormatError`
+    run as calibrated; the run returned holds it too). Raises :class:`~ftcal_nlp.core.errors.DataFormatError`
     for data that cannot calibrate (no standing recording, no opposite hanging pair, ...) and
-    :class:`~ftcal_nlp.errors.SolverError` when a solver of the chosen method fails (a failing baseline
+    :class:`~ftcal_nlp.core.errors.SolverError` when a solver of the chosen method fails (a failing baseline
     is logged and recorded in ``notes``).
     """
     s = CalibrationSettings() if settings is None else settings

@@ -26,21 +26,21 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from .calibration import Calibration
+from .core.calibration import Calibration
 from .calibration_run import CalibrationRun
-from .checks import residual_note
+from .core.checks import residual_note
 from .config import RunConfig, load_config
-from .errors import ConfigError, DataFormatError, FtcalError
-from .outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs, write_guarded  # noqa: F401  (OutputExistsError: re-exported)
+from .core.errors import ConfigError, DataFormatError, FtcalError
+from .core.outdir import OutputExistsError, OutputFolder, check_apart, dataset_inputs, write_guarded  # noqa: F401  (OutputExistsError: re-exported)
 from .correct import offsets_frame
-from .csvout import write_csv
-from .data import Dataset, read_dataset
+from .core.csvout import write_csv
+from .core.data import Dataset, read_dataset
 from .diagnose.validation import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
 from .sim import SimConfig, simulate, write_simulation
-from .tracking import log_changes
-from .uncertainty import free_load_covariance
+from .correct.tracking import log_changes
+from .estimate.uncertainty import free_load_covariance
 
 COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in its meta.covariance_file
 
@@ -338,7 +338,7 @@ def _run_validation(path: str, force: bool, run_validation, output: Path | None 
 
 CONFIG_HELP = """\
 config keys: README.md ("Use": the minimal config and the main keys), problems/bigant_sim.toml (an annotated
-config), ftcal_nlp/config.py (sections and their validation) and ftcal_nlp/settings.py (every key with its
+config), ftcal_nlp/config.py (sections and their validation) and ftcal_nlp/core/settings.py (every key with its
 default and meaning: [hanging], [standing], [standing.poses], [selection], [diagnose], [correct]).
 """
 

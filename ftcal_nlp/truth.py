@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
-from .errors import DataFormatError
+from .core.errors import DataFormatError
 
 if TYPE_CHECKING:  # calibration.py is read only for a hexapod's truth (imported there)
-    from .calibration import Calibration
+    from .core.calibration import Calibration
 
 #: the simulated free loads' kinds (``sim/free/config.py`` FREE_SIM_KINDS), spelled here: truth files are read
 #: without the simulator
@@ -119,6 +119,6 @@ def load_truth(path: str | Path, *, mass_kg: float | None = None, g: float = 9.8
     d = json.loads(path.read_text())
     if free_load_kind(d) is not None:
         return load_truth_from_dict(d, path, robot)
-    from .calibration import Calibration
+    from .core.calibration import Calibration
 
     return Calibration.load(path, mass_kg=mass_kg, g=g)

@@ -19,15 +19,15 @@ import pytest
 import tomli_w
 
 from ftcal_nlp import correct
-from ftcal_nlp.calibration import read_calibration_json
-from ftcal_nlp.loads.calibrated import payload_calibrations
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
-from ftcal_nlp.kinematics import load_tree
+from ftcal_nlp.core.calibration import read_calibration_json
+from ftcal_nlp.correct.calibrated import payload_calibrations
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import DataFormatError
+from ftcal_nlp.core.geometry import rotation_to_rotvec, rotvec_to_rotation
+from ftcal_nlp.core.kinematics import load_tree
 from ftcal_nlp.pipeline import calibrate
 from ftcal_nlp.run import main as run_main
-from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings
 
 SHARED = Path("/work/shared")
 SETTINGS = CalibrationSettings(diagnose=DiagnoseSettings(enabled=False))
@@ -272,7 +272,7 @@ def test_plan_of_an_arm_pilot_without_the_tool_in_the_urdf(arm, tmp_path) -> Non
 def test_gravity_body_option_is_for_free_loads(tmp_path, capsys) -> None:
     """A hexapod calibration's recordings carry qw..qz: --gravity-body there is an error naming the option."""
     from conftest import SAMPLE, require_sample
-    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.core.calibration import Calibration
 
     d = json.loads((require_sample() / "truth.json").read_text())
     cal = tmp_path / "calibration.json"

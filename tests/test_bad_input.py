@@ -20,8 +20,8 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from ftcal_nlp import CalibrationSettings, calibrate
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.checks import (
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.core.checks import (
     DEGREES_RATIO,
     ROTATION_BOUND_DEG,
     check_dataset,
@@ -29,10 +29,10 @@ from ftcal_nlp.checks import (
     degrees_ratio,
 )
 from ftcal_nlp.correct import main as correct_main
-from ftcal_nlp.data import DataFormatError, Dataset, read_dataset, recording_from_frame
-from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.core.data import DataFormatError, Dataset, read_dataset, recording_from_frame
+from ftcal_nlp.core.geometry import rotvec_to_rotation
 from ftcal_nlp.run import main as run_main
-from ftcal_nlp.settings import DiagnoseSettings, HangingSettings, StandingSettings
+from ftcal_nlp.core.settings import DiagnoseSettings, HangingSettings, StandingSettings
 from ftcal_nlp.sim import SimConfig, simulate
 
 from bad_inputs import LEGS, broken_sample, read_frame

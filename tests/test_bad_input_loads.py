@@ -67,7 +67,7 @@ def test_bad_urdf_input_gets_one_clear_error_and_writes_nothing(case, leg4, tmp_
 
 def _readings_for_orientations(res, df: pd.DataFrame) -> pd.DataFrame:
     """``df`` with the simulated payload's readings recomputed for its columns qw..qz (its truth, the same noise)."""
-    from ftcal_nlp.geometry import quat_to_rotation
+    from ftcal_nlp.core.geometry import quat_to_rotation
     from ftcal_nlp.sim.free.physics import gravity_in_ft, payload_readings, true_rotation
     from ftcal_nlp.sim.free.simulate import rpy_to_rotation
 

@@ -11,10 +11,10 @@ import pytest
 from ftcal_nlp import crb
 from ftcal_nlp.bench.accuracy import summarize
 from ftcal_nlp.bench.scaling import fit_exponent, replicate_poses
-from ftcal_nlp.calibration import periodic_interp
-from ftcal_nlp.geometry import rotvec_to_rotation
-from ftcal_nlp.physics import balance_residual_exact
-from ftcal_nlp.standing.poses import Poses
+from ftcal_nlp.core.calibration import periodic_interp
+from ftcal_nlp.core.geometry import rotvec_to_rotation
+from ftcal_nlp.core.physics import balance_residual_exact
+from ftcal_nlp.estimate.standing.poses import Poses
 
 
 def _gls_monte_carlo(A, sd, theta, n_draws, rng):

@@ -37,7 +37,7 @@ def test_one_command_line_lists_every_command_and_run_help_points_at_the_keys():
     for name in ("run", "correct", "plan", "export", "ingest", "bench", "simulate"):
         assert re.search(rf"^  {name} ", p.stdout, re.M), p.stdout
     h = _py("-m", "ftcal_nlp", "run", "--help")
-    assert h.returncode == 0 and "ftcal_nlp/settings.py" in h.stdout and "problems/bigant_sim.toml" in h.stdout
+    assert h.returncode == 0 and "ftcal_nlp/core/settings.py" in h.stdout and "problems/bigant_sim.toml" in h.stdout
     for flag in ("-o PATH, --output PATH", "--force", "-v, --verbose", "-q, --quiet", "--no-progress"):
         assert flag in h.stdout, flag
     # the module forms keep working and show the same flags

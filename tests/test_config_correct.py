@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 from conftest import SAMPLE, require_sample
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.config import ConfigError, load_config
 from ftcal_nlp.correct import correct_file, main as correct_main
-from ftcal_nlp.settings import CalibrationSettings
+from ftcal_nlp.core.settings import CalibrationSettings
 
 
 def _write(tmp_path, text):

@@ -17,9 +17,9 @@ from ftcal_nlp import correct
 from ftcal_nlp.config import load_config
 from ftcal_nlp.correct import contact_frame
 from ftcal_nlp.loads.base import calibration_variance
-from ftcal_nlp.loads.calibrated import (PayloadCalibration, payload_calibrations, payload_from_fit, payload_from_json,
+from ftcal_nlp.correct.calibrated import (PayloadCalibration, payload_calibrations, payload_from_fit, payload_from_json,
                                         predicted_load)
-from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.core.geometry import rotvec_to_rotation
 from ftcal_nlp.run import run
 
 
@@ -128,7 +128,7 @@ def leg_calibrated(tmp_path_factory):
 
 def _true_urdf_calibration(tmp, res):
     """The calibration the data would give without noise: the simulator's truth in a UrdfLoadCalibration."""
-    from ftcal_nlp.loads.calibrated import UrdfLoadCalibration
+    from ftcal_nlp.correct.calibrated import UrdfLoadCalibration
     from ftcal_nlp.loads import UrdfSubtree
 
     truth = json.loads((tmp / "data" / "truth.json").read_text())
@@ -190,7 +190,7 @@ def test_urdf_contact_recovered_within_its_se(leg_calibrated, tmp_path, capsys, 
     df.to_csv(rec, index=False)
     cal = tmp / "out" / "calibration.json"
     assert len(json.loads(cal.read_text())["legs"]["r_leg"]["undetermined"]) > 0
-    with caplog.at_level(logging.INFO, logger="ftcal_nlp.loads.calibrated"):
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct.calibrated"):
         assert correct.main([str(cal), str(rec), "-o", str(out)]) == 0
     assert "from the full covariance of calibration_cov.npz" in caplog.text
     got = pd.read_csv(out)
@@ -213,14 +213,14 @@ def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
     error of an sd from K refits: 1/sqrt(2(K-1)) relative; 4 of those). The diagonal of the stored se (the
     fallback) misses the offset-load correlations: it falls outside that band. With the world tilt (the default):
     gravity from orientations ``R_WB`` goes through each refit's tilt, and the se from the file with them too."""
-    from ftcal_nlp.freeload import fit_free_load
+    from ftcal_nlp.estimate.freeload import fit_free_load
     from ftcal_nlp.sim.free import PayloadConfig, simulate_payload
 
     tmp, res = calibrated
     cal = tmp / "out" / "calibration.json"
     d = json.loads(cal.read_text())
     assert d["meta"]["covariance_file"] == "calibration_cov.npz" and (tmp / "out" / "calibration_cov.npz").is_file()
-    with caplog.at_level(logging.INFO, logger="ftcal_nlp.loads.calibrated"):
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct.calibrated"):
         p = payload_calibrations(cal)["wrist"]
     assert p.full_cov and "from the full covariance of calibration_cov.npz" in caplog.text
     p_diag = payload_from_json(d["legs"]["wrist"], "wrist", d["g"])
@@ -229,7 +229,7 @@ def test_se_from_the_covariance_file_matches_refits(calibrated, caplog) -> None:
     g_B *= 9.81 / np.linalg.norm(g_B, axis=1, keepdims=True)
     _, J = predicted_load(p, g_B)
     se_full, se_diag = np.sqrt(calibration_variance(p, J)), np.sqrt(calibration_variance(p_diag, J))
-    from ftcal_nlp.freeload.problem import tilt_gravity
+    from ftcal_nlp.estimate.freeload.problem import tilt_gravity
 
     assert p.tilt is not None and J.shape[-1] == 15
     R_WB = rotvec_to_rotation(rng.normal(size=(12, 3)))
@@ -262,7 +262,7 @@ def test_fallback_without_the_covariance_file_and_undetermined_parameters(calibr
     d = json.loads((tmp / "out" / "calibration.json").read_text())
     cal = tmp_path / "calibration.json"
     cal.write_text(json.dumps(d))                                  # names calibration_cov.npz, which is not beside it
-    with caplog.at_level(logging.INFO, logger="ftcal_nlp.loads.calibrated"):
+    with caplog.at_level(logging.INFO, logger="ftcal_nlp.correct.calibrated"):
         p = payload_calibrations(cal)["wrist"]
     assert not p.full_cov and "is not there" in caplog.text and "from the stored standard errors" in caplog.text
     assert np.allclose(np.sqrt(np.diag(p.cov))[:6], d["legs"]["wrist"]["offset_se"])
@@ -295,11 +295,11 @@ def test_urdf_se_at_new_joint_angles_matches_refits() -> None:
     angles and orientations against the sd of 60 refits to fresh noise (Monte-Carlo error 1/sqrt(2 * 59) = 9 %
     relative; 4 of those): finite everywhere although six directions are undetermined (they are kinematic
     invariants: no wrench at any angles depends on them), and of the refits' size."""
-    from ftcal_nlp.loads.calibrated import UrdfLoadCalibration, param_names
-    from ftcal_nlp.data import read_dataset
-    from ftcal_nlp.freeload import FreeLoadResults, fit_free_load
+    from ftcal_nlp.correct.calibrated import UrdfLoadCalibration, param_names
+    from ftcal_nlp.core.data import read_dataset
+    from ftcal_nlp.estimate.freeload import FreeLoadResults, fit_free_load
     from ftcal_nlp.sim.free import UrdfLegConfig, simulate_urdf_leg, write_free_load
-    from ftcal_nlp.uncertainty import free_load_covariance
+    from ftcal_nlp.estimate.uncertainty import free_load_covariance
     import tempfile
     from pathlib import Path
 

@@ -17,12 +17,12 @@ import pandas as pd
 import pytest
 
 from ftcal_nlp import correct, export
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.config import load_config
 from ftcal_nlp.correct import contact_frame
-from ftcal_nlp.loads.calibrated import payload_calibrations
-from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.correct.calibrated import payload_calibrations
+from ftcal_nlp.core.errors import DataFormatError
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
 from ftcal_nlp.run import run
 
 from conftest import require_sample

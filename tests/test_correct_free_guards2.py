@@ -219,7 +219,7 @@ def test_a_quaternion_off_by_less_than_the_direction_bound_is_named(case, tmp_pa
     """Held about one orientation tilted 10 deg: the conjugate quaternion puts gravity 20 deg off, within the
     direction test's 30 deg; the rows without contact still tell (the forces are at the noise only as conjugated)."""
     from ftcal_nlp.correct.recording import gravity_of_frame, orientation_of_frame
-    from ftcal_nlp.loads.calibrated import payload_calibrations
+    from ftcal_nlp.correct.calibrated import payload_calibrations
 
     p = payload_calibrations(case.cal)[case.leg]
     rec = case.rec.iloc[:600].copy().reset_index(drop=True)

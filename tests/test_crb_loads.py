@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from ftcal_nlp import crb as cl
-from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
-from ftcal_nlp.peers import calib_force, ft_calib
+from ftcal_nlp.core.geometry import rotation_to_rotvec, rotvec_to_rotation
+from ftcal_nlp.bench.peers import calib_force, ft_calib
 from ftcal_nlp.sim.free import (PayloadConfig, UrdfLegConfig, gravity_in_body, gravity_in_ft, load_tree, payload_readings,
                                 simulate_payload, simulate_urdf_leg, urdf_load_readings)
 from ftcal_nlp.sim.free.simulate import rpy_to_rotation
@@ -240,7 +240,7 @@ def test_tilt_columns_match_the_forward_model_of_a_tilted_stream() -> None:
     """The world tilt's columns (``tilt_dirs``): the stream reports ``R_t R_WB``, true gravity in B is then
     ``g R_WB'^T u(tilt)`` (``freeload.problem.tilt_gravity``); central differences at tilt 0 of the simulator's
     payload readings equal them, and the bound with the tilt is wider than without (it is a nuisance)."""
-    from ftcal_nlp.freeload.problem import tilt_gravity
+    from ftcal_nlp.estimate.freeload.problem import tilt_gravity
 
     rng = np.random.default_rng(2)
     R_WB = rotvec_to_rotation(rng.normal(size=(30, 3)))

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.data import DataFormatError, hanging_pairs, read_dataset, read_robot, write_dataset
+from ftcal_nlp.core.data import DataFormatError, hanging_pairs, read_dataset, read_robot, write_dataset
 
 from conftest import SAMPLE, require_sample
 
@@ -188,7 +188,7 @@ def test_unknown_kind(small):
 def test_torque_ratio_names_forces_in_kN_first_when_they_never_reach_a_newton():
     """The lever-arm ratio of torques to forces cannot tell N*mm torques from kN forces: forces below 1 N (a 1.5 kg
     tool read in kN) put kN first; forces of newtons put N*mm first."""
-    from ftcal_nlp.data import check_torque_units
+    from ftcal_nlp.core.data import check_torque_units
 
     rng = np.random.default_rng(0)
     f = rng.normal(size=(200, 3)) * 14.7

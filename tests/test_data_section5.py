@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ftcal_nlp.data import read_dataset, write_dataset
+from ftcal_nlp.core.data import read_dataset, write_dataset
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from conftest import SAMPLE, requires_sample
 
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.data import read_dataset
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.diagnose import DiagnosisResult, diagnose
 from ftcal_nlp.effects import EFFECTS as LIBRARY, HangingLeg, LinearFace, design_check
 from ftcal_nlp.diagnose.linear_fit import score_linear
@@ -25,14 +25,14 @@ from ftcal_nlp.diagnose.standing_fit import AugmentedProblem, StandingData
 from ftcal_nlp.diagnose.validation import plan, run_validation
 from ftcal_nlp.pipeline import calibrate
 from ftcal_nlp.diagnose.views import LegSeries, to_world
-from ftcal_nlp.geometry import rotation_to_rotvec, rotvec_to_rotation
-from ftcal_nlp.hanging import fit_hanging
-from ftcal_nlp.settings import DiagnoseSettings
-from ftcal_nlp.physics import balance_residual_exact, balance_residual_report
+from ftcal_nlp.core.geometry import rotation_to_rotvec, rotvec_to_rotation
+from ftcal_nlp.estimate.hanging import fit_hanging
+from ftcal_nlp.core.settings import DiagnoseSettings
+from ftcal_nlp.core.physics import balance_residual_exact, balance_residual_report
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
 from ftcal_nlp.effects import LIBRARY_EFFECTS
 from ftcal_nlp.sim.effects import make_effects
-from ftcal_nlp.standing import Poses, extract_poses, fit_standing
+from ftcal_nlp.estimate.standing import Poses, extract_poses, fit_standing
 
 HEXAPOD = [n for n, u in LIBRARY.items() if "hexapod" in u.diagnosed_on]   # the effects with hexapod faces
 SEED = 11
@@ -110,7 +110,7 @@ def test_tether_injector_carries_the_cable_through_the_feet():
     f_H, a = eff[0].params(truth)
     rc, rt = sim_c.dataset.standing[0], sim_t.dataset.standing[0]
     ok = np.all(np.isfinite(rt.quat), axis=1)
-    from ftcal_nlp.geometry import quat_to_rotation, remove_yaw
+    from ftcal_nlp.core.geometry import quat_to_rotation, remove_yaw
 
     R_WB = quat_to_rotation(rt.quat[ok])
     dw = rt.wrench_array()[ok] - rc.wrench_array()[ok]
@@ -372,7 +372,7 @@ def test_the_docs_quote_the_chain_thresholds_from_the_settings():
     kind of evidence): a threshold changed in ``settings.py`` and not in the docs fails here."""
     from dataclasses import fields
 
-    from ftcal_nlp.settings import ChainThresholds, DiagnoseSettings
+    from ftcal_nlp.core.settings import ChainThresholds, DiagnoseSettings
 
     text = (Path(__file__).resolve().parent.parent / "docs" / "diagnosis.md").read_text()
     table = text.split("<!-- chain thresholds: settings.DiagnoseSettings -->", 1)[1].strip().split("\n\n", 1)[0]

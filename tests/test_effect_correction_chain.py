@@ -24,13 +24,13 @@ import re
 import numpy as np
 import pytest
 
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.diagnose.joint import JointRefit, combined_members
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.diagnose.refit import JointRefit, combined_members
 from ftcal_nlp.effects.correction import apply_effect, correct_for_effect
 from ftcal_nlp.effects import EFFECTS, AugContext
 from ftcal_nlp.effects.combined import Combined
 from ftcal_nlp.effects.injection import HOUR_S
-from ftcal_nlp.geometry import cayley, rotvec_to_rotation
+from ftcal_nlp.core.geometry import cayley, rotvec_to_rotation
 from ftcal_nlp.sim import SimConfig, simulate
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")

@@ -128,7 +128,7 @@ def test_the_toy_correction_removes_the_ramp_from_a_walk(toy):
 def test_a_units_kind_decides_its_correction():
     """Each unit's own correction: a body effect (cable, mass, leg inertia, moving CoMs) leaves per-foot readings and
     orientations as they are and adds no covariance; the sensor effects and the motion-capture bias change them."""
-    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.core.calibration import Calibration
 
     sim = simulate(SimConfig.from_dict({"n_poses": 12, "hanging_cycles": 0.5, "walk_cycles": 0.2, "seed": 3}))
     truth = sim.truth

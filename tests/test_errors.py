@@ -9,10 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.errors import ConfigError, DataFormatError, FtcalError, OutputError, OutputExistsError, SolverError
+from ftcal_nlp.core.errors import ConfigError, DataFormatError, FtcalError, OutputError, OutputExistsError, SolverError
 from ftcal_nlp.models import resolve
 from ftcal_nlp.pipeline import optional
-from ftcal_nlp.settings import HangingSettings, PoseExtraction
+from ftcal_nlp.core.settings import HangingSettings, PoseExtraction
 from ftcal_nlp.sim import SimConfig
 
 
@@ -79,8 +79,8 @@ def test_settings_and_registry_errors_are_config_errors_naming_the_key():
 
 
 def test_data_errors_name_the_column():
-    from ftcal_nlp.data import recording_from_frame
-    from ftcal_nlp.robot import Robot, Transducer
+    from ftcal_nlp.core.data import recording_from_frame
+    from ftcal_nlp.core.robot import Robot, Transducer
 
     robot = Robot("r", 10.0, 9.81, ("A",), {"A": Transducer("A", np.array([0.1, 0, 0]), np.eye(3))})
     df = pd.DataFrame({"t": [0.0, 0.1, 0.2], "A_phi": [0.0, 0.1, 0.2], "A_fx": [1.0, "x", 2.0], "A_fy": 0.0,

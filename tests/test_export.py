@@ -14,13 +14,13 @@ import shutil
 import numpy as np
 import pytest
 
-from ftcal_nlp.calibration import Calibration, LegCalibration
+from ftcal_nlp.core.calibration import Calibration, LegCalibration
 from ftcal_nlp.correct import correct_file
-from ftcal_nlp.data import WRENCH_COMPONENTS, read_table, recording_from_frame
+from ftcal_nlp.core.data import WRENCH_COMPONENTS, read_table, recording_from_frame
 from ftcal_nlp.correct import robot_from_calibration
 from ftcal_nlp.export import compile_shared, load_compiled, main as export_main, write_c
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
-from ftcal_nlp.physics import ground_wrenches
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.core.physics import ground_wrenches
 
 from conftest import require_sample
 

@@ -13,7 +13,7 @@ import pytest
 from ftcal_nlp import export
 from ftcal_nlp.config import load_config
 from ftcal_nlp.correct import contact_frame
-from ftcal_nlp.loads.calibrated import payload_calibrations
+from ftcal_nlp.correct.calibrated import payload_calibrations
 from ftcal_nlp.export import ExportedFiles, compile_shared, load_compiled
 from ftcal_nlp.export.free import joint_order
 from ftcal_nlp.run import run

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from ftcal_nlp.correct import main as correct_main
-from ftcal_nlp.csvout import write_csv
+from ftcal_nlp.core.csvout import write_csv
 from ftcal_nlp.run import main as run_main
 
 from bad_inputs import CASES, LEGS, broken_sample
@@ -216,10 +216,10 @@ def test_run_leaves_clipped_rows_out_and_says_so(tmp_path, caplog):
     assert "## Notes" in report and re.search(r"sensor fault: .*leg FR columns FR_fz clipped at 20", report)
     # the calibration from the remaining rows still recovers the truth (the run's z-score check)
     from test_run import _check_z, _z_scores
-    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.core.calibration import Calibration
     from ftcal_nlp.config import load_config
     from ftcal_nlp.pipeline import calibrate
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
 
     run = calibrate(read_dataset(tmp_path / "data" / "dataset.toml"), load_config(_config(tmp_path)).settings)
     _check_z(_z_scores(run, run.calibration, Calibration.load(require_sample() / "truth.json", g=9.81)))
@@ -278,8 +278,8 @@ def test_simulated_data_is_said_to_be_simulated(tmp_path, capsys):
 def test_a_residual_far_above_the_noise_points_at_the_diagnosis():
     from types import SimpleNamespace
 
-    from ftcal_nlp.checks import RESIDUAL_NOISE_FACTOR, residual_note
-    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.core.checks import RESIDUAL_NOISE_FACTOR, residual_note
+    from ftcal_nlp.core.calibration import Calibration
 
     cal = Calibration.load(require_sample() / "truth.json", g=9.81)
     sd = 0.05  # N per force component and leg (the sample's README), 0.01 N*m per torque component
@@ -325,7 +325,7 @@ def test_legs_left_out_of_robot_toml_are_found_before_fitting(tmp_path, capsys, 
 def test_a_mis_signed_channel_of_one_leg_is_named(leg, tmp_path, capsys, monkeypatch):
     """One leg's force channel along the up axis mis-signed in every file (the validation's ``leg_axis_flipped``): the
     standing share falls below 0.8; reversing that column's sign is what brings it back, so the error names it."""
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
 
     robot = read_dataset(require_sample() / "dataset.toml", kinds=()).robot
     R = robot.nominal_rotations()[robot.legs.index(leg)]
@@ -342,7 +342,7 @@ def test_a_mis_signed_channel_of_one_leg_is_named(leg, tmp_path, capsys, monkeyp
                   rf"(\d\.\d+) with the sign of column {column} \(the axis of leg {leg} nearest the up axis\) reversed: is "
                   rf"{column} mis-signed", line)
     assert m, line
-    from ftcal_nlp.checks import LOAD_SHARE
+    from ftcal_nlp.core.checks import LOAD_SHARE
     was, now = float(m.group(1)), float(m.group(2))
     assert was < LOAD_SHARE[0] and LOAD_SHARE[0] <= now <= LOAD_SHARE[1] and abs(now - 1) < abs(was - 1), (was, now)
     assert not (tmp_path / "out").exists()

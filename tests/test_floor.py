@@ -17,9 +17,9 @@ import pytest
 from conftest import require_sample
 
 from ftcal_nlp import calibrate
-from ftcal_nlp.balance import to_world
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.data import read_dataset
+from ftcal_nlp.core.balance import to_world
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.diagnose.floor import (
     calibrated_residual_B,
     fit_noise_floor,
@@ -30,12 +30,12 @@ from ftcal_nlp.diagnose.floor import (
 )
 from ftcal_nlp.diagnose.standing_fit import AugmentedProblem
 from ftcal_nlp.diagnose.views import standing_view
-from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.core.geometry import rotvec_to_rotation
 from ftcal_nlp.models import ModelContext, resolve
-from ftcal_nlp.selection import fold_indices
-from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings, StandingSettings
+from ftcal_nlp.estimate.selection import fold_indices
+from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings, StandingSettings
 from ftcal_nlp.sim import SimConfig, simulate
-from ftcal_nlp.standing import Poses, extract_poses
+from ftcal_nlp.estimate.standing import Poses, extract_poses
 
 SEED = 5
 BASE = {"seed": SEED, "n_poses": 150, "hanging_cycles": 2.0, "walk_cycles": 0.5}

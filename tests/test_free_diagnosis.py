@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from ftcal_nlp.data import read_dataset
+from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.diagnose.free import diagnose_free
-from ftcal_nlp.freeload import fit_free_loads
+from ftcal_nlp.estimate.freeload import fit_free_loads
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")

@@ -16,12 +16,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.correct import contact_frame, contact_wrench, main as correct_main
 from ftcal_nlp.effects.correction import FreeEffects, Member
 from ftcal_nlp.effects.faces import legendre_time
-from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.loads.calibrated import PayloadCalibration, payload_calibrations
+from ftcal_nlp.core.errors import DataFormatError
+from ftcal_nlp.correct.calibrated import PayloadCalibration, payload_calibrations
 from ftcal_nlp.run import main as run_main
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
@@ -270,10 +270,10 @@ def test_se_of_the_corrected_wrench_match_the_spread_of_refits(tmp_path):
     # 20 calibrations of one rig (a linear drift: on the face) correct one noise-free probe recording; the sd of the
     # corrected wrench over them matches the se's calibration part sqrt(se^2 - sigma^2), which carries the joint
     # covariance of the load parameters and beta (pooled per channel; 1 +- 3 / sqrt(2 (R - 1)) for R refits)
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
     from ftcal_nlp.diagnose.free_effect_file import COVARIANCE_FILE, free_effect_calibration
     from ftcal_nlp.pipeline import calibrate
-    from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+    from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings
 
     rig = {**RIG, "effects": ({"name": "offset_drift_ramp", "scale": 20.0},)}
     probe = simulate_payload(PayloadConfig(seed=999, n_orientations=6, hold_s=6.0, move_s=3.0, noise_force_N=0.0,

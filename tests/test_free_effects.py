@@ -8,11 +8,11 @@ import pytest
 
 from ftcal_nlp.effects import EFFECTS, InjectionContext, applies_to
 from ftcal_nlp.effects.free_faces import make_context
-from ftcal_nlp.geometry import rotation_to_quat
+from ftcal_nlp.core.geometry import rotation_to_quat
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free
 from ftcal_nlp.sim.free.physics import gravity_in_ft
 from ftcal_nlp.sim.free.simulate import rpy_to_rotation
-from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.core.geometry import rotvec_to_rotation
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 _cache: dict = {}
@@ -43,7 +43,7 @@ def context(sim, pred=None, temperature=None):
     sigma = np.array([cfg.noise_force_N] * 3 + [cfg.noise_torque_Nm] * 3)
     limits = {}
     if sim.q:
-        from ftcal_nlp.kinematics import load_tree
+        from ftcal_nlp.core.kinematics import load_tree
         from ftcal_nlp.sim.free.simulate import joint_limits
 
         limits = joint_limits(load_tree(cfg.urdf_path))
@@ -238,8 +238,8 @@ def test_temperature_injector_is_linear_in_its_column():
 
 
 def test_temperature_column_round_trip_and_bad_values(tmp_path):
-    from ftcal_nlp.data import read_dataset, read_robot, recording_from_frame, recording_to_frame
-    from ftcal_nlp.errors import DataFormatError
+    from ftcal_nlp.core.data import read_dataset, read_robot, recording_from_frame, recording_to_frame
+    from ftcal_nlp.core.errors import DataFormatError
     from ftcal_nlp.sim.free.writer import write_free_load
 
     sim = simulate(effects=(EFFECTS["temperature"].injector(scale=0.05),))
@@ -436,7 +436,7 @@ def test_inertial_load_face_recovers_the_payloads_inertia():
 
 
 def test_inertial_load_point_mass_face_on_a_urdf_leg():
-    from ftcal_nlp.kinematics import load_tree
+    from ftcal_nlp.core.kinematics import load_tree
     from ftcal_nlp.loads import UrdfSubtree
 
     unit = EFFECTS["inertial_load"]
@@ -467,8 +467,8 @@ def test_inertial_load_point_mass_face_on_a_urdf_leg():
 
 
 def test_hexapod_simulator_takes_the_sensor_effects_and_refuses_the_free_load_ones(tmp_path):
-    from ftcal_nlp.data import read_dataset
-    from ftcal_nlp.errors import ConfigError
+    from ftcal_nlp.core.data import read_dataset
+    from ftcal_nlp.core.errors import ConfigError
     from ftcal_nlp.sim import SimConfig, simulate as simulate_hexapod
     from ftcal_nlp.sim.writer import write_simulation
 

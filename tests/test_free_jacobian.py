@@ -7,12 +7,12 @@ diagnosis' face of it (``model_face``, channel blocks) keeps every column the di
 import numpy as np
 import pytest
 
-from ftcal_nlp.data import read_dataset
+from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.diagnose.free_model import context_for, model_face, model_jacobian
-from ftcal_nlp.freeload import fit_free_loads
-from ftcal_nlp.freeload.problem import predict, tilt_gravity
-from ftcal_nlp.geometry import rotvec_to_rotation
-from ftcal_nlp.settings import FreeLoadSettings
+from ftcal_nlp.estimate.freeload import fit_free_loads
+from ftcal_nlp.estimate.freeload.problem import predict, tilt_gravity
+from ftcal_nlp.core.geometry import rotvec_to_rotation
+from ftcal_nlp.core.settings import FreeLoadSettings
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 
 

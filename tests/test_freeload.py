@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.freeload import fit_free_load
-from ftcal_nlp.freeload.problem import compress, predict
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import DataFormatError
+from ftcal_nlp.estimate.freeload import fit_free_load
+from ftcal_nlp.estimate.freeload.problem import compress, predict
 from ftcal_nlp.loads import LOADS, RigidPayload, UrdfSubtree, load_for, resolve
 from ftcal_nlp.run import main as run_main
-from ftcal_nlp.settings import FreeLoadSettings
+from ftcal_nlp.core.settings import FreeLoadSettings
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
 SHARED = Path("/work/shared")
@@ -125,7 +125,7 @@ def test_simulated_payload_recovers_truth(seed, tmp_path) -> None:
     res = simulate_payload(PayloadConfig(seed=seed, n_orientations=10, hold_s=6.0, move_s=3.0, mount_rot_deg=2.0))
     ds = read_dataset(write_free_load(res, tmp_path))
     _payload_checks(fit_free_load(ds, res.truth["transducer"]), res.truth)
-    from ftcal_nlp.freeload.quasistatic import select_quasi_static
+    from ftcal_nlp.estimate.freeload.quasistatic import select_quasi_static
 
     rec = ds.hanging[0]
     mask = select_quasi_static(rec.t, rec.wrench["wrist"][:, :3], rec.quat, rec.gravity, {}, FreeLoadSettings()).mask
@@ -152,7 +152,7 @@ def test_quasi_static_thresholds_rise_with_the_noise(tmp_path) -> None:
     assert sel["thresholds"]["force_N_s"] > FreeLoadSettings().deriv_threshold_N_s
     assert sel["thresholds"]["rotation_rad_s"] > FreeLoadSettings().rotation_rate_threshold_rad_s
     assert sel["kept"] > 0.7 * res.held.sum()
-    from ftcal_nlp.freeload.quasistatic import select_quasi_static
+    from ftcal_nlp.estimate.freeload.quasistatic import select_quasi_static
 
     rec = ds.hanging[0]
     mask = select_quasi_static(rec.t, rec.wrench["wrist"][:, :3], rec.quat, rec.gravity, {}, FreeLoadSettings()).mask
@@ -285,8 +285,8 @@ def test_compression_is_exact() -> None:
     K = rng.normal(size=(n, 3, p))
     y = rng.normal(size=(n, 6))
     theta, w_o = rng.normal(size=p), rng.normal(size=6)
-    from ftcal_nlp.geometry import rotvec_to_rotation
-    from ftcal_nlp.freeload.nlp import nlp_for
+    from ftcal_nlp.core.geometry import rotvec_to_rotation
+    from ftcal_nlp.estimate.freeload.nlp import nlp_for
 
     mu = rng.normal(size=p)
     E = rotvec_to_rotation(np.array([0.1, -0.2, 0.05]))
@@ -330,7 +330,7 @@ def test_command_line_writes_the_load_keys(tmp_path, capsys) -> None:
     for key in ("offset", "offset_se", "load_mass_kg", "load_mass_se_kg", "load_com_m", "load_com_se_m"):
         assert key in leg, key
     assert "leg_com_grid" not in leg and d["model"] == "free_load"
-    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.core.calibration import Calibration
 
     cal = Calibration.load(tmp_path / "out" / "calibration.json")
     np.testing.assert_allclose(cal.legs["wrist"].offset, leg["offset"])
@@ -383,8 +383,8 @@ def test_hexapod_hanging_gravity_body_from_orientation_columns(tmp_path) -> None
     import tomli_w
     from conftest import require_sample
 
-    from ftcal_nlp.data import hanging_pairs, read_table
-    from ftcal_nlp.geometry import rotation_between, rotation_to_quat
+    from ftcal_nlp.core.data import hanging_pairs, read_table
+    from ftcal_nlp.core.geometry import rotation_between, rotation_to_quat
 
     src = require_sample()
     man = tomllib.loads((src / "dataset.toml").read_text())
@@ -472,7 +472,7 @@ def test_results_protocol_through_calibrate() -> None:
     """``calibrate`` on a section-5 dataset: the run's params / bse / cov_params / conf_int / summary cover the free
     loads; undetermined parameters have inf se and NaN covariance rows; the standing stages are absent."""
     from ftcal_nlp.pipeline import calibrate
-    from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+    from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings
 
     ds = read_dataset(SHARED / "sample_urdf" / "dataset.toml")
     run = calibrate(ds, CalibrationSettings(diagnose=DiagnoseSettings(enabled=False)))

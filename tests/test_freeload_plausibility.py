@@ -14,19 +14,19 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.data import read_dataset, read_robot, write_robot
-from ftcal_nlp.errors import DataFormatError, ImplausibleLoadFit
-from ftcal_nlp.freeload.plausibility import (
+from ftcal_nlp.core.data import read_dataset, read_robot, write_robot
+from ftcal_nlp.core.errors import DataFormatError, ImplausibleLoadFit
+from ftcal_nlp.estimate.freeload.plausibility import (
     MIN_FORCE_NOISE_N,
     QUAT_ORDER_RATIO,
     gravity_fit,
     load_fit,
     rotation_angle_deg,
 )
-from ftcal_nlp.geometry import rotvec_to_rotation
+from ftcal_nlp.core.geometry import rotvec_to_rotation
 from ftcal_nlp.pipeline import calibrate
 from ftcal_nlp.run import main as run_main
-from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings
 from ftcal_nlp.sim.free import (
     PayloadConfig,
     UrdfLegConfig,
@@ -236,8 +236,8 @@ def test_the_command_line_prints_one_error_and_exits_2(payload, tmp_path, capsys
 def test_a_failed_fit_names_the_cause_that_fixes_the_load(payload, tmp_path, monkeypatch) -> None:
     """IPOPT lost on data off by a convention the checks before the fit cannot tell (here a mount 90 deg off the
     nominal): the solver's failure comes with the cause whose linear refit makes the load plausible."""
-    from ftcal_nlp import freeload
-    from ftcal_nlp.errors import SolverError
+    from ftcal_nlp.estimate import freeload
+    from ftcal_nlp.core.errors import SolverError
 
     d = _write(payload, tmp_path / "d").parent
     robot = read_robot(d / "robot.toml")

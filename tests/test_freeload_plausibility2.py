@@ -13,10 +13,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.data import read_dataset, read_robot, write_robot
+from ftcal_nlp.core.data import read_dataset, read_robot, write_robot
 from ftcal_nlp.effects import EFFECTS, applies_to
-from ftcal_nlp.errors import DataFormatError, ImplausibleLoadFit
-from ftcal_nlp.freeload.plausibility import (
+from ftcal_nlp.core.errors import DataFormatError, ImplausibleLoadFit
+from ftcal_nlp.estimate.freeload.plausibility import (
     check_pose_list_clock,
     describe_columns,
     gravity_fit,
@@ -26,10 +26,10 @@ from ftcal_nlp.freeload.plausibility import (
     negative_groups,
     signed_permutation_near,
 )
-from ftcal_nlp.geometry import quat_to_rotation
+from ftcal_nlp.core.geometry import quat_to_rotation
 from ftcal_nlp.loads import RigidPayload
 from ftcal_nlp.pipeline import _free_load_samples, calibrate
-from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 
 SHARED = Path("/work/shared")
@@ -200,8 +200,8 @@ def test_payload_forces_in_mN_are_named(payload, tmp_path) -> None:
 
 
 def test_torques_in_kNm_are_named_after_a_failed_fit(payload, tmp_path, monkeypatch) -> None:
-    from ftcal_nlp import freeload
-    from ftcal_nlp.errors import SolverError
+    from ftcal_nlp.estimate import freeload
+    from ftcal_nlp.core.errors import SolverError
 
     def lost(*_a, **_k):
         raise SolverError("IPOPT did not converge", status="Search_Direction_Becomes_Too_Small")

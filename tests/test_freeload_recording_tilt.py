@@ -21,14 +21,14 @@ import numpy as np
 import pandas as pd
 import tomli_w
 
-from ftcal_nlp.loads.calibrated import payload_from_fit
-from ftcal_nlp.data import read_dataset
+from ftcal_nlp.correct.calibrated import payload_from_fit
+from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.diagnose.free_model import context_for, model_jacobian
-from ftcal_nlp.freeload import fit_free_load, fit_free_loads
-from ftcal_nlp.freeload.problem import gravity_frame, predict, tilt_gravity
-from ftcal_nlp.geometry import rotation_to_quat, rotvec_to_rotation
+from ftcal_nlp.estimate.freeload import fit_free_load, fit_free_loads
+from ftcal_nlp.estimate.freeload.problem import gravity_frame, predict, tilt_gravity
+from ftcal_nlp.core.geometry import rotation_to_quat, rotvec_to_rotation
 from ftcal_nlp.plan.free_load import plan_from_dataset
-from ftcal_nlp.settings import FreeLoadSettings
+from ftcal_nlp.core.settings import FreeLoadSettings
 
 Z = 4.0
 G = 9.81
@@ -209,7 +209,7 @@ def test_the_jacobian_has_the_recording_tilts(tmp_path) -> None:
 def test_a_bad_recording_tilt_setting_names_its_key() -> None:
     import pytest
 
-    from ftcal_nlp.errors import ConfigError
+    from ftcal_nlp.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="recording_tilt") as exc:
         FreeLoadSettings(recording_tilt="maybe")

@@ -13,10 +13,10 @@ import pytest
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.freeload import fit_free_load
-from ftcal_nlp.freeload.problem import compress_tilted, predict, tilt_gravity
-from ftcal_nlp.settings import FreeLoadSettings
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.estimate.freeload import fit_free_load
+from ftcal_nlp.estimate.freeload.problem import compress_tilted, predict, tilt_gravity
+from ftcal_nlp.core.settings import FreeLoadSettings
 from ftcal_nlp.sim.free import PayloadConfig, simulate_payload, write_free_load
 
 Z = 4.0
@@ -71,8 +71,8 @@ def test_tilted_compression_is_exact() -> None:
     K = rng.normal(size=(n, 3, p))
     y = rng.normal(size=(n, 6))
     theta, w_o, mu, tilt = rng.normal(size=p), rng.normal(size=6), rng.normal(size=p), np.array([0.02, -0.01])
-    from ftcal_nlp.freeload.nlp import nlp_for
-    from ftcal_nlp.geometry import rotvec_to_rotation
+    from ftcal_nlp.estimate.freeload.nlp import nlp_for
+    from ftcal_nlp.core.geometry import rotvec_to_rotation
 
     E = rotvec_to_rotation(np.array([0.1, -0.2, 0.05]))
     mom = compress_tilted(y, a, K, chunk=128)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from ftcal_nlp import geometry as G
+from ftcal_nlp.core import geometry as G
 
 finite = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
 vec3 = arrays(np.float64, 3, elements=finite)

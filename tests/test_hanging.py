@@ -9,23 +9,23 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.data import Recording, read_dataset
-from ftcal_nlp.geometry import is_rotation, rotation_to_rotvec, rotvec_to_rotation, skew
-from ftcal_nlp.hanging import (
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.core.data import Recording, read_dataset
+from ftcal_nlp.core.geometry import is_rotation, rotation_to_rotvec, rotvec_to_rotation, skew
+from ftcal_nlp.estimate.hanging import (
     HangingDataError,
     HangingResult,
     HangingSolveError,
     fit_hanging,
     hanging_residuals,
 )
-from ftcal_nlp.hanging import nlp as nlp_module
-from ftcal_nlp.hanging.baseline import kalman_smoother_random_walk
-from ftcal_nlp.hanging.binning import compress_recording, interp_matrix, periodic_grid
-from ftcal_nlp.hanging.com_qp import ComQP, prior, solve_closed_form, torque_design, penalty
-from ftcal_nlp.hanging.model import LegState, pseudo_residuals, pseudo_residuals_sx
-from ftcal_nlp.hanging.problem import build_leg_problem, check_recordings
-from ftcal_nlp.robot import Robot, Transducer
+from ftcal_nlp.estimate.hanging import nlp as nlp_module
+from ftcal_nlp.estimate.hanging.baseline import kalman_smoother_random_walk
+from ftcal_nlp.estimate.hanging.binning import compress_recording, interp_matrix, periodic_grid
+from ftcal_nlp.estimate.hanging.com_qp import ComQP, prior, solve_closed_form, torque_design, penalty
+from ftcal_nlp.estimate.hanging.model import LegState, pseudo_residuals, pseudo_residuals_sx
+from ftcal_nlp.estimate.hanging.problem import build_leg_problem, check_recordings
+from ftcal_nlp.core.robot import Robot, Transducer
 from ftcal_nlp.sim import SimConfig, simulate
 
 from conftest import SAMPLE, require_sample, requires_sample
@@ -406,7 +406,7 @@ def test_ipopt_failure_is_reported(tiny, monkeypatch):
 def test_no_smoothing_is_allowed():
     """smoothing=0 (no penalty) is a valid setting: the fit runs and still recovers the weights."""
     from conftest import SAMPLE
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
 
     ds = read_dataset(SAMPLE / "dataset.toml", kinds=["hanging"])
     truth = Calibration.load(SAMPLE / "truth.json", g=9.81)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from ftcal_nlp.diagnose.hexchain import paired_z
-from ftcal_nlp.settings import HexapodChain
+from ftcal_nlp.core.settings import HexapodChain
 
 HEX = HexapodChain()   # the hexapod chain's thresholds (DiagnoseSettings.hexapod)
 Z_MIN = HEX.z_min
@@ -192,7 +192,7 @@ def test_the_stated_test_and_the_joint_check():
     from types import SimpleNamespace
 
     from ftcal_nlp.diagnose.hexchain import JOINT_MIN, gap_left, joint_better, kind_threshold, passes
-    from ftcal_nlp.diagnose.joint import KindRefit
+    from ftcal_nlp.diagnose.refit import KindRefit
 
     rng = np.random.default_rng(6)
     b0 = rng.chisquare(6, 100) * 3.0
@@ -263,7 +263,7 @@ def _refit(blocks: dict, n_par: int):
     """A joint refit's stand-in: per kind the held-out blocks (floor units, 6 components each) and the RMS they make."""
     from types import SimpleNamespace
 
-    from ftcal_nlp.diagnose.joint import KindRefit
+    from ftcal_nlp.diagnose.refit import KindRefit
 
     fl = np.full(6, 0.1)
     kinds = {k: KindRefit(k, fl, fl * np.sqrt(np.mean(b) / 6.0), fl, len(b), np.asarray(b, float)) for k, b in blocks.items()}
@@ -350,8 +350,8 @@ def test_the_rebuild_after_a_swap_reuses_refits_and_reports_a_failed_one(monkeyp
     from types import SimpleNamespace
 
     from ftcal_nlp.diagnose import hexchain as H
-    from ftcal_nlp.diagnose.joint import KindRefit
-    from ftcal_nlp.solver import SolverError
+    from ftcal_nlp.diagnose.refit import KindRefit
+    from ftcal_nlp.core.solver import SolverError
 
     a, b, c = EFFECTS["hysteresis"], EFFECTS["robot_mass"], EFFECTS["offset_drift"]
     fl = np.full(6, 0.1)

@@ -11,8 +11,8 @@ import pytest
 import tomli_w
 
 from ftcal_nlp.config import load_config
-from ftcal_nlp.errors import ConfigError, DataFormatError
-from ftcal_nlp.freeload.holdout import REGION_CENTRES, REGION_NAMES, holdout, region_index, rms_band, LegSamples
+from ftcal_nlp.core.errors import ConfigError, DataFormatError
+from ftcal_nlp.estimate.freeload.holdout import REGION_CENTRES, REGION_NAMES, holdout, region_index, rms_band, LegSamples
 from ftcal_nlp.holdout import main as holdout_main, validate
 from ftcal_nlp.run import main as run_main
 from ftcal_nlp.sim.free import PayloadConfig, gravity_in_ft, simulate_payload, true_rotation, write_free_load
@@ -146,7 +146,7 @@ def test_bad_input(sessions, tmp_path, capsys) -> None:
 
     import json
 
-    from ftcal_nlp.calibration import Calibration
+    from ftcal_nlp.core.calibration import Calibration
 
     hexa = tmp_path / "hexa.json"
     Calibration.from_json_dict(json.loads((require_sample() / "truth.json").read_text()), mass_kg=8.18, g=9.81).save(hexa)
@@ -191,7 +191,7 @@ def test_own_recording_is_said_and_hexapod_dataset_refused(sessions, caplog) -> 
     from conftest import require_sample
 
     from ftcal_nlp.config import HoldoutSettings
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
     from ftcal_nlp.holdout import check_run_holdout
 
     d, _, _ = sessions

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from ftcal_nlp import CalibrationSettings, calibrate
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.correct import correct_recording
-from ftcal_nlp.data import WRENCH_COMPONENTS
+from ftcal_nlp.core.data import WRENCH_COMPONENTS
 from ftcal_nlp.effects.correction import apply_effect
-from ftcal_nlp.geometry import cayley, rotvec_to_rotation
+from ftcal_nlp.core.geometry import cayley, rotvec_to_rotation
 from ftcal_nlp.sim import SimConfig, simulate
 
 SMALL = {"n_poses": 120, "hanging_cycles": 2.0, "walk_cycles": 2.0, "seed": 11}
@@ -143,9 +143,9 @@ def test_joint_hanging_fit_recovers_leg_weights_under_a_warm_up():
     bring every leg weight back to truth. Tolerance: 0.015 N, what a warm-up curve 40 % off in its time
     constant leaves (the weights' own se is ~0.001 N); and at least 10x smaller than the bias."""
     from ftcal_nlp.effects.offset_drift import OffsetDrift
-    from ftcal_nlp.diagnose.joint import hanging_joint
+    from ftcal_nlp.diagnose.refit import hanging_joint
     from ftcal_nlp.diagnose.views import hanging_series
-    from ftcal_nlp.hanging import fit_hanging
+    from ftcal_nlp.estimate.hanging import fit_hanging
 
     sim = simulate(SimConfig.from_dict({"n_poses": 30, "hanging_cycles": 1.0, "walk_cycles": 0.0, "seed": 5,
                                         "effects": [{"name": "offset_drift_fast", "scale": 4.0, "seed": 5}]}))

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.linalg import null_space
 
-from ftcal_nlp.errors import ConfigError
+from ftcal_nlp.core.errors import ConfigError
 from ftcal_nlp.models import MODELS, REPORT_CANDIDATES, ErrorModel, ModelContext, resolve, so3_variable
-from ftcal_nlp.standing import fit_standing
-from ftcal_nlp.standing.result import physical
+from ftcal_nlp.estimate.standing import fit_standing
+from ftcal_nlp.estimate.standing.result import physical
 
 from test_standing import SAMPLE_ROBOT, hanging_prior, make_poses, noise_floor_rss, rotation_errors, true_calibration
 
@@ -116,7 +116,7 @@ def test_custom_models_recover_their_own_truth(cls):
     if cls == "YawOnly":  # a truth this model can represent: per-leg turns about body z
         from dataclasses import replace
 
-        from ftcal_nlp.geometry import rotvec_to_rotation
+        from ftcal_nlp.core.geometry import rotvec_to_rotation
 
         yaw = rotvec_to_rotation(np.column_stack([np.zeros((6, 2)), rng.normal(scale=0.03, size=6)]))
         truth = replace(truth, legs={k: replace(l, rotation_to_body=yaw[i] @ SAMPLE_ROBOT.nominal_rotations()[i])

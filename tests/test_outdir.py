@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 
 import ftcal_nlp.run as run_mod
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.config import load_config
-from ftcal_nlp.errors import OutputError
-from ftcal_nlp.outdir import MANIFEST, OutputExistsError, OutputFolder, inventory, write_manifest
+from ftcal_nlp.core.errors import OutputError
+from ftcal_nlp.core.outdir import MANIFEST, OutputExistsError, OutputFolder, inventory, write_manifest
 
 from conftest import require_sample
 

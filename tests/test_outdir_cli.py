@@ -16,7 +16,7 @@ import pytest
 
 import ftcal_nlp.run as run_mod
 from ftcal_nlp import cli
-from ftcal_nlp.outdir import MANIFEST, ForeignContentError, OutputFolder, check_apart
+from ftcal_nlp.core.outdir import MANIFEST, ForeignContentError, OutputFolder, check_apart
 from ftcal_nlp.sim import simulate_to_folder
 
 ROOT = Path(__file__).resolve().parents[1]

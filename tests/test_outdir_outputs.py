@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from ftcal_nlp import cli
-from ftcal_nlp.outdir import MANIFEST
+from ftcal_nlp.core.outdir import MANIFEST
 from ftcal_nlp.sim import simulate_to_folder
 
 PAYLOAD = {"kind": "payload", "n_orientations": 8, "hold_s": 2.0, "seed": 1}

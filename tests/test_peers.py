@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
-from ftcal_nlp.peers import calib_force, ft_calib
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.bench.peers import calib_force, ft_calib
 from ftcal_nlp.sim.free import PayloadConfig, gravity_in_ft, payload_readings, simulate_payload
 from ftcal_nlp.sim.free.simulate import rpy_to_rotation
 

@@ -29,8 +29,8 @@ from ftcal_nlp.diagnose.perleg import (
     perleg_checks,
     swing_check,
 )
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
-from ftcal_nlp.physics import gravity_dir_in_ft, leg_gravity_wrench
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.core.physics import gravity_dir_in_ft, leg_gravity_wrench
 from ftcal_nlp.sim import SimConfig, simulate
 
 SMALL = dict(n_poses=120, hanging_cycles=2.0, walk_cycles=1.0)

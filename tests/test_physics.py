@@ -23,10 +23,10 @@ import pandas as pd
 import pytest
 from scipy.stats import norm
 
-from ftcal_nlp import physics
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.geometry import quat_to_rotation, remove_yaw, skew
+from ftcal_nlp.core import physics
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.geometry import quat_to_rotation, remove_yaw, skew
 from ftcal_nlp.sim import SimConfig, simulate
 
 from conftest import SAMPLE, constant_phi_windows, require_sample

@@ -9,8 +9,8 @@ import pytest
 
 from ftcal_nlp import CalibrationRun, CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings, calibrate
 from ftcal_nlp.calibration_run import JointCovariance
-from ftcal_nlp.geometry import rotation_to_rotvec
-from ftcal_nlp.results import Summary, bic, fmt_pm
+from ftcal_nlp.core.geometry import rotation_to_rotvec
+from ftcal_nlp.core.results import Summary, bic, fmt_pm
 from ftcal_nlp.sim import SimConfig, simulate
 
 FAST = CalibrationSettings(hanging=HangingSettings(compare_baseline=False),
@@ -126,7 +126,7 @@ def test_settings_errors_name_the_field():
         HangingSettings(method="qp")
     with pytest.raises(ValueError, match=r"needs solver 'ipopt'"):
         StandingSettings(solver="baseline")
-    from ftcal_nlp.hanging import fit_hanging
+    from ftcal_nlp.estimate.hanging import fit_hanging
 
     with pytest.raises(TypeError, match=r"unknown setting\(s\) \['methd'\]"):
         fit_hanging([], None, methd="nlp")

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from ftcal_nlp import plan as plan_cli
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.freeload import fit_free_load
-from ftcal_nlp.geometry import rotation_to_quat
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.estimate.freeload import fit_free_load
+from ftcal_nlp.core.geometry import rotation_to_quat
 from ftcal_nlp.plan.free_load import plan_from_protocol
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg, write_free_load
 
@@ -124,7 +124,7 @@ def test_plan_of_a_urdf_leg_dataset_names_what_the_fit_names(tmp_path) -> None:
     ({"kind": "urdf", "holds": []}, r"key 'robot' missing: the robot.toml"),
 ])
 def test_protocol_errors_name_the_key(table, pattern, tmp_path) -> None:
-    from ftcal_nlp.errors import ConfigError
+    from ftcal_nlp.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=pattern):
         plan_from_protocol(table, Path(tmp_path / "p.toml"))

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import ConfigError, DataFormatError, ImplausibleLoadFit
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import ConfigError, DataFormatError, ImplausibleLoadFit
 from ftcal_nlp.plan.free_load import plan_from_dataset, plan_from_robot
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from ftcal_nlp import plan as plan_cli
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import ConfigError
-from ftcal_nlp.freeload import fit_free_load
-from ftcal_nlp.geometry import rotation_to_quat
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import ConfigError
+from ftcal_nlp.estimate.freeload import fit_free_load
+from ftcal_nlp.core.geometry import rotation_to_quat
 from test_plan_loads import fitted_payload
 from ftcal_nlp.plan.free_load import FreeLoadPlan, plan_from_dataset, plan_from_robot
 from ftcal_nlp.sim.free import (
@@ -173,7 +173,7 @@ def test_pilot_with_serially_correlated_noise_carries_the_runs_widening(tmp_path
     """A pilot whose noise is AR(1) (rho 0.9: a reading that stays through a hold): the run's se are widened
     (x~4); the plan's are within 25 % of them, and say so."""
     from ftcal_nlp.pipeline import calibrate
-    from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings
+    from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings
 
     res = simulate_payload(PayloadConfig(seed=11, n_orientations=8, hold_s=6.0, move_s=3.0, noise_force_N=0.0,
                                          noise_torque_Nm=0.0))
@@ -198,7 +198,7 @@ def test_arm_without_the_tool_in_its_urdf_is_a_payload_through_the_joints(tmp_pa
     orientations in W. (The reader refuses such a link today, issue 32: let it through here.)"""
     import re
 
-    from ftcal_nlp import data
+    from ftcal_nlp.core import data
     from ftcal_nlp.sim.free.config import LEG4_URDF
 
     monkeypatch.setattr(data, "_transducer_link", lambda link, tree, where: link)
@@ -219,7 +219,7 @@ def test_arm_without_the_tool_in_its_urdf_is_a_payload_through_the_joints(tmp_pa
     arm = plan_from_robot({**load, "holds": holds}, tmp_path / "h.toml", tmp_path / "arm.toml").loads["wrist"]
     assert arm.kind == "rigid_payload" and any("no link with mass below 'r_leg_ft'" in n for n in arm.notes)
     tree = data.read_robot(tmp_path / "arm.toml").tree
-    from ftcal_nlp.geometry import quat_to_rotation
+    from ftcal_nlp.core.geometry import quat_to_rotation
 
     R_W_ft = quat_to_rotation(quat) @ tree.pose(tree.root, "r_leg_ft", q, 8)[0]
     plain = plan_from_robot({**load, "orientations": rotation_to_quat(R_W_ft).tolist()}, tmp_path / "h.toml",

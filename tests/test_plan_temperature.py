@@ -121,7 +121,7 @@ def test_constant_temperature_column_is_named_at_run_time(tmp_path, caplog, caps
         json.loads((tmp_path / "out" / "calibration_with_effect.json").read_text())["meta"]["effect"])
     assert diag is not None
     # plan on it as a pilot: the same warning, and the coefficients not determined with the range a ramp would need
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
     from ftcal_nlp.plan.free_load import plan_from_dataset
 
     caplog.clear()
@@ -144,7 +144,7 @@ def test_constant_temperature_column_is_named_at_run_time(tmp_path, caplog, caps
 def test_check_temperature_varies_on_recordings():
     from types import SimpleNamespace
 
-    from ftcal_nlp.freeload.plausibility import check_temperature_varies
+    from ftcal_nlp.estimate.freeload.plausibility import check_temperature_varies
 
     rec = lambda name, T: SimpleNamespace(name=name, temperature={"wrist": np.asarray(T, float)})  # noqa: E731
     assert check_temperature_varies([rec("a", np.linspace(20, 21, 50))], "wrist") is None

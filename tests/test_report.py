@@ -19,8 +19,8 @@ from ftcal_nlp import calibrate
 from ftcal_nlp.report import build_sections, legs_as_columns, write_report
 from ftcal_nlp.report.diagnosis import diagnosis_section
 from ftcal_nlp.report.render import Table, inline_html, inline_md
-from ftcal_nlp.results import Summary
-from ftcal_nlp.settings import CalibrationSettings, DiagnoseSettings, SelectionSettings
+from ftcal_nlp.core.results import Summary
+from ftcal_nlp.core.settings import CalibrationSettings, DiagnoseSettings, SelectionSettings
 from ftcal_nlp.sim import SimConfig, simulate
 
 PACKAGE = Path(__file__).resolve().parents[1] / "ftcal_nlp"

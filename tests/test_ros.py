@@ -23,7 +23,7 @@ import pytest
 import tomli_w
 from scipy.spatial.transform import Rotation, Slerp
 
-from ftcal_nlp.data import DataFormatError, read_dataset, read_recording, read_robot
+from ftcal_nlp.core.data import DataFormatError, read_dataset, read_recording, read_robot
 from ftcal_nlp.ros import bagio
 from ftcal_nlp.ros.clock import interp_linear, match_nearest, slerp_quat
 from ftcal_nlp.ros.cli import main as cli_main

@@ -17,8 +17,8 @@ import pandas as pd
 import pytest
 import tomli_w
 
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import DataFormatError
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import DataFormatError
 from ftcal_nlp.ros import bagio
 from ftcal_nlp.ros.arm import read_arm_map
 from ftcal_nlp.ros.cli import main as cli_main

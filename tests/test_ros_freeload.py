@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import tomli_w
 
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import DataFormatError
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
 from ftcal_nlp.ros import ingest, read_map, write_ingested
 from ftcal_nlp.ros.simbag import write_free_session
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_payload, simulate_urdf_leg
@@ -27,7 +27,7 @@ def payload():
 
 
 def _frame(result):
-    from ftcal_nlp.data import recording_to_frame
+    from ftcal_nlp.core.data import recording_to_frame
 
     rec = result.dataset.recordings[0]
     return recording_to_frame(rec, result.dataset.robot.legs)

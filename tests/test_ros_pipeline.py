@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import tomli_w
 
-from ftcal_nlp.data import read_dataset
+from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.ros import bagio
 from ftcal_nlp.ros.ingest import ingest, write_ingested
 from ftcal_nlp.ros.simbag import bag_name, recording_series, session_map, stamps_ns
@@ -133,7 +133,7 @@ def test_recordings_match_the_csvs_within_interpolation_error(session):
 
 
 def _hanging(ds):
-    from ftcal_nlp.hanging import fit_hanging
+    from ftcal_nlp.estimate.hanging import fit_hanging
 
     return fit_hanging(ds.hanging, ds.robot)
 
@@ -162,7 +162,7 @@ def test_hanging_calibration_matches_the_csv_one_within_its_standard_errors(cali
 
 
 def test_standing_calibration_matches_the_csv_one_within_its_standard_errors(session, calibrations):
-    from ftcal_nlp.standing import extract_poses, fit_standing
+    from ftcal_nlp.estimate.standing import extract_poses, fit_standing
 
     fits = []
     for ds, h in zip((session["csv"], session["ing"]), calibrations):

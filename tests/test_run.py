@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.config import load_config
-from ftcal_nlp.geometry import rotation_to_rotvec
+from ftcal_nlp.core.geometry import rotation_to_rotvec
 from ftcal_nlp.run import OutputExistsError, main, run
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ftcal_nlp.config import load_config
-from ftcal_nlp.errors import ConfigError, DataFormatError
+from ftcal_nlp.core.errors import ConfigError, DataFormatError
 from ftcal_nlp.sim.free import config_from_dict, simulate_free
 from ftcal_nlp.truth import LoadTruth, free_load_kind, load_truth, load_truth_from_dict
 

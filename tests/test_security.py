@@ -8,8 +8,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from ftcal_nlp.calibration import Calibration, ModelName
-from ftcal_nlp.errors import ConfigError
+from ftcal_nlp.core.calibration import Calibration, ModelName
+from ftcal_nlp.core.errors import ConfigError
 from ftcal_nlp.models import resolve
 from ftcal_nlp.report.render import Code, Figure, Section, Table, Text, render_html, render_markdown
 

@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 
 from ftcal_nlp.models import ErrorModel, make_spec, vector_variable
-from ftcal_nlp.selection import TABLE_COLUMNS, fold_indices, select_models
-from ftcal_nlp.standing import SolverError
+from ftcal_nlp.estimate.selection import TABLE_COLUMNS, fold_indices, select_models
+from ftcal_nlp.estimate.standing import SolverError
 
 from test_standing import SAMPLE_ROBOT, hanging_prior, make_poses, noise_floor_rss, sample_session, scenario, true_calibration
 

@@ -1,4 +1,4 @@
-"""The sensor's own matrix refitted in situ on a free load (issue 33; ``ftcal_nlp/freeload/sensor_matrix.py``).
+"""The sensor's own matrix refitted in situ on a free load (issue 33; ``ftcal_nlp/estimate/freeload/sensor_matrix.py``).
 
 Simulated payloads and URDF legs whose raw readings are ``A`` times the readings of a sensor with the factory
 calibration (``A = I + E``, ``E`` ~ N(0, 2 %) on the force block, seeds explicit): the true correction is
@@ -18,14 +18,14 @@ import logging
 import numpy as np
 import pytest
 
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.config import load_config
-from ftcal_nlp.data import read_dataset
-from ftcal_nlp.errors import ConfigError
-from ftcal_nlp.freeload import fit_free_load, fit_free_loads, free_load_calibration
-from ftcal_nlp.freeload.sensor_matrix import (apply_sensor_matrix, block_values, sensor_matrix_of, table_text,
+from ftcal_nlp.core.data import read_dataset
+from ftcal_nlp.core.errors import ConfigError
+from ftcal_nlp.estimate.freeload import fit_free_load, fit_free_loads, free_load_calibration
+from ftcal_nlp.estimate.freeload.sensor_matrix import (apply_sensor_matrix, block_values, sensor_matrix_of, table_text,
                                               validate_across_sessions)
-from ftcal_nlp.settings import FreeLoadSettings
+from ftcal_nlp.core.settings import FreeLoadSettings
 from ftcal_nlp.sim.free import PayloadConfig, UrdfLegConfig, simulate_free, write_free_load
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")

@@ -16,7 +16,7 @@ from typing import Iterator, get_type_hints
 
 from ftcal_nlp.config import load_config
 from ftcal_nlp.run import run
-from ftcal_nlp.settings import CalibrationSettings, OffsetsOnlySettings
+from ftcal_nlp.core.settings import CalibrationSettings, OffsetsOnlySettings
 
 # whose reads do not count: the settings' own checks, the config's mapping, generated dataclass methods
 _NOT_A_USE = ("settings.py", "config.py", "dataclasses.py", "<string>")

@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ftcal_nlp.calibration import Calibration
-from ftcal_nlp.data import hanging_pairs, read_dataset
+from ftcal_nlp.core.calibration import Calibration
+from ftcal_nlp.core.data import hanging_pairs, read_dataset
 from ftcal_nlp.sim import EFFECTS, NoEffect, SimConfig, draw_true_robot, simulate, write_simulation
 from ftcal_nlp.sim.recordings import pose_grid, solve_poses, transition_profile
 
@@ -311,7 +311,7 @@ def test_walk_truth(res):
     walk = res.dataset.walking[0]
     phi = walk.phi_array(legs)
     lift = tr.toe_height(phi)
-    from ftcal_nlp.geometry import quat_to_rotation
+    from ftcal_nlp.core.geometry import quat_to_rotation
 
     ok = np.isfinite(walk.quat[:, 0])
     tilt = np.arccos(quat_to_rotation(walk.quat[ok])[:, 2, 2]).max()
@@ -326,7 +326,7 @@ def test_walk_truth(res):
     # both tripods take turns
     assert loaded[:, [0, 2, 4]].all(1).any() and loaded[:, [1, 3, 5]].all(1).any()
     # it turns at the configured rate (the heading of the mocap quaternion)
-    from ftcal_nlp.geometry import quat_to_rotation, yaw_of
+    from ftcal_nlp.core.geometry import quat_to_rotation, yaw_of
 
     q = res.dataset.walking[0].quat
     ok = np.isfinite(q[:, 0])
@@ -396,8 +396,8 @@ def _ground_from_readings(rec, legs, windows, cal, min_rows=100):
     """Per pose (median of its steady rows with motion capture): ground force on each foot in W,
     reading less offset less leg weight turned into W with ``cal``, (P, K, 3); shaft angles (P, K);
     R_WB (P, 3, 3); rows used (P,); index of the window (P,)."""
-    from ftcal_nlp import physics
-    from ftcal_nlp.geometry import quat_to_rotation
+    from ftcal_nlp.core import physics
+    from ftcal_nlp.core.geometry import quat_to_rotation
 
     offsets, weights, rotations, _ = cal.stacked(legs)
     W, PHI = rec.wrench_array(legs), rec.phi_array(legs)
@@ -514,7 +514,7 @@ def test_mocap_error_is_held_through_each_pose():
     measured orientation differs from the error-free one by exactly the pose's held error."""
     base = replace(SMALL, n_poses=20, hanging_cycles=0.1, walk_cycles=0.3, mocap_jitter_deg=0.0,
                    mocap_dropout_rate=0.0, mocap_blip_rate_hz=0.0)
-    from ftcal_nlp.geometry import quat_to_rotation, rotation_to_rotvec
+    from ftcal_nlp.core.geometry import quat_to_rotation, rotation_to_rotvec
 
     clean = simulate(replace(base, mocap_pose_error_deg=0.0))
     held = simulate(base)

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
 from ftcal_nlp.sim.free import (
     LEG4_URDF, PayloadConfig, UrdfLegConfig, config_from_dict, gravity_in_body, gravity_in_ft, load_tree,
     payload_readings, simulate_payload, simulate_to_folder, simulate_urdf_leg, true_rotation, urdf_load_readings,

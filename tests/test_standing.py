@@ -14,14 +14,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ftcal_nlp.calibration import Calibration, LegCalibration
-from ftcal_nlp.data import Recording, read_dataset, read_robot
-from ftcal_nlp.geometry import rotation_to_quat, rotation_to_rotvec, rotvec_to_rotation, yaw_of
-from ftcal_nlp.physics import balance_residual_exact, balance_residual_report, total_com_from_body_com
-from ftcal_nlp.standing import BaselineSettings, PoseExtraction, Poses, SolverError, extract_poses, fit_standing
-from ftcal_nlp.standing.fit import prepare
-from ftcal_nlp.standing.nlp import compile_problem
-from ftcal_nlp.standing.problem import L_casadi, L_numpy, features, moments, residuals_B, to_world
+from ftcal_nlp.core.calibration import Calibration, LegCalibration
+from ftcal_nlp.core.data import Recording, read_dataset, read_robot
+from ftcal_nlp.core.geometry import rotation_to_quat, rotation_to_rotvec, rotvec_to_rotation, yaw_of
+from ftcal_nlp.core.physics import balance_residual_exact, balance_residual_report, total_com_from_body_com
+from ftcal_nlp.estimate.standing import BaselineSettings, PoseExtraction, Poses, SolverError, extract_poses, fit_standing
+from ftcal_nlp.estimate.standing.fit import prepare
+from ftcal_nlp.estimate.standing.nlp import compile_problem
+from ftcal_nlp.estimate.standing.problem import L_casadi, L_numpy, features, moments, residuals_B, to_world
 
 from conftest import HAVE_SAMPLE, SAMPLE, SAMPLE_MISSING
 
@@ -431,7 +431,7 @@ def test_offsets_only_reestimates_the_determined_combinations():
     K = SAMPLE_ROBOT.n_legs
     assert len(res.unidentified) == 6 * K - 6 and np.all(np.isinf(res.offsets_se))
     assert np.allclose(res.rotations, truth.stacked()[2]) and np.allclose(res.p_prime, truth.stacked()[3])
-    from ftcal_nlp.geometry import transform_wrench
+    from ftcal_nlp.core.geometry import transform_wrench
 
     # Ad_k as matrices: the wrench map applied to the unit wrenches
     Ad = np.stack([transform_wrench(R, p, np.eye(6)).T for R, p in zip(truth.stacked()[2], truth.stacked()[3])])
@@ -496,7 +496,7 @@ def sim_session(seed: int = 7, n_poses: int = 150):
 @lru_cache(maxsize=None)
 def sample_session():
     """The sample run from its raw recordings: hanging stage first, then poses."""
-    from ftcal_nlp.hanging import fit_hanging
+    from ftcal_nlp.estimate.hanging import fit_hanging
 
     ds = read_dataset(SAMPLE / "dataset.toml", kinds=["hanging", "standing"])
     prior = fit_hanging(ds.hanging, ds.robot).to_calibration(ds.robot)
@@ -509,7 +509,7 @@ def test_sim_recovery_with_exact_balance():
     (the flat-pose case, where the common turn about z is not, is covered by the synthetic test);
     everything within 3 se, rotations also within 0.1 deg; held-out residual at the noise floor; the
     fixed-CoM variant (eq. 9) leaves a far larger torque residual on the same poses."""
-    from ftcal_nlp.selection import select_models
+    from ftcal_nlp.estimate.selection import select_models
 
     sim, robot, poses = sim_session()
     truth = sim.truth
@@ -593,7 +593,7 @@ def test_fgls_weighting_is_within_3se_and_not_less_precise_than_knorm():
 
 
 def test_fgls_weight_inverts_the_residual_covariance_and_stays_finite():
-    from ftcal_nlp.standing.problem import K_DIAG, fgls_weight
+    from ftcal_nlp.estimate.standing.problem import K_DIAG, fgls_weight
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(6, 6))

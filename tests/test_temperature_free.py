@@ -23,7 +23,7 @@ import tomli_w
 
 from ftcal_nlp.correct import main as correct_main
 from ftcal_nlp.effects.temperature import T_REF_C, TemperatureInjector, temperature_profile
-from ftcal_nlp.kinematics import load_tree
+from ftcal_nlp.core.kinematics import load_tree
 from ftcal_nlp.run import main as run_main
 from ftcal_nlp.sim.free import PayloadConfig, simulate_payload, write_free_load
 
@@ -176,7 +176,7 @@ def test_plan_of_the_calibration_session_predicts_the_coefficients_se(payload):
     those the run's joint refit gives (calibration_with_effect.json). The plan counts the quasi-static samples the
     load fit uses (7 373 of 10 500 here) and widens by their serial correlation; the refit uses every sample: the
     plan is the larger, by ~sqrt(10 500 / 7 373) = 1.19 times its widening (1.05..1.36): measured 1.26..1.79."""
-    from ftcal_nlp.data import read_dataset
+    from ftcal_nlp.core.data import read_dataset
     from ftcal_nlp.plan.free_load import plan_from_dataset
 
     folder, leg, *_ = payload

@@ -12,10 +12,10 @@ import pandas as pd
 import pytest
 
 import ftcal_nlp.run as run_mod
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.correct import correct_file, main as correct_main
-from ftcal_nlp.csvout import write_csv
-from ftcal_nlp.settings import CorrectSettings
+from ftcal_nlp.core.csvout import write_csv
+from ftcal_nlp.core.settings import CorrectSettings
 
 from conftest import require_sample
 

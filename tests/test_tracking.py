@@ -8,12 +8,12 @@ import pandas as pd
 import pytest
 
 from ftcal_nlp import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings, calibrate
-from ftcal_nlp.calibration import Calibration
+from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.config import ConfigError, load_config
-from ftcal_nlp.contact import _hysteresis, detect_contact
+from ftcal_nlp.correct.contact import _hysteresis, detect_contact
 from ftcal_nlp.correct import correct_recording_full, main as correct_main
-from ftcal_nlp.data import recording_to_frame
-from ftcal_nlp.settings import CorrectSettings
+from ftcal_nlp.core.data import recording_to_frame
+from ftcal_nlp.core.settings import CorrectSettings
 from ftcal_nlp.sim import SimConfig, simulate
 from ftcal_nlp.sim.later import simulate_later_walk
 
@@ -139,7 +139,7 @@ def test_a_standing_session_is_refused(tmp_path, capsys):
 
     from conftest import require_sample
     from ftcal_nlp.correct import main as correct_main
-    from ftcal_nlp.csvout import write_csv
+    from ftcal_nlp.core.csvout import write_csv
 
     sample = require_sample()
     d = json.loads((sample / "truth.json").read_text())
@@ -156,9 +156,9 @@ def test_a_standing_session_is_refused(tmp_path, capsys):
 
 
 def test_clock_in_ms_and_no_swing_are_refused():
-    from ftcal_nlp.calibration import Calibration
-    from ftcal_nlp.data import DataFormatError
-    from ftcal_nlp.tracking import track_offsets
+    from ftcal_nlp.core.calibration import Calibration
+    from ftcal_nlp.core.data import DataFormatError
+    from ftcal_nlp.correct.tracking import track_offsets
 
     from conftest import require_sample
 

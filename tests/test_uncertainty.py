@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from ftcal_nlp import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings, calibrate
-from ftcal_nlp.errors import DataFormatError
-from ftcal_nlp.geometry import quat_to_rotation, rotvec_to_rotation
-from ftcal_nlp.physics import ground_wrenches
-from ftcal_nlp.sensor_noise import SensorNoise, estimate_sensor_noise
+from ftcal_nlp.core.errors import DataFormatError
+from ftcal_nlp.core.geometry import quat_to_rotation, rotvec_to_rotation
+from ftcal_nlp.core.physics import ground_wrenches
+from ftcal_nlp.estimate.sensor_noise import SensorNoise, estimate_sensor_noise
 from ftcal_nlp.sim import SimConfig, simulate
-from ftcal_nlp.uncertainty import NQ, CalibrationCovariance, ground_wrench_jacobian, ground_wrench_se
+from ftcal_nlp.estimate.uncertainty import NQ, CalibrationCovariance, ground_wrench_jacobian, ground_wrench_se
 
 FAST = CalibrationSettings(hanging=HangingSettings(compare_baseline=False),
                            standing=StandingSettings(compare_baseline=False, model="full"),

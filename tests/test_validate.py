@@ -25,7 +25,7 @@ from ftcal_nlp.diagnose.validation import (
     sweep_plan,
 )
 from ftcal_nlp.pipeline import calibrate
-from ftcal_nlp.geometry import quat_to_rotation, rotation_to_rotvec
+from ftcal_nlp.core.geometry import quat_to_rotation, rotation_to_rotvec
 from ftcal_nlp.sim import EFFECTS, SimConfig, simulate
 from ftcal_nlp.effects import EFFECTS as LIBRARY, LIBRARY_EFFECTS, applies_to
 from ftcal_nlp.effects.injection import HOUR_S
@@ -350,7 +350,7 @@ def test_a_dataset_rejected_naming_its_leg_counts_as_placed():
     """An input check that refuses a dataset with an error naming the faulty leg's column (``rejected``) has placed a
     fault outside the library on its leg; one naming another leg, or no column, has not (an error)."""
     from ftcal_nlp.diagnose.validation import REJECTED, rejected_leg, sweep_summary, validation_table
-    from ftcal_nlp.errors import DataFormatError, MisSignedChannel
+    from ftcal_nlp.core.errors import DataFormatError, MisSignedChannel
 
     legs = ("FL", "ML", "HL", "FR", "MR", "HR")
     assert rejected_leg(MisSignedChannel("x", leg="FR", column="FR_fz"), legs) == "FR"

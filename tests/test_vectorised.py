@@ -9,9 +9,9 @@ fraction from ``phi G / 2pi`` instead of ``mod(phi, 2pi)`` costs ~|phi| eps.
 import numpy as np
 import pytest
 
-from ftcal_nlp.calibration import periodic_interp
-from ftcal_nlp.geometry import quat_to_rotation, remove_yaw, transform_wrench
-from ftcal_nlp.physics import ground_wrenches, gravity_dir_in_ft, leg_gravity_wrench, total_com_from_body_com
+from ftcal_nlp.core.calibration import periodic_interp
+from ftcal_nlp.core.geometry import quat_to_rotation, remove_yaw, transform_wrench
+from ftcal_nlp.core.physics import ground_wrenches, gravity_dir_in_ft, leg_gravity_wrench, total_com_from_body_com
 
 from test_export import random_calibration
 

@@ -35,9 +35,9 @@ import casadi as ca
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ftcal_nlp import geometry as G
-from ftcal_nlp.hanging import model as hanging_model
-from ftcal_nlp.standing import problem as standing_problem
+from ftcal_nlp.core import geometry as G
+from ftcal_nlp.estimate.hanging import model as hanging_model
+from ftcal_nlp.estimate.standing import problem as standing_problem
 
 # Central differences with the step h * max(1, |x_i|): truncation O(h^2) ~ 1e-12 and
 # rounding O(eps / h) ~ 2e-10, relative to the output's scale; a derivative that is
@@ -220,9 +220,9 @@ HANGING_GRID = 12
 @lru_cache(maxsize=None)
 def hanging_problem():
     """A small one-leg ``LegProblem`` (4 recordings, two gravity axes, G = 12) from random readings."""
-    from ftcal_nlp.data import Recording
-    from ftcal_nlp.hanging.problem import build_leg_problem, check_recordings
-    from ftcal_nlp.robot import Robot, Transducer
+    from ftcal_nlp.core.data import Recording
+    from ftcal_nlp.estimate.hanging.problem import build_leg_problem, check_recordings
+    from ftcal_nlp.core.robot import Robot, Transducer
 
     rng = np.random.default_rng(20240611)
     robot = Robot("twin", 3.0, 9.81, ("L",), {"L": Transducer("L", np.zeros(3), np.eye(3))})
@@ -338,7 +338,7 @@ def _balance_residual_inputs(balance):
 
 def _balance_residual_np(balance):
     def f(xi, R, p, off):
-        from ftcal_nlp import balance as B
+        from ftcal_nlp.core import balance as B
 
         m, Mg = B.weights(standing_prior(), standing_prior().leg_names)
         return B.residual(xi[None, :], R, p, off, m, Mg, balance)[0]
@@ -348,7 +348,7 @@ def _balance_residual_np(balance):
 
 def _balance_residual_sx(balance):
     def f(xi, R, p, off):
-        from ftcal_nlp import balance as B
+        from ftcal_nlp.core import balance as B
 
         m, Mg = B.weights(standing_prior(), standing_prior().leg_names)
         K = len(R)
@@ -367,7 +367,7 @@ def _balance_residual_mixed_np(balance):
 def _balance_residual_mixed_sx(balance):
     """numpy theta (R (K, 3, 3), p (K, 3), offsets (K, 6)) with a CasADi feature column."""
     def f(R, p, off, xi):
-        from ftcal_nlp import balance as B
+        from ftcal_nlp.core import balance as B
 
         m, Mg = B.weights(standing_prior(), standing_prior().leg_names)
         return B.residual(xi, R, p, off, m, Mg, balance)

@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ftcal_nlp.data import Dataset, read_dataset
-from ftcal_nlp.freeload import fit_free_loads
-from ftcal_nlp.freeload.sensor_matrix import WRENCH, validate_across_sessions
-from ftcal_nlp.settings import FreeLoadSettings
+from ftcal_nlp.core.data import Dataset, read_dataset
+from ftcal_nlp.estimate.freeload import fit_free_loads
+from ftcal_nlp.estimate.freeload.sensor_matrix import WRENCH, validate_across_sessions
+from ftcal_nlp.core.settings import FreeLoadSettings
 
 LEG = "wrist"
 SESSIONS = ("timeseries", "poses100", "poses7")

@@ -38,10 +38,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..geometry import rotation_to_rotvec
-from ..physics import total_com_from_body_com
+from ..core.geometry import rotation_to_rotvec
+from ..core.physics import total_com_from_body_com
 from ..pipeline import calibrate
-from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
+from ..core.settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..crb import DatasetBounds, dataset_bounds
 
 GROUPS = ("offsets", "leg_weights", "com_curves", "com_curves_vs_sinusoid", "rotations", "translations", "com")
@@ -177,7 +177,7 @@ def evaluate_seed(seed: int, settings: AccuracySettings = AccuracySettings()) ->
     dropped directions, the residual check, failures).
     """
     from ..sim import simulate
-    from ..standing import extract_poses
+    from ..estimate.standing import extract_poses
 
     sim = simulate(settings.sim_config(seed))
     robot = sim.dataset.robot

@@ -40,8 +40,8 @@ import numpy as np
 import pandas as pd
 
 from .. import crb as cl
-from ..geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
-from ..peers import calib_force, ft_calib
+from ..core.geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
+from .peers import calib_force, ft_calib
 from ..sim.free import PayloadConfig, UrdfLegConfig, gravity_in_ft, simulate_free
 from ..sim.free.simulate import rpy_to_rotation
 

@@ -21,14 +21,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from ..data import WRENCH_COMPONENTS
-from ..geometry import quat_to_rotation
-from ..physics import ground_wrenches
+from ..core.data import WRENCH_COMPONENTS
+from ..core.geometry import quat_to_rotation
+from ..core.physics import ground_wrenches
 from ..pipeline import calibrate
-from ..settings import CalibrationSettings, CorrectSettings, DiagnoseSettings, HangingSettings, StandingSettings
+from ..core.settings import CalibrationSettings, CorrectSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..sim import SimConfig, simulate
 from ..sim.later import simulate_later_walk
-from ..wrenches import correct_arrays
+from ..correct.wrenches import correct_arrays
 
 CALIBRATE = CalibrationSettings(hanging=HangingSettings(compare_baseline=False),
                                 standing=StandingSettings(compare_baseline=False, model="full"),

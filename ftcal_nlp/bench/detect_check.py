@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ..plan import Protocol, predict
-from ..settings import CalibrationSettings, DiagnoseSettings, StandingSettings
+from ..core.settings import CalibrationSettings, DiagnoseSettings, StandingSettings
 
 log = logging.getLogger(__name__)
 

@@ -4,7 +4,7 @@
   system compiler (``-O2``) and run over a walking recording by its batch entry
   point (one call per sample inside C, so ctypes' per-call cost is paid once);
   time per sample, all legs (goal < 5 us).
-* Python, batched: :func:`ftcal_nlp.physics.ground_wrenches` from arrays
+* Python, batched: :func:`ftcal_nlp.core.physics.ground_wrenches` from arrays
   (quaternions to rotations included), and ``correct_recording`` (a Recording in,
   the ``OUTPUT_FORMAT.md`` table out); samples per second (goal >= 1 M/s).
 
@@ -23,11 +23,11 @@ import numpy as np
 import pandas as pd
 
 from ..correct import correct_recording
-from ..calibration import Calibration
-from ..data import Recording
+from ..core.calibration import Calibration
+from ..core.data import Recording
 from ..export import compile_shared, load_compiled, write_c
-from ..geometry import quat_to_rotation
-from ..physics import ground_wrenches
+from ..core.geometry import quat_to_rotation
+from ..core.physics import ground_wrenches
 from ..sim import SimConfig, simulate
 
 GOAL_COMPILED_US = 5.0

@@ -1,4 +1,4 @@
-"""The free-load NLP (``ftcal_nlp.freeload``) as the benches call it: a simulated dataset written in the
+"""The free-load NLP (``ftcal_nlp.estimate.freeload``) as the benches call it: a simulated dataset written in the
 interchange format, read by the section-5 reader, fitted by ``fit_free_load`` (the fit alone timed: quasi-static
 selection, compression, IPOPT, covariance), its estimate put in ``crb.free_load``' parameter order."""
 
@@ -14,13 +14,13 @@ import numpy as np
 def nlp_estimate(res, workdir: Path) -> tuple[np.ndarray, float, int]:
     """``(theta, wall s, samples used)`` of the NLP on the simulation ``res`` (written into ``workdir``), the
     fields of ``accuracy_loads.LoadEstimate``."""
-    from ..data import read_dataset
-    from ..freeload import fit_free_load
+    from ..core.data import read_dataset
+    from ..estimate.freeload import fit_free_load
     from ..sim.free import write_free_load
 
     ds = read_dataset(write_free_load(res, Path(workdir), overwrite=True))
     leg = res.config.transducer
-    quiet = logging.getLogger("ftcal_nlp.freeload")
+    quiet = logging.getLogger("ftcal_nlp.estimate.freeload")
     level = quiet.level
     quiet.setLevel(logging.ERROR)        # a URDF load's undetermined directions are expected here (rows say so)
     try:

@@ -18,8 +18,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
-from ..geometry import rotation_to_rotvec
-from ..physics import total_com_from_body_com
+from ..core.geometry import rotation_to_rotvec
+from ..core.physics import total_com_from_body_com
 from ..pipeline import calibrate
 from ..plan import GROUPS, Protocol, predict, reported_se
 from .accuracy import pipeline_settings

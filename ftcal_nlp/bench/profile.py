@@ -46,7 +46,7 @@ HOT_SPOTS = (
     ("poses", "median quaternions (_median_quaternion)", ("standing/poses.py", "_median_quaternion")),
     ("load", "CSV parsing (pandas read_csv)", ("pandas/io/parsers/readers.py", "read_csv")),
     ("load", "Parquet reading (pandas read_parquet)", ("pandas/io/parquet.py", "read_parquet")),
-    ("load", "validation (recording_from_frame)", ("ftcal_nlp/data.py", "recording_from_frame")),
+    ("load", "validation (recording_from_frame)", ("ftcal_nlp/core/data.py", "recording_from_frame")),
     ("diagnosis", "CV fold complements (numpy setdiff1d)", ("numpy/lib/_arraysetops_impl.py", "setdiff1d")),
     ("diagnosis", "IPOPT solves (CasADi Function calls)", ("~", "<built-in method casadi._casadi.Function_call>")),
     ("diagnosis", "nlpsol constructions (CasADi nlpsol)", ("~", "<built-in method casadi._casadi.nlpsol>")),

@@ -96,7 +96,7 @@ def _reset_peak() -> bool:
 
 def replicate_poses(base, n: int, sigma: np.ndarray, seed: int = 0):
     """``n`` poses: copies of ``base`` (cycled) with fresh pose-median noise on the readings."""
-    from ..standing.poses import Poses
+    from ..estimate.standing.poses import Poses
 
     rng = np.random.default_rng(seed)
     reps = int(np.ceil(n / base.n))
@@ -110,8 +110,8 @@ def replicate_poses(base, n: int, sigma: np.ndarray, seed: int = 0):
 
 def _standing_task(task: str, n: int, data_path: Path):
     """The stage as ``calibrate`` runs it (the speed bench's settings objects), at ``n`` replicated poses."""
-    from ..selection import select_models
-    from ..standing import fit_standing
+    from ..estimate.selection import select_models
+    from ..estimate.standing import fit_standing
     from .speed import METHODS
 
     with open(data_path, "rb") as fh:
@@ -129,7 +129,7 @@ def _standing_task(task: str, n: int, data_path: Path):
 
 
 def _hanging_task(task: str, n: int):
-    from ..hanging import fit_hanging
+    from ..estimate.hanging import fit_hanging
     from ..sim import SimConfig, simulate
 
     cycles = n / (4 * SAMPLES_PER_CYCLE)
@@ -189,9 +189,9 @@ def prepare_standing_data(folder: Path, base_sim: dict | None = None, seed: int 
     pickle what the workers need."""
     import warnings
 
-    from ..hanging import fit_hanging
+    from ..estimate.hanging import fit_hanging
     from ..sim import SimConfig, simulate
-    from ..standing import extract_poses
+    from ..estimate.standing import extract_poses
 
     cfg = SimConfig(**{"seed": seed, "hanging_cycles": 2.0, **(base_sim or {}), "walk_cycles": 0.0})
     sim = simulate(cfg)

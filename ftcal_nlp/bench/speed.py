@@ -35,14 +35,14 @@ from typing import TypeVar
 import numpy as np
 import pandas as pd
 
-from ..data import read_dataset
-from ..hanging import fit_hanging
+from ..core.data import read_dataset
+from ..estimate.hanging import fit_hanging
 from ..pipeline import calibrate
 from ..report import write_report
-from ..selection import select_models
-from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
+from ..estimate.selection import select_models
+from ..core.settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..sim import SimConfig, simulate, write_simulation
-from ..standing import Poses, extract_poses, fit_standing
+from ..estimate.standing import Poses, extract_poses, fit_standing
 
 CALIBRATION_STAGES = ("hanging", "model selection", "standing")
 PIPELINE_STAGES = ("poses", "hanging", "model selection", "standing")

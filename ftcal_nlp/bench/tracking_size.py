@@ -27,7 +27,7 @@ def tracking_size(walks: int = 40, seed: int = 0, *, n_poses: int = 60, hanging_
     """One row per walk and leg: ``walk``, ``seed``, ``leg``, ``chi2``, ``p``, ``significant``."""
     from ..correct import correct_recording_full
     from ..pipeline import calibrate
-    from ..settings import CalibrationSettings, CorrectSettings, DiagnoseSettings, HangingSettings, StandingSettings
+    from ..core.settings import CalibrationSettings, CorrectSettings, DiagnoseSettings, HangingSettings, StandingSettings
     from ..sim import SimConfig, simulate
     from ..sim.later import simulate_later_walk
 

@@ -5,11 +5,11 @@
 
 One command for every load. The flow is written here once: the output's rules (``outdir.py``: a CSV, never an
 input; the offsets file and the bag likewise), the calibration read and checked by the one reader
-(:func:`ftcal_nlp.loads.calibrated.read_calibration` over ``calibration.read_calibration_json``), the recording read
+(:func:`ftcal_nlp.correct.calibrated.read_calibration` over ``calibration.read_calibration_json``), the recording read
 (``data.read_table``), corrected, and written to the last bit (``csvout.py``). What differs by load is a module of
 the same functions, chosen by what the reader gave:
 
-* ``legs.py``: hexapod legs (a :class:`~ftcal_nlp.calibration.Calibration`): per foot the ground contact wrench in the
+* ``legs.py``: hexapod legs (a :class:`~ftcal_nlp.core.calibration.Calibration`): per foot the ground contact wrench in the
   heading frame about the robot's CoM, its se, the contact state, ``--track-offsets`` and ``--bag``;
 * ``free.py``: free loads (a rigid payload, URDF links below a sensor; per transducer a calibrated load of
   ``loads.calibrated``): the contact wrench in each ft frame and its se, the fixed base's ``--gravity-body``;
@@ -28,11 +28,11 @@ import logging
 import os
 from pathlib import Path
 
-from ..calibration import Calibration
-from ..csvout import write_csv
-from ..data import read_table
-from ..errors import OutputError
-from ..loads.calibrated import read_calibration
+from ..core.calibration import Calibration
+from ..core.csvout import write_csv
+from ..core.data import read_table
+from ..core.errors import OutputError
+from .calibrated import read_calibration
 from . import free, legs
 from .free import contact_frame, contact_wrench
 from .legs import (correct_file, correct_file_full, correct_recording, correct_recording_full, flag_faults, load_covariance,
@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
-    from ..outdir import calibration_inputs, check_apart, check_file_output, output_path
+    from ..core.outdir import calibration_inputs, check_apart, check_file_output, output_path
 
     given = Path(os.path.expanduser(args.output))
     cal_path = Path(os.path.expanduser(args.calibration))

@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..checks import with_fault_columns
-from ..data import QUAT_COLUMNS, WRENCH_COMPONENTS
+from ..core.checks import with_fault_columns
+from ..core.data import QUAT_COLUMNS, WRENCH_COMPONENTS
 from ..effects import correction as fx
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from ..loads.base import calibration_variance
-from ..loads.calibrated import PayloadCalibration, UrdfLoadCalibration, tilted_gravity
+from .calibrated import PayloadCalibration, UrdfLoadCalibration, tilted_gravity
 from .recording import (base_gravity, channel_faults, check_against_calibration, clean_rows, gravity_of_frame, joint_angles,
                         orientation_of_frame, transducer_temperature)
 

@@ -2,7 +2,7 @@
 
 Each foot's ground wrench is the reading less the offset less the leg's weight
 wrench (report eq. 3), moved to the heading frame about the robot's CoM at that
-instant (``OUTPUT_FORMAT.md``, corrected recordings); see :mod:`ftcal_nlp.physics`.
+instant (``OUTPUT_FORMAT.md``, corrected recordings); see :mod:`ftcal_nlp.core.physics`.
 Rows without a motion-capture orientation cannot be put in the heading frame and
 are dropped with a count in the log. Beside the contract's columns: standard
 errors ``{leg}_{c}_se`` / ``total_{c}_se`` (the calibration's covariance, from the
@@ -24,18 +24,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..calibration import Calibration
-from ..checks import SensorFault, check_calibration, check_recording_to_correct, with_fault_columns
-from ..csvout import write_csv
-from ..data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
+from ..core.calibration import Calibration
+from ..core.checks import SensorFault, check_calibration, check_recording_to_correct, with_fault_columns
+from ..core.csvout import write_csv
+from ..core.data import WRENCH_COMPONENTS, DataFormatError, Recording, legs_in_frame, read_table, recording_from_frame
 from ..effects.correction import correct_for_effect
-from ..errors import ConfigError
-from ..geometry import quat_to_rotation
-from ..robot import Robot, Transducer
-from ..settings import CorrectSettings
-from ..tracking import TrackedOffsets, log_changes
-from ..uncertainty import CalibrationCovariance
-from ..wrenches import Correction, correct_arrays, noise_of
+from ..core.errors import ConfigError
+from ..core.geometry import quat_to_rotation
+from ..core.robot import Robot, Transducer
+from ..core.settings import CorrectSettings
+from .tracking import TrackedOffsets, log_changes
+from ..estimate.uncertainty import CalibrationCovariance
+from .wrenches import Correction, correct_arrays, noise_of
 
 log = logging.getLogger(__name__)
 

@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..checks import MAX_SAMPLE_INTERVAL_S, reread_quaternion, same_pose_share
-from ..data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS
+from ..core.checks import MAX_SAMPLE_INTERVAL_S, reread_quaternion, same_pose_share
+from ..core.data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS, WRENCH_COMPONENTS
 from ..effects.correction import stream_members
-from ..errors import ConfigError, DataFormatError
-from ..geometry import quat_to_rotation
+from ..core.errors import ConfigError, DataFormatError
+from ..core.geometry import quat_to_rotation
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,7 @@ def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) ->
     a joint without a column held at 0 and named in a warning."""
     from types import SimpleNamespace
 
-    from ..data import _check_joint_units
+    from ..core.data import _check_joint_units
 
     missing = [j for j in joints if f"{JOINT_PREFIX}{j}" not in df.columns]
     if missing:
@@ -159,7 +159,7 @@ def check_joint_columns(cal_legs: dict, df: pd.DataFrame, where: str) -> None:
 
 def _orientation_columns(df: pd.DataFrame, where: str) -> list[str]:
     """``qw..qz`` or ``gx..gz`` (complete), the gravity per sample; [] without either (a fixed base)."""
-    from ..data import _complete_group
+    from ..core.data import _complete_group
 
     cols = [str(c) for c in df.columns]
     q, gcols = _complete_group(cols, QUAT_COLUMNS, where), _complete_group(cols, GRAVITY_COLUMNS, where)
@@ -173,7 +173,7 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     strictly increasing or not in seconds where the correction uses the clock (:func:`_check_clock`), quaternions not
     of norm 1 within 0.01 are
     errors naming the file and the column. Returns the numeric table of the kept rows and the kept-row mask."""
-    from ..data import TEMP_COMMON, TEMP_SUFFIX, _numeric
+    from ..core.data import TEMP_COMMON, TEMP_SUFFIX, _numeric
 
     if "t" not in df.columns:
         raise DataFormatError(f"{where}: missing column 't'", path=where, column="t")
@@ -286,7 +286,7 @@ def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
     """The same rows read with the usual convention slips of the orientation columns: the quaternion's other
     orders and its conjugate (``checks._quaternion_readings``, the run's list), or gravity ``gx..gz`` negated."""
     if set(QUAT_COLUMNS) <= set(df.columns):
-        from ..checks import _quaternion_readings
+        from ..core.checks import _quaternion_readings
 
         q = df[list(QUAT_COLUMNS)].to_numpy()
         out = {}
@@ -304,7 +304,7 @@ def _load_angles(p, df: pd.DataFrame, w: np.ndarray, q: dict, where: str,
                  base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per row the angle (deg) between the reading's force less the offset and the calibration's load force,
     and the calibration's full predicted wrench (offset and load) (N, 6); ``base`` as :func:`gravity_of_frame`."""
-    from ..checks import _angle_deg
+    from ..core.checks import _angle_deg
 
     g_B = gravity_of_frame(df, p.g, where, base)
     model, _ = p.predict(g_B, q, orientation_of_frame(df))
@@ -323,8 +323,8 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
     gravity (``base`` per transducer, :func:`base_gravity`; ``base_source`` where it came from, for the message) is
     tested the same way (negated: pointing up). Before the direction, the rows without contact test the frames
     (:func:`check_frames`; ``faulty`` per transducer the rows of a stuck or dead channel, left out)."""
-    from ..checks import QUAT_ORDER_RATIO, TILT_DEG
-    from ..data import check_torque_units
+    from ..core.checks import QUAT_ORDER_RATIO, TILT_DEG
+    from ..core.data import check_torque_units
 
     step = max(1, -(-len(clean) // CHECK_ROWS))
     every = clean.iloc[::step].reset_index(drop=True)
@@ -449,7 +449,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
     free = _at_noise(w[:, :3] - model[:, :3], sf)
     n_given = int(free.sum())
     cand: dict[str, int] = {}
-    from ..checks import signed_permutations
+    from ..core.checks import signed_permutations
 
     for P in signed_permutations():
         cand[_signed_fix_text(P, fc)] = int(_at_noise(w[:, :3] @ P.T - model[:, :3], sf).sum())
@@ -540,7 +540,7 @@ def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
     the hexapod's screen; a cell that is no number never repeats)."""
     from types import SimpleNamespace
 
-    from ..checks import sensor_faults
+    from ..core.checks import sensor_faults
 
     wrench = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
               for k in cal_legs}
@@ -550,7 +550,7 @@ def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
 def transducer_temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:
     """Transducer ``leg``'s temperature (rows ``keep``) from ``{leg}_temp_C`` or ``temp_C`` (``data.py``'s reading:
     gaps interpolated in t, units checked), or None without either column."""
-    from ..data import TEMP_COMMON, TEMP_SUFFIX, _temperatures
+    from ..core.data import TEMP_COMMON, TEMP_SUFFIX, _temperatures
 
     cols = [c for c in (f"{leg}{TEMP_SUFFIX}", TEMP_COMMON) if c in df.columns]
     return _temperatures(df, cols, keep, t, [leg], where, Path(where)).get(leg) if cols else None

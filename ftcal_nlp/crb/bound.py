@@ -22,7 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..solver import REL_EIG_TOL
+from ..core.solver import REL_EIG_TOL
 
 
 def fisher_information(J: np.ndarray, Sigma: np.ndarray) -> np.ndarray:

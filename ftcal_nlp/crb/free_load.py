@@ -58,8 +58,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ..geometry import rotvec_to_rotation, skew
-from ..solver import REL_EIG_TOL
+from ..core.geometry import rotvec_to_rotation, skew
+from ..core.solver import REL_EIG_TOL
 from .bound import LoadBound, named_bound
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")

@@ -47,11 +47,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import skew
-from ..hanging.binning import interp_weights, periodic_grid
-from ..standing.problem import K_DIAG
-from ..settings import HangingSettings
-from ..solver import REL_EIG_TOL
+from ..core.geometry import skew
+from ..estimate.hanging.binning import interp_weights, periodic_grid
+from ..estimate.standing.problem import K_DIAG
+from ..core.settings import HangingSettings
+from ..core.solver import REL_EIG_TOL
 from .bound import Bound, crb, fisher_information, marginal
 
 MEDIAN_EFFICIENCY = np.pi / 2  # var(median of n Gaussian samples) ~ (pi/2) sigma^2 / n
@@ -407,7 +407,7 @@ def standing_bound(sim, poses, hbound: HangingBound | None = None, rel_tol: floa
     """CRB of the full model's transforms at the truth of ``sim`` for the extracted ``poses``.
 
     ``references=False`` skips the least-squares reference covariances (most of the time; left None)."""
-    from ..physics import balance_residual_exact
+    from ..core.physics import balance_residual_exact
 
     tr = sim.true_robot
     cfg = sim.config

@@ -18,7 +18,7 @@ Map of the package (``diagnose(...)``, ``diagnose_run(run)`` in ``core.py`` run 
   chain's last joint refit).
 * ``evidence.py``: the chain of several effects, one loop for every kind of evidence (name the strongest by held-out
   evidence, refit jointly, look again; thresholds ``DiagnoseSettings.hexapod`` / ``.free_loads``,
-  :class:`~ftcal_nlp.settings.ChainThresholds`); each kind behind :class:`~.evidence.EvidenceKind`:
+  :class:`~ftcal_nlp.core.settings.ChainThresholds`); each kind behind :class:`~.evidence.EvidenceKind`:
 * ``hexchain.py``: the hexapod's kind (issue 23): while a gap is left after the joint refit, the remaining candidates
   are scored with the named effects in the base model (``attribute(..., base_effect=Combined(named))``,
   ``effects/combined.py``), the best is added when it passes a stated paired fold-wise held-out test and the joint

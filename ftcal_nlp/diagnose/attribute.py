@@ -41,12 +41,12 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from ..selection import fold_indices
+from ..estimate.selection import fold_indices
 from ..effects import Effect, design_check
 from ..effects.combined import Combined
 from .linear_fit import base_linear, rebase, recalibrate, score_linear
 from .scores import KindScore
-from ..solver import SolverError
+from ..core.solver import SolverError
 from .standing_fit import AugmentedProblem
 from .views import Views
 

@@ -1,7 +1,7 @@
 """The free loads' kind of evidence for the chain of effects (``evidence.py``; issue 23, item 2): name the strongest
 by held-out evidence, refit jointly with it, look again, stop when the next adds nothing significant on held-out data.
 Free loads (``free.py``); thresholds ``z_min``, ``min_floor_share``, ``max_effects`` of
-:class:`~ftcal_nlp.settings.FreeLoadChain` (``DiagnoseSettings.free_loads``).
+:class:`~ftcal_nlp.core.settings.FreeLoadChain` (``DiagnoseSettings.free_loads``).
 
 A step scores every candidate effect not yet named: each shape of its free face (``free_shapes``) is added to
 the design ``[J, X_1 .. X_m]`` of the free-load Jacobian and the faces named so far, and cross-validated
@@ -45,8 +45,8 @@ import numpy as np
 
 from ..effects import Effect
 from ..effects.free_faces import FreeFace, FreeLoadContext
-from ..freeload.problem import serial_inflation
-from ..settings import ChainThresholds
+from ..estimate.freeload.problem import serial_inflation
+from ..core.settings import ChainThresholds
 from .evidence import name_effects
 from .free_cv import CVFit, Design, paired_gain, pinv
 

@@ -17,13 +17,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..data import Dataset
+from ..core.calibration import Calibration
+from ..core.data import Dataset
 from ..effects import Effect, resolve_effects
 from ..models import ModelContext, resolve
-from ..robot import Robot
-from ..settings import CalibrationSettings, ChainThresholds, DiagnoseSettings
-from ..solver import SolverError
+from ..core.robot import Robot
+from ..core.settings import CalibrationSettings, ChainThresholds, DiagnoseSettings
+from ..core.solver import SolverError
 from .attribute import (
     GAP_THRESHOLD,
     attribute,
@@ -33,7 +33,7 @@ from .attribute import (
     ranking_bic,
 )
 from .hexchain import run_chain
-from .joint import joint_refit
+from .refit import joint_refit
 from .perleg import perleg_checks
 from .localise import (
     components_with_gap,
@@ -69,11 +69,11 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
              x_start: np.ndarray | None = None, registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
     """Diagnose the sim-to-real gap of a calibrated dataset.
 
-    ``hanging_result``: the :class:`~ftcal_nlp.hanging.HangingResult` (None: no hanging view,
+    ``hanging_result``: the :class:`~ftcal_nlp.estimate.hanging.HangingResult` (None: no hanging view,
     the calibration's offsets serve as the prior); ``poses``: the standing
-    :class:`~ftcal_nlp.standing.Poses` (time order); ``calibration``: the finished
+    :class:`~ftcal_nlp.estimate.standing.Poses` (time order); ``calibration``: the finished
     calibration (its ``model`` and ``meta['balance']`` name the error model and balance);
-    ``settings``: :class:`~ftcal_nlp.settings.DiagnoseSettings` (candidate effects, folds, seed);
+    ``settings``: :class:`~ftcal_nlp.core.settings.DiagnoseSettings` (candidate effects, folds, seed);
     ``model``/``balance``: the calibration's error model and balance (None: from the calibration's
     ``model`` and ``meta``); ``x_start``: the standing fit's decision vector (warm start);
     ``registry``: the candidate effects by name (None: ``ftcal_nlp.effects.EFFECTS``; ``settings.effects``

@@ -12,8 +12,8 @@ The loop (:func:`name_effects`):
    another; free loads have none); when made, look again;
 4. else stop: the reasons steps 2-3 gave, joined.
 
-The thresholds are :class:`~ftcal_nlp.settings.ChainThresholds` (one set of names; each kind its own values in
-:class:`~ftcal_nlp.settings.DiagnoseSettings`). What a kind's evidence is, how a candidate is scored and refit, is
+The thresholds are :class:`~ftcal_nlp.core.settings.ChainThresholds` (one set of names; each kind its own values in
+:class:`~ftcal_nlp.core.settings.DiagnoseSettings`). What a kind's evidence is, how a candidate is scored and refit, is
 behind :class:`EvidenceKind`: the hexapod's standing poses, hanging legs and walking swing (``hexchain.py``, each
 link a joint refit of the whole calibration) and the free loads' samples (``chain.py``, each link a refit of the
 linearised free-load model with the named faces).
@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 from typing import Protocol
 
-from ..settings import ChainThresholds
+from ..core.settings import ChainThresholds
 
 log = logging.getLogger(__name__)
 

@@ -98,13 +98,13 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
 
-from ..balance import K_DIAG, check_balance, features, residual
-from ..calibration import Calibration
-from ..data import WRENCH_COMPONENTS
-from ..geometry import skew, transform_wrench
+from ..core.balance import K_DIAG, check_balance, features, residual
+from ..core.calibration import Calibration
+from ..core.data import WRENCH_COMPONENTS
+from ..core.geometry import skew, transform_wrench
 from ..models import ModelContext, resolve
-from ..selection import fold_indices
-from ..standing.result import physical
+from ..estimate.selection import fold_indices
+from ..estimate.standing.result import physical
 from ..effects.faces import legendre_time
 
 CHECK_ALPHA = 1e-3             # p-value below which the residual has more than the noise model

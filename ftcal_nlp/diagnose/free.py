@@ -6,7 +6,7 @@ Per transducer with a free load (``freeload``'s fit ``x* = [w_o, theta, r]``):
    (``free_model.context_for``): the residual ``r_n = y_n - h(x*; s_n)``;
 2. the noise floor from held, still stretches of the readings (``free_model.hold_floor``), not from a fit;
 3. blocked cross-validation (``free_cv.py``: blocks are holds with the move after them, or time blocks;
-   ``folds``/``seed`` of :class:`~ftcal_nlp.settings.DiagnoseSettings`) of the model linearised around
+   ``folds``/``seed`` of :class:`~ftcal_nlp.core.settings.DiagnoseSettings`) of the model linearised around
    ``x*``, ``r ~ J dx``: the held-out RMS before any effect;
 4. the chain (``chain.py``): the strongest effect of the library by held-out evidence (every unit with a
    free face, ``effects/free_faces.py``), refit jointly with it, look again, stop when the next adds nothing
@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data import Dataset
+from ..core.data import Dataset
 from ..effects import Effect, resolve_effects
 from ..effects.free_refine import use_model_face
-from ..settings import DiagnoseSettings
+from ..core.settings import DiagnoseSettings
 from .chain import GAP_REL, Chain, JointFit, excess_ratio, joint_fit, run_chain
 from .correlates import CorrelateScore, score_correlates
 from .free_cv import Design, cv_blocks, fold_of_blocks
@@ -217,7 +217,7 @@ def _components(w: np.ndarray, floor: np.ndarray) -> list[str]:
 def diagnose_free(dataset: Dataset, free_loads, settings: DiagnoseSettings | None = None, *,
                   registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:
     """The diagnosis of a free-load dataset (module docstring): ``free_loads`` the
-    :class:`~ftcal_nlp.freeload.FreeLoadResults`; candidates from ``registry`` (None: the library), those with a
+    :class:`~ftcal_nlp.estimate.freeload.FreeLoadResults`; candidates from ``registry`` (None: the library), those with a
     free face (``free_shapes``), as picked by ``settings.effects``."""
     t0 = time.perf_counter()
     s = DiagnoseSettings() if settings is None else settings

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..effects.correction import KIND, Member, beta_names
 from ..effects.registry import EFFECTS
-from ..geometry import rotvec_to_rotation
+from ..core.geometry import rotvec_to_rotation
 from .free_cv import null_directions, pinv
 from .free_model import context_for
 
@@ -116,9 +116,9 @@ def members_json(members, reference: dict, floor, position_m=None) -> dict:
 def free_effect_calibration(res):
     """``(Calibration, CalibrationCovariance)`` of ``calibration_with_effect.json`` and its covariance file for a
     free-load run ``res`` (``CalibrationRun``) whose diagnosis named effects; None when it named none."""
-    from ..freeload import free_load_calibration
-    from ..freeload.result import FreeLoadResults
-    from ..uncertainty import CalibrationCovariance
+    from ..estimate.freeload import free_load_calibration
+    from ..estimate.freeload.result import FreeLoadResults
+    from ..estimate.uncertainty import CalibrationCovariance
 
     d = res.diagnosis
     free = getattr(d, "free", None) or {}

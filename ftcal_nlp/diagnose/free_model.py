@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data import Dataset
+from ..core.data import Dataset
 from ..effects.free_faces import FreeFace, FreeLoadContext, make_context
-from ..freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
-from ..geometry import quat_to_rotation
+from ..estimate.freeload.problem import gravity_frame, predict, tilt_derivative, tilt_gravity
+from ..core.geometry import quat_to_rotation
 from ..loads.base import joint_limits
 
 #: the windows over which the floor's scatter is taken (s) and their least number of samples
@@ -39,7 +39,7 @@ STILL_RAD = 3e-3
 
 def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]:
     """``(context, notes)``: transducer ``leg``'s free-load samples over every recording in which it hangs free,
-    with the fit's predictions (``fit``: its :class:`~ftcal_nlp.freeload.FreeLoadResult`), module docstring."""
+    with the fit's predictions (``fit``: its :class:`~ftcal_nlp.estimate.freeload.FreeLoadResult`), module docstring."""
     load = fit.load
     joints = tuple(getattr(load, "load_joints", ())) + tuple(getattr(load, "base_joints", ()))
     g = ds.robot.g

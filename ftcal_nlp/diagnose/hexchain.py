@@ -1,7 +1,7 @@
 """The hexapod's kind of evidence for the chain of effects (``evidence.py``; issue 23, item 2): after the first effect
 is named and refit with the whole calibration (``joint.py``), look again; the free-load counterpart is ``chain.py``.
 Thresholds ``z_min``, ``explained_min``, ``min_floor_share``, ``max_effects`` of
-:class:`~ftcal_nlp.settings.HexapodChain` (``DiagnoseSettings.hexapod``).
+:class:`~ftcal_nlp.core.settings.HexapodChain` (``DiagnoseSettings.hexapod``).
 
 The first link is the single-effect diagnosis as it stands (``attribute.decide``, ``joint.joint_refit``): its name,
 parameters and held-out RMS are unchanged by what follows unless a swap (below) takes it out. Then, while a gap is
@@ -76,8 +76,8 @@ import numpy as np
 
 from ..effects import Effect, design_check
 from ..effects.combined import Combined
-from ..settings import ChainThresholds
-from ..solver import SolverError
+from ..core.settings import ChainThresholds
+from ..core.solver import SolverError
 from .attribute import (
     DBIC_STRONG,
     Attribution,
@@ -89,7 +89,7 @@ from .attribute import (
     ranking_bic,
 )
 from .evidence import name_effects
-from .joint import JointRefit, joint_refit
+from .refit import JointRefit, joint_refit
 from .scores import KindScore
 from .views import Views
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data import WRENCH_COMPONENTS
+from ..core.data import WRENCH_COMPONENTS
 from .views import LegSeries, StandingView
 
 EXPLAINS_MIN = 0.3

@@ -103,13 +103,13 @@ import pandas as pd
 from scipy.linalg import polar
 from scipy.stats import chi2, norm, wilcoxon
 
-from ..balance import K_DIAG, features, knorm2, residual
-from ..calibration import Calibration
-from ..data import Dataset
-from ..geometry import rotation_between, rotation_to_rotvec, rotvec_to_rotation, skew, transform_wrench
-from ..results import ResultsMixin, StackedResults, Summary, fmt_pm
-from ..robot import Robot
-from ..solver import identifiability
+from ..core.balance import K_DIAG, features, knorm2, residual
+from ..core.calibration import Calibration
+from ..core.data import Dataset
+from ..core.geometry import rotation_between, rotation_to_rotvec, rotvec_to_rotation, skew, transform_wrench
+from ..core.results import ResultsMixin, StackedResults, Summary, fmt_pm
+from ..core.robot import Robot
+from ..core.solver import identifiability
 from .views import LegSeries, walking_views
 
 __all__ = ["ALPHA", "MAX_RATIO", "MIN_WEIGHT_N", "LegMap", "LinearMapCheck", "SwingLegFit", "SwingCheck", "Finding",
@@ -932,7 +932,7 @@ def perleg_checks(dataset: Dataset, calibration: Calibration, poses, robot: Robo
 
     ``dataset``: its walking recordings feed check 2; ``calibration``: the finished calibration
     (offsets, leg weights and CoM curves from hanging, rotations and positions from standing);
-    ``poses``: the standing :class:`~ftcal_nlp.standing.Poses` (None: check 1 skipped);
+    ``poses``: the standing :class:`~ftcal_nlp.estimate.standing.Poses` (None: check 1 skipped);
     ``folds``/``seed``: the cross-validation of check 1; ``alpha``: family-wise level of each check;
     ``swing``: an already computed walking swing view (``views.walking_views``), optional.
     """

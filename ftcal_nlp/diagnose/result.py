@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..data import WRENCH_COMPONENTS
+from ..core.data import WRENCH_COMPONENTS
 
 VERDICTS = ("none", "effect", "unexplained")
 

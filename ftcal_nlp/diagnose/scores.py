@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..results import bic
+from ..core.results import bic
 
 
 @dataclass(frozen=True)

@@ -47,13 +47,13 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import null_space
 
-from ..calibration import Calibration
-from ..balance import residual
+from ..core.calibration import Calibration
+from ..core.balance import residual
 from ..models import ModelContext, resolve
-from ..robot import Robot
-from ..balance import K_DIAG, check_balance, to_world
-from ..results import ResultsMixin, Summary, fmt_pm
-from ..solver import REL_EIG_TOL, identifiability, ipopt, solve_checked
+from ..core.robot import Robot
+from ..core.balance import K_DIAG, check_balance, to_world
+from ..core.results import ResultsMixin, Summary, fmt_pm
+from ..core.solver import REL_EIG_TOL, identifiability, ipopt, solve_checked
 from ..effects.faces import AugContext, ParamBlock, StandingData, pose_symbols  # noqa: F401  (StandingData: importable from here)
 from ..effects.unit import Effect
 
@@ -165,7 +165,7 @@ class AugmentedProblem:
         """Minimise ``sum_p weights_p ||r_p||_K^2 + ridge ||x - x0||^2`` over the design rows ``Phi``
         (P, n_used) from ``x0`` (the reference of the minimal-change ridge).
 
-        Raises :class:`~ftcal_nlp.solver.SolverError` when IPOPT does not report success.
+        Raises :class:`~ftcal_nlp.core.solver.SolverError` when IPOPT does not report success.
         """
         x0 = self.x0 if x0 is None else x0
         S = (Phi * weights[:, None]).T @ Phi

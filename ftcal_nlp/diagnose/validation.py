@@ -136,10 +136,10 @@ import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
 
-from ..data import WRENCH_COMPONENTS, read_dataset
+from ..core.data import WRENCH_COMPONENTS, read_dataset
 from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, Effect, applies_to
-from ..errors import DataFormatError, MisSignedChannel
-from ..settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
+from ..core.errors import DataFormatError, MisSignedChannel
+from ..core.settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..sim import SimConfig, simulate
 from ..sim.free.config import CONFIG_OF_KIND, FREE_SIM_KINDS
 from ..sim.effects import EFFECTS as INJECTORS

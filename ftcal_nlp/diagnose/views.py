@@ -32,14 +32,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from ..balance import residual, to_world
-from ..calibration import Calibration, periodic_interp
-from ..data import Dataset, Recording
-from ..geometry import quat_to_rotation, remove_yaw
+from ..core.balance import residual, to_world
+from ..core.calibration import Calibration, periodic_interp
+from ..core.data import Dataset, Recording
+from ..core.geometry import quat_to_rotation, remove_yaw
 from ..models import ModelContext
-from ..robot import Robot
+from ..core.robot import Robot
 from ..effects.faces import HangingLeg
-from ..settings import PoseExtraction
+from ..core.settings import PoseExtraction
 from .floor import (
     MIN_RESIDUAL_DOF_PER_COL,
     calibrated_residual_B,
@@ -332,7 +332,7 @@ def change_point(t_h: np.ndarray, r: np.ndarray, min_segment: int = MIN_SEGMENT_
 
 def hanging_series(recordings, hanging, robot: Robot, t_ref: float) -> LegSeries:
     """Per-leg residuals of the hanging fit (report eqs. 4-7) with their explanatory variables."""
-    from ..hanging import hanging_residuals
+    from ..estimate.hanging import hanging_residuals
 
     legs = tuple(robot.legs)
     recs = list(recordings)

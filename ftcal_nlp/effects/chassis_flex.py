@@ -14,7 +14,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..geometry import skew
+from ..core.geometry import skew
 from .faces import HangingLeg, ParamBlock, per_leg_face
 from .injection import REF_FORCE_N, EffectInjector, Magnitude, rotvec_rotate
 from .unit import Effect

@@ -37,7 +37,7 @@ import logging
 
 import numpy as np
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 from .free_faces import WRENCH, FreeFace, rate
 from .injection import HOUR_S, EffectInjector, Magnitude, OffFaceInjector
 from .signals import delayed

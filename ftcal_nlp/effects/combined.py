@@ -44,7 +44,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 from .faces import ParamBlock, correct_by_face, joint_eta_cov, member_block, stack_faces
 from .unit import Effect, corrects_by_face
 

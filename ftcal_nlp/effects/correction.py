@@ -69,8 +69,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..errors import DataFormatError
+from ..core.calibration import Calibration
+from ..core.errors import DataFormatError
 from ..loads.base import calibration_variance
 from .combined import Combined
 from .faces import AugContext

@@ -37,8 +37,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from ..errors import DataFormatError
-from ..geometry import remove_yaw, rotation_to_rotvec
+from ..core.errors import DataFormatError
+from ..core.geometry import remove_yaw, rotation_to_rotvec
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 TIME_BASIS = 4      # smooth time basis of the standing features (flexible drift faces choose how many terms)

@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DataFormatError
-from ..geometry import quat_to_rotation, unskew
+from ..core.errors import DataFormatError
+from ..core.geometry import quat_to_rotation, unskew
 from .free_faces import WRENCH, FreeFace, rate
 from .injection import EffectInjector, Magnitude, OffFaceInjector
 from .unit import Effect

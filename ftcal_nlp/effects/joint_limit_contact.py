@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 from .free_faces import WRENCH, FreeFace
 from .injection import EffectInjector, Magnitude, OffFaceInjector
 from .unit import Effect

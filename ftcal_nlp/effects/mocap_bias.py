@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import cayley, rotvec_to_rotation
+from ..core.geometry import cayley, rotvec_to_rotation
 from .faces import ParamBlock, correct_by_face
 from .injection import EffectInjector, Magnitude
 from .unit import Effect

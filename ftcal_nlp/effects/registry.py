@@ -16,7 +16,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .injection import EXPECT_NONE, EXPECT_UNEXPLAINED, EffectInjector, OffFaceInjector
 from .unit import EFFECT_KINDS, Effect
 

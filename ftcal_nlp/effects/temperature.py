@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 from .free_faces import WRENCH, FreeFace
 from .free_refine import refine_scalar
 from .injection import EffectInjector, Magnitude, OffFaceInjector

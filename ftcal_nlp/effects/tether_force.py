@@ -20,7 +20,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..geometry import remove_yaw, skew
+from ..core.geometry import remove_yaw, skew
 from .faces import ParamBlock, per_leg_face
 from .injection import EffectInjector, Magnitude, distribute_over_feet
 from .unit import Effect

@@ -4,7 +4,7 @@
 
 One command for every load: one call per sample, all transducers at once, the calibration's numbers baked in as
 constants, computing what ``python -m ftcal_nlp.correct`` writes (without its se columns). The flow is written here
-once: the calibration read and checked by the one reader (:func:`ftcal_nlp.loads.calibrated.read_calibration`), the
+once: the calibration read and checked by the one reader (:func:`ftcal_nlp.correct.calibrated.read_calibration`), the
 output folder's rules (``outdir.py``: fixed names, none an input, an earlier export's files replaced only with
 ``--force`` and only when the folder's manifest lists them), the CasADi function generated as C with a hand-written
 batch wrapper appended (:func:`write_generated`) and ``USAGE.md`` beside it; :func:`compile_shared` and
@@ -35,9 +35,9 @@ from typing import Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..calibration import Calibration
-from ..errors import ConfigError, OutputError
-from ..loads.calibrated import read_calibration
+from ..core.calibration import Calibration
+from ..core.errors import ConfigError, OutputError
+from ..correct.calibrated import read_calibration
 from . import free, legs
 
 log = logging.getLogger(__name__)
@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def _main(args) -> int:
-    from ..outdir import calibration_inputs, check_files_apart, output_path, write_guarded
+    from ..core.outdir import calibration_inputs, check_files_apart, output_path, write_guarded
 
     if not args.name.isidentifier():
         raise ConfigError(f"--name {args.name!r} is not a C identifier", key="--name")

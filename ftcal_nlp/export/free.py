@@ -26,9 +26,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..errors import DataFormatError
-from ..freeload.problem import tilt_gravity
-from ..geometry import quat_to_rotation
+from ..core.errors import DataFormatError
+from ..estimate.freeload.problem import tilt_gravity
+from ..core.geometry import quat_to_rotation
 
 
 def joint_order(cals: dict) -> tuple[str, ...]:
@@ -110,7 +110,7 @@ int {name}_batch(long n, const casadi_real* wrench{qb}, const casadi_real* quat,
 def base_quaternion(gravity_body: np.ndarray) -> np.ndarray:
     """``qw..qz`` of the smallest rotation ``R_WB`` that puts gravity along ``gravity_body`` in B
     (``R_WB^T (0, 0, -1) = gravity_body``): the orientation to pass for a fixed base."""
-    from ..geometry import rotation_to_quat, rotvec_to_rotation
+    from ..core.geometry import rotation_to_quat, rotvec_to_rotation
 
     a = np.asarray(gravity_body, float) / np.linalg.norm(gravity_body)
     b = np.array([0.0, 0.0, -1.0])

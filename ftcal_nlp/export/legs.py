@@ -1,7 +1,7 @@
 """``export`` for hexapod legs (the ``leg_com_curve`` load): per foot the ground contact wrench as C.
 
 One call per sample, all legs at once, the calibration's numbers baked in as
-constants. It computes what :func:`ftcal_nlp.physics.ground_wrenches` computes
+constants. It computes what :func:`ftcal_nlp.core.physics.ground_wrenches` computes
 (and so what ``python -m ftcal_nlp.correct`` writes): for every leg k
 
     u_k = R_k^T R_WB^T (-z)                                  gravity direction in ft_k
@@ -11,7 +11,7 @@ constants. It computes what :func:`ftcal_nlp.physics.ground_wrenches` computes
 
 with ``R_HB = Rz(-yaw) R_WB`` the heading frame (``OUTPUT_FORMAT.md``) and
 ``r_k(phi)`` the calibration's CoM grid interpolated linearly and periodically
-(as :meth:`ftcal_nlp.calibration.LegCalibration.com`). The symbolic twin is
+(as :meth:`ftcal_nlp.core.calibration.LegCalibration.com`). The symbolic twin is
 checked against the numpy path to 1e-12 in the tests.
 """
 
@@ -23,9 +23,9 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from ..calibration import Calibration, LegCalibration
-from ..errors import DataFormatError
-from ..geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
+from ..core.calibration import Calibration, LegCalibration
+from ..core.errors import DataFormatError
+from ..core.geometry import cross, quat_to_rotation, remove_yaw, transform_wrench
 
 
 def _com_interpolant(leg: LegCalibration, name: str) -> Callable[[ca.MX], ca.MX]:

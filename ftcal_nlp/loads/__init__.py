@@ -13,13 +13,13 @@ models' :func:`ftcal_nlp.models.resolve`). Built in:
   grouped by the joints that move them: mass and first moment per group.
 
 The last two are :class:`LinearLoad`: linear in their parameters, served by
-the one free-load estimator (:mod:`ftcal_nlp.freeload`). :func:`load_for`
+the one free-load estimator (:mod:`ftcal_nlp.estimate.freeload`). :func:`load_for`
 builds the load of a transducer from the dataset (its ``load_kind``).
 """
 
 from __future__ import annotations
 
-from ..plugins import load_class
+from ..core.plugins import load_class
 from .base import LinearLoad, se_of
 from .leg_com_curve import LegComCurve
 from .rigid_payload import RigidPayload

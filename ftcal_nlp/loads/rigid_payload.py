@@ -41,7 +41,7 @@ class RigidPayload(LinearLoad):
         self._prior = prior
         self.tree, self.ft_link = tree, ft_link
         if tree is not None:
-            from ..kinematics import MOVABLE
+            from ..core.kinematics import MOVABLE
 
             self.base_joints = tuple(j.name for j in tree.path_to_root(ft_link) if j.type in MOVABLE)
         else:

@@ -7,7 +7,7 @@ link (links fixed to the sensor itself form a group in the ft frame). Per group
 ``G``: mass ``M_G`` and first moment ``H_G = sum_i m_i (p_i + R_i c_i)`` in the
 group frame (``c_i`` each link's CoM in its own frame, ``(R_i, p_i)`` the link in
 the group frame). With the group frame at ``(R_G(q), p_G(q))`` in ft (the
-URDF's kinematics, ``ftcal_nlp.kinematics``), the load's first moment about the
+URDF's kinematics, ``ftcal_nlp.core.kinematics``), the load's first moment about the
 ft origin is
 
     s(q) = sum_G  M_G p_G(q) + R_G(q) H_G,
@@ -27,8 +27,8 @@ from typing import Mapping
 import casadi as ca
 import numpy as np
 
-from ..errors import DataFormatError
-from ..kinematics import MOVABLE, KinematicTree
+from ..core.errors import DataFormatError
+from ..core.kinematics import MOVABLE, KinematicTree
 from .base import LinearLoad, se_of
 
 

@@ -3,16 +3,16 @@
 ``MODELS`` is a plain dict name -> class. :func:`resolve` accepts a registered
 name, ``"package.module:Class"``, ``"path/to/file.py:Class"``, an
 :class:`ErrorModel` class or instance; an unknown name raises
-:class:`~ftcal_nlp.errors.ConfigError` listing the known ones. A model name read from a ``calibration.json``
-(:class:`~ftcal_nlp.calibration.ModelName`) is looked up in the registry only:
+:class:`~ftcal_nlp.core.errors.ConfigError` listing the known ones. A model name read from a ``calibration.json``
+(:class:`~ftcal_nlp.core.calibration.ModelName`) is looked up in the registry only:
 code named in a data file is never imported.
 """
 
 from __future__ import annotations
 
-from ..calibration import REPORT_CANDIDATES, ModelName
-from ..errors import ConfigError
-from ..plugins import load_class
+from ..core.calibration import REPORT_CANDIDATES, ModelName
+from ..core.errors import ConfigError
+from ..core.plugins import load_class
 from .base import Block, ErrorModel, ModelContext, ModelSpec, make_spec, so3_variable, vector_variable
 from .builtin import Full, OffsetsOnly, Rot6Trans1, Trans1, Trans6
 

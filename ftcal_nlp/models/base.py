@@ -30,7 +30,7 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from ..calibration import Calibration
+from ..core.calibration import Calibration
 
 
 @dataclass(frozen=True)

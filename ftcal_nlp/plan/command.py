@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 def plan_inputs(args) -> dict[str, Path]:
     """What ``plan`` reads (``outdir.toml_inputs``: a pilot's files, a robot.toml's URDF, a protocol's robot.toml)."""
-    from ..outdir import toml_inputs
+    from ..core.outdir import toml_inputs
 
     out: dict[str, Path] = {}
     if args.protocol:
@@ -85,7 +85,7 @@ def plan_inputs(args) -> dict[str, Path]:
 
 
 def _main(args) -> int:
-    from ..outdir import check_file_output
+    from ..core.outdir import check_file_output
 
     args.input = os.path.expanduser(args.input) if args.input else args.input
     args.protocol = os.path.expanduser(args.protocol) if args.protocol else args.protocol

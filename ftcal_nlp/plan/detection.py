@@ -68,8 +68,8 @@ from scipy.stats import norm
 from ..diagnose.attribute import kind_threshold
 from ..diagnose.standing_fit import AugmentedProblem
 from ..effects import StandingData
-from ..selection import fold_indices
-from ..settings import DiagnoseSettings
+from ..estimate.selection import fold_indices
+from ..core.settings import DiagnoseSettings
 
 log = logging.getLogger(__name__)
 
@@ -217,9 +217,9 @@ def floors(sim, hang, poses, protocol) -> Floors:
     ``standing_view`` on the calibration that fit gives, error model ``MODEL``)."""
     from ..diagnose.views import standing_view
     from ..models import ModelContext, resolve
-    from ..standing import fit_standing
+    from ..estimate.standing import fit_standing
 
-    from ..solver import SolverError
+    from ..core.solver import SolverError
 
     ds, robot = sim.dataset, sim.dataset.robot
     legs = tuple(robot.legs)
@@ -276,9 +276,9 @@ def base_residuals(ds, smoothing: float, nlp_cache: dict | None = None, *, stand
     of the error model refit on them (``AugmentedProblem.cross_validate``, the diagnosis' folds, from ``x0``).
     ``nlp_cache``: shared by the runs of one protocol (``fit_hanging``). A standing fit that does not converge
     (too few poses for the model) leaves the standing part None (logged)."""
-    from ..hanging import fit_hanging, hanging_residuals
-    from ..solver import SolverError
-    from ..standing import extract_poses
+    from ..estimate.hanging import fit_hanging, hanging_residuals
+    from ..core.solver import SolverError
+    from ..estimate.standing import extract_poses
 
     robot = ds.robot
     legs = tuple(robot.legs)
@@ -329,7 +329,7 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
     ``smoothing`` the CoM weight its GCV picked."""
     from ..effects import resolve_effects
     from ..sim import simulate
-    from ..solver import SolverError
+    from ..core.solver import SolverError
 
     library = resolve_effects(effects)  # unknown names: a ValueError naming the known ones, before any work
     fl = floors(sim, hang, poses, protocol)

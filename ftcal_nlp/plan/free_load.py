@@ -71,7 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import crb
-from ..geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
+from ..core.geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
 from .reading import PlanError, PlanInput
 from .temperature import TemperaturePlan, pilot_temperature, protocol_temperature
 
@@ -208,7 +208,7 @@ def pilot_widening(ds, leg: str, fit) -> tuple[np.ndarray, np.ndarray]:
     """``(rho, factor)`` (6,) each: the lag-1 correlation of the pilot fit's residuals and the se factor the run
     applies for it (``sqrt`` of ``freeload.problem.serial_inflation``, the estimator's own function, on the same
     residuals: the samples the fit used, numbered by recording and row as the estimator numbers them)."""
-    from ..freeload.problem import serial_inflation
+    from ..estimate.freeload.problem import serial_inflation
 
     res, src, idx = [], [], []
     for i, rec in enumerate(r for r in ds.hanging if r.hangs_free(leg)):
@@ -229,9 +229,9 @@ def plan_from_dataset(ds, settings=None, temperature_target: float | None = None
     """The plan of a section-5 dataset's free loads (module docstring): each fitted, the bound at its estimate on
     the samples the fit used with the noise it measured; where the pilot carries a temperature, the temperature
     coefficients' se and the range needed for ``temperature_target`` (N/degC; ``plan/temperature.py``)."""
-    from ..freeload import fit_free_load
-    from ..checks import screen_sensor_faults
-    from ..errors import SolverError
+    from ..estimate.freeload import fit_free_load
+    from ..core.checks import screen_sensor_faults
+    from ..core.errors import SolverError
     from ..pipeline import check_free_load_fits, checked_free_load_samples, raise_free_load_causes
 
     # the run's checks before and after the fit: a pilot a run refuses is no ground for a plan
@@ -259,7 +259,7 @@ def plan_from_dataset(ds, settings=None, temperature_target: float | None = None
         if fit.tilt is not None and not np.all(np.isfinite(fit.se[6 + len(fit.theta):8 + len(fit.theta)])):
             notes = (TILT_HELD,)
         elif fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
-            from ..freeload.problem import tilt_gravity
+            from ..estimate.freeload.problem import tilt_gravity
 
             gs, dBs = [], []
             for r in recs:   # the tilt acts through the orientation stream's recordings only
@@ -313,7 +313,7 @@ def _recording_tilt(ds, recs, fit) -> tuple[np.ndarray, np.ndarray]:
     """Gravity in B (N, 3) at the fit's tilt of its one ``gravity_body`` recording and ``d g_B / d tilt`` (N, 3, 2)
     (zero on the other recordings): that recording's gravity is ``g F u``, ``F`` the frame of its nominal direction
     (``freeload.problem.gravity_frame``), so it enters the bound as a world tilt does with ``R_WB = F^T``."""
-    from ..freeload.problem import gravity_frame, tilt_gravity
+    from ..estimate.freeload.problem import gravity_frame, tilt_gravity
 
     (name, tilt), = fit.recording_tilts.items()
     gs, dBs = [], []
@@ -339,7 +339,7 @@ TILT_HELD = ("the world tilt of the orientation stream: held at 0 by the estimat
 
 def _tilt_held(g_ft: np.ndarray) -> bool:
     """Whether the estimator holds the world tilt at 0 for these gravity directions (one direction, a short arc)."""
-    from ..freeload.estimate import NARROW, gravity_spread
+    from ..estimate.freeload.estimate import NARROW, gravity_spread
 
     return bool(gravity_spread(g_ft)[1] < NARROW)
 
@@ -366,7 +366,7 @@ def _session(d: dict, where: str, g_default: float) -> tuple[int, np.ndarray, fl
     """The keys of a protocol of holds every load shares: samples per hold (``hold_s * rate_hz``), the reading noise sd
     (6,), the orientation jitter (rad), ``g``, and whether the mount and the world tilt are estimated (the run's
     defaults: both)."""
-    from ..settings import FreeLoadSettings
+    from ..core.settings import FreeLoadSettings
 
     n_per = int(round(_num(d, "hold_s", 5.0, where) * _num(d, "rate_hz", 100.0, where)))
     sigma = np.r_[np.full(3, _num(d, "noise_force_N", 0.05, where)), np.full(3, _num(d, "noise_torque_Nm", 0.003, where))]
@@ -576,7 +576,7 @@ def _load_kind(robot, leg: str) -> tuple[str, bool]:
     """``(kind, through_urdf)``: ``urdf_subtree`` where links with mass hang below the transducer's link, else a
     ``rigid_payload`` (its gravity through the URDF where the transducer has a link: an arm whose URDF leaves the
     tool out, ``DATA_FORMAT.md`` section 5)."""
-    from ..data import has_mass_below
+    from ..core.data import has_mass_below
 
     link = robot.transducers[leg].link
     if link is None:
@@ -603,9 +603,9 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None,
     """The plan of a section-5 ``robot.toml``'s transducers held through a protocol's holds (module docstring);
     ``d`` the ``[protocol]`` table of ``path``, ``robot_path`` the robot.toml when the command line gives it (else
     the table's ``robot``, relative to ``path``)."""
-    from ..data import read_robot
-    from ..freeload.problem import gravity_frame
-    from ..settings import FreeLoadSettings
+    from ..core.data import read_robot
+    from ..estimate.freeload.problem import gravity_frame
+    from ..core.settings import FreeLoadSettings
 
     where = f"{path} [protocol]"
     unknown = sorted(set(d) - ROBOT_KEYS)

@@ -60,15 +60,15 @@ import pandas as pd
 
 from .. import crb
 from .detection import POWER, Detection, detection_sizes
-from ..hanging import fit_hanging
-from ..hanging.com_qp import second_difference
-from ..hanging.problem import PRIOR_SD_M
-from ..settings import HangingSettings
+from ..estimate.hanging import fit_hanging
+from ..estimate.hanging.com_qp import second_difference
+from ..estimate.hanging.problem import PRIOR_SD_M
+from ..core.settings import HangingSettings
 from .reading import PlanError, PlanInput, protocol_table, read_toml
 
 if TYPE_CHECKING:
-    from ..calibration import Calibration
-    from ..standing import Poses
+    from ..core.calibration import Calibration
+    from ..estimate.standing import Poses
 
 log = logging.getLogger(__name__)
 
@@ -257,7 +257,7 @@ def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = N
     default protocol)."""
     from ..effects import resolve_effects
     from ..sim import simulate
-    from ..standing import extract_poses
+    from ..estimate.standing import extract_poses
 
     if not isinstance(detection, bool):
         resolve_effects(list(detection))  # an unknown name fails now, not after the simulation
@@ -356,9 +356,9 @@ def search(protocol: Protocol, rounds: int = 4, pilot: Pilot | None = None, dete
 def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None, dataset=None) -> tuple[Protocol, Pilot]:
     """The protocol and noise of a pilot dataset (module docstring), ``overrides`` changing keys; and its poses.
     ``dataset``: the manifest's dataset when already read (else read here)."""
-    from ..data import read_dataset
+    from ..core.data import read_dataset
     from ..pipeline import calibrate
-    from ..settings import CalibrationSettings, DiagnoseSettings
+    from ..core.settings import CalibrationSettings, DiagnoseSettings
 
     ds = read_dataset(manifest) if dataset is None else dataset
     if not ds.hanging or not ds.standing:

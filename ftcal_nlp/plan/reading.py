@@ -16,7 +16,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 #: which part plans an input: hexapod legs (hanging and standing, :mod:`.hexapod`) or free loads (:mod:`.free_load`)
 HEXAPOD, FREE_LOAD = "hexapod", "free_load"
@@ -73,7 +73,7 @@ def read_input(path: str | None, protocol_file: str | None = None) -> PlanInput:
     p = Path(path)
     d = read_toml(p)
     if "recording" in d or "recordings" in d:
-        from ..data import read_dataset
+        from ..core.data import read_dataset
 
         ds = read_dataset(p)
         return PlanInput(FREE_LOAD if ds.free_load_legs else HEXAPOD, "dataset", path, protocol_file, ds)

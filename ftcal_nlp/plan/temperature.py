@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..freeload.plausibility import TEMPERATURE_RESOLUTION_C
+from ..estimate.freeload.plausibility import TEMPERATURE_RESOLUTION_C
 
 #: degC: the working range a correction must hold over by default (the target ``s_c / span``)
 TEMPERATURE_SPAN_C = 10.0
@@ -150,7 +150,7 @@ def pilot_temperature(ds, leg: str, fit, target_force: float | None = None) -> T
     """A pilot's temperature plan for transducer ``leg`` (its load fitted as ``fit``): the temperature on the samples
     the fit used, the noise and widening of the fit's residuals with ``[1, T - Tbar]`` regressed out per recording
     (module docstring); None when no recording carries the transducer's temperature."""
-    from ..freeload.problem import serial_inflation
+    from ..estimate.freeload.problem import serial_inflation
 
     res, src, idx, T = [], [], [], []
     for i, rec in enumerate(r for r in ds.hanging if r.hangs_free(leg)):

@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..data import WRENCH_COMPONENTS
-from ..results import PM, Summary, fmt_pm
+from ..core.data import WRENCH_COMPONENTS
+from ..core.results import PM, Summary, fmt_pm
 from . import figures
 from .diagnosis import diagnosis_section
 from .render import Bullets, Definitions, Figure, Section, Table, Text, render_html, render_markdown
@@ -31,8 +31,8 @@ from .tables import hanging_comparison, parameter_table, stage_times, truth_tabl
 
 if TYPE_CHECKING:
     from ..calibration_run import CalibrationRun
-    from ..hanging.result import HangingResult
-    from ..selection import SelectionResult
+    from ..estimate.hanging.result import HangingResult
+    from ..estimate.selection import SelectionResult
 
 __all__ = ["Section", "write_report", "build_sections", "summary_paragraph", "notation_section", "diagnosis_section", "legs_as_columns"]
 

@@ -15,10 +15,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from ..data import WRENCH_COMPONENTS
+from ..core.data import WRENCH_COMPONENTS
 from ..diagnose.chain import MIN_EXCESS_SHARE
-from ..settings import FreeLoadChain
-from ..results import PM
+from ..core.settings import FreeLoadChain
+from ..core.results import PM
 from .render import Figure, Section, Table, Text
 
 if TYPE_CHECKING:

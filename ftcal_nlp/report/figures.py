@@ -170,7 +170,7 @@ def fig_leg_com(res: "CalibrationRun", path: Path) -> Path:
 
 
 def fig_hanging_residuals(res: "CalibrationRun", path: Path) -> Path:
-    from ..hanging import hanging_residuals
+    from ..estimate.hanging import hanging_residuals
 
     robot, hanging = res.dataset.robot, _stage(res.hanging, "hanging")
     with_s = hanging_residuals(hanging, res.dataset.hanging, robot, with_misalignment=True)

@@ -23,15 +23,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..data import WRENCH_COMPONENTS
-from ..results import fmt_pm
+from ..core.data import WRENCH_COMPONENTS
+from ..core.results import fmt_pm
 from .render import Bullets, Figure, Section, Table, Text, render_html, render_markdown
 from .tables import stage_times, write_table
 
 if TYPE_CHECKING:
     from ..calibration_run import CalibrationRun
-    from ..data import Recording
-    from ..freeload.result import FreeLoadResult
+    from ..core.data import Recording
+    from ..estimate.freeload.result import FreeLoadResult
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +106,7 @@ def _group_truth(truth, load) -> tuple[np.ndarray, np.ndarray] | None:
 def predicted_readings(res: "CalibrationRun", leg: str) -> list[tuple[Recording, np.ndarray, np.ndarray]]:
     """Per hanging recording in which ``leg``'s load hangs free: (recording, predicted (N, 6), quasi-static mask: the
     samples the fit used, ``FreeLoadResult.used``, else the estimator's selection recomputed)."""
-    from ..freeload.quasistatic import select_quasi_static
+    from ..estimate.freeload.quasistatic import select_quasi_static
 
     fit = _fits(res)[leg]
     s = res.settings.free_load

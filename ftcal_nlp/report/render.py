@@ -2,7 +2,7 @@
 
 A :class:`Section` is a title and an ordered list of blocks: paragraphs
 (:class:`Text`), labelled tables (:class:`Table`), stage summaries
-(:class:`~ftcal_nlp.results.Summary`), preformatted text (:class:`Code`),
+(:class:`~ftcal_nlp.core.results.Summary`), preformatted text (:class:`Code`),
 bullet lists (:class:`Bullets`) and figures (:class:`Figure`).
 
 Paragraph text uses two inline marks only, written as in Markdown:
@@ -10,7 +10,7 @@ Paragraph text uses two inline marks only, written as in Markdown:
 as in ``N*m``, so it is not read as emphasis); HTML turns them into ``<code>``
 and ``<b>`` after escaping, so neither backticks nor asterisks reach the page.
 The legacy ``+-`` is written ``±`` (the package's one value-and-error style,
-:func:`ftcal_nlp.results.fmt_pm`).
+:func:`ftcal_nlp.core.results.fmt_pm`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..results import PM, Summary
+from ..core.results import PM, Summary
 
 __all__ = ["Text", "Table", "Code", "Bullets", "Definitions", "Figure", "Section", "render_markdown", "render_html", "bold_md",
            "inline_html", "inline_md", "plain", "md_table", "html_table", "cell"]

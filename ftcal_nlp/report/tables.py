@@ -2,7 +2,7 @@
 
 Every table is a ``DataFrame`` whose index holds the row labels (named: the
 first column of every file) and whose labels carry units; estimates are
-``value ± se`` (:func:`ftcal_nlp.results.fmt_pm`). Renderers only format; they
+``value ± se`` (:func:`ftcal_nlp.core.results.fmt_pm`). Renderers only format; they
 never solve anything.
 """
 
@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..calibration import Calibration
-from ..geometry import rotation_to_rotvec
-from ..results import fmt_pm, latex_table
+from ..core.calibration import Calibration
+from ..core.geometry import rotation_to_rotvec
+from ..core.results import fmt_pm, latex_table
 from .render import bold_md, md_table
 
 if TYPE_CHECKING:

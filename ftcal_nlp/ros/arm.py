@@ -72,9 +72,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..data import JOINT_PREFIX, TEMP_SUFFIX, WRENCH_COMPONENTS, Dataset, read_urdf_tree, recording_from_frame
-from ..errors import DataFormatError
-from ..robot import Robot, Transducer
+from ..core.data import JOINT_PREFIX, TEMP_SUFFIX, WRENCH_COMPONENTS, Dataset, read_urdf_tree, recording_from_frame
+from ..core.errors import DataFormatError
+from ..core.robot import Robot, Transducer
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .clock import interp_linear, median_period, sort_unique
 from .freeload import link_rotation
@@ -356,7 +356,7 @@ def resample_arm(m: ArmMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) -
 
 
 def ingest_arm(m: ArmMap, *, progress: bool | None = None) -> IngestResult:
-    """Read an arm map's bags into a validated :class:`~ftcal_nlp.data.Dataset` (nothing written)."""
+    """Read an arm map's bags into a validated :class:`~ftcal_nlp.core.data.Dataset` (nothing written)."""
     streams = []
     for spec in m.recordings:
         s = _read(m, spec, progress)

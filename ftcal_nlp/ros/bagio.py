@@ -43,8 +43,8 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from ..data import DataFormatError
-from ..errors import ConfigError, OutputExistsError
+from ..core.data import DataFormatError
+from ..core.errors import ConfigError, OutputExistsError
 from . import rawscan
 from .wire import JOINT_TYPE, N_VALUES, POSE_TYPE, TEMPERATURE_TYPE, WRENCH_TYPE, Group, Packed, decode_batch, encode_batch
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import Dataset
+from ..core.data import Dataset
 from .bagio import read_streams
 from .ingest import ingest, read_bags
 from .mapfile import read_map

@@ -2,7 +2,7 @@
 
 Reads the map's bags (an ``[arm]`` map: :mod:`.arm`; any other: :mod:`.mapfile`), writes the interchange
 dataset (with a URDF: copied beside ``robot.toml``), then reads it back with
-:func:`ftcal_nlp.data.read_dataset` (what ``ftcal_nlp.run`` does) so that a
+:func:`ftcal_nlp.core.data.read_dataset` (what ``ftcal_nlp.run`` does) so that a
 dataset the run would reject is reported here. Exit status 2 on a bad map,
 bag or dataset, with the message naming the file and key. The files it writes
 over must be ones the tool wrote (the folder's ``.ftcal_manifest.json`` lists
@@ -16,8 +16,8 @@ import argparse
 from pathlib import Path
 from typing import Sequence
 
-from ..data import read_dataset
-from ..outdir import check_files_apart, output_path, robot_inputs, write_guarded
+from ..core.data import read_dataset
+from ..core.outdir import check_files_apart, output_path, robot_inputs, write_guarded
 from .ingest import ingest, write_ingested
 
 

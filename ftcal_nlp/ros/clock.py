@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..data import Dataset
+from ..core.data import Dataset
 from .bagio import BagError, Stream
 
 

@@ -35,8 +35,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS
-from ..errors import DataFormatError
+from ..core.data import GRAVITY_COLUMNS, JOINT_PREFIX, QUAT_COLUMNS
+from ..core.errors import DataFormatError
 from .bagio import BagError, Stream
 from .clock import interp_linear, slerp_quat, sort_unique
 

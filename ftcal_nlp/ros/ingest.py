@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..data import (
+from ..core.data import (
     QUAT_COLUMNS,
     WRENCH_COMPONENTS,
     DataFormatError,
@@ -56,8 +56,8 @@ from ..data import (
     recording_to_frame,
     write_robot,
 )
-from ..csvout import write_csv
-from ..errors import ConfigError, OutputExistsError
+from ..core.csvout import write_csv
+from ..core.errors import ConfigError, OutputExistsError
 from .bagio import BagError, BagStreams, Stream, read_streams
 from .counts import IngestCounts, IngestResult, check_not_backwards, seconds, summary
 from .clock import interp_linear, match_nearest, median_period, slerp_quat, sort_unique

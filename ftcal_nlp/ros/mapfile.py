@@ -44,8 +44,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..data import RECORDING_KINDS, DataFormatError, read_robot
-from ..robot import Robot
+from ..core.data import RECORDING_KINDS, DataFormatError, read_robot
+from ..core.robot import Robot
 
 if TYPE_CHECKING:
     from .freeload import FreeKeys

@@ -39,7 +39,7 @@ from typing import BinaryIO, Iterable, Iterator
 
 import numpy as np
 
-from ..errors import DataFormatError
+from ..core.errors import DataFormatError
 from .wire import Packed
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"

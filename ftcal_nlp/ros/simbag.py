@@ -24,8 +24,8 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data import Dataset, Recording
-from ..errors import DataFormatError, OutputExistsError
+from ..core.data import Dataset, Recording
+from ..core.errors import DataFormatError, OutputExistsError
 from . import bagio
 from .urdf import urdf_text
 
@@ -170,7 +170,7 @@ def write_free_session(res, folder: str | Path, storage: str = "mcap", *, imu: s
     """
     import tomli_w
 
-    from ..geometry import quat_to_rotation, rotation_to_quat
+    from ..core.geometry import quat_to_rotation, rotation_to_quat
     from .freeload import IMU_TYPE, imu_message
 
     folder = Path(folder)
@@ -298,7 +298,7 @@ def write_arm_session(folder: str | Path, storage: str = "mcap", *, seed: int = 
     """
     import tomli_w
 
-    from ..kinematics import load_tree
+    from ..core.kinematics import load_tree
     from ..sim.free import gravity_in_ft, payload_readings, true_rotation
 
     folder = Path(folder)

@@ -1,4 +1,4 @@
-"""Nominal transducer poses from a URDF (``yourdfpy``) -> :class:`~ftcal_nlp.robot.Robot`.
+"""Nominal transducer poses from a URDF (``yourdfpy``) -> :class:`~ftcal_nlp.core.robot.Robot`.
 
 A URDF joint's ``<origin>`` is the pose of its child link's frame in its parent
 link's frame, ``T_child^parent = (R, p)``. The nominal pose of ``ft_k`` in
@@ -21,10 +21,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..errors import DataFormatError
-from ..kinematics import load_urdf  # noqa: F401  (the one URDF parser; re-exported for the ROS modules)
-from ..geometry import is_rotation
-from ..robot import Robot, Transducer
+from ..core.errors import DataFormatError
+from ..core.kinematics import load_urdf  # noqa: F401  (the one URDF parser; re-exported for the ROS modules)
+from ..core.geometry import is_rotation
+from ..core.robot import Robot, Transducer
 
 
 def _parent_joints(urdf) -> dict[str, object]:

@@ -23,7 +23,7 @@ from ..effects.injection import (  # noqa: F401  (the hook, re-exported for the 
     apply_robot,
 )
 from ..effects.registry import LIBRARY_EFFECTS, injector_classes
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 # Name -> factory(**kwargs) -> Injector: the registry's injectors and shapes; sim/variants.py adds the faults
 # outside the library.

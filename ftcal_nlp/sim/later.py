@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
-from ..data import Recording, ground_wrench_frame
+from ..core.data import Recording, ground_wrench_frame
 from .effects import NoEffect
 from .recordings import walking_series
 from .simulate import SimResult, _recording, _sensor_readings

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-from ..geometry import remove_yaw, rotation_between, rotation_to_rotvec, rotvec_to_rotation
+from ..core.geometry import remove_yaw, rotation_between, rotation_to_rotvec, rotvec_to_rotation
 from .statics import applied_wrench, board_rotation, contact_forces, heading_rotation, internal_forces, solve_stance
 
 TRIPOD_A = ("FL", "MR", "HL")

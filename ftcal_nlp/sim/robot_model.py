@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibration import Calibration, LegCalibration
-from ..geometry import rotvec_to_rotation
-from ..robot import Robot, Transducer
+from ..core.calibration import Calibration, LegCalibration
+from ..core.geometry import rotvec_to_rotation
+from ..core.robot import Robot, Transducer
 
 LEGS = ("FL", "ML", "HL", "FR", "MR", "HR")
 COM_GRID_POINTS = 72

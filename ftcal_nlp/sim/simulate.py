@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..calibration import Calibration
-from ..data import Dataset, Recording, ground_wrench_frame
-from ..geometry import rotation_to_quat, rotvec_to_rotation
+from ..core.calibration import Calibration
+from ..core.data import Dataset, Recording, ground_wrench_frame
+from ..core.geometry import rotation_to_quat, rotvec_to_rotation
 from .config import SimConfig
 from .effects import apply_orientation, apply_readings, apply_robot, effect_label
 from .recordings import TrueSeries, hanging_series, standing_series, walking_series

@@ -54,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import rotvec_to_rotation
+from ..core.geometry import rotvec_to_rotation
 
 _E_Z = np.array([0.0, 0.0, 1.0])
 _RESIDUAL_SIGN = np.array([1.0, 1.0, -1.0])  # _residual ~ diag(-1, -1, 1) grad V near level ground

@@ -36,8 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data import WRENCH_COMPONENTS
-from ..geometry import rotvec_to_rotation
+from ..core.data import WRENCH_COMPONENTS
+from ..core.geometry import rotvec_to_rotation
 from ..effects.injection import (  # noqa: F401  (EXPECT_*, OffFaceInjector, variant_key: importable from here)
     EXPECT_NONE,
     EXPECT_UNEXPLAINED,

@@ -12,8 +12,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..data import recording_to_frame, write_robot
-from ..errors import OutputExistsError
+from ..core.data import recording_to_frame, write_robot
+from ..core.errors import OutputExistsError
 from .simulate import SimResult
 
 _FORMATS = ("csv", "parquet")

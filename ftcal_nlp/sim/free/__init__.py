@@ -16,11 +16,11 @@ over bodies for a URDF load), ``g_ft`` gravity (pointing down, magnitude g) in
 ft; equations and frames in :mod:`.physics`. Modules: ``config`` (frozen
 settings, ``config_from_dict``), ``physics`` (noise-free readings), ``simulate`` (motion, sensing),
 ``writer`` (files; ``simulate_to_folder`` for a ``[simulate]`` table). The vectorised URDF
-forward kinematics are :mod:`ftcal_nlp.kinematics`, shared with the free-load estimator.
+forward kinematics are :mod:`ftcal_nlp.core.kinematics`, shared with the free-load estimator.
 """
 
 from .config import FREE_SIM_KINDS, LEG4_URDF, PayloadConfig, UrdfLegConfig, config_from_dict
-from ...kinematics import KinematicTree, load_tree
+from ...core.kinematics import KinematicTree, load_tree
 from .physics import gravity_in_body, gravity_in_ft, payload_readings, true_rotation, urdf_load_readings
 from .simulate import FreeLoadResult, simulate_free, simulate_payload, simulate_urdf_leg
 from .writer import simulate_to_folder, write_free_load

@@ -43,8 +43,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ...geometry import rotvec_to_rotation, unskew
-from ...kinematics import KinematicTree
+from ...core.geometry import rotvec_to_rotation, unskew
+from ...core.kinematics import KinematicTree
 
 G_DOWN = np.array([0.0, 0.0, -1.0])
 

@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ...geometry import quat_to_rotation, rotation_to_quat, rotation_to_rotvec, rotvec_to_rotation
+from ...core.geometry import quat_to_rotation, rotation_to_quat, rotation_to_rotvec, rotvec_to_rotation
 from ..effects import apply_orientation, apply_readings
 from .config import PayloadConfig, UrdfLegConfig
-from ...kinematics import KinematicTree, load_tree
+from ...core.kinematics import KinematicTree, load_tree
 from .physics import gravity_in_body, gravity_in_ft, inertial_wrench, payload_readings, true_rotation, urdf_load_readings
 
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")

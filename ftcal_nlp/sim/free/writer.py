@@ -54,7 +54,7 @@ def simulate_to_folder(table: dict[str, Any], folder: str | Path, *, overwrite: 
     The files it writes over must be ones the tool wrote (``outdir.guard_files``: the folder's manifest lists
     them), and only with ``overwrite``; other files in the folder are left as they are.
     """
-    from ...outdir import write_guarded
+    from ...core.outdir import write_guarded
 
     kind = table.get("kind", "hexapod")
     if kind in FREE_SIM_KINDS:
