@@ -25,6 +25,7 @@ import logging
 import os
 import tomllib
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -127,8 +128,11 @@ def leg_samples(cal: dict, path: Path, source: int, gravity_body=None, cal_path:
 def _concat(parts: list[LegSamples]) -> LegSamples:
     s0 = parts[0]
     poses = None if s0.poses is None else pd.concat([p.poses for p in parts], ignore_index=True)
-    return LegSamples(s0.leg, *(np.concatenate([getattr(p, a) for p in parts]) for a in ("w", "se")), s0.sigma,
-                      *(np.concatenate([getattr(p, a) for p in parts]) for a in ("u", "source", "index", "t")), poses,
+
+    def cat(field: str) -> np.ndarray:
+        return np.concatenate([getattr(p, field) for p in parts])
+
+    return LegSamples(s0.leg, cat("w"), cat("se"), s0.sigma, cat("u"), cat("source"), cat("index"), cat("t"), poses,
                       s0.n_cal)
 
 
@@ -147,7 +151,7 @@ def own_recordings(cal_path: Path) -> list[Path]:
     return [p for w, p in dataset_inputs(cfg.parent / os.path.expanduser(man)).items() if w.startswith("recording ")]
 
 
-def validate(cal_path: str | Path, recordings: list[str | Path], *, gravity_body=None,
+def validate(cal_path: str | Path, recordings: Sequence[str | Path], *, gravity_body=None,
              alpha: float = ALPHA) -> tuple[Holdout, dict[str, LegSamples]]:
     """The validation of the calibration ``cal_path`` on ``recordings`` (module docstring) and its samples."""
     cal_path = Path(cal_path)
@@ -163,7 +167,7 @@ def validate(cal_path: str | Path, recordings: list[str | Path], *, gravity_body
     return holdout({k: _concat(v) for k, v in parts.items()}, alpha), {k: _concat(v) for k, v in parts.items()}
 
 
-def write_holdout(cal_path: str | Path, recordings: list[str | Path], folder: Path, *, gravity_body=None,
+def write_holdout(cal_path: str | Path, recordings: Sequence[str | Path], folder: Path, *, gravity_body=None,
                   alpha: float = ALPHA, label: str | None = None) -> Holdout:
     """:func:`validate`, then :data:`FILES` written into ``folder`` (created); returns the validation. ``label``: how
     ``holdout.md`` names the calibration (default its path)."""

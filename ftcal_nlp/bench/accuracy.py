@@ -129,7 +129,7 @@ def pipeline_errors(seed: int, pipeline: str, hang, stand, sim, bounds: DatasetB
     e = np.concatenate([e_rot.ravel(), e_p.ravel()])
     e_proj = sb.bound.project(e)
     sd = sb.bound.sd
-    refs = {"ls_ratio": sb.ls_cov, "two_stage_ratio": sb.two_stage_cov, "gls_const_ratio": sb.gls_const_cov}
+    refs = sb.reference_covs()
     for name, sl, comps in (("rotations", slice(0, 3 * K), "xyz"), ("translations", slice(3 * K, 6 * K), "xyz")):
         labels = [(k, c) for k in legs for c in comps]
         extra = {key: np.sqrt(np.diag(C))[sl] / sd[sl] for key, C in refs.items()}
@@ -164,6 +164,7 @@ def run_pipeline(pipeline: str, sim, poses, model: str = "full"):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         run = calibrate(sim.dataset, pipeline_settings(pipeline, model))
+    assert run.poses is not None  # a full calibration of a simulated dataset (it has standing recordings) has poses
     if run.poses.n != poses.n or not np.array_equal(run.poses.w_m, poses.w_m):
         raise RuntimeError(f"pipeline {pipeline}: calibrate extracted other poses than the bound was computed on")
     return run.hanging, run.standing
@@ -182,7 +183,7 @@ def evaluate_seed(seed: int, settings: AccuracySettings = AccuracySettings()) ->
     robot = sim.dataset.robot
     poses = extract_poses(sim.dataset.standing[0], robot)
     bounds = dataset_bounds(sim, poses)
-    info = {"seed": seed, "n_poses": poses.n, "hanging_samples": sum(r.n for r in sim.dataset.hanging),
+    info: dict[str, float | str] = {"seed": seed, "n_poses": poses.n, "hanging_samples": sum(r.n for r in sim.dataset.hanging),
             "standing_dropped_dirs": bounds.standing.bound.n_dropped,
             "hanging_dropped_dirs": int(sum(b.n_dropped for b in bounds.hanging.bounds.values())),
             "pose_residual_check": bounds.standing.residual_check,

@@ -52,6 +52,9 @@ def diagnose_one(protocol: Protocol, effect: str | None, scale: float, seed: int
         warnings.simplefilter("ignore")
         run = calibrate(sim.dataset, SETTINGS)
     dg = run.diagnosis
+    if dg is None:   # the run skipped it (pipeline.optional): its note says why
+        raise RuntimeError(f"detect check: {effect or 'no effect'} at {scale:g}, seed {seed}: no diagnosis "
+                           f"({'; '.join(run.notes) or 'skipped'})")
     row = {"effect": effect or "none", "scale": scale, "seed": seed, "verdict": dg.verdict, "named": dg.effect or "",
            "time_s": time.perf_counter() - t0}
     for k, v in dg.kinds.items():
@@ -72,7 +75,8 @@ def run_detect_check(settings: DetectCheckSettings = DetectCheckSettings()) -> d
     t0 = time.perf_counter()
     pred = predict(settings.protocol, seed=0, detection=tuple(settings.effects))
     t_pred = time.perf_counter() - t0
-    sizes = {d.effect: d for d in pred.detection.sizes}
+    # None: no effect asked (predict computes sizes for a non-empty tuple only)
+    sizes = {d.effect: d for d in pred.detection.sizes} if pred.detection is not None else {}
     rows = []
     for e in settings.effects:
         d = sizes[e]

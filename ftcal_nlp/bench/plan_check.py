@@ -68,10 +68,10 @@ def check_protocol(name: str, protocol: Protocol, seeds) -> list[dict]:
     """One row per group: predicted se, reported se (seed ``seeds[0]``), spread over ``seeds``, their ratios."""
     pred = predict(protocol, seed=seeds[0])
     errs: dict[str, list] = {g: [] for g in GROUPS}
-    reported = None
-    for s in seeds:
+    reported: dict[str, float] = {}       # of seeds[0] (there is one: predict above took it)
+    for i, s in enumerate(seeds):
         cal, truth = calibrate_protocol(protocol, s)
-        if reported is None:
+        if i == 0:
             reported = reported_se(cal)
         for g, e in group_errors(cal, truth).items():
             errs[g].append(e)

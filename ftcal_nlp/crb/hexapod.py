@@ -381,6 +381,12 @@ class StandingBound:
     n_samples_median: float
     sigma_z_median: float
 
+    def reference_covs(self) -> dict[str, np.ndarray]:
+        """The reference covariances by the name of their ratio to the bound (``references=True`` computes them)."""
+        if self.ls_cov is None or self.two_stage_cov is None or self.gls_const_cov is None:
+            raise ValueError("standing bound computed without its references: standing_bound(..., references=True)")
+        return {"ls_ratio": self.ls_cov, "two_stage_ratio": self.two_stage_cov, "gls_const_ratio": self.gls_const_cov}
+
 
 def pose_orientation_sd(n_samples: np.ndarray, jitter_rad: float, per_pose_rad: float) -> np.ndarray:
     """sd (rad, per axis) of each pose's orientation: the median of white jitter plus the per-pose error."""
@@ -491,7 +497,6 @@ def dataset_bounds(sim, poses) -> DatasetBounds:
     """Every bound of one simulated dataset at its truth, for the extracted ``poses``."""
     hb = hanging_bound(sim)
     sb = standing_bound(sim, poses, hb)
-    ref = {"ls_ratio": sb.ls_cov, "two_stage_ratio": sb.two_stage_cov, "gls_const_ratio": sb.gls_const_cov}
-    com_ref = {k: total_com_cov(sim, hb, C) for k, C in ref.items()}
+    com_ref = {k: total_com_cov(sim, hb, C) for k, C in sb.reference_covs().items()}
     return DatasetBounds(hb, sb, total_com_cov(sim, hb, sb.bound.cov), com_ref,
                          {leg: interpolation_bias(sim, leg) for leg in hb.legs}, {leg: hb.com_sd_sinusoid(leg) for leg in hb.legs})

@@ -12,12 +12,22 @@ import argparse
 import json
 import os
 from pathlib import Path
+from typing import Any, Callable, Protocol
 
 from . import free_load, hexapod
-from .reading import FREE_LOAD, HEXAPOD, read_input
+from .reading import FREE_LOAD, HEXAPOD, PlanInput, read_input
+
+
+class Plan(Protocol):
+    """What a part returns: a plan written as ``plan.json`` and printed."""
+
+    def to_json_dict(self) -> dict: ...
+
+    def text(self) -> str: ...
+
 
 #: the part that plans each family of loads: ``plan_for(PlanInput, options) -> plan`` (``to_json_dict``, ``text``)
-PARTS = {HEXAPOD: hexapod.plan_for, FREE_LOAD: free_load.plan_for}
+PARTS: dict[str, Callable[[PlanInput, Any], Plan]] = {HEXAPOD: hexapod.plan_for, FREE_LOAD: free_load.plan_for}
 
 FREE_LOAD_HELP = """free loads (DATA_FORMAT.md section 5: wrist payloads, URDF loads, arms):
   plan dataset.toml                    a recorded pilot: each load fitted, the bound at its estimate on its samples,

@@ -310,7 +310,9 @@ def base_residuals(ds, smoothing: float, nlp_cache: dict | None = None, *, stand
 def signal(clean: BaseResiduals, with_effect: BaseResiduals, scale: float, fl: Floors) -> Signal:
     """``a`` of (D1) per kind from the base residuals without and with the effect at ``scale`` (NaN: kind not seen)."""
     a = {"standing": float("nan")}
-    if clean.standing is not None and with_effect.standing is not None:
+    # t_pose is given with standing (base_residuals)
+    if (clean.standing is not None and with_effect.standing is not None and clean.t_pose is not None
+            and with_effect.t_pose is not None):
         # the poses found in both (an effect can change which poses the extraction finds)
         _, i, j = np.intersect1d(np.round(clean.t_pose, 3), np.round(with_effect.t_pose, 3), return_indices=True)
         if len(i):
@@ -351,7 +353,7 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
     out = []
     for eff in library:
         name, mag = eff.name, eff.magnitude
-        realistic = tuple(float(x) for x in mag.realistic)
+        realistic = (float(mag.realistic[0]), float(mag.realistic[1]))
         if "hexapod" not in eff.diagnosed_on:   # a free-load effect: the hexapod diagnosis has no face for it
             out.append(DetectionSize(name, float("inf"), mag.unit, None, realistic, {},
                                      "not predicted: no hexapod face (the free-load diagnosis names it)"))
@@ -387,7 +389,7 @@ def detection_sizes(protocol, sim, hang, poses, smoothing: float, effects=None, 
                          {k: round(v, 2) for k, v in expo.items()}, {k: f"{v:.3g}" for k, v in per.items()})
                 break
         per = {k: (v if v <= EXTRAPOLATION_MAX * test else float("inf")) for k, v in per.items()}
-        kind = min(per, key=per.get)
+        kind = min(per, key=lambda k: per[k])
         note = "" if np.isfinite(per[kind]) else "not predicted: the calibration failed on the simulated protocol" if not any(
             np.isfinite(v) for v in a1.values()) else (
             f"no standing or hanging gap below {EXTRAPOLATION_MAX:g}x its test size"

@@ -155,7 +155,7 @@ class LoadPlan:
             return ("white noise assumed (no pilot): the run widens se where residuals stay correlated through a hold; "
                     "plan a pilot dataset to carry that")
         w = np.array2string(self.widening, precision=2)
-        r = np.array2string(self.lag1, precision=2)
+        r = "n/a" if self.lag1 is None else np.array2string(self.lag1, precision=2)  # _plan gives both or neither
         return (f"se widened as the run widens them for serially correlated residuals: x{w} in fx..tz (the pilot fit's "
                 f"residuals, lag-1 correlation {r}; freeload.problem.serial_inflation)")
 
@@ -254,7 +254,8 @@ def plan_from_dataset(ds, settings=None, temperature_target: float | None = None
         g_B = np.concatenate([ds.robot.g * r.gravity_directions()[fit.used[r.name]] for r in recs])
         mount = bool(np.all(np.isfinite(fit.se[-3:]) | np.isinf(fit.se[-3:])))   # NaN: the mount was not estimated
         rv = rotation_to_rotvec(fit.rotation)
-        dB, notes = None, ()
+        dB: np.ndarray | None = None
+        notes: tuple[str, ...] = ()
         if fit.tilt is not None and not np.all(np.isfinite(fit.se[6 + len(fit.theta):8 + len(fit.theta)])):
             notes = (TILT_HELD,)
         elif fit.tilt is not None:   # the fit's world tilt: gravity through the stream's orientations, tilted
@@ -280,8 +281,8 @@ def plan_from_dataset(ds, settings=None, temperature_target: float | None = None
                                     for r in recs]) for j in fit.load.base_joints}
             R = fit.load.nominal_rotation(q, len(g_B)) @ fit.rotation
             g_ft = np.einsum("nji,nj->ni", R, g_B)
-            m = float(fit.theta[0])
-            bound = crb.payload_bound(g_ft, m, fit.theta[1:4] / m, sigma, mount=mount, offset=fit.offset,
+            mass = float(fit.theta[0])
+            bound = crb.payload_bound(g_ft, mass, fit.theta[1:4] / mass, sigma, mount=mount, offset=fit.offset,
                                             tilt_dirs=None if dB is None else np.einsum("nji,njt->nit", R, dB))
         else:
             tree, link = ds.robot.tree, ds.robot.transducers[leg].link
@@ -456,6 +457,9 @@ class Holds:
         t = self.tracked
         out[t] = -g * quat_to_rotation(self.quat[t])[:, 2, :]
         if (~t).any():
+            if self.gravity_body is None:   # read_holds refuses this; a Holds built by hand may not
+                raise PlanError(f"holds {np.flatnonzero(~t).tolist()} have no quat and the protocol no gravity_body",
+                                key="gravity_body")
             out[~t] = g * self.gravity_body
         return out
 
@@ -480,13 +484,13 @@ def _read_holds(d: dict, where: str, robot, legs: tuple[str, ...]) -> Holds:
             "or 'orientations' = [[qw, qx, qy, qz], ...], or 'n_orientations' (drawn on SO(3) with 'seed')", key="holds")
     if "orientations" in d:
         quat = _quats(d["orientations"], where, "orientations")
-        poses = [{}] * len(quat)
+        poses: list[dict[str, float]] = [{}] * len(quat)
     elif "n_orientations" in d:
         n = d["n_orientations"]
         if not isinstance(n, int) or isinstance(n, bool) or n < 1:
             raise PlanError(f"{where}: key 'n_orientations' must be a positive integer, got {n!r}", key="n_orientations")
-        q = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
-        quat, poses = q / np.linalg.norm(q, axis=1, keepdims=True), [{}] * n
+        z = np.random.default_rng(int(d.get("seed", 0))).standard_normal((n, 4))
+        quat, poses = z / np.linalg.norm(z, axis=1, keepdims=True), [{}] * n
     else:
         holds = d["holds"]
         if not isinstance(holds, list) or not holds or not all(isinstance(h, dict) for h in holds):
@@ -618,7 +622,7 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None,
         if leg not in robot.legs:
             raise PlanError(f"{where}: key 'transducer' = {leg!r}: not a transducer of {rpath} (legs = "
                             f"{list(robot.legs)})", key="transducer")
-        legs = (leg,)
+        legs: tuple[str, ...] = (leg,)
     else:
         legs = tuple(robot.legs)
     kinds = {k: _load_kind(robot, k) for k in legs}
@@ -650,11 +654,12 @@ def plan_from_robot(d: dict, path: Path, robot_path: Path | None = None,
         g_ft = to_ft(g_B)
         held = tilt and on_stream.any() and _tilt_held(g_ft[on_stream])
         dg = np.stack([to_ft(dB[:, :, k]) for k in range(2)], axis=2) if tilt and on_stream.any() and not held else None
-        notes = ((TILT_HELD,) if held else ())
+        notes: tuple[str, ...] = ((TILT_HELD,) if held else ())
         if on_stream.any() and not on_stream.all():
             notes += (("holds without an orientation take gravity from gravity_body: the run estimates a tilt per such "
                        "recording where the data fix it; not in the bound (taken as known here)"),)
         if rec_tilt:   # one gravity_body recording: its tilt, g F u (freeload.problem.gravity_frame), as a world tilt
+            assert holds.gravity_body is not None  # rec_tilt: no hold has a quat, and read_holds asks gravity_body then
             F = gravity_frame(holds.gravity_body[None])[0]
             dBr = crb.tilt_directions(np.broadcast_to(F.T, (len(g_B), 3, 3)), g)
             dg = np.stack([to_ft(dBr[:, :, k]) for k in range(2)], axis=2)
@@ -702,6 +707,9 @@ def plan_for(inp: PlanInput, options) -> FreeLoadPlan:
         raise PlanError(f"--temperature-target must be a positive number (N/degC), got {target!r}", key="--temperature-target")
     if inp.kind == "dataset":
         return plan_from_dataset(inp.dataset, temperature_target=target)
+    # read_input gives a free load's robot.toml (only with --protocol) and its protocol file their table of holds
+    assert inp.table is not None and inp.source is not None
     if inp.kind == "robot":
+        assert inp.protocol_file is not None
         return plan_from_protocol(inp.table, Path(inp.protocol_file), robot_path=Path(inp.source), temperature_target=target)
     return plan_from_protocol(inp.table, Path(inp.source), temperature_target=target)

@@ -53,6 +53,7 @@ import logging
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -64,6 +65,10 @@ from ..estimate.hanging.com_qp import second_difference
 from ..estimate.hanging.problem import PRIOR_SD_M
 from ..core.settings import HangingSettings
 from .reading import PlanError, PlanInput, protocol_table, read_toml
+
+if TYPE_CHECKING:
+    from ..core.calibration import Calibration
+    from ..estimate.standing import Poses
 
 log = logging.getLogger(__name__)
 
@@ -180,6 +185,8 @@ class Prediction:
     def detection_table(self) -> pd.DataFrame:
         """Per library effect: the smallest size detected with power 0.8, its unit, the kind that sees it first,
         the realistic range and where the size lies against it (``detection.py``)."""
+        if self.detection is None:
+            raise PlanError("no detection sizes in this prediction: predict(..., detection=True) or --detection gives them")
         return pd.DataFrame([{"effect": d.effect, "detection_size": d.size, "kind": d.kind or "n/a",
                               "realistic": f"{d.realistic[0]:g}-{d.realistic[1]:g}", "in_range": d.in_realistic_range,
                               "vs_range": d.position, "unit": d.unit} for d in self.detection.sizes])
@@ -227,8 +234,8 @@ def smoothed_com_sd(F: np.ndarray, lay: crb.HangingLayout, lam: float) -> np.nda
 class Pilot:
     """What a pilot dataset lends a plan: its extracted poses and its calibration (standing in for the truth)."""
 
-    poses: object
-    calibration: object
+    poses: Poses
+    calibration: Calibration
     pose_s: float
     rate_hz: float
 
@@ -252,7 +259,7 @@ def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = N
     from ..sim import simulate
     from ..estimate.standing import extract_poses
 
-    if detection not in (True, False):
+    if not isinstance(detection, bool):
         resolve_effects(list(detection))  # an unknown name fails now, not after the simulation
     sim = simulate(protocol.sim_config(seed))
     legs = tuple(sim.dataset.robot.legs)
@@ -281,7 +288,7 @@ def predict(protocol: Protocol, seed: int | None = None, pilot: Pilot | None = N
     se = {g: _rms(per[g]) * GROUPS[g][1] for g in GROUPS}
     det = None
     if detection:
-        names = None if detection is True else list(detection)
+        names = None if isinstance(detection, bool) else list(detection)
         det = detection_sizes(protocol, sim, hang, poses, float(np.median(list(lam.values()))), effects=names, seed=seed)
     return Prediction(protocol, se, per, int(poses.n), lam, det)
 
@@ -308,7 +315,7 @@ def reported_se(calibration) -> dict[str, float]:
 # ----------------------------------------------------------------------------- search
 
 
-def _scaled(p: Protocol, turns: float, n_poses: int) -> Protocol:
+def _scaled(p: Protocol, turns: float, n_poses: float) -> Protocol:
     return replace(p, hanging_turns=float(max(0.5, np.ceil(2 * turns) / 2)), n_poses=int(min(GRID_POSES, max(8, np.ceil(n_poses)))))
 
 
@@ -359,6 +366,8 @@ def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None, dat
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         run = calibrate(ds, CalibrationSettings(diagnose=DiagnoseSettings(enabled=False)))
+    # a full calibration (not offsets-only) of a dataset with hanging and standing recordings has both
+    assert run.hanging is not None and run.poses is not None
     legs = ds.robot.legs
     res = np.stack([run.hanging.legs[k].residual_rms for k in legs])
     turns = [float(np.median([np.ptp(r.phi[k]) for k in legs]) / (2 * np.pi)) for r in ds.hanging]
@@ -366,12 +375,13 @@ def protocol_from_pilot(manifest: str | Path, overrides: dict | None = None, dat
     standing_s = sum(float(r.t[-1] - r.t[0]) for r in ds.standing)
     n = int(run.poses.n)
     tilt = np.degrees(np.arccos(np.clip(run.poses.R_WB[:, 2, 2], -1, 1)))
+    pose_s, rate_hz = max(standing_s / max(n, 1), 2.5), float(1 / np.median(np.diff(ds.hanging[0].t)))
     d = {"hanging_turns": float(np.mean(turns)), "turn_s": float(np.sum(durations) / max(np.sum(turns), 1e-9)),
-         "n_poses": min(n, GRID_POSES), "pose_s": max(standing_s / max(n, 1), 2.5), "board_share": float(np.mean(tilt > 15.0)),
-         "noise_force_N": _rms(res[:, :3]), "noise_torque_Nm": _rms(res[:, 3:]), "rate_hz": float(1 / np.median(np.diff(ds.hanging[0].t))),
+         "n_poses": min(n, GRID_POSES), "pose_s": pose_s, "board_share": float(np.mean(tilt > 15.0)),
+         "noise_force_N": _rms(res[:, :3]), "noise_torque_Nm": _rms(res[:, 3:]), "rate_hz": rate_hz,
          "mass_kg": ds.robot.mass_kg, "g": ds.robot.g}
     log.info("pilot %s: %s", manifest, ", ".join(f"{k}={v:.4g}" for k, v in d.items()))
-    return Protocol.from_dict({**d, **(overrides or {})}, where=str(manifest)), Pilot(run.poses, run.calibration, d["pose_s"], d["rate_hz"])
+    return Protocol.from_dict({**d, **(overrides or {})}, where=str(manifest)), Pilot(run.poses, run.calibration, pose_s, rate_hz)
 
 
 def load_input(path: str | Path | None, protocol_file: str | Path | None = None, dataset=None) -> tuple[Protocol, Pilot | None]:

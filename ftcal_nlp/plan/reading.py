@@ -47,7 +47,8 @@ def protocol_table(protocol_file: str | Path | None) -> dict:
 def is_free_robot(d: dict) -> bool:
     """A robot.toml that describes free loads (``DATA_FORMAT.md`` section 5): a URDF or a transducer ``link``, or no
     ``mass_kg`` (a hexapod's robot.toml has it: section 2)."""
-    tables = d.get("transducers") if isinstance(d.get("transducers"), dict) else {}
+    given = d.get("transducers")
+    tables = given if isinstance(given, dict) else {}
     return "mass_kg" not in d or "urdf" in d or any(isinstance(t, dict) and "link" in t for t in tables.values())
 
 

@@ -316,8 +316,8 @@ def resample_arm(m: ArmMap, spec: RecordingSpec, s: BagStreams, epoch_ns: int) -
     clock_gaps = int(np.sum(np.round(dt[dt > 1.5 * period] / period) - 1)) if period > 0 else 0
     keep = np.ones(len(t), dtype=bool)
     cols: dict[str, np.ndarray] = {"t": t}
-    for j, c in enumerate(WRENCH_COMPONENTS):
-        cols[f"{a.transducer}_{c}"] = a.wrench_sign * vals[:, j]
+    for i, c in enumerate(WRENCH_COMPONENTS):
+        cols[f"{a.transducer}_{c}"] = a.wrench_sign * vals[:, i]
     outside: dict[str, int] = {}
     for j in a.joints:
         st = s.joints[a.joint_prefix + j]

@@ -39,7 +39,7 @@ import shutil
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -166,7 +166,8 @@ class _TopicBatches:
         if column is None:
             vals = np.concatenate([g.values for g in groups])[o]
         else:
-            vals = np.concatenate([g.values[:, g.names.index(column)] for g in groups])[o][:, None]
+            # the groups given with a column are those naming it (joint())
+            vals = np.concatenate([g.values[:, (g.names or ()).index(column)] for g in groups])[o][:, None]
         return Stream(self.topic, stamp, recv[rows[o]], vals, frozenset(g.frame_id for g in groups)), vals
 
     def wrench(self) -> Stream:
@@ -185,10 +186,10 @@ class _TopicBatches:
         return Stream(self.topic, st.stamp_ns[ok], st.receive_ns[ok], q[ok] / nq[ok, None], st.frame_ids, int((~ok).sum()))
 
     def names_seen(self) -> frozenset[str]:
-        return frozenset(n for g in self.groups for n in g.names)
+        return frozenset(n for g in self.groups for n in g.names or ())
 
     def joint(self, name: str) -> Stream:
-        return self._stream([g for g in self.groups if g.usable and name in g.names], name, 1)[0]
+        return self._stream([g for g in self.groups if g.usable and name in (g.names or ())], name, 1)[0]
 
 
 @dataclass(frozen=True)
@@ -517,26 +518,30 @@ def write_bag(path: str | Path, series: Sequence[TopicSeries], *, storage: str =
         if len(s.receive_ns) != len(s.messages):
             raise ValueError(f"topic {s.topic}: {len(s.messages)} messages but {len(s.receive_ns)} receive times")
     path.parent.mkdir(parents=True, exist_ok=True)
-    if storage == "ros1":
-        from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
 
-        writer = Writer1(path)
+    writer: Writer1 | Writer2
+    if storage == "ros1":
+        writer1 = Writer1(path)
         if compression:
-            writer.set_compression(getattr(Writer1.CompressionFormat, compression.upper()))
+            writer1.set_compression(getattr(Writer1.CompressionFormat, compression.upper()))
+        writer = writer1
         serialize = ts.serialize_ros1
     else:
-        from rosbags.rosbag2 import Writer as Writer2
         from rosbags.rosbag2.enums import StoragePlugin
 
-        kw = {"storage_plugin": StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3}
+        # Any: 'version' exists (and is required) only in newer rosbags, hence the hasattr below
+        kw: dict[str, Any] = {"storage_plugin": StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3}
         if hasattr(Writer2, "VERSION_LATEST"):
             kw["version"] = Writer2.VERSION_LATEST
-        writer = Writer2(path, **kw)
+        writer2 = Writer2(path, **kw)
         if compression:
             from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
-            writer.set_compression(CompressionMode.STORAGE if compression == "zstd" else CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+            writer2.set_compression(CompressionMode.STORAGE if compression == "zstd" else CompressionMode.MESSAGE, CompressionFormat.ZSTD)
         serialize = ts.serialize_cdr
+        writer = writer2
     with writer:
         conns = [writer.add_connection(s.topic, s.msgtype, typestore=ts) for s in series]
         # receive time, then series, then position: one stable order over all topics
@@ -545,7 +550,13 @@ def write_bag(path: str | Path, series: Sequence[TopicSeries], *, storage: str =
         index = np.concatenate([np.arange(len(s.messages)) for s in series]) if series else np.zeros(0, dtype=int)
         for q in np.lexsort((index, which, recv)):
             s, msg = series[which[q]], series[which[q]].messages[index[q]]
-            data = msg if isinstance(msg, (bytes, bytearray, memoryview)) else bytes(serialize(msg, s.msgtype))
+            data: bytes | memoryview  # the writers' declared type; a bytearray is passed as a view of the same bytes
+            if isinstance(msg, (bytes, memoryview)):
+                data = msg
+            elif isinstance(msg, bytearray):
+                data = memoryview(msg)
+            else:
+                data = bytes(serialize(msg, s.msgtype))
             writer.write(conns[which[q]], int(recv[q]), data)
     return path
 

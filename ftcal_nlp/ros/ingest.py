@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+from functools import partial
 from dataclasses import asdict
 from pathlib import Path
 
@@ -105,8 +106,8 @@ def _check_streams(m: IngestMap, spec: RecordingSpec, s: BagStreams) -> None:
     jc = m.free_keys.joint_columns if m.free_keys is not None else None
     for n in jc.names if jc is not None else ():
         if n not in s.joints or len(s.joints[n]) < 2:
-            raise BagError(f"{spec.bag}: joint '{n}' of map key [joint_columns] names has fewer than 2 positions on '{jc.topic}' "
-                           f"(joint names seen: {sorted(s.joint_names_seen)})")
+            raise BagError(f"{spec.bag}: joint '{n}' of map key [joint_columns] names has fewer than 2 positions on "
+                           f"'{jc.topic if jc is not None else None}' (joint names seen: {sorted(s.joint_names_seen)})")
     imu = s.extra.get("imu")
     if imu is not None and len(imu) < 2:
         raise BagError(f"{spec.bag}: topic '{imu.topic}' ([imu] topic) has {len(imu)} message(s); at least 2 are needed")
@@ -256,7 +257,7 @@ def read_bags(m: IngestMap, *, progress: bool | None = None) -> list[BagStreams]
             joint_names=list(m.joint_names.values()) + list(m.free_keys.joint_columns.names if m.free_keys and m.free_keys.joint_columns else ()),
             # hanging recordings do without orientation unless it gives their gravity per sample (section 5)
             pose_topic=m.pose_topic if spec.kind != "hanging" or spec.gravity_body is None else None,
-            check_topics=lambda topics, spec=spec: _check_topics(m, spec, topics),
+            check_topics=partial(_check_topics, m, spec),
             progress=progress,
         )
         if m.free_keys is not None and m.free_keys.imu is not None:

@@ -74,7 +74,7 @@ class IngestMap:
     wrench_sign: dict[str, float]
     wrench_match: str
     check_frame_ids: bool
-    joint_topic: str
+    joint_topic: str | None          # None: no [joints] table (section 5 maps may do without)
     joint_names: dict[str, str]
     joint_zero_rad: dict[str, float]
     joint_sign: dict[str, float]
@@ -167,7 +167,10 @@ def _robot(d: dict, where: str, root: Path) -> tuple[Robot, dict[str, str] | Non
     if has_robot:
         robot = read_robot(root / _get(d, "robot", where, str))
         for key, val in (("mass_kg", robot.mass_kg), ("g", robot.g)):
-            if key in d and abs(float(_get(d, key, where, (int, float))) - val) > 1e-9 * max(1.0, abs(val)):
+            if key in d and val is None:
+                raise DataFormatError(f"{where}: '{key}' = {d[key]} is given but the robot file has no '{key}'; "
+                                      "give it in the robot file")
+            if key in d and val is not None and abs(float(_get(d, key, where, (int, float))) - val) > 1e-9 * max(1.0, abs(val)):
                 raise DataFormatError(f"{where}: '{key}' = {d[key]} disagrees with the robot file ({val})")
         if "legs" in d and list(d["legs"]) != list(robot.legs):
             raise DataFormatError(f"{where}: 'legs' = {d['legs']} disagrees with the robot file ({list(robot.legs)})")
@@ -282,6 +285,7 @@ def read_map(path: str | Path) -> IngestMap:
     if "link" in bp:
         if urdf is None:
             raise DataFormatError(f"{wp}: 'link' needs a URDF ('urdf' key) to place the tracked link in B")
+        assert base is not None  # _robot: the 'urdf' branch requires 'base_link' and is the only one with a URDF
         from .urdf import fixed_pose
 
         R_bm, _ = fixed_pose(urdf, base, _get(bp, "link", wp, str), key="[body_pose] link", source=where)

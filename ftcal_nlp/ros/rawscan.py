@@ -182,9 +182,9 @@ def _scan_mcap_file(file: Path, connections: dict[int, Connection], chunks: list
 
 def scan_mcap(folder: Path) -> RawBag:
     """A ROS 2 bag folder whose storage is MCAP files (``*.mcap``), or a bare ``.mcap`` file, scanned."""
+    connections: dict[int, Connection] = {}
+    chunks: list[Chunk] = []
     if folder.is_file():  # a bare file (Foxglove, the mcap CLI): no metadata, one file
-        connections: dict[int, Connection] = {}
-        chunks: list[Chunk] = []
         _scan_mcap_file(folder, connections, chunks)
         return _indexed(RawBag(folder, True, connections, chunks), folder)
     meta = (folder / "metadata.yaml").read_text() if (folder / "metadata.yaml").is_file() else ""
@@ -194,8 +194,6 @@ def scan_mcap(folder: Path) -> RawBag:
     files = sorted(folder.glob("*.mcap"))
     if not files:
         raise RawScanError(f"{folder}: no .mcap file")
-    connections: dict[int, Connection] = {}
-    chunks: list[Chunk] = []
     if len(files) > 1:
         raise RawScanError(f"{folder}: split into several MCAP files (channel ids may differ between them)")
     _scan_mcap_file(files[0], connections, chunks)

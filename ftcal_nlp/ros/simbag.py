@@ -25,7 +25,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from ..core.data import Dataset, Recording
-from ..core.errors import OutputExistsError
+from ..core.errors import DataFormatError, OutputExistsError
 from . import bagio
 from .urdf import urdf_text
 
@@ -127,6 +127,10 @@ def write_session(
     """
     import tomli_w
 
+    mass_kg = ds.robot.mass_kg
+    if mass_kg is None:  # the map written is of the 'urdf' form, which needs it (DATA_FORMAT section 2)
+        raise DataFormatError(f"robot '{ds.robot.name}': no 'mass_kg'; the ingest map written for the bags needs it",
+                              column="mass_kg")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     recs = [r for r in ds.recordings if names is None or r.name in names]
@@ -142,7 +146,7 @@ def write_session(
         bagio.write_bag(path, recording_series(rec, legs, st_of[rec.name], epoch_ns=epoch_ns, **kw), storage=st_of[rec.name])
         written.append((path.name, rec))
     urdf.write_text(urdf_text(ds.robot))
-    mp.write_bytes(tomli_w.dumps(session_map(legs, ds.robot.mass_kg, ds.robot.g, written)).encode())
+    mp.write_bytes(tomli_w.dumps(session_map(legs, mass_kg, ds.robot.g, written)).encode())
     return mp
 
 
@@ -334,14 +338,16 @@ def write_arm_session(folder: str | Path, storage: str = "mcap", *, seed: int = 
     qj = path((j_ns - t0_ns) * 1e-9)
     k3 = joints.index("wrist_3")
     qj[:, k3] = (qj[:, k3] + np.pi) % (2 * np.pi) - np.pi
-    groups = {"topics": [("/arm/joint_states", [0, 1, 2]), ("/wrist/joint_states", [3, 4, 5])],
-              "messages": [("/joint_states", [0, 1, 2]), ("/joint_states", [3, 4, 5])]}.get(split_joints, [("/joint_states", list(range(6)))])
+    splits: dict[str | None, list[tuple[str, list[int]]]] = {
+        "topics": [("/arm/joint_states", [0, 1, 2]), ("/wrist/joint_states", [3, 4, 5])],
+        "messages": [("/joint_states", [0, 1, 2]), ("/joint_states", [3, 4, 5])]}
+    groups = splits.get(split_joints, [("/joint_states", list(range(6)))])
     by_topic: dict[str, tuple[list, list]] = {}
     for topic, idx in groups:
         msgs, recv = by_topic.setdefault(topic, ([], []))
         for parity, order in ((0, idx), (1, idx[::-1])):        # two name orders, alternating
             sel = np.arange(parity, nj, 2)
-            msgs += bagio.encode_messages(storage, bagio.JOINT_TYPE, j_ns[sel], "", qj[np.ix_(sel, order)], [joints[i] for i in order])
+            msgs += bagio.encode_messages(storage, bagio.JOINT_TYPE, j_ns[sel], "", qj[np.ix_(sel, np.asarray(order))], [joints[i] for i in order])
             recv.append(j_ns[sel] + 700_000 + idx[0] * 1000)
     for topic, (msgs, recv) in by_topic.items():
         series.append(bagio.TopicSeries(topic, bagio.JOINT_TYPE, np.concatenate(recv), msgs))

@@ -282,13 +282,13 @@ def _vector(pr: Problem, st: State, E0: np.ndarray) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def _mass_row(pr: Problem) -> tuple[np.ndarray, float] | None:
-    """The weighed mass' row ``a`` (over the parameters) and its sd, or None."""
+def _mass_row(pr: Problem) -> tuple[np.ndarray, float, float] | None:
+    """The weighed mass' row ``a`` (over the parameters), its sd and the weighed mass (kg), or None."""
     if pr.weighed_kg is None:
         return None
     a = np.zeros(pr.n_params)
     a[6:6 + pr.p] = pr.mu
-    return a, pr.mass_rel_sd * pr.weighed_kg
+    return a, pr.mass_rel_sd * pr.weighed_kg, pr.weighed_kg
 
 
 def _system(pr: Problem, st: State, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -296,9 +296,9 @@ def _system(pr: Problem, st: State, W: np.ndarray) -> tuple[np.ndarray, np.ndarr
     A, gv, _rss = normal_equations(pr, st, W)
     mrow = _mass_row(pr)
     if mrow is not None:
-        a, sd = mrow
+        a, sd, kg = mrow
         A = A + np.outer(a, a) / sd**2
-        gv = gv + a * (float(pr.mu @ st.theta) - pr.weighed_kg) / sd**2
+        gv = gv + a * (float(pr.mu @ st.theta) - kg) / sd**2
     return A, gv
 
 
@@ -348,7 +348,8 @@ def _objective(pr: Problem, st: State, W: np.ndarray, ridge: np.ndarray, centre:
     out = float(((e**2) * W).sum() + (ridge[k] * dx[k] ** 2).sum())
     mrow = _mass_row(pr)
     if mrow is not None:
-        out += ((float(pr.mu @ st.theta) - pr.weighed_kg) / mrow[1]) ** 2
+        _, sd, kg = mrow
+        out += ((float(pr.mu @ st.theta) - kg) / sd) ** 2
     return out
 
 
@@ -422,6 +423,9 @@ def choose_ridge(pr: Problem, start: State, W: np.ndarray, grid: tuple[float, ..
                 obj = _objective(sub, cand, W, ridge, centre, lam)
                 if obj < best_obj:
                     best_obj, st = obj, cand
+            if st is None:   # NaN (or infinite) objectives from both starts: no fit to score
+                raise ValueError(f"sensor_matrix ridge choice: fold {f}, weight {lam:g}: the one-step fit has no finite "
+                                 "training objective from either start (non-finite readings or a singular system?)")
             e = residual(pr, st, held)
             scores[i, f] = float(np.mean((e**2).mean(axis=0) * W))
             sq[i] += ((e @ st.C(pr.pairs).T) ** 2).sum(axis=0)     # corrected units
