@@ -8,7 +8,7 @@ correct   calibrated contact wrenches of a recording                  :mod:`ftca
 holdout   validate a free-load calibration on a later session         :mod:`ftcal_nlp.holdout`
 plan      predicted se of a protocol, shortest protocol for targets   :mod:`ftcal_nlp.plan`
 export    the correction as C source for a controller                 :mod:`ftcal_nlp.export`
-ingest    ROS bags + URDF -> interchange dataset                      :mod:`ftcal_nlp.ros.cli`
+ingest    ROS bags + URDF -> interchange dataset                      :mod:`ftcal_nlp.ingest`
 bench     the benchmarks                                              :mod:`ftcal_nlp.bench`
 simulate  write the dataset a ``[simulate]`` table describes          this module
 ========  ==========================================================  ===============================
@@ -64,7 +64,7 @@ COMMANDS: dict[str, Command] = {
     "holdout": Command("ftcal_nlp.holdout", "validate a free-load calibration on a later session: where it holds, where not"),
     "plan": Command("ftcal_nlp.plan", "predicted se of a protocol; --search: the shortest protocol meeting targets"),
     "export": Command("ftcal_nlp.export", "the correction as C source + header for a controller"),
-    "ingest": Command("ftcal_nlp.ros.cli", "ROS bags (+ URDF) -> interchange dataset"),
+    "ingest": Command("ftcal_nlp.ingest", "ROS bags (+ URDF) -> interchange dataset"),
     "bench": Command("ftcal_nlp.bench.__main__", "the benchmarks (accuracy, speed, scaling, correction, plan)"),
     "simulate": Command("ftcal_nlp.cli", "write the simulated dataset of a [simulate] table"),
 }

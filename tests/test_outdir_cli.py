@@ -264,7 +264,7 @@ def test_help_speaks_to_every_transducer(capsys):
 def test_ingest_force_writes_over_only_a_dataset_it_wrote(tmp_path, capsys):
     from test_ros import _source, base_map, make_bag, write_map, write_urdf
 
-    from ftcal_nlp.ros.cli import main as ingest_main
+    from ftcal_nlp.ingest import main as ingest_main
 
     write_urdf(tmp_path / "robot.urdf")
     for name, seed in (("hang_xpos", 1), ("hang_xneg", 2)):

@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from ftcal_nlp.core.data import DataFormatError, read_dataset, read_recording, read_robot
 from ftcal_nlp.ros import bagio
 from ftcal_nlp.ros.clock import interp_linear, match_nearest, slerp_quat
-from ftcal_nlp.ros.cli import main as cli_main
+from ftcal_nlp.ingest import main as cli_main
 from ftcal_nlp.ros.bagio import BagError
 from ftcal_nlp.ros.ingest import ingest, write_ingested
 from ftcal_nlp.ros.urdf import fixed_pose, load_urdf, robot_from_urdf

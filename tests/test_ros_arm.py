@@ -21,7 +21,7 @@ from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.core.errors import DataFormatError
 from ftcal_nlp.ros import bagio
 from ftcal_nlp.ros.arm import read_arm_map
-from ftcal_nlp.ros.cli import main as cli_main
+from ftcal_nlp.ingest import main as cli_main
 from ftcal_nlp.ros.ingest import ingest, read_any_map
 from ftcal_nlp.ros.mapfile import read_map
 from ftcal_nlp.ros.simbag import ARM_URDF, write_arm_session
