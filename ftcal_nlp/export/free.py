@@ -6,7 +6,7 @@ writes (``correct/free.py``): for every transducer k
 
     g_B,k = g R_WB^T u_k                                        gravity in B from the body's orientation
     g_k = (R_nom,k(q) E_k)^T g_B,k                              gravity in the (estimated true) ft_k frame
-    w_c,k = w_m,k - w_o,k - [M_k g_k ; s_k(q) x g_k]           contact wrench in ft_k, about its origin
+    w_c,k = C_k (w_m,k - w_o,k) - [M_k g_k ; s_k(q) x g_k]     contact wrench in ft_k, about its origin
 
 with ``u_k = R_y(ty) R_x(tx) (0, 0, -1)`` the world tilt of the orientation stream transducer k's calibration
 estimated (``gravity_tilt_rad``; ``(0, 0, -1)`` without one), for a rigid payload, ``R_nom`` the robot's nominal rotation
@@ -15,8 +15,11 @@ load, ``R_nom(q)`` the URDF's sensor pose for the joints above it and ``s(q) = s
 over the groups of links below it (``loads.urdf_subtree``), the joint transforms written symbolically
 (``loads.urdf_subtree.symbolic_pose``: ``T_origin [exp(q [a]x), 0; 0, 1]`` revolute/continuous,
 ``T_origin [I, q a; 0, 1]`` prismatic, Rodrigues' formula for the exponential) as ``kinematics.py`` does
-numerically; each calibrated load writes its own (``loads.calibrated``: ``symbolic_load``). The standard errors are not exported (a
-controller wants the wrench; ``correct`` gives the se).
+numerically; each calibrated load writes its own (``loads.calibrated``: ``symbolic_load``). ``C_k`` is the sensor
+matrix the calibration refitted in situ (``sensor_matrix`` of ``calibration.json``, ``estimate/freeload/sensor_matrix.py``:
+``C (r - o) = w``); without one, or the identity, the expression is ``w_m,k - w_o,k - ...`` as written before the
+matrix existed (the same generated source). The standard errors are not exported (a controller wants the wrench;
+``correct`` gives the se).
 """
 
 from __future__ import annotations
@@ -61,7 +64,11 @@ def correction_function(cals: dict, name: str) -> ca.Function:
         R, s, M = c.symbolic_load(qd)   # the ft orientation in B, the first moment and the mass (the load's own)
         g_k = ca.mtimes(R.T, g_B)
         load_w = ca.vertcat(M * g_k, ca.cross(s, g_k))
-        out.append(w[6 * i: 6 * i + 6] - ca.DM(c.offset) - load_w)
+        C = getattr(c, "sensor_matrix", None)
+        if C is None:   # the factory matrix: the expression (and the generated source) as without the in-situ matrix
+            out.append(w[6 * i: 6 * i + 6] - ca.DM(c.offset) - load_w)
+        else:
+            out.append(ca.mtimes(ca.DM(C), w[6 * i: 6 * i + 6] - ca.DM(c.offset)) - load_w)
     contact = ca.vertcat(*out)
     if joints:
         return ca.Function(name, [w, qv, quat], [contact], ["wrench", "q", "quat"], ["contact"])
@@ -143,6 +150,9 @@ def usage_note(cals: dict, name: str, source: str) -> str:
     cols = ", ".join(f"`{k}`" for k in legs)
     kinds = ", ".join(f"`{k}` ({c.describe()})" for k, c in cals.items())
     fixed = _fixed_base_text(cals)
+    with_c = [k for k, c in cals.items() if getattr(c, "sensor_matrix", None) is not None]
+    mat = (f"For {', '.join(f'`{k}`' for k in with_c)} the readings less the offset are first mapped by the sensor matrix the "
+           "calibration refitted in situ (`sensor_matrix`, C): contact = C (reading - offset) - load.\n") if with_c else ""
     q_sig = "const double* q, " if J else ""
     q_row = (f"| `q` | {J} | joint angles, in this order: {', '.join(f'`{j}`' for j in joints)} | rad (m for prismatic) | URDF |\n"
              if J else "")
@@ -170,7 +180,7 @@ Both return 0 on success; they allocate nothing and keep no state (real-time and
 While the load touches nothing, `contact` is zero within the sensor noise. This is what
 `python -m ftcal_nlp.correct` writes for the same calibration (without its se columns), to rounding.
 A NaN quaternion gives NaN outputs (`correct` drops such rows).
-{fixed}
+{mat}{fixed}
 ## Build
 
 ```bash
