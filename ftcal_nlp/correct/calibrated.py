@@ -178,6 +178,8 @@ class UrdfLoadCalibration:
         from ..loads.urdf_subtree import symbolic_pose
 
         load = self.load
+        if load.ft_link is None:   # a RigidPayload built without its URDF: not a URDF load (read_calibration builds it with one)
+            raise ValueError(f"transducer {self.leg}: the load has no sensor link in a URDF; expected a URDF load")
         R_nom, _ = symbolic_pose(load.tree, load.tree.root, load.ft_link, q)
         R = ca.mtimes(R_nom, ca.DM(self.E))
         return R, load.symbolic_lever(self.theta, q), float(load.mass_row @ self.theta)
@@ -497,12 +499,11 @@ def free_loads_from_dict(d: dict, cal_path: Path) -> dict[str, PayloadCalibratio
     g = float(d.get("g", 9.81))
     out: dict[str, PayloadCalibration | UrdfLoadCalibration] = {}
     for k, l in legs.items():
-        if l.get("load_kind") == "urdf_subtree":
-            out[k] = urdf_from_json(l, k, g, cal_path, cc)
-            x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
-        elif l.get("link") is not None:   # a payload oriented by the joints (an arm whose URDF leaves the tool out)
-            out[k] = arm_payload_from_json(l, k, g, cal_path, cc)
-            x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
+        if l.get("load_kind") == "urdf_subtree" or l.get("link") is not None:
+            # a URDF load, or a payload oriented by the joints (an arm whose URDF leaves the tool out)
+            u = urdf_from_json(l, k, g, cal_path, cc) if l.get("load_kind") == "urdf_subtree" else arm_payload_from_json(l, k, g, cal_path, cc)
+            out[k] = u
+            x_names = param_names(k, u.load.param_names, u.tilt is not None)
         else:
             x_names = payload_param_names(k, "gravity_tilt_rad" in l)
             block = None if cc is None else cc.block(x_names)

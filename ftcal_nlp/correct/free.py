@@ -121,9 +121,9 @@ def contact_frame(cal_legs: dict[str, PayloadCalibration | UrdfLoadCalibration],
     clean, keep = clean_rows(cal_legs, df, where)
     base = base_gravity(cal_legs, clean, where, gravity_body)
     q: dict[str, np.ndarray] = {}
-    for c in cal_legs.values():
-        if c.tree is not None:   # a load oriented or moved by the joints: their columns read against its URDF
-            q.update(joint_angles(clean, c.joints, c.tree, where))
+    for cl in cal_legs.values():
+        if cl.tree is not None:   # a load oriented or moved by the joints: their columns read against its URDF
+            q.update(joint_angles(clean, cl.joints, cl.tree, where))
     faults = channel_faults(cal_legs, df, where)
     R_WB = orientation_of_frame(clean)
     t = clean["t"].to_numpy(float)
