@@ -59,6 +59,12 @@ A ``calibration_with_effect.json`` of a free-load run (``meta.effect.kind = "fre
 transducer: each model carries them (``effects``, :class:`~ftcal_nlp.effects.correction.FreeEffects`) with their
 parameters' joint covariance; ``correct`` corrects the readings for them first (``effects/correction.py``: what the
 file holds, the correction, what the se leave out).
+
+A transducer's ``sensor_matrix`` (``C``, refitted in situ: ``estimate/freeload/sensor_matrix.py``) is carried as
+``sensor_matrix`` (None without one or for the identity); ``correct`` and ``export`` map the readings less the offset
+through it. A stored se of null (the writer's inf: a parameter the data leave undetermined, e.g. ``load_mass_se_kg``
+of a force matrix fitted without ``load_mass_kg``) is read as inf: the outputs that depend on it get se inf, and the
+log says so.
 """
 
 from __future__ import annotations

@@ -3,14 +3,19 @@
 A rigid payload on a wrist, or the URDF links below a sensor (``load_kind`` ``"rigid_payload"`` or
 ``"urdf_subtree"`` in ``calibration.json``): per sample, in the estimated (true) ft frame about its origin,
 
-    w_contact = w_m - w_o - w_load
+    w_contact = w_m - w_o - w_load                 (the factory matrix)
+    w_contact = C (w_m - w_o) - w_load             (a sensor matrix ``C`` refitted in situ, ``sensor_matrix``)
 
-``w_o + w_load`` and its derivative the calibrated load's (``loads.calibrated``: its model, the se's delta method,
-the URDF and arm cases), the readings first corrected for the named effects of a ``calibration_with_effect.json``
-(``effects/correction.py``). The contact wrench is what the environment adds to the tool's weight: zero (within
-noise) while the tool touches nothing. The recording is read and checked by ``correct/recording.py`` (gravity per
-sample or the fixed base's, joint angles, what a run checks, the readings against the calibration); rows without
-gravity or with NaN readings are dropped and counted in the log.
+``w_o + w_load`` and its derivative the calibrated load's (``correct/calibrated.py``: its model, the se's delta
+method, the URDF and arm cases), the readings first corrected for the named effects of a
+``calibration_with_effect.json`` (``effects/correction.py``). ``C`` follows the reading model of
+``estimate/freeload/sensor_matrix.py`` (``C (r - o) = w(theta, E)``; :func:`apply_sensor_matrix`); without it, or
+with ``C = I``, the code and the numbers are those of the first line. Its se: :func:`_matrix_variance` (``C``'s own
+uncertainty is not propagated, and why). The contact wrench is what the environment adds to the tool's weight: zero
+(within noise) while the tool touches nothing. The recording is read and checked by ``correct/recording.py``
+(gravity per sample or the fixed base's, joint angles, what a run checks, the readings against the calibration:
+as corrected, the effects applied and mapped by ``C``, where the calibration has either); rows without gravity or
+with NaN readings are dropped and counted in the log.
 """
 
 from __future__ import annotations

@@ -321,7 +321,10 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
     agrees (x, y, z, w order; the conjugate; gravity negated). Without orientation columns, the fixed base's
     gravity (``base`` per transducer, :func:`base_gravity`; ``base_source`` where it came from, for the message) is
     tested the same way (negated: pointing up). Before the direction, the rows without contact test the frames
-    (:func:`check_frames`; ``faulty`` per transducer the rows of a stuck or dead channel, left out)."""
+    (:func:`check_frames`; ``faulty`` per transducer the rows of a stuck or dead channel, left out). ``clean``'s
+    readings are those the calibration's model predicts: ``correct/free.py`` passes them corrected for the named
+    effects and mapped by a sensor matrix, where the calibration has either (a temperature's shift of the offsets
+    would leave no raw row at the noise)."""
     from ..core.checks import QUAT_ORDER_RATIO, TILT_DEG
     from ..core.data import check_torque_units
 
