@@ -7,8 +7,8 @@ range the calibration never saw) corrected with that file gives a contact wrench
 near 1), and biased far above its se with ``calibration.json`` alone; the correction is the calibration's
 coefficients on the recording's temperature relative to the CALIBRATION's mean (relative to the recording's own
 mean, the 8 degC shift would be left in the offsets). A later payload recording held at one temperature (33 degC) is
-corrected likewise. The arm and the held recording are expected failures (strict) naming what ``correct`` lacks:
-its checks against the calibration look at the readings before the effect correction. ``plan`` on the calibration
+corrected likewise; ``correct``'s checks against the calibration look at the readings after the effect correction
+(before it, 5-8 degC x the coefficients move the offsets ~0.5 N and no row is at the noise). ``plan`` on the calibration
 session predicts the coefficients' se the run gives, within a factor it states."""
 
 from __future__ import annotations
@@ -120,19 +120,9 @@ def arm(tmp_path_factory):
     return folder, "wrist", ARM_NOISE, cal["wrist_temp_C"].to_numpy(), later, _correct(folder, folder / "later.csv", "wrist")
 
 
-#: what correct lacks (the lead wires it into correct_loads): its checks of a recording against the calibration
-#: (correct_loads.check_against_calibration -> check_frames) look at the raw readings, before the effect correction
-FRAME_CHECK_BEFORE_EFFECT = (
-    "correct_loads.check_against_calibration/check_frames test the later recording's forces against the calibration's "
-    "offset plus the load BEFORE calibration_with_effect.json's temperature correction: 5-8 degC x the coefficients "
-    "move the offsets ~0.5 N (> 5 noise sd), no row is at the noise, and another reading of the columns happens to put "
-    "~200 rows there (arm: a reflected force frame; payload held at 33 degC: quaternion order qw, qy, qz, qx), so "
-    "correct refuses the file (DataFormatError); with the checks on the effect-corrected readings the contact is at "
-    "the noise (|z| RMS 0.96..1.03, measured with the checks bypassed). (The payload 8 degC warmer passes only "
-    "because no other reading fits: the check is skipped with a warning, '0 of 3500 rows ... not tested'.)")
 
 
-@pytest.mark.parametrize("case", ["payload", pytest.param("arm", marks=pytest.mark.xfail(strict=True, reason=FRAME_CHECK_BEFORE_EFFECT))])
+@pytest.mark.parametrize("case", ["payload", "arm"])
 def test_later_warmer_recording_corrected_with_the_calibration_reference(case, request):
     folder, leg, noise, T_cal, later, out = request.getfixturevalue(case)
     T_later = later[f"{leg}_temp_C"].to_numpy()
@@ -190,7 +180,6 @@ def test_plan_of_the_calibration_session_predicts_the_coefficients_se(payload):
     assert p.determined and np.all(p.se < p.target) and p.needed_range_C < p.range_C
 
 
-@pytest.mark.xfail(strict=True, reason=FRAME_CHECK_BEFORE_EFFECT)
 def test_later_recording_held_at_one_temperature(payload, tmp_path):
     """A later recording whose temperature never varies (33 degC throughout, 5 degC above the calibration's mean) is
     corrected too: the face is centred on the calibration's reference, so a constant temperature still moves the

@@ -92,6 +92,8 @@ from __future__ import annotations
 
 import itertools
 import logging
+from collections.abc import Mapping
+from typing import Protocol
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -141,7 +143,7 @@ THRESHOLDS = (
 )
 
 
-def _src(rec: Recording) -> str:
+def _src(rec: Readings) -> str:
     return str(rec.path or rec.name)
 
 
@@ -735,7 +737,21 @@ def with_fault_columns(frame: pd.DataFrame, faults: list[SensorFault], kept: np.
     return pd.concat([frame, pd.DataFrame(cols, index=frame.index)], axis=1)
 
 
-def sensor_faults(rec: Recording, legs: tuple[str, ...] | None = None, min_run: int = STUCK_RUN) -> list[SensorFault]:
+class Readings(Protocol):
+    """What :func:`sensor_faults` reads of a recording (a :class:`~ftcal_nlp.core.data.Recording`, or a table's
+    columns by transducer): the readings (N, 6) by leg, and where they come from (for the messages)."""
+
+    @property
+    def wrench(self) -> Mapping[str, np.ndarray]: ...
+
+    @property
+    def path(self) -> object: ...
+
+    @property
+    def name(self) -> str: ...
+
+
+def sensor_faults(rec: Readings, legs: tuple[str, ...] | None = None, min_run: int = STUCK_RUN) -> list[SensorFault]:
     """Every leg of ``rec`` with channels held for ``min_run`` samples or more (:class:`SensorFault`), one per leg."""
     from .data import WRENCH_COMPONENTS
 

@@ -451,7 +451,7 @@ def recording_from_frame(
         _check_units(wrench[k], robot, where, k)
     q = {c[len(JOINT_PREFIX):]: values[:, len(reading_cols) + i].copy() for i, c in enumerate(joint_cols)}
     if robot.tree is not None and kind == "hanging":
-        _check_joint_units(q, robot, where)
+        _check_joint_units(q, robot.tree, where)
         held = [jn for jn in robot.tree.movable if jn not in q]
         if held:
             log.warning("%s: no column for URDF joint(s) %s: held at 0 (expected columns %s)", where, held,
@@ -548,11 +548,11 @@ def _unit_rows(g: np.ndarray, where: str, what: str) -> np.ndarray:
     return out
 
 
-def _check_joint_units(q: dict[str, np.ndarray], robot: Robot, where: str) -> None:
-    """Revolute joint angles in radians: the 99th percentile of |q| beyond the URDF limits by more than
+def _check_joint_units(q: dict[str, np.ndarray], tree: Any, where: str) -> None:
+    """``tree`` a :class:`~ftcal_nlp.core.kinematics.KinematicTree` (a robot's, or a free load's URDF). Revolute joint angles in radians: the 99th percentile of |q| beyond the URDF limits by more than
     ``_JOINT_LIMIT_SLACK_RAD`` (or beyond ``_MAX_TURNS`` turns) is an error suspecting degrees."""
     for name, v in q.items():
-        jt = robot.tree.joint(name)
+        jt = tree.joint(name)
         if jt.type != "revolute":  # prismatic: metres; continuous: may turn without bound (unwrapped)
             continue
         lo_q, hi_q = np.percentile(v, [1, 99])

@@ -20,7 +20,7 @@ Notation of the report (Wu & Revzen, Sec. II-A):
 
 from __future__ import annotations
 
-from typing import Any, TypeAlias
+from typing import Any, TypeAlias, overload
 
 import casadi as ca
 import numpy as np
@@ -153,7 +153,13 @@ def transform_wrench(R: ArrayLike, p: ArrayLike, w: ArrayLike) -> ArrayLike:
     return np.concatenate([f, tau], axis=-1)
 
 
-def quat_to_rotation(q: np.ndarray) -> np.ndarray:
+@overload
+def quat_to_rotation(q: np.ndarray) -> np.ndarray: ...
+@overload
+def quat_to_rotation(q: ca.MX) -> ca.MX: ...
+@overload
+def quat_to_rotation(q: ca.SX) -> ca.SX: ...
+def quat_to_rotation(q: ArrayLike) -> ArrayLike:
     """Rotation matrices from quaternions ``[qw, qx, qy, qz]`` (..., 4); normalised first.
 
     NaN quaternions give NaN matrices (motion capture lost). CasADi: a 4-vector gives 3x3.

@@ -59,6 +59,12 @@ A ``calibration_with_effect.json`` of a free-load run (``meta.effect.kind = "fre
 transducer: each model carries them (``effects``, :class:`~ftcal_nlp.effects.correction.FreeEffects`) with their
 parameters' joint covariance; ``correct`` corrects the readings for them first (``effects/correction.py``: what the
 file holds, the correction, what the se leave out).
+
+A transducer's ``sensor_matrix`` (``C``, refitted in situ: ``estimate/freeload/sensor_matrix.py``) is carried as
+``sensor_matrix`` (None without one or for the identity); ``correct`` and ``export`` map the readings less the offset
+through it. A stored se of null (the writer's inf: a parameter the data leave undetermined, e.g. ``load_mass_se_kg``
+of a force matrix fitted without ``load_mass_kg``) is read as inf: the outputs that depend on it get se inf, and the
+log says so.
 """
 
 from __future__ import annotations
@@ -66,6 +72,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -76,6 +83,9 @@ from ..core.geometry import skew
 from ..loads.base import joint_limits
 from ..loads.rigid_payload import RigidPayload
 from ..loads.urdf_subtree import UrdfSubtree
+
+if TYPE_CHECKING:
+    from ..effects.correction import FreeEffects
 
 log = logging.getLogger(__name__)
 
@@ -99,8 +109,9 @@ class PayloadCalibration:
     undetermined: np.ndarray | None = None
     null: np.ndarray | None = None
     tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
-    effects: object = None            # the named effects (effects.correction.FreeEffects); None: none
+    effects: FreeEffects | None = None   # the named effects (effects.correction); None: none
     gravity_body: np.ndarray | None = None   # the fixed base's gravity direction at calibration (unit, B); None: not kept
+    sensor_matrix: np.ndarray | None = None   # C (6, 6) of the in-situ matrix (module docstring); None: the factory's
 
     joints: tuple[str, ...] = ()
 
@@ -140,7 +151,7 @@ class UrdfLoadCalibration:
     ``undetermined``, ``null`` as :class:`PayloadCalibration`."""
 
     leg: str
-    load: object
+    load: UrdfSubtree | RigidPayload   # a RigidPayload built on the URDF: the same poses, lever and mass row
     offset: np.ndarray
     theta: np.ndarray
     E: np.ndarray
@@ -151,8 +162,9 @@ class UrdfLoadCalibration:
     undetermined: np.ndarray | None = None
     null: np.ndarray | None = None
     tilt: np.ndarray | None = None    # world tilt of the orientation stream (rad); None: not estimated
-    effects: object = None            # the named effects (effects.correction.FreeEffects); None: none
+    effects: FreeEffects | None = None   # the named effects (effects.correction); None: none
     gravity_body: np.ndarray | None = None   # the fixed base's gravity direction at calibration (unit, B); None: not kept
+    sensor_matrix: np.ndarray | None = None   # C (6, 6) of the in-situ matrix (module docstring); None: the factory's
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -172,6 +184,8 @@ class UrdfLoadCalibration:
         from ..loads.urdf_subtree import symbolic_pose
 
         load = self.load
+        if load.ft_link is None:   # a RigidPayload built without its URDF: not a URDF load (read_calibration builds it with one)
+            raise ValueError(f"transducer {self.leg}: the load has no sensor link in a URDF; expected a URDF load")
         R_nom, _ = symbolic_pose(load.tree, load.tree.root, load.ft_link, q)
         R = ca.mtimes(R_nom, ca.DM(self.E))
         return R, load.symbolic_lever(self.theta, q), float(load.mass_row @ self.theta)
@@ -264,10 +278,11 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
             raise DataFormatError(f"{where}: transducer {leg}: load_kind = {d.get('load_kind')!r}; the contact wrench is "
                                   "computed for 'rigid_payload' and 'urdf_subtree' loads", path=where)
         m, c = float(d["load_mass_kg"]), np.asarray(d["load_com_m"], float)
-        m_se, c_se = float(d["load_mass_se_kg"]), np.asarray(d["load_com_se_m"], float)
+        m_se, c_se = float(se_of(d["load_mass_se_kg"])), se_of(d["load_com_se_m"])
         tilt, var_t = _tilt_of(d)
-        var = np.concatenate([np.asarray(d["offset_se"], float) ** 2, [m_se**2], m**2 * c_se**2 + c**2 * m_se**2, var_t,
-                              np.asarray(d["mount_rotvec_se"], float) ** 2])
+        with np.errstate(invalid="ignore"):   # 0 * inf: a CoM component at 0 of an undetermined mass is undetermined too
+            var_h = np.where(np.isfinite(c_se) & np.isfinite(m_se), m**2 * c_se**2 + c**2 * m_se**2, np.inf)
+        var = np.concatenate([se_of(d["offset_se"]) ** 2, [m_se**2], var_h, var_t, se_of(d["mount_rotvec_se"]) ** 2])
         R = np.asarray(d["rotation_to_body"], float)
         sigma = np.asarray(d.get("noise_sd", d.get("residual_rms")), float)
         off = np.asarray(d["offset"], float)
@@ -275,12 +290,49 @@ def payload_from_json(d: dict, leg: str, g: float, where: str = "calibration.jso
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a payload calibration", path=where,
                               column=str(exc.args[0])) from None
     gb = _base_gravity(d)
+    Cm = matrix_of_entry(d, leg, where)
+    _say_undetermined_mass(m_se, leg, where)
     if cov is not None:
         C, und, null = cov
         return PayloadCalibration(leg, off, m, m * c, R, np.where(np.isfinite(C), C, 0.0), sigma, g, full_cov=True,
-                                  undetermined=np.asarray(und, bool), null=null, tilt=tilt, gravity_body=gb)
+                                  undetermined=np.asarray(und, bool), null=null, tilt=tilt, gravity_body=gb,
+                                  sensor_matrix=Cm)
     return PayloadCalibration(leg, off, m, m * c, R, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, full_cov=False,
-                              undetermined=np.isinf(var), tilt=tilt, gravity_body=gb)
+                              undetermined=np.isinf(var), tilt=tilt, gravity_body=gb, sensor_matrix=Cm)
+
+
+def se_of(v) -> np.ndarray:
+    """Standard errors as stored (a number, a list, null): null, the writer's word for a parameter the data leave
+    undetermined (``OUTPUT_FORMAT.md``: inf is written null), read back as inf."""
+    if v is None:
+        return np.asarray(np.inf)
+    if isinstance(v, (list, tuple)):
+        return np.asarray([np.inf if x is None else x for x in v], float)
+    return np.asarray(v, float)
+
+
+def _say_undetermined_mass(m_se: float, leg: str, where: str) -> None:
+    """The log's word for a load mass the calibration left undetermined (``load_mass_se_kg`` null: a sensor matrix
+    fitted with its force gain free and no ``load_mass_kg`` weighed): the forces' se are inf."""
+    if not np.isfinite(m_se):
+        log.warning("%s: transducer %s: load_mass_se_kg is null: the load's mass is not determined by the calibration's data "
+                    "(a force gain of the sensor matrix and the mass trade; give load_mass_kg to fix it): contact forces "
+                    "that depend on it have se inf", where, leg)
+
+
+def matrix_of_entry(d: dict, leg: str, where: str) -> np.ndarray | None:
+    """``C`` (6, 6) of a transducer's entry (``sensor_matrix``; ``estimate/freeload/sensor_matrix.py``): None for no
+    matrix and for the identity (the factory matrix kept: ``correct`` and ``export`` then run the very code they run
+    without one). Its se (``sensor_matrix_se``) are not read: ``correct/free.py`` says why they are not propagated."""
+    from ..estimate.freeload.sensor_matrix import sensor_matrix_of
+
+    try:
+        C = sensor_matrix_of(d)
+    except ValueError as exc:
+        raise DataFormatError(f"{where}: transducer {leg}: {exc}", path=where, column=f"legs.{leg}.sensor_matrix") from None
+    if C is None or np.array_equal(C, np.eye(6)):
+        return None
+    return C
 
 
 def _base_gravity(d: dict) -> np.ndarray | None:
@@ -314,8 +366,8 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
         off = np.asarray(d["offset"], float)
         E = np.asarray(d.get("mount_rotation", np.eye(3)), float)
         sigma = np.asarray(d.get("noise_sd", d.get("residual_rms")), float)
-        var_tail = np.asarray(d["mount_rotvec_se"], float) ** 2
-        var_off = np.asarray(d["offset_se"], float) ** 2
+        var_tail = se_of(d["mount_rotvec_se"]) ** 2
+        var_off = se_of(d["offset_se"]) ** 2
         tilt, var_t = _tilt_of(d)
     except KeyError as exc:
         raise DataFormatError(f"{where}: transducer {leg}: missing key {exc.args[0]!r} of a URDF-load calibration (the "
@@ -333,14 +385,15 @@ def urdf_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) -> Urdf
                               f"{sorted(groups)}; expected the URDF the calibration was made with", path=where)
     theta = np.concatenate([[groups[n]["mass_kg"], *groups[n]["first_moment_kgm"]] for n in names]).astype(float)
     cov = None if cc is None else cc.block(param_names(leg, load.param_names, tilt is not None))
+    Cm = matrix_of_entry(d, leg, where)
     if cov is not None:
         C, und, null = cov
         return UrdfLoadCalibration(leg, load, off, theta, E, np.where(np.isfinite(C), C, 0.0), sigma, g, True,
-                                   np.asarray(und, bool), null, tilt, gravity_body=_base_gravity(d))
-    var_th = np.concatenate([[groups[n]["mass_se_kg"], *groups[n]["first_moment_se_kgm"]] for n in names]).astype(float) ** 2
+                                   np.asarray(und, bool), null, tilt, gravity_body=_base_gravity(d), sensor_matrix=Cm)
+    var_th = np.concatenate([se_of([groups[n]["mass_se_kg"], *groups[n]["first_moment_se_kgm"]]) for n in names]) ** 2
     var = np.concatenate([var_off, var_th, var_t, var_tail])
     return UrdfLoadCalibration(leg, load, off, theta, E, np.diag(np.where(np.isfinite(var), var, 0.0)), sigma, g, False,
-                               np.isinf(var), None, tilt, gravity_body=_base_gravity(d))
+                               np.isinf(var), None, tilt, gravity_body=_base_gravity(d), sensor_matrix=Cm)
 
 
 def _urdf_tree(urdf: str, leg: str, cal_path: Path):
@@ -401,9 +454,10 @@ def arm_payload_from_json(d: dict, leg: str, g: float, cal_path: Path, cc=None) 
     if block is not None:
         C, und, null = block
         return UrdfLoadCalibration(leg, load, base.offset, theta, E, np.where(np.isfinite(C), C, 0.0), base.sigma, g, True,
-                                   np.asarray(und, bool), null, base.tilt, gravity_body=base.gravity_body)
+                                   np.asarray(und, bool), null, base.tilt, gravity_body=base.gravity_body,
+                                   sensor_matrix=base.sensor_matrix)
     return UrdfLoadCalibration(leg, load, base.offset, theta, E, base.cov, base.sigma, g, False, base.undetermined, None,
-                               base.tilt, gravity_body=base.gravity_body)
+                               base.tilt, gravity_body=base.gravity_body, sensor_matrix=base.sensor_matrix)
 
 
 
@@ -451,12 +505,11 @@ def free_loads_from_dict(d: dict, cal_path: Path) -> dict[str, PayloadCalibratio
     g = float(d.get("g", 9.81))
     out: dict[str, PayloadCalibration | UrdfLoadCalibration] = {}
     for k, l in legs.items():
-        if l.get("load_kind") == "urdf_subtree":
-            out[k] = urdf_from_json(l, k, g, cal_path, cc)
-            x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
-        elif l.get("link") is not None:   # a payload oriented by the joints (an arm whose URDF leaves the tool out)
-            out[k] = arm_payload_from_json(l, k, g, cal_path, cc)
-            x_names = param_names(k, out[k].load.param_names, out[k].tilt is not None)
+        if l.get("load_kind") == "urdf_subtree" or l.get("link") is not None:
+            # a URDF load, or a payload oriented by the joints (an arm whose URDF leaves the tool out)
+            u = urdf_from_json(l, k, g, cal_path, cc) if l.get("load_kind") == "urdf_subtree" else arm_payload_from_json(l, k, g, cal_path, cc)
+            out[k] = u
+            x_names = param_names(k, u.load.param_names, u.tilt is not None)
         else:
             x_names = payload_param_names(k, "gravity_tilt_rad" in l)
             block = None if cc is None else cc.block(x_names)

@@ -71,6 +71,7 @@ def correct_recording_full(cal: Calibration, rec: Recording, cov: CalibrationCov
     legs = cal.leg_names
     # a calibration written with the diagnosis' named effect corrects the readings for it first
     src = str(rec.path or rec.name)
+    assert rec.quat is not None   # checked above; select keeps it
     w_raw, phi, R_raw = rec.wrench_array(legs), rec.phi_array(legs), quat_to_rotation(rec.quat)
     w, R, w_cov = correct_for_effect(cal, w_raw, phi, R_raw, rec.t, source=src)
     # ... and its parameters' uncertainty enters the se like reading noise
@@ -175,6 +176,7 @@ def write_extras(cal: Calibration, df: pd.DataFrame, tracking: TrackedOffsets | 
                  off_out: Path | None, bag: Path | None) -> None:
     """Beside the table: the tracked offsets (``<out>_offsets.csv``, their changes printed) and the ROS 2 bag."""
     if tracking is not None:
+        assert off_out is not None   # --track-offsets gives both (correct/__init__.py)
         write_csv(offsets_frame(df["t"].to_numpy(), tracking), off_out)
         log.info("wrote %s (tracked offsets)", off_out)
         for line in log_changes(tracking):

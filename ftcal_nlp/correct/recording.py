@@ -19,6 +19,7 @@ convention from its direction). A recording mostly in contact cannot test the co
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -98,8 +99,6 @@ def base_gravity(cal_legs: dict, df: pd.DataFrame, where: str, option=None) -> d
 def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) -> dict[str, np.ndarray]:
     """``q_{joint}`` columns of ``df`` for ``joints`` (rad; checked against the URDF limits: degrees are an error),
     a joint without a column held at 0 and named in a warning."""
-    from types import SimpleNamespace
-
     from ..core.data import _check_joint_units
 
     missing = [j for j in joints if f"{JOINT_PREFIX}{j}" not in df.columns]
@@ -107,7 +106,7 @@ def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) ->
         log.warning("%s: joints %s have no column (%s): held at 0", where, missing, [f"{JOINT_PREFIX}{j}" for j in missing])
     q = {j: pd.to_numeric(df[f"{JOINT_PREFIX}{j}"], errors="coerce").to_numpy(float) for j in joints if j not in missing}
     fin = {j: v[np.isfinite(v)] for j, v in q.items()}
-    _check_joint_units({j: v for j, v in fin.items() if v.size}, SimpleNamespace(tree=tree), where)
+    _check_joint_units({j: v for j, v in fin.items() if v.size}, tree, where)
     return q
 
 
@@ -322,7 +321,10 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
     agrees (x, y, z, w order; the conjugate; gravity negated). Without orientation columns, the fixed base's
     gravity (``base`` per transducer, :func:`base_gravity`; ``base_source`` where it came from, for the message) is
     tested the same way (negated: pointing up). Before the direction, the rows without contact test the frames
-    (:func:`check_frames`; ``faulty`` per transducer the rows of a stuck or dead channel, left out)."""
+    (:func:`check_frames`; ``faulty`` per transducer the rows of a stuck or dead channel, left out). ``clean``'s
+    readings are those the calibration's model predicts: ``correct/free.py`` passes them corrected for the named
+    effects and mapped by a sensor matrix, where the calibration has either (a temperature's shift of the offsets
+    would leave no raw row at the noise)."""
     from ..core.checks import QUAT_ORDER_RATIO, TILT_DEG
     from ..core.data import check_torque_units
 
@@ -359,7 +361,7 @@ def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, b
                    float(np.median(_load_angles(p, sub, w, q, where, -gb)[0]))}
         else:
             alt = {what: float(np.median(_load_angles(p, a, w, q, where)[0])) for what, a in _alternatives(sub).items()}
-        best = min(alt, key=alt.get)
+        best = min(alt, key=lambda w: alt[w])
         cols = "qw, qx, qy, qz" if set(QUAT_COLUMNS) <= set(sub.columns) else "gx, gy, gz"
         if gb is not None and alt[best] <= TILT_DEG and alt[best] < QUAT_ORDER_RATIO * given:
             raise DataFormatError(
@@ -401,7 +403,7 @@ TORQUE_SCALES = {"the torques are in N*mm (x0.001 turns them into N*m)": 1e-3,
                  "the torques are in kN*m (x1000 turns them into N*m)": 1e3}
 
 
-def _describe_signed(P: np.ndarray, names: tuple[str, str, str]) -> str:
+def _describe_signed(P: np.ndarray, names: tuple[str, ...]) -> str:
     """``fx <- -fy, ...`` for the rows of a signed permutation that differ from the identity."""
     out = []
     for i, n in enumerate(names):
@@ -443,7 +445,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
     fc, tc = [f"{k}_{c}" for c in WRENCH_COMPONENTS[:3]], [f"{k}_{c}" for c in WRENCH_COMPONENTS[3:]]
     sf, st = np.nan_to_num(np.asarray(p.sigma, float)[:3]), np.nan_to_num(np.asarray(p.sigma, float)[3:])
     if not np.linalg.norm(sf) > 0 or not np.linalg.norm(st) > 0:
-        return
+        return None
     g_B = gravity_of_frame(sub, p.g, where, gb)
     model, _ = p.predict(g_B, q, orientation_of_frame(sub))
     free = _at_noise(w[:, :3] - model[:, :3], sf)
@@ -463,7 +465,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
         for what, alt in _alternatives(sub).items():
             m2, _ = p.predict(gravity_of_frame(alt, p.g, where), q, orientation_of_frame(alt))
             orient[what] = int(_at_noise(w[:, :3] - m2[:, :3], sf).sum())
-    best = max(cand, key=cand.get)
+    best = max(cand, key=lambda w: cand[w])
     best_o = max(orient.values(), default=0)
     if cand[best] >= MIN_FREE_ROWS and cand[best] >= FIX_RATIO * max(n_given, 1) and cand[best] > best_o:
         joint = best.split(" ")[1] if best.startswith("column ") else None
@@ -476,7 +478,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
             f"{where}: columns {fc[0]}..{fc[-1]}: {at} with the columns as given, {cand[best]} if {best}; expected the columns "
             "as given to leave the rows without contact at the noise (DATA_FORMAT.md: forces in N in the ft frame, a "
             "right-handed frame)", path=where, column=fc[0])
-    what_o = max(orient, key=orient.get) if orient else None
+    what_o = max(orient, key=lambda w: orient[w]) if orient else None
     pending = None
     if what_o is not None and orient[what_o] >= MIN_FREE_ROWS and orient[what_o] >= FIX_RATIO * max(n_given, 1):
         pending = DataFormatError(
@@ -492,7 +494,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
                     "prediction; the readings' frame and the torques' unit are tested on %d or more such rows without "
                     "contact: not tested (a short recording, one mostly in contact, offsets drifted since the calibration, "
                     "or another load)", where, k, n_given, len(w), MIN_FREE_ROWS)
-        return
+        return None
     rt = w[free, 3:]
     mt = model[free, 3:]
     good = int(_at_noise(rt - mt, st).sum())
@@ -501,7 +503,7 @@ def check_frames(p, k: str, sub: pd.DataFrame, w: np.ndarray, q: dict, where: st
     fixes = {what: int(_at_noise(rt * s - mt, st).sum()) for what, s in TORQUE_SCALES.items()}
     for P in signed_permutations():
         fixes[_signed_fix_text(P, tc)] = int(_at_noise(rt @ P.T - mt, st).sum())
-    fix = max(fixes, key=fixes.get)
+    fix = max(fixes, key=lambda w: fixes[w])
     excess = float(np.median(np.linalg.norm(rt - mt, axis=1)))
     head = (f"{where}: columns {tc[0]}..{tc[-1]}: on the {n_given} rows (of {len(w)}, a regular subsample) whose force is at "
             f"the noise (no contact), the torque less the calibration's offset and load is a median {excess:.3g} N*m, "
@@ -535,16 +537,23 @@ def _continuous_joints(p, q: dict) -> list[str]:
     return out
 
 
+@dataclass(frozen=True)
+class _Readings:
+    """A table's readings by transducer, as :func:`~ftcal_nlp.core.checks.sensor_faults` reads a recording's."""
+
+    wrench: dict[str, np.ndarray]
+    path: str
+    name: str
+
+
 def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
     """The stuck, dead or clipped channels of each transducer over the recording's rows (``checks.sensor_faults``,
     the hexapod's screen; a cell that is no number never repeats)."""
-    from types import SimpleNamespace
-
     from ..core.checks import sensor_faults
 
     wrench = {k: df[[f"{k}_{c}" for c in WRENCH_COMPONENTS]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
               for k in cal_legs}
-    return sensor_faults(SimpleNamespace(path=where, name=where, wrench=wrench), tuple(cal_legs))
+    return sensor_faults(_Readings(wrench, where, where), tuple(cal_legs))
 
 
 def transducer_temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:

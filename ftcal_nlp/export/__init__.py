@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 DEFAULT_NAME = "ftcal_correct"
 
 __all__ = ["DEFAULT_NAME", "ExportedFiles", "write_generated", "write_c", "correction_function", "compile_shared",
-           "load_compiled", "batch_caller", "kind_of", "main"]
+           "load_compiled", "batch_caller", "BatchCall", "kind_of", "main"]
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,17 @@ def load_compiled(lib: str | Path, cal, name: str = DEFAULT_NAME) -> Callable[..
     return kind_of(cal).load_compiled(lib, cal, name)
 
 
-def batch_caller(lib: str | Path, name: str, widths: Sequence[int], outputs: Sequence[tuple[int, ...]]) -> Callable[..., np.ndarray]:
+class BatchCall:
+    """A numpy function over a compiled library: calls ``fn``; ``lib`` keeps the library loaded as long as it lives."""
+
+    def __init__(self, fn: Callable[..., np.ndarray], lib: ctypes.CDLL):
+        self.fn, self.lib = fn, lib
+
+    def __call__(self, *arrays: np.ndarray | None) -> np.ndarray:
+        return self.fn(*arrays)
+
+
+def batch_caller(lib: str | Path, name: str, widths: Sequence[int], outputs: Sequence[tuple[int, ...]]) -> BatchCall:
     """``{name}_batch`` of the compiled library ``lib`` as a numpy function: its arguments (N rows of ``widths``
     numbers each, the last one's length is N) in order, the first of the ``outputs`` (per-sample shapes) returned."""
     dll = ctypes.CDLL(str(Path(lib).resolve()))
@@ -130,8 +140,7 @@ def batch_caller(lib: str | Path, name: str, widths: Sequence[int], outputs: Seq
             raise RuntimeError(f"{name}_batch returned {flag}")
         return outs[0]
 
-    call.lib = dll  # keep the library loaded as long as the function lives
-    return call
+    return BatchCall(call, dll)   # the library stays loaded as long as the function lives
 
 
 def _write_export(cal_path: Path, out: Path, name: str) -> ExportedFiles:

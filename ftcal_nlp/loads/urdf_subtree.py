@@ -127,10 +127,10 @@ class UrdfSubtree(LinearLoad):
     def nominal_rotation(self, q: Mapping[str, np.ndarray], n: int) -> np.ndarray:
         return self.tree.pose(self.tree.root, self.ft_link, q, n)[0]
 
-    def symbolic_lever(self, theta: np.ndarray, q: dict) -> ca.MX:
+    def symbolic_lever(self, theta: np.ndarray, q: dict) -> ca.MX | ca.DM:
         """``s(q) = sum_G M_G p_G(q) + R_G(q) H_G`` (3,) for joint angles ``q`` (CasADi symbols by joint; what
         :meth:`lever` gives numerically, :func:`symbolic_pose`), ``theta`` fixed: what ``export`` compiles."""
-        s = ca.DM.zeros(3)
+        s: ca.MX | ca.DM = ca.DM.zeros(3)   # a constant until a group moves with the joints
         for gi, grp in enumerate(self.groups):
             M_G, H_G = float(theta[4 * gi]), ca.DM(theta[4 * gi + 1: 4 * gi + 4])
             if grp.frame == self.ft_link:
