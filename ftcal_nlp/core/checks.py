@@ -147,7 +147,7 @@ def _src(rec: Readings) -> str:
     return str(rec.path or rec.name)
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle between the vectors along the last axis (degrees)."""
     c = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
@@ -220,7 +220,7 @@ def check_force_directions(pairs: list[PairForces], robot: Robot, robot_source: 
     reversed_pairs: list[tuple[PairForces, np.ndarray]] = []
     faulty: dict[str, list[str]] = {}
     for p in pairs:
-        ang = _angle_deg(p.weight, p.axis)
+        ang = angle_deg(p.weight, p.axis)
         rev = ang > REVERSED_DEG
         if rev.sum() * 2 > len(ang) and np.median(ang) > 180 - LEG_DIRECTION_WARN_DEG:  # turned round, not sideways
             reversed_pairs.append((p, ang))
@@ -311,7 +311,7 @@ def _check_shaft_rate(rec: Recording, legs: tuple[str, ...], stride: int = 1) ->
 def _up_angles(S_B: np.ndarray, quat: np.ndarray) -> np.ndarray:
     """Angle (deg) between the readings' up direction ``S_B`` (N, 3) and the quaternions' ``R_WB^T e_z``."""
     up = quat_to_rotation(quat)[:, 2, :]
-    return _angle_deg(S_B, up)
+    return angle_deg(S_B, up)
 
 
 def check_standing(ds: Dataset, offsets: np.ndarray, leg_weights: np.ndarray) -> None:
@@ -413,7 +413,7 @@ def _quaternion_fixes_it(S_B: np.ndarray, q: np.ndarray, body: float) -> bool:
     """One of the usual misreadings of the quaternion columns (x, y, z, w order; the conjugate) puts the readings up
     with the body's weight: then the quaternion is off, not the readings. The other orders are not asked: some turn
     any up axis over, and a reversed sign or unit is the likelier fault."""
-    for v in list(_quaternion_readings().values())[:2]:
+    for v in list(quaternion_readings().values())[:2]:
         qq = reread_quaternion(q, v)
         share = float(np.median(np.einsum("ni,ni->n", S_B, quat_to_rotation(qq)[:, 2, :])) / body)
         if 1 / BODY_WEIGHT_FACTOR <= share <= BODY_WEIGHT_FACTOR:
@@ -423,11 +423,11 @@ def _quaternion_fixes_it(S_B: np.ndarray, q: np.ndarray, body: float) -> bool:
 
 def reread_quaternion(q: np.ndarray, reading: list[int] | np.ndarray) -> np.ndarray:
     """Quaternions ``q`` (N, 4) read another way: an order of the columns (index list) or signs (the conjugate), as
-    :func:`_quaternion_readings` gives them."""
+    :func:`quaternion_readings` gives them."""
     return q[:, reading] if isinstance(reading, list) else q * reading
 
 
-def _quaternion_readings() -> dict[str, list[int] | np.ndarray]:
+def quaternion_readings() -> dict[str, list[int] | np.ndarray]:
     """Other readings of the four columns qw..qz: every other order (as index lists) and the conjugate (signs)."""
     names = ("qw", "qx", "qy", "qz")
     out: dict[str, list[int] | np.ndarray] = {
@@ -461,7 +461,7 @@ def check_quaternion(rec: Recording, S_B: np.ndarray, ok: np.ndarray) -> None:
     given, given99 = stats(q)
     if given <= TILT_DEG and given99 <= TILT_MIN_DEG:
         return
-    alt = {k: stats(reread_quaternion(q, v)) for k, v in _quaternion_readings().items()}
+    alt = {k: stats(reread_quaternion(q, v)) for k, v in quaternion_readings().items()}
     best = min(alt, key=lambda k: alt[k][1])
     if given > TILT_DEG:
         best = min(alt, key=lambda k: alt[k][0])

@@ -353,7 +353,7 @@ def read_table(path: Path) -> pd.DataFrame:
         raise DataFormatError(f"{path}: cannot be read as {kind} ({type(exc).__name__}: {exc}); truncated or not a {kind} file?", path=path) from exc
 
 
-def _numeric(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
+def numeric_values(df: pd.DataFrame, cols: list[str], where: str) -> np.ndarray:
     """The columns ``cols`` as floats (N, len(cols)); a cell that is not a number, or a column without
     any number, is an error naming the column."""
     out = np.empty((len(df), len(cols)))
@@ -408,8 +408,8 @@ def recording_from_frame(
     if missing:
         raise DataFormatError(f"{where}: missing column(s) {missing}", path=path, column=missing[0])
     cols_in = [str(c) for c in df.columns]
-    quat_cols = _complete_group(cols_in, QUAT_COLUMNS, where) if kind == "hanging" else []
-    g_cols = _complete_group(cols_in, GRAVITY_COLUMNS, where) if kind == "hanging" else []
+    quat_cols = complete_group(cols_in, QUAT_COLUMNS, where) if kind == "hanging" else []
+    g_cols = complete_group(cols_in, GRAVITY_COLUMNS, where) if kind == "hanging" else []
     joint_cols = [c for c in cols_in if c.startswith(JOINT_PREFIX)] if robot.tree is not None else []
     urdf_joints = [jt.name for jt in robot.tree.joints.values()] if robot.tree is not None else []
     for c in joint_cols:
@@ -424,7 +424,7 @@ def recording_from_frame(
     use_quat = needs_quat or (bool(quat_cols) and gravity_body is None)
     orient_cols = (list(QUAT_COLUMNS) if use_quat else []) + g_cols + (quat_cols if not use_quat and not g_cols else [])
     cols = reading_cols + joint_cols + orient_cols
-    values = _numeric(df, cols, where)
+    values = numeric_values(df, cols, where)
     n_read = len(reading_cols) + len(joint_cols)
     bad = ~np.all(np.isfinite(values[:, :n_read]), axis=1)
     n_bad = int(bad.sum())
@@ -439,7 +439,7 @@ def recording_from_frame(
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise DataFormatError(f"{where}: column 't' is not strictly increasing (row {i + 1}: {t[i]} -> {t[i + 1]})", path=path, column="t")
-    temps = _temperatures(df, temp_cols, ~bad, t, robot.legs, where, path)
+    temps = temperatures(df, temp_cols, ~bad, t, robot.legs, where, path)
     phi, wrench = {}, {}
     j = 1
     for k in robot.legs:
@@ -451,7 +451,7 @@ def recording_from_frame(
         _check_units(wrench[k], robot, where, k)
     q = {c[len(JOINT_PREFIX):]: values[:, len(reading_cols) + i].copy() for i, c in enumerate(joint_cols)}
     if robot.tree is not None and kind == "hanging":
-        _check_joint_units(q, robot.tree, where)
+        check_joint_units(q, robot.tree, where)
         held = [jn for jn in robot.tree.movable if jn not in q]
         if held:
             log.warning("%s: no column for URDF joint(s) %s: held at 0 (expected columns %s)", where, held,
@@ -487,7 +487,7 @@ def recording_from_frame(
                      temperature=temps)
 
 
-def _temperatures(df: pd.DataFrame, cols: list[str], keep: np.ndarray, t: np.ndarray, legs, where: str,
+def temperatures(df: pd.DataFrame, cols: list[str], keep: np.ndarray, t: np.ndarray, legs, where: str,
                   path: Path | None) -> dict[str, np.ndarray]:
     """``{leg: (N,) degC}`` from the optional temperature columns ``cols`` (rows ``keep``): ``{leg}_temp_C``, else
     ``temp_C``. A temperature sampled slower than the readings (NaN between its samples) is interpolated
@@ -495,7 +495,7 @@ def _temperatures(df: pd.DataFrame, cols: list[str], keep: np.ndarray, t: np.nda
     ``TEMP_RANGE_C``, is an error naming it."""
     if not cols:
         return {}
-    vals = _numeric(df, cols, where)[keep]
+    vals = numeric_values(df, cols, where)[keep]
     by_col = {}
     for j, c in enumerate(cols):
         v = vals[:, j]
@@ -518,7 +518,7 @@ def _temperatures(df: pd.DataFrame, cols: list[str], keep: np.ndarray, t: np.nda
     return out
 
 
-def _complete_group(columns: list[str], group: tuple[str, ...], where: str) -> list[str]:
+def complete_group(columns: list[str], group: tuple[str, ...], where: str) -> list[str]:
     """``group`` when the table has all of its columns, [] when none; some but not all is an error naming the missing."""
     have = [c for c in group if c in columns]
     if have and len(have) < len(group):
@@ -548,7 +548,7 @@ def _unit_rows(g: np.ndarray, where: str, what: str) -> np.ndarray:
     return out
 
 
-def _check_joint_units(q: dict[str, np.ndarray], tree: Any, where: str) -> None:
+def check_joint_units(q: dict[str, np.ndarray], tree: Any, where: str) -> None:
     """``tree`` a :class:`~ftcal_nlp.core.kinematics.KinematicTree` (a robot's, or a free load's URDF). Revolute joint angles in radians: the 99th percentile of |q| beyond the URDF limits by more than
     ``_JOINT_LIMIT_SLACK_RAD`` (or beyond ``_MAX_TURNS`` turns) is an error suspecting degrees."""
     for name, v in q.items():

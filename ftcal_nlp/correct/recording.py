@@ -99,14 +99,14 @@ def base_gravity(cal_legs: dict, df: pd.DataFrame, where: str, option=None) -> d
 def joint_angles(df: pd.DataFrame, joints: tuple[str, ...], tree, where: str) -> dict[str, np.ndarray]:
     """``q_{joint}`` columns of ``df`` for ``joints`` (rad; checked against the URDF limits: degrees are an error),
     a joint without a column held at 0 and named in a warning."""
-    from ..core.data import _check_joint_units
+    from ..core.data import check_joint_units
 
     missing = [j for j in joints if f"{JOINT_PREFIX}{j}" not in df.columns]
     if missing:
         log.warning("%s: joints %s have no column (%s): held at 0", where, missing, [f"{JOINT_PREFIX}{j}" for j in missing])
     q = {j: pd.to_numeric(df[f"{JOINT_PREFIX}{j}"], errors="coerce").to_numpy(float) for j in joints if j not in missing}
     fin = {j: v[np.isfinite(v)] for j, v in q.items()}
-    _check_joint_units({j: v for j, v in fin.items() if v.size}, tree, where)
+    check_joint_units({j: v for j, v in fin.items() if v.size}, tree, where)
     return q
 
 
@@ -158,10 +158,10 @@ def check_joint_columns(cal_legs: dict, df: pd.DataFrame, where: str) -> None:
 
 def _orientation_columns(df: pd.DataFrame, where: str) -> list[str]:
     """``qw..qz`` or ``gx..gz`` (complete), the gravity per sample; [] without either (a fixed base)."""
-    from ..core.data import _complete_group
+    from ..core.data import complete_group
 
     cols = [str(c) for c in df.columns]
-    q, gcols = _complete_group(cols, QUAT_COLUMNS, where), _complete_group(cols, GRAVITY_COLUMNS, where)
+    q, gcols = complete_group(cols, QUAT_COLUMNS, where), complete_group(cols, GRAVITY_COLUMNS, where)
     return q or gcols   # neither: a fixed base's gravity (base_gravity)
 
 
@@ -172,7 +172,7 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     strictly increasing or not in seconds where the correction uses the clock (:func:`_check_clock`), quaternions not
     of norm 1 within 0.01 are
     errors naming the file and the column. Returns the numeric table of the kept rows and the kept-row mask."""
-    from ..core.data import TEMP_COMMON, TEMP_SUFFIX, _numeric
+    from ..core.data import TEMP_COMMON, TEMP_SUFFIX, numeric_values
 
     if "t" not in df.columns:
         raise DataFormatError(f"{where}: missing column 't'", path=where, column="t")
@@ -188,7 +188,7 @@ def clean_rows(cal_legs: dict, df: pd.DataFrame, where: str) -> tuple[pd.DataFra
     extra = [str(c) for c in df.columns if str(c) not in known and not str(c).startswith(JOINT_PREFIX)]
     if extra:
         log.warning("%s: extra column(s) ignored: %s", where, extra)
-    values = _numeric(df, read + orient, where)
+    values = numeric_values(df, read + orient, where)
     n = len(df)
     ok_read = np.all(np.isfinite(values[:, :len(read)]), axis=1)
     ok_o = np.all(np.isfinite(values[:, len(read):]), axis=1)
@@ -283,13 +283,13 @@ def check_holds_clock(t: np.ndarray, clean: pd.DataFrame, orient: list[str], joi
 
 def _alternatives(df: pd.DataFrame) -> dict[str, pd.DataFrame]:
     """The same rows read with the usual convention slips of the orientation columns: the quaternion's other
-    orders and its conjugate (``checks._quaternion_readings``, the run's list), or gravity ``gx..gz`` negated."""
+    orders and its conjugate (``checks.quaternion_readings``, the run's list), or gravity ``gx..gz`` negated."""
     if set(QUAT_COLUMNS) <= set(df.columns):
-        from ..core.checks import _quaternion_readings
+        from ..core.checks import quaternion_readings
 
         q = df[list(QUAT_COLUMNS)].to_numpy()
         out = {}
-        for what, v in _quaternion_readings().items():
+        for what, v in quaternion_readings().items():
             alt = df.copy()
             alt[list(QUAT_COLUMNS)] = reread_quaternion(q, v)
             out[what] = alt
@@ -303,11 +303,11 @@ def _load_angles(p, df: pd.DataFrame, w: np.ndarray, q: dict, where: str,
                  base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per row the angle (deg) between the reading's force less the offset and the calibration's load force,
     and the calibration's full predicted wrench (offset and load) (N, 6); ``base`` as :func:`gravity_of_frame`."""
-    from ..core.checks import _angle_deg
+    from ..core.checks import angle_deg
 
     g_B = gravity_of_frame(df, p.g, where, base)
     model, _ = p.predict(g_B, q, orientation_of_frame(df))
-    return _angle_deg(w[:, :3] - p.offset[:3], model[:, :3] - p.offset[:3]), model
+    return angle_deg(w[:, :3] - p.offset[:3], model[:, :3] - p.offset[:3]), model
 
 
 def check_against_calibration(cal_legs: dict, clean: pd.DataFrame, where: str, base: dict | None = None,
@@ -559,7 +559,7 @@ def channel_faults(cal_legs: dict, df: pd.DataFrame, where: str) -> list:
 def transducer_temperature(df: pd.DataFrame, leg: str, keep: np.ndarray, t: np.ndarray, where: str) -> np.ndarray | None:
     """Transducer ``leg``'s temperature (rows ``keep``) from ``{leg}_temp_C`` or ``temp_C`` (``data.py``'s reading:
     gaps interpolated in t, units checked), or None without either column."""
-    from ..core.data import TEMP_COMMON, TEMP_SUFFIX, _temperatures
+    from ..core.data import TEMP_COMMON, TEMP_SUFFIX, temperatures
 
     cols = [c for c in (f"{leg}{TEMP_SUFFIX}", TEMP_COMMON) if c in df.columns]
-    return _temperatures(df, cols, keep, t, [leg], where, Path(where)).get(leg) if cols else None
+    return temperatures(df, cols, keep, t, [leg], where, Path(where)).get(leg) if cols else None
