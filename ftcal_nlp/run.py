@@ -35,6 +35,7 @@ from .core.outdir import OutputExistsError, OutputFolder, check_apart, dataset_i
 from .correct import offsets_frame
 from .core.csvout import write_csv
 from .core.data import Dataset, read_dataset
+from .truth import LoadTruth
 from .diagnose.validation import run_validation
 from .pipeline import calibrate, stage
 from .report import write_report
@@ -47,7 +48,7 @@ COVARIANCE_FILE = "calibration_cov.npz"   # beside calibration.json, named in it
 log = logging.getLogger("ftcal_nlp.run")
 
 
-def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, object | None]:
+def load_or_simulate(cfg: RunConfig, force: bool) -> tuple[Dataset, LoadTruth | Calibration | None]:
     """The dataset of the config: read from the manifest, or simulated (and written) first; with its truth
     (``truth.json`` beside the manifest: a Calibration for a hexapod, a ``truth.LoadTruth`` for a free load).
 
@@ -106,7 +107,7 @@ def check_simulation_target(cfg: RunConfig, folder: Path) -> None:
             "manifest of that dataset (a typo in its name?), or an empty folder to simulate into", path=cfg.path, key="data.manifest")
 
 
-def data_origin(cfg: RunConfig, truth: Calibration | None) -> str | None:
+def data_origin(cfg: RunConfig, truth: Calibration | LoadTruth | None) -> str | None:
     """How the dataset came to be, when simulated (a ``truth.json`` beside the manifest, or the ``[simulate]``
     table of this run), else None."""
     if truth is None:
@@ -144,9 +145,11 @@ def run(cfg: RunConfig, *, force: bool = False, quiet: bool = False) -> Calibrat
     log.debug("inputs: %s", "; ".join(f"{k} {v}" for k, v in inputs.items()))
     check_apart(cfg.output_dir, inputs)
     with OutputFolder(cfg.output_dir, force=force) as out:
+        folder = out.path
+        assert folder is not None, "OutputFolder.__enter__ made the staging folder"
         if cfg.manifest is None and cfg.simulate_dir is None:  # the simulated dataset goes with the results
-            cfg = replace(cfg, simulate_dir=out.path / "dataset")
-        res = _run_into(cfg, force, out.path)
+            cfg = replace(cfg, simulate_dir=folder / "dataset")
+        res = _run_into(cfg, force, folder)
         out.commit()
     if not quiet:
         print(summary_text(res, cfg))
@@ -170,19 +173,21 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
     res = calibrate(ds, cfg.settings, offsets_only=prior)
     # a free-load run's covariance file holds the estimator's (loads.calibrated reads it back)
     covariance = res.uncertainty if res.uncertainty is not None else free_load_covariance(res.free_loads)
-    cov_meta = {"covariance_file": COVARIANCE_FILE} if covariance is not None else {}
+    cov_meta: dict[str, object] = {"covariance_file": COVARIANCE_FILE} if covariance is not None else {}
     origin = data_origin(cfg, truth)
     cov_meta["data"] = {"simulated": origin is not None, **({"origin": origin} if origin else {})}
-    # a new frozen run with what only the command line knows: the truth, the load time, the config, the notes
-    res = replace(res, truth=truth, timings={"load": t_load, **res.timings},
+    # a new frozen run with what only the command line knows: the truth, the load time, the config, the notes; the
+    # stages below are timed into `timings`, given to a new run before the report (which shows them) and at the end
+    timings = {"load": t_load, **res.timings}
+    res = replace(res, truth=truth, timings=dict(timings),
                   calibration=replace(res.calibration, meta={"config": str(cfg.path), **res.calibration.meta, **cov_meta}))
     res = replace(res, notes=_issue_notes(res, origin))
-    with stage("write calibration", res.timings):
+    with stage("write calibration", timings):
         res.calibration.save(folder / "calibration.json")
         if covariance is not None:
             covariance.save(folder / COVARIANCE_FILE)
     if res.corrected or res.tracked_offsets:   # no stage (nor folder) where nothing is corrected: a free-load run
-        with stage("write corrected", res.timings):
+        with stage("write corrected", timings):
             write_corrected(res, folder)
     if res.diagnosis is not None:
         (folder / "diagnosis.json").write_text(json.dumps(res.diagnosis.to_json_dict(), indent=1))
@@ -194,14 +199,15 @@ def _run_into(cfg: RunConfig, force: bool, folder: Path) -> CalibrationRun:
                 log.warning("joint refit with %s: %s", last.effect if note in last.notes else res.diagnosis.effect, note)
         elif res.free_loads is not None:
             write_free_effect_calibration(res, folder)
-    with stage("report", res.timings):
+    res = replace(res, timings=dict(timings))
+    with stage("report", timings):
         write_report(res, folder)
     if cfg.holdout.recordings:   # validation on a later session: holdout/ in the output folder
         from .holdout import run_holdout
 
-        with stage("holdout", res.timings):
+        with stage("holdout", timings):
             run_holdout(cfg.holdout, folder, cfg.output_dir)
-    return res
+    return replace(res, timings=dict(timings))
 
 
 def _issue_notes(res: CalibrationRun, origin: str | None) -> tuple[str, ...]:
@@ -292,9 +298,9 @@ def summary_text(res: CalibrationRun, cfg: RunConfig) -> str:
         r = np.asarray(res.standing.residuals)
         lines.append("calibrated total-wrench residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in np.sqrt((r**2).mean(0))))
     if res.free_loads is not None:
-        for k, r in res.free_loads.legs.items():
-            lines.append(f"{k}: {r.n_used} quasi-static samples; residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in r.rms))
-            lines += [f"  {n}" for n in r.identifiability()]
+        for k, fit in res.free_loads.legs.items():
+            lines.append(f"{k}: {fit.n_used} quasi-static samples; residual RMS (fx fy fz tx ty tz): " + " ".join(f"{v:.3g}" for v in fit.rms))
+            lines += [f"  {n}" for n in fit.identifiability()]
     if res.poses is not None:  # a free-load dataset has no standing poses: nothing to compare
         try:
             naive = res.naive_total_residuals()

@@ -15,7 +15,7 @@ from its caller, without defaults). A value out of range is a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, make_dataclass, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
@@ -188,21 +188,32 @@ class ChainThresholds:
                               key=key.format("max_effects"))
 
 
-def _kind_values(name: str, section: str, doc: str, **values: float) -> type:
-    """A kind of evidence's :class:`ChainThresholds`: ``values`` its defaults (a config table ``[section]`` may
-    override any of them, the others keep the kind's)."""
-    return make_dataclass(name, [(k, type(v), field(default=v)) for k, v in values.items()], bases=(ChainThresholds,),
-                          frozen=True, namespace={"SECTION": section, "__doc__": doc, "__module__": __name__})
-
-
 #: the hexapod's values (evidence: standing poses, hanging legs, walking swing; each link a joint refit of the whole
-#: calibration, ``diagnose/hexchain.py``)
-HexapodChain = _kind_values("HexapodChain", "diagnose.hexapod", "The hexapod's chain thresholds ([diagnose.hexapod]).",
-                            z_min=3.0, min_floor_share=0.05, max_effects=3, explained_min=0.5)
+#: calibration, ``diagnose/hexchain.py``); a config table ``[diagnose.hexapod]`` may override any of them
+@dataclass(frozen=True)
+class HexapodChain(ChainThresholds):
+    """The hexapod's chain thresholds ([diagnose.hexapod])."""
+
+    SECTION: ClassVar[str] = "diagnose.hexapod"
+
+    z_min: float = 3.0
+    min_floor_share: float = 0.05
+    max_effects: int = 3
+    explained_min: float = 0.5
+
+
 #: the free loads' values (evidence: every sample of the load in blocks of holds, ``diagnose/chain.py``; the floor's
 #: variance there is ``6 N``, N samples in units of the noise variance)
-FreeLoadChain = _kind_values("FreeLoadChain", "diagnose.free_loads", "The free loads' chain thresholds ([diagnose.free_loads]).",
-                             z_min=3.0, min_floor_share=0.01, max_effects=4, explained_min=0.3)
+@dataclass(frozen=True)
+class FreeLoadChain(ChainThresholds):
+    """The free loads' chain thresholds ([diagnose.free_loads])."""
+
+    SECTION: ClassVar[str] = "diagnose.free_loads"
+
+    z_min: float = 3.0
+    min_floor_share: float = 0.01
+    max_effects: int = 4
+    explained_min: float = 0.3
 
 
 @dataclass(frozen=True)

@@ -114,9 +114,10 @@ def _warm_start(prob: AugmentedProblem, x_base: np.ndarray, base: AugmentedProbl
     ``base`` (the named effects): the model's and the named faces' values, the new face at its start."""
     x0 = np.array(prob.x0, float)
     x0[: prob.n_model] = x_base[: base.n_model]
-    m_face = base.n_eta - (6 if base.effect.shifts_offsets else 0)
+    shifts = base.effect is not None and base.effect.shifts_offsets   # the model alone shifts no offsets
+    m_face = base.n_eta - (6 if shifts else 0)
     x0[prob.n_model : prob.n_model + m_face] = x_base[base.n_model : base.n_model + m_face]
-    if base.effect.shifts_offsets:
+    if shifts:
         x0[-6:] = x_base[-6:]
     return x0
 
@@ -187,6 +188,7 @@ def attribute(views: Views, effects: list[Effect], model, prior, robot, balance:
             if sv is not None and eff.needs_report_balance and balance != "report":
                 note = "not applicable: the calibration already uses the exact balance (moving CoMs included)"
             elif sv is not None:
+                assert base_prob is not None and fidx is not None, "both are set with the standing view (above)"
                 prob = AugmentedProblem(model, prior, robot, balance, eff if base_effect is None else Combined(base_effect.members + (eff,)))
                 if prob.n_eta > 0 or prob.balance != balance:
                     x0 = np.concatenate([xb, prob.x0[prob.n_model :]]) if base_effect is None else _warm_start(prob, xb, base_prob)
@@ -308,8 +310,8 @@ def explained_fraction(score: EffectScore, gap: dict) -> float:
         else:
             fr.append(0.0)
         wt.append(np.log1p(max(size, 0.0)))
-    wt = np.asarray(wt)
-    return float(np.average(fr, weights=wt)) if wt.sum() > 0 else float(np.mean(fr))
+    w = np.asarray(wt)
+    return float(np.average(fr, weights=w)) if w.sum() > 0 else float(np.mean(fr))
 
 
 def explaining(att: Attribution, gap: dict, explained_min: float) -> list[EffectScore]:

@@ -40,6 +40,7 @@ sample (linearised around the free-load fit) and gives their parameters with se:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -49,6 +50,8 @@ from ..estimate.freeload.problem import serial_inflation
 from ..core.settings import ChainThresholds
 from .evidence import name_effects
 from .free_cv import CVFit, Design, paired_gain, pinv
+
+_T = TypeVar("_T")
 
 GAP_REL = 0.15
 MIN_EXCESS_SHARE = 0.25
@@ -76,30 +79,52 @@ class Candidate:
     shapes_tried: int = 0
     base: CVFit | None = None  # the design with ``face`` (tuned on every sample) when ``cv`` tuned it per fold
 
+    def _scored(self, what: str, value: _T | None) -> _T:
+        if value is None:
+            raise ValueError(f"{self.effect.name}: not scored ({self.status}: {self.note}), no {what}")
+        return value
+
+    @property
+    def fit(self) -> CVFit:
+        """The cross-validated fit of a scored candidate (every named one is): ``cv`` where it is not None."""
+        return self._scored("fit", self.cv)
+
+    @property
+    def shaped_face(self) -> FreeFace:
+        """The face of a scored candidate (``face``, set with ``cv``)."""
+        return self._scored("face", self.face)
+
     @property
     def design_cv(self) -> CVFit:
         """The cross-validation of the design with this candidate's ``face`` itself: what later designs build on."""
-        return self.cv if self.base is None else self.base
+        return self.fit if self.base is None else self.base
 
 
 @dataclass
 class Chain:
     """The base fit, the named effects in order (``steps``), every step's candidates, the stop reason."""
 
-    base: CVFit
+    base: CVFit | None           # None: not diagnosed (too few samples), no fit at all
     steps: list[Candidate] = field(default_factory=list)
     rounds: list[list[Candidate]] = field(default_factory=list)
     stop: str = ""
 
     @property
+    def base_fit(self) -> CVFit:
+        """``base`` of a diagnosed chain."""
+        if self.base is None:
+            raise ValueError(f"the chain has no base fit ({self.stop})")
+        return self.base
+
+    @property
     def current(self) -> CVFit:
-        return self.steps[-1].cv if self.steps else self.base
+        return self.steps[-1].fit if self.steps else self.base_fit
 
     @property
     def current_design(self) -> CVFit:
         """The design of the named effects' faces as they join later designs (:attr:`Candidate.design_cv`): what the
         next candidates are compared with (the same faces in both)."""
-        return self.steps[-1].design_cv if self.steps else self.base
+        return self.steps[-1].design_cv if self.steps else self.base_fit
 
 
 def excess_ratio(cv: CVFit, floor: np.ndarray) -> np.ndarray:
@@ -190,6 +215,8 @@ def accepted(c: Candidate, cur: CVFit, design: Design, t: ChainThresholds, floor
         return True, ""
     if saved < t.min_floor_share * 6.0 * design.n:
         return False, f"saves {100 * saved / (6.0 * design.n):.2f} % of the floor's variance (< {100 * t.min_floor_share:g} %)"
+    if floor is None:
+        raise ValueError("accepted: the floor is needed when it is known (floor_known)")
     ch = channel_share(cur, c.cv, floor)
     if c.excess_share < MIN_EXCESS_SHARE and ch < MIN_CHANNEL_SHARE:
         return False, (f"removes {100 * c.excess_share:.0f} % of the remaining excess (< {100 * MIN_EXCESS_SHARE:g} %) and at most "
@@ -232,7 +259,7 @@ class FreeLoadEvidence:
     def next_link(self, why_not: list[str]) -> bool:
         ch, design, floor_known, floor, t = self.chain, self.design, self.floor_known, self.floor, self.t
         cur = ch.current_design
-        X0 = [self.J] + [s.face for s in ch.steps]
+        X0 = [self.J] + [s.shaped_face for s in ch.steps]
         named = {s.effect.name for s in ch.steps}
         cands = [score(design, X0, cur, self.ctx, e, self.memo, floor_known) for e in self.effects if e.name not in named]
         self.ctx.forget_relaxations()   # the faces keep their columns; the next round's trials are new time constants
@@ -250,7 +277,7 @@ class FreeLoadEvidence:
         # parsimony: a candidate with fewer parameters that explains nearly as much goes first (a flexible face can
         # mimic a simpler effect; the flexible one is looked at again in the next round)
         for c in ok[1:]:
-            if (c.face.k < best.face.k and c.excess_share >= PARSIMONY * ok[0].excess_share
+            if (c.shaped_face.k < best.shaped_face.k and c.excess_share >= PARSIMONY * ok[0].excess_share
                     and accepted(c, cur, design, t, floor_known, floor)[0]):
                 best = c
         ch.steps.append(best)
@@ -283,12 +310,12 @@ class JointFit:
 
     def wrench(self, steps: list[Candidate], i: int = 0) -> np.ndarray:
         """The fitted wrench (N, 6) of the ``i``-th named effect."""
-        return steps[i].face.wrench(self.betas[i])
+        return steps[i].shaped_face.wrench(self.betas[i])
 
 
 def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:
     """The joint refit (module docstring)."""
-    parts = [J] + [s.face for s in steps]
+    parts = [J] + [s.shaped_face for s in steps]
     cv = steps[-1].design_cv if steps else None
     if cv is None or cv._parts is None or len(cv._parts) != len(parts) or any(a is not b for a, b in zip(cv._parts, parts)):
         cv = design.fit(parts)    # else the chain's own fit of these parts (the same sums: the same numbers)
@@ -304,8 +331,9 @@ def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoad
     se = np.where(undetermined, np.inf, se)
     out, betas, c0 = [], [], J.k
     for s in steps:
-        sl = slice(c0, c0 + s.face.k)
-        out.append({n: (float(v), float(e)) for n, v, e in zip(s.face.names, beta[sl], se[sl])})
+        face = s.shaped_face
+        sl = slice(c0, c0 + face.k)
+        out.append({n: (float(v), float(e)) for n, v, e in zip(face.names, beta[sl], se[sl])})
         betas.append(beta[sl])
-        c0 += s.face.k
+        c0 += face.k
     return JointFit(out, beta[:J.k], se[:J.k], s2, cv.resid, tuple(betas), G)

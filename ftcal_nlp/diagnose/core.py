@@ -110,10 +110,10 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
 
     phys = {k: v for k, v in gap.items() if k != "design"}
     primary = _primary(phys, att, verdict, effect, s.hexapod.explained_min)
-    where = {"recordings": [], "legs": [], "components": [], "explains": None}
+    where: dict[str, Any] = {"recordings": [], "legs": [], "components": [], "explains": None}
     if gap:
         recs = []
-        for k in sorted(gap, key=gap.get, reverse=True):
+        for k in sorted(gap, key=lambda k: gap[k], reverse=True):
             name = KIND_NAMES.get(k, k)
             if name not in recs:
                 recs.append(name)
@@ -159,7 +159,7 @@ def diagnose(dataset: Dataset, hanging_result, poses, calibration: Calibration, 
             effect, joint = chain.first.name, chain.first.joint
         if chain.links and primary in chain.links[-1].joint.kinds:   # the shrinkage: after every named effect
             after = chain.links[-1].joint.kinds[primary].rms_after
-    shrink = {"heldout_rms_before": before, "heldout_rms_after": after, "noise_floor": floor, "kind": KIND_NAMES.get(primary, primary),
+    shrink = {"heldout_rms_before": before, "heldout_rms_after": after, "noise_floor": floor, "kind": KIND_NAMES.get(primary, primary) if primary is not None else None,
               "kind_key": primary}
     ranking = []
     for sc in att.scores:
@@ -311,14 +311,20 @@ def _chain_statement(chain, shrink, t: ChainThresholds) -> list[str]:
 class CalibratedRun(Protocol):
     """What :func:`diagnose_run` reads of a calibration run (:class:`~ftcal_nlp.calibration_run.CalibrationRun`, which
     holds the diagnosis' result: a Protocol here keeps the diagnosis below it): the dataset, the stage results and the
-    settings."""
+    settings (read-only properties: the run is frozen)."""
 
-    dataset: Dataset
-    hanging: Any
-    poses: Any
-    standing: Any
-    calibration: Calibration
-    settings: CalibrationSettings
+    @property
+    def dataset(self) -> Dataset: ...
+    @property
+    def hanging(self) -> Any: ...
+    @property
+    def poses(self) -> Any: ...
+    @property
+    def standing(self) -> Any: ...
+    @property
+    def calibration(self) -> Calibration: ...
+    @property
+    def settings(self) -> CalibrationSettings: ...
 
 
 def diagnose_run(run: CalibratedRun, registry: Mapping[str, Effect] | None = None) -> DiagnosisResult:

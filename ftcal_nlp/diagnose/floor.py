@@ -467,6 +467,8 @@ def fit_noise_floor(r_W: np.ndarray, readings: ReadingsNoise, G: np.ndarray, str
         Gm = np.zeros_like(G)
     d = J.shape[2] if J is not None else 0
     h = J_h.shape[2] if J_h is not None else 0
+    if h and C_h is None:
+        raise ValueError(f"fit_noise_floor: J_h has {h} hanging parameters but no C_h (their variances) was given")
     # Fixed effects: the calibration's parameters and the hanging offsets (constants in B). Not the
     # leg weights: their column is a constant along W z, which together with the readings would
     # rebuild the weight along the measured up vector (see the structure columns below); the B
@@ -530,13 +532,13 @@ def fit_noise_floor(r_W: np.ndarray, readings: ReadingsNoise, G: np.ndarray, str
         coef = np.linalg.lstsq(Jf, V, rcond=None)[0]         # (d, r): J coef = V
         Jr = np.einsum("pid,dr->pir", J, coef)
         Jh = J_h if (J_h is not None and h) else np.zeros((P, 6, 0))
-        Ch = C_h if (J_h is not None and h) else np.zeros(0)
+        Ch = C_h if (C_h is not None and h) else np.zeros(0)
         fit_ms, cal_ms = _refit_terms(Jr, C, Jh, Ch, folds, seed)
         base = read_ms + moc_ms + cal_ms
         floor2 = base + fit_ms
         spread = _heldout_spread(C, Jr, Jh, Ch, folds, seed=seed)
     else:
-        if J_h is not None and h:
+        if J_h is not None and C_h is not None and h:
             cal_ms = np.einsum("pih,h,pih->i", J_h, C_h, J_h) / P
         base = read_ms + moc_ms + cal_ms
         floor2 = base * (1.0 + model_dof / max(6.0 * P_train, 1.0))

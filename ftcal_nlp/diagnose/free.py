@@ -27,6 +27,7 @@ import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -92,6 +93,8 @@ class FreeLegDiagnosis:
     def joint_refit_json(self) -> dict:
         """The free-load parameters refit with the named effects (linearised: the fit's value plus the change), with
         se (null: undetermined by these data)."""
+        if self.joint is None:
+            raise ValueError(f"{self.leg}: no effect named, no joint refit")
         x0 = np.asarray(self.fit_params, float)
         return {n: {"value": float(v + dv), "change": float(dv), "se": float(e) if np.isfinite(e) else None}
                 for n, v, dv, e in zip(self.param_names, x0, self.joint.dx, self.joint.dx_se)}
@@ -104,7 +107,7 @@ class FreeLegDiagnosis:
             out.append({"name": s.effect.name, "transducer": self.leg, "shape": s.shape,
                         "parameters": {k: {"value": v, "se": e if np.isfinite(e) else None} for k, (v, e) in pars.items()},
                         "parameters_when_added": {k: {"value": v, "se": e if np.isfinite(e) else None} for k, (v, e) in when.items()},
-                        "heldout_rms_after": [float(x) for x in s.cv.rms()],
+                        "heldout_rms_after": [float(x) for x in s.fit.rms()],
                         "paired_z": float(s.z), "explained": float(s.excess_share),
                         "explains": _explains(s.effect, s)})
         return out
@@ -141,12 +144,13 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     fold = fold_of_blocks(block, s.folds, s.seed)
     design = Design(ctx.y - ctx.pred, 1.0 / floor, block, fold)
     ch = run_chain(design, J, ctx, effects, floor, s.free_loads, floor_known)
-    base, cur = ch.base, ch.current
+    base, cur = ch.base_fit, ch.current
     jf = joint_fit(design, J, ch.steps, ctx) if ch.steps else None
     # each effect's parameters as the chain added it (refit with those before it only): when later effects are
     # confounded with it, the joint refit splits what they share and says so by its se
-    added = [(joint_fit(design, J, ch.steps[:i + 1], ctx) if i + 1 < len(ch.steps) else jf).params[i]
-             for i in range(len(ch.steps))]
+    added = [joint_fit(design, J, ch.steps[:i + 1], ctx).params[i] for i in range(len(ch.steps) - 1)]
+    if jf is not None:   # the last effect's: the joint refit of them all
+        added.append(jf.params[-1])
     ratio_after = excess_ratio(cur, floor)
     gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
     gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
@@ -171,14 +175,17 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
                          "reported as noise the floor underrates, not as a gap")
     comps = []
     if verdict == "effect":    # where the named effects' fitted wrench stands out of the noise
+        assert jf is not None, "effects named: jf is their joint refit"
         comps = _components(jf.wrench(ch.steps), floor)
     elif verdict == "unexplained":
         comps = [c for c, r in zip(WRENCH, excess_ratio(base, floor)) if r > 1.0 + GAP_REL]
         if top is not None:   # where the correlate's fit stands out (a shared refit leaks a gap into other channels)
-            comps = _components(top.wrench, floor) or comps
+            w = top.wrench
+            assert w is not None, "the best correlate keeps its face (correlates.py)"
+            comps = _components(w, floor) or comps
     first_explains = _explains(ch.steps[0].effect, ch.steps[0]) if ch.steps else None
     explains = first_explains or (top.name if top is not None else None)
-    where = {"recordings": list(ctx.names) if verdict != "none" else [], "legs": [leg] if verdict != "none" else [],
+    where: dict[str, Any] = {"recordings": list(ctx.names) if verdict != "none" else [], "legs": [leg] if verdict != "none" else [],
              "components": comps, "explains": explains if verdict != "none" else None}
     rest_top = rest[0] if rest and rest[0].explained >= s.free_loads.explained_min else None
     if ch.steps and gap_after:
@@ -200,7 +207,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
 
 def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
     nan = np.full(6, np.nan)
-    where = {"recordings": [], "legs": [], "components": [], "explains": None}
+    where: dict[str, Any] = {"recordings": [], "legs": [], "components": [], "explains": None}
     return FreeLegDiagnosis(leg, "none", floor, n_floor, nan, nan, Chain(None, stop="not diagnosed: too few samples"), None, [],
                             where, ctx.n, int(ctx.still.sum()), 0, notes, {}, False)
 

@@ -123,11 +123,13 @@ class CVFit:
 
     def __init__(self, design: "Design", parts: list, off: np.ndarray, fold_beta: np.ndarray, beta: np.ndarray,
                  G: np.ndarray, block_sse: np.ndarray, chan_sse: np.ndarray, rss: float):
-        self._design, self._parts, self._off, self._fold_beta = design, parts, off, fold_beta
+        self._design, self._off, self._fold_beta = design, off, fold_beta
+        self._parts: list | None = parts     # None once released (``_release``)
         self.beta, self.G, self.block_sse, self.chan_sse, self.rss = beta, G, block_sse, chan_sse, float(rss)
         self.k = int(off[-1])
-        self._heldout = self._resid = None
-        self._fold_parts = None      # per fold its parts (a face tuned per fold: ``Design.fit_per_fold``)
+        self._heldout: np.ndarray | None = None
+        self._resid: np.ndarray | None = None
+        self._fold_parts: list | None = None      # per fold its parts (a face tuned per fold: ``Design.fit_per_fold``)
 
     @property
     def sse(self) -> float:
@@ -139,21 +141,22 @@ class CVFit:
     @property
     def heldout(self) -> np.ndarray:
         if self._heldout is None:
-            self._check_kept()
-            self._heldout = self._design.heldout(self._parts, self._off, self._fold_beta, self._fold_parts)
+            self._heldout = self._design.heldout(self._kept(), self._off, self._fold_beta, self._fold_parts)
         return self._heldout
 
     @property
     def resid(self) -> np.ndarray:
         if self._resid is None:
-            self._check_kept()
-            self._resid = self._design.r - self._design.model(self._parts, self._off, self.beta)
+            parts = self._kept()
+            self._resid = self._design.r - self._design.model(parts, self._off, self.beta)
         return self._resid
 
-    def _check_kept(self) -> None:
+    def _kept(self) -> list:
+        """The parts, while kept (else the error: a released fit cannot form its residuals)."""
         if self._parts is None:
             raise RuntimeError("this cross-validated fit was released with its design (Design.release): its numbers are "
                                "kept, its residuals can no longer be formed")
+        return self._parts
 
     def _release(self) -> None:
         """Keep the numbers, drop the parts and the residuals formed (the design is being released)."""
@@ -197,7 +200,7 @@ class Design:
         self._perm: dict = {}   # basis id -> its rows in block order
         self._keep: dict = {}   # parts (and bases) by id, so that an id is not reused while its sums are cached
         self._n = len(self.r)
-        self._fits = weakref.WeakSet()   # the fits made, released with the design
+        self._fits: weakref.WeakSet[CVFit] = weakref.WeakSet()   # the fits made, released with the design
 
     @property
     def n(self) -> int:
@@ -313,7 +316,8 @@ class Design:
         self._keep.clear()
         for f in list(self._fits):
             f._release()
-        self.r = self.rw = self._rp = self._rrT = None
+        # released: no method of the design runs again (its fits raise in CVFit._kept), so the arrays stay typed as arrays
+        self.r = self.rw = self._rp = self._rrT = None  # type: ignore[assignment]
 
     # ---- predictions (on demand)
     def model(self, parts, off, beta, rows=slice(None)) -> np.ndarray:
@@ -432,7 +436,7 @@ class Design:
             Bb = np.broadcast_to(b, (len(bs), len(b)))
             sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + self._quadratic(terms, Bb, bs)
         sse_bc = np.clip(sse_bc, 0.0, None)
-        out = CVFit(self, whole._parts, whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
+        out = CVFit(self, whole._kept(), whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
                     sse_bc.sum(axis=0) / self.w2, whole.rss)
         out._fold_parts = fparts
         self._fits.add(out)

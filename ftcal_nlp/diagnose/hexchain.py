@@ -473,7 +473,7 @@ def first_test(att: Attribution, name: str) -> tuple:
     gap = gaps(att)
     sc = next((s for s in att.scores if s.effect == name), None)
     kinds = [k for k in gap if sc is not None and k in sc.kinds]
-    if not kinds:
+    if sc is None or not kinds:
         return ("", float("nan"), 0.0, float("nan"), "ranking", ())
     kind = max(kinds, key=lambda k: sc.kinds[k].explained)
     return (kind, paired_z(sc.kinds[kind]), float(explained_fraction(sc, gap)), float(ranking_bic(sc, gap)), "ranking", ())

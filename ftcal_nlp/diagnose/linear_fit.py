@@ -89,8 +89,14 @@ def score_linear(series: LegSeries, face: LinearFace | None, folds: int, after: 
     yy = np.zeros((folds, nl, 6))
     for i, (l, X, s, fi) in enumerate(zip(after.legs, face.blocks, sig, fidx)):
         # stacked faces (``LinearFace.cols``) place the block's columns by index, one face by its layout
-        sl = face.index(i, l.k) if face.cols is not None else (slice(l.k * q, (l.k + 1) * q) if face.per_leg else slice(0, q))
-        ix = np.ix_(sl, sl) if face.cols is not None else (sl, sl)
+        sl: np.ndarray | slice
+        ix: tuple[np.ndarray | slice, ...]
+        if face.cols is not None:
+            sl = face.index(i, l.k)
+            ix = np.ix_(sl, sl)
+        else:
+            sl = slice(l.k * q, (l.k + 1) * q) if face.per_leg else slice(0, q)
+            ix = (sl, sl)
         Xs = X / s[None, :, None]
         ys = l.e / s[None, :]
         for f in range(folds):

@@ -90,7 +90,7 @@ def _shares(Y: np.ndarray, families: dict, folds) -> tuple[dict, float, np.ndarr
 def _top(shares: dict) -> str | None:
     if not shares:
         return None
-    name = max(shares, key=shares.get)
+    name = max(shares, key=lambda k: shares[k])
     return name if shares[name] >= EXPLAINS_MIN else None
 
 

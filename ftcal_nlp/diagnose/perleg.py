@@ -504,12 +504,11 @@ def linear_map_check(poses, calibration: Calibration, robot: Robot, *, balance: 
     """
     legs = tuple(robot.legs)
     K = len(legs)
-    base_kw = dict(legs=legs, folds=folds, seed=seed, alpha=alpha, max_ratio=max_ratio)
     need = max(MIN_POSES, 2 * folds)
     if poses is None or poses.n < need:
         n = 0 if poses is None else poses.n
         note = f"only {n} standing poses: too few for the cross-validated map check (need {need})"
-        return LinearMapCheck(n_poses=n, note=note, **base_kw)
+        return LinearMapCheck(n_poses=n, note=note, legs=legs, folds=folds, seed=seed, alpha=alpha, max_ratio=max_ratio)
     if tuple(poses.legs) != legs:
         raise ValueError(f"linear_map_check: pose legs {poses.legs} differ from the robot's {legs}")
     balance = balance or (calibration.meta or {}).get("balance") or "exact"
@@ -570,7 +569,8 @@ def linear_map_check(poses, calibration: Calibration, robot: Robot, *, balance: 
             MF, MT, _, blocks, cov = prob.final_fit({k: set(PARTS)}, iterations=1)
             maps[legs[k]] = _leg_map(legs[k], set(PARTS), MF[k], MT[k], blocks, cov, k, R_nom[k], joint=False)
     return LinearMapCheck(n_poses=P, rss_cal=rss_cal, rss_base=rss_base, rss_final=float(current.sum()), steps=tuple(steps),
-                          selected=tuple((legs[k], q) for k, q in selected), maps=maps, **base_kw)
+                          selected=tuple((legs[k], q) for k, q in selected), maps=maps,
+                          legs=legs, folds=folds, seed=seed, alpha=alpha, max_ratio=max_ratio)
 
 
 def _leg_map(leg: str, parts: set, MF: np.ndarray, MT: np.ndarray, blocks, cov: np.ndarray, k: int, R_nom: np.ndarray,
@@ -804,19 +804,19 @@ def swing_check(dataset: Dataset, calibration: Calibration, robot: Robot, *, alp
     legs = tuple(robot.legs)
     K = len(legs)
     z_bound = float(norm.isf(alpha / (2 * 2 * K)))    # two-sided, 2 statistics per leg
-    kw = dict(legs=legs, alpha=alpha, z_bound=z_bound, min_weight_N=min_weight_N)
     if swing is None:
         if not dataset.walking:
-            return SwingCheck(notes=("no walking recordings: the legs' weights were not refitted on swing phases",), **kw)
+            return SwingCheck(notes=("no walking recordings: the legs' weights were not refitted on swing phases",), legs=legs, alpha=alpha, z_bound=z_bound, min_weight_N=min_weight_N)
         swing, _ = walking_views(dataset.walking, calibration, robot, 0.0)
     if swing is None:
-        return SwingCheck(notes=("no swing phases found in the walking recordings (orientation missing or feet never in the air)",), **kw)
+        return SwingCheck(notes=("no swing phases found in the walking recordings (orientation missing or feet never in the air)",),
+                          legs=legs, alpha=alpha, z_bound=z_bound, min_weight_N=min_weight_N)
     fits, notes = {}, []
     have = {l.leg: l for l in swing.legs}
     for k in legs:
         l = have.get(k)
         n = 0 if l is None else len(l.t)
-        if n < min_samples:
+        if l is None or n < min_samples:
             notes.append(f"leg {k}: {n} swing samples (< {min_samples}); its weight was not refitted")
             continue
         fits[k] = _swing_leg(l, calibration.legs[k], block_s, swing.floor[l.k])
@@ -826,7 +826,7 @@ def swing_check(dataset: Dataset, calibration: Calibration, robot: Robot, *, alp
         moment = abs(f.z_moment) > z_bound and abs(f.theta[1]) > min_weight_N
         if weight or moment:
             flagged.append(k)
-    return SwingCheck(fits=fits, flagged=tuple(flagged), notes=tuple(notes), **kw)
+    return SwingCheck(fits=fits, flagged=tuple(flagged), notes=tuple(notes), legs=legs, alpha=alpha, z_bound=z_bound, min_weight_N=min_weight_N)
 
 
 # ----------------------------------------------------------------------------- both checks

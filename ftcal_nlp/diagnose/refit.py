@@ -266,15 +266,15 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     parts = []
     for i, l in enumerate(legs):
         X = J[i][0]
-        idx = list(range(l.k * qn, (l.k + 1) * qn))
+        cols = list(range(l.k * qn, (l.k + 1) * qn))
         if with_effect and face is not None:
             X = np.concatenate([X, face.blocks[i]], axis=2)
             if face.cols is not None:   # stacked faces (``LinearFace.cols``)
-                idx += list(K * qn + face.index(i, l.k))
+                cols += list(K * qn + face.index(i, l.k))
             else:
                 off = K * qn + (l.k * q if face.per_leg else 0)
-                idx += list(range(off, off + q))
-        idx = np.asarray(idx)
+                cols += list(range(off, off + q))
+        idx = np.asarray(cols)
         s = fl[l.k]
         Xs, ys = X / s[None, :, None], l.e / s[None, :]
         Af = np.zeros((folds, 6, len(idx), len(idx)))
@@ -393,7 +393,9 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     finished calibration (what the joint calibration replaces values of).
     """
     legs = tuple(robot.legs)
-    kinds, params, notes = {}, {}, []
+    kinds: dict[str, KindRefit] = {}
+    params: dict[str, tuple[float, float]] = {}   # name -> (value, se)
+    notes: list[str] = []
     hang_values: dict = {}
     d_off, d_mg = np.zeros((len(legs), 6)), np.zeros(len(legs))
     cands = effect.joint_variants()
@@ -405,6 +407,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             z = float(np.sum((res[0].rms_after / np.where(res[0].floor > 0, res[0].floor, 1.0)) ** 2))
             if best_h is None or z < best_h[0]:
                 best_h = (z, v, res)
+        assert best_h is not None, "joint_variants() is never empty (cands[0] above)"
         _, effect, (kinds["hanging"], hp, d_off, d_mg, _) = best_h
         params.update(hp)
         hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}

@@ -189,7 +189,7 @@ class DiagnosisResult:
         residual that is constant and the measured variable it follows best."""
         rows, names = [], []
         for kind, loc in self.localisation.items():
-            row = {"gap": "yes" if kind in self.gaps else "no"}
+            row: dict[str, str | float] = {"gap": "yes" if kind in self.gaps else "no"}
             for c, v, fl in zip(WRENCH_COMPONENTS, loc.rms, loc.floor):
                 row[f"{c} RMS [{_unit(c)}]"] = float(v)
                 row[f"{c} floor [{_unit(c)}]"] = float(fl)

@@ -128,7 +128,8 @@ import logging
 import math
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Protocol
 from dataclasses import fields
 from pathlib import Path
 
@@ -138,15 +139,37 @@ from joblib import Parallel, delayed
 
 from ..core.data import WRENCH_COMPONENTS, read_dataset
 from ..effects import EFFECTS, EXPECT_NONE, EXPECT_UNEXPLAINED, Effect, applies_to
+from ..effects.injection import EffectInjector, Magnitude
 from ..core.errors import DataFormatError, MisSignedChannel
 from ..core.settings import CalibrationSettings, DiagnoseSettings, HangingSettings, StandingSettings
 from ..sim import SimConfig, simulate
 from ..sim.free.config import CONFIG_OF_KIND, FREE_SIM_KINDS
 from ..sim.effects import EFFECTS as INJECTORS
 from ..sim.variants import VARIANTS
+from .result import DiagnosisResult
+
+
+class DiagnosedRun(Protocol):
+    """What the validation reads of a calibration run (:class:`~ftcal_nlp.calibration_run.CalibrationRun`, above
+    the diagnosis: a Protocol keeps the import out): its diagnosis, stage times and notes."""
+
+    @property
+    def diagnosis(self) -> DiagnosisResult | None: ...
+    @property
+    def timings(self) -> Mapping[str, float]: ...
+    @property
+    def notes(self) -> tuple[str, ...]: ...
+
 
 #: :func:`ftcal_nlp.calibrate` (dataset, settings) -> a calibration run with its ``diagnosis``
-Calibrate = Callable[..., object]
+Calibrate = Callable[..., DiagnosedRun]
+
+
+def _magnitude(name: str) -> Magnitude:
+    """The magnitude of the simulator's injector ``name`` (every one in its registry an :class:`EffectInjector` class)."""
+    cls = INJECTORS[name]
+    assert isinstance(cls, type) and issubclass(cls, EffectInjector), f"{name}: the simulator's registry holds injector classes"
+    return cls.magnitude
 
 log = logging.getLogger(__name__)
 
@@ -204,7 +227,7 @@ HEXAPOD_VARIANTS = tuple(n for n, c in VARIANTS.items() if "hexapod" in applies_
 def effect_sizes(name: str, sizes: str) -> tuple[tuple[str, float], tuple[str, float]]:
     """Two ``(label, scale)`` of effect ``name``: its realistic low and high end, or half its test size and
     the test size; an all-or-nothing effect (realistic range one value) runs that value twice."""
-    mag = INJECTORS[name].magnitude
+    mag = _magnitude(name)
     lo, hi = (float(v) for v in mag.realistic)
     if lo == hi:
         return ("lo", lo), ("hi", hi)
@@ -213,7 +236,7 @@ def effect_sizes(name: str, sizes: str) -> tuple[tuple[str, float], tuple[str, f
     return ("half", float(mag.test) / 2.0), ("test", float(mag.test))
 
 
-def expectation(name: str, scale: float, seed: int) -> tuple[str, tuple[str, ...]]:
+def expectation(name: str, scale: float | None, seed: int) -> tuple[str, tuple[str, ...]]:
     """What a correct diagnosis says about effect ``name`` (injected with ``scale``, ``seed``): its label and legs."""
     if name == "none":
         return EXPECT_NONE, ()
@@ -231,7 +254,7 @@ def sweep_plan(cfg: dict) -> list[dict]:
     effects = config_names(cfg.get("effects"), EFFECTS, "effects", HEXAPOD_EFFECTS)
     variants = config_names(cfg.get("variants"), VARIANTS, "variants", HEXAPOD_VARIANTS)
     base = int(cfg["seed"]) * 1000
-    rows = [("clean", "none", "", None) for _ in range(int(cfg["n_clean"]))]
+    rows: list[tuple[str, str, str, float | None]] = [("clean", "none", "", None) for _ in range(int(cfg["n_clean"]))]
     for role, names in (("library", effects), ("variant", variants)):
         for name in names:
             rows += [(role, name, label, scale) for label, scale in effect_sizes(name, cfg["sizes"])]
@@ -250,7 +273,7 @@ def sweep_plan(cfg: dict) -> list[dict]:
         pairs = [p for p in pairs if set(p) <= set(effects)]
     for a, b in pairs:
         i = len(items)
-        scales = [float(INJECTORS[n].magnitude.realistic[1]) for n in (a, b)]
+        scales = [float(_magnitude(n).realistic[1]) for n in (a, b)]
         items.append({"index": i, "seed": base + i, "role": "pair", "effect": f"{a}+{b}", "size": "hi", "scale": None,
                       "scales": " ".join(f"{v:g}" for v in scales), "expect": f"{a}+{b}", "expect_legs": "", "twin": None})
     return items
@@ -895,7 +918,10 @@ def free_plan(c: dict, over: dict) -> tuple[list[dict], list[str]]:
     ``seed``, ``kind``, ``role`` (clean | effect | shape | pair), ``label``, ``injectors`` (JSON list of
     ``{name, scale, seed}``), ``size``, ``scale``, ``expect`` (effect names joined by "+"; "" for clean)."""
     base = int(c["seed"]) * 1000
-    rows, skipped, cache = [], [], {}
+    # (kind, role, label, injectors (name, scale), size, scale, expected names)
+    rows: list[tuple[str, str, str, list[tuple[str, float]], str, float | None, list[str]]] = []
+    skipped: list[str] = []
+    cache: dict[tuple[str, str], bool] = {}
     for kind in c["kinds"]:
         o = over[kind]
         ok = lambda name: _works_on(name, kind, o, cache)  # noqa: E731
@@ -964,6 +990,8 @@ def free_run_one(item: dict, c: dict, over: dict, calibrate: Calibrate) -> dict:
         d = run.diagnosis
         if d is None:
             raise RuntimeError("no diagnosis: " + "; ".join(run.notes))
+        if d.free is None or d.effects is None:
+            raise RuntimeError(f"not a free-load diagnosis (verdict {d.verdict}): no per-transducer result")
         noise = np.array([cfg.noise_force_N] * 3 + [cfg.noise_torque_Nm] * 3)
         leg = next(iter(d.free.values()))
         names = [e["name"] for e in d.effects]

@@ -152,8 +152,8 @@ def hf_floor(e: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
     """High-frequency noise sd per column of ``e`` (N, c): ``std(diff) / sqrt(2)`` within groups."""
     if groups is None:
         groups = np.zeros(len(e), int)
-    d = [np.diff(e[groups == g], axis=0) for g in np.unique(groups)]
-    d = np.concatenate([x for x in d if len(x)], axis=0)
+    parts = [np.diff(e[groups == g], axis=0) for g in np.unique(groups)]
+    d = np.concatenate([x for x in parts if len(x)], axis=0)
     return np.sqrt(np.mean(d**2, axis=0) / 2.0)
 
 
@@ -342,7 +342,7 @@ def hanging_series(recordings, hanging, robot: Robot, t_ref: float) -> LegSeries
     n_par = 0
     for k, leg in enumerate(legs):
         l = hanging.legs[leg]
-        R_nom = robot.transducers[leg].rotation
+        R_nom = robot.transducers[leg].given_rotation()
         t = np.concatenate([r.t for r in recs])
         phi = np.concatenate([r.phi[leg] for r in recs])
         omega = np.concatenate([shaft_rate(r.t, r.phi[leg][:, None])[:, 0] for r in recs])

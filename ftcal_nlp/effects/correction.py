@@ -244,7 +244,7 @@ def free_effects_of(meta: dict, leg: str, where: str, entry: dict) -> FreeEffect
             raise _fail(where, key, "expected a table with name, shape, labels and beta")
         name = m.get("name")
         unit = EFFECTS.get(name) if isinstance(name, str) else None
-        if unit is None or type(unit).free_shapes is Effect.free_shapes:
+        if not isinstance(name, str) or unit is None or type(unit).free_shapes is Effect.free_shapes:
             raise _fail(where, f"{key}.name", f"{name!r} is not an effect of the library with a free-load face "
                         f"{sorted(n for n, u in EFFECTS.items() if type(u).free_shapes is not Effect.free_shapes)}")
         shape, labels, beta = m.get("shape"), m.get("labels"), m.get("beta")

@@ -410,7 +410,7 @@ def correct_by_face(effect, cal, block: dict, ctx: AugContext, w: np.ndarray, ph
         w_new[s] = np.asarray(res[0], float).T.reshape(n, K, 6)
         Zs = np.asarray(res[1], float).T.reshape(n, 3, 3).transpose(0, 2, 1)   # columns of Z were stacked (CasADi is column-major)
         R_new[s] = np.einsum("nij,nkj->nik", R_WB[s], Zs)
-        if cov is not None:
+        if cov is not None and C is not None:   # cov is made exactly when C is given
             J = np.asarray(res[2], float).reshape(6 * K, n, m).transpose(1, 0, 2).reshape(n, K, 6, m)   # samples side by side
             cov[s] = np.einsum("nkam,mq,nkbq->nkab", J, C, J)
             if und is not None:   # a component an undetermined parameter moves has no finite variance

@@ -258,6 +258,7 @@ def diagnosis_section(d: "DiagnosisResult", folder: str | Path) -> Section:
     jv = joint_view(d)
     if jv is not None:
         links = d.chain.links if d.chain is not None else []
+        assert d.effect is not None, "a joint refit is made for the named effect only (diagnose/core.py)"
         held = (f"`calibration_with_effect.json`, which `correct` applies, holds the chain's last joint refit: "
                 f"{', '.join([d.effect] + [lk.name for lk in links])} fitted together with the calibration" if links else
                 "`calibration_with_effect.json`, which `correct` applies")
