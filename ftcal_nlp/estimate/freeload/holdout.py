@@ -315,10 +315,7 @@ def plot_holdout(h: Holdout, samples: dict[str, LegSamples], path, max_points: i
     (``+- sqrt(threshold) x se``; failing regions in red) and a Mollweide map of gravity's direction in the sensor's
     frame (longitude atan2(u_y, u_x), latitude asin(u_z)), each sample coloured by its region's ``sqrt(X2)`` (the
     test's limit marked on the colour bar)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt   # the backend is the entry point's choice (cli.setup)
 
     legs = list(h.legs)
     fig = plt.figure(figsize=(18, 4.6 * len(legs)))
