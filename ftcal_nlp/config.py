@@ -157,14 +157,15 @@ def _at(base: Path, value: str) -> Path:
     return _norm(base / os.path.expanduser(value))
 
 
-def read_toml(path: Path) -> dict[str, Any]:
-    """The TOML table of a config file; a missing file or invalid TOML is a :class:`ConfigError` naming it."""
+def read_toml(path: Path, error: type[ConfigError] = ConfigError, what: str = "config file") -> dict[str, Any]:
+    """The TOML table of a file (a run config; ``plan``'s protocols and robots); a missing file or invalid TOML is an
+    ``error`` naming it (``what`` is said of a missing one)."""
     if not path.is_file():
-        raise ConfigError(f"{path}: config file not found", path=path)
+        raise error(f"{path}: {what} not found", path=path)
     try:
         return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})", path=path) from exc
+        raise error(f"{path}: not valid TOML ({exc})", path=path) from exc
 
 
 def _holdout(table: Any, path: Path, base: Path) -> HoldoutSettings:

@@ -12,10 +12,10 @@ where its part needs it, so a pilot dataset's errors come before that file's.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import config
 from ..core.errors import ConfigError
 
 #: which part plans an input: hexapod legs (hanging and standing, :mod:`.hexapod`) or free loads (:mod:`.free_load`)
@@ -30,12 +30,7 @@ class PlanError(ConfigError):
 
 def read_toml(path: Path) -> dict:
     """The table of a TOML file; a missing or invalid file is a :class:`PlanError` naming it."""
-    if not path.is_file():
-        raise PlanError(f"{path}: file not found", path=path)
-    try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{path}: not valid TOML ({exc})", path=path) from None
+    return config.read_toml(path, PlanError, "file")
 
 
 def protocol_table(protocol_file: str | Path | None) -> dict:
