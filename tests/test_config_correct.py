@@ -158,6 +158,8 @@ def test_every_settings_field_is_a_config_key(tmp_path):
             'prior_weight = 1e-6\nrel_eig_tol = 1e-7\nloads = {wrist = "rigid_payload"}\ngravity_tilt = false\nrecording_tilt = true\n'
                 'sensor_matrix = "force"\nsensor_matrix_ridge = [0, 10]\nsensor_matrix_folds = 3\nsensor_matrix_mass_rel_sd = 0.01\n'
             '[diagnose]\nenabled = false\neffects = ["offset_drift"]\nfolds = 3\nseed = 2\njoint_refit = false\n'
+            '[diagnose.hexapod]\nz_min = 2.5\nmin_floor_share = 0.1\nmax_effects = 2\nexplained_min = 0.6\n'
+            '[diagnose.free_loads]\nz_min = 3.5\nmin_floor_share = 0.02\nmax_effects = 3\nexplained_min = 0.4\n'
             '[correct]\ntrack_offsets = true\nknot_s = 10\npenalty = 0.1\ncontact_window_s = 20\ncontact_quantile = 0.2\n'
             'contact_enter_z = 4\ncontact_leave_z = 8\ncontact_min_gap_N = 5\n'
             '[offsets_only]\ncalibration = "c/calibration.json"\n')
@@ -169,6 +171,7 @@ def test_every_settings_field_is_a_config_key(tmp_path):
     assert isinstance(s.standing.poses.deriv_threshold_N_s, float) and s.standing.poses.deriv_noise_factor == 0.0
     assert (s.selection.folds, s.selection.seed) == (4, 3)
     assert s.diagnose.effects == ("offset_drift",) and (s.diagnose.folds, s.diagnose.seed, s.diagnose.joint_refit) == (3, 2, False)
+    assert (s.diagnose.hexapod.z_min, s.diagnose.hexapod.max_effects, s.diagnose.free_loads.explained_min) == (2.5, 2, 0.4)
     assert s.correct.track_offsets and s.correct.knot_s == 10.0 and s.correct.contact_min_gap_N == 5.0
     assert cfg.offsets_only.calibration == tmp_path / "c" / "calibration.json"
     # and generically: every field of every settings table was set from the file (none kept its default)
