@@ -21,6 +21,11 @@ the samples:
     SSE_bc = s_bc - 2 beta_f' v_bc + beta_f' G_bc beta_f      (block b in fold f, channel c)
 
 :class:`CVFit` forms the held-out residual of every sample only on demand (figures).
+
+A face may carry a fixed offset (``FreeFace.offset``, a wrench not scaled by its parameters: a nonlinear face
+linearised about its shape, e.g. clock_offset's exact delay): a design with such parts fits ``r - sum offsets``
+(``Design._for``: a design of that residual sharing the cached normal matrices, which do not depend on it; its own
+right-hand sides and residual sums), so held-out sums of squares stay comparable block by block across designs.
 """
 
 from __future__ import annotations
@@ -319,6 +324,8 @@ class Design:
         i = id(part)
         for key in [k for k in self._shifted if i in k]:
             del self._shifted[key]
+        for _, d in self._shifted.values():   # its right-hand sides in the designs of r less offsets (an id is reused)
+            d._vec.pop(i, None)
         for key in [k for k in self._gram if i in k]:
             del self._gram[key]
         self._vec.pop(i, None)
@@ -337,6 +344,9 @@ class Design:
         self._vec.clear()
         self._perm.clear()
         self._keep.clear()
+        for _, d in self._shifted.values():   # the designs of r less offsets: their residual arrays too
+            d._vec.clear()
+            d.r = d.rw = d._rp = d._rrT = None
         self._shifted.clear()
         for f in list(self._fits):
             f._release()

@@ -22,12 +22,13 @@ a face nonlinear in ``d``. It is linearised about a point ``d0`` (the shape's ``
 
 the bracket a fixed offset of the face (``FreeFace.offset``: the designs fit the residual less it), the column
 ``-pred'(t - d0)`` with parameter ``delay_s [s]``, the delay itself (``pred(t - d0)``, ``pred'(t - d0)`` from one
-cubic spline per recording, :func:`shifted`). The grid's points ``DELAYS_S`` (and ``0``: the first-order face,
-shape ``{"channels": "all", "order": 1}``; ``{"channels": "force", "order": 1}`` a delay of the forces and one of the
-torques) are scored by held-out residual; ``free_refine`` then profiles the exact delay within ``REFINE_HALF`` of
-the best point (:func:`profile_delay`: the weighted residual sum of squares of ``r - (pred(t - d) - pred(t))``
-after the free-load model's first-order columns, a bounded scalar search) and the face is linearised about the
-profile's minimum: there the fitted ``delay_s`` is the exact least-squares delay to second order in the distance,
+cubic spline per recording, :func:`shifted`). The grid's shapes are the first-order faces about 0
+(``{"channels": "all", "order": 1}``: the exact face at ``d0 = 0``; ``{"channels": "force", "order": 1}`` a delay of
+the forces and one of the torques), scored by held-out residual; ``free_refine`` then profiles the exact delay
+(:func:`profile_delay`: the weighted residual sum of squares of ``r - (pred(t - d) - pred(t))`` after the free-load
+model's first-order columns, on a grid of ``PROFILE_STEP_S`` over ``+-PROFILE_RANGE_S`` and a bounded scalar search
+about the grid's best; the profile is cheap: one spline evaluation and one right-hand side per point, where a design
+per grid shape costs its normal equations) and the face is linearised about the profile's minimum: there the fitted ``delay_s`` is the exact least-squares delay to second order in the distance,
 and its se (the joint refit's ``s^2 (A^T A)^+``, ``s^2`` widened by the residual's serial correlation) is that of
 the profile's curvature (Gauss-Newton). Why not the Taylor series in ``d`` about 0 (``-d pred' + d^2/2 pred''
 ...``, still built for ``order`` > 1): at delays of 0.2 s over moves of 1-2 s it leaves a remainder 1-3x the floor
@@ -154,17 +155,23 @@ def refine_delay(t: np.ndarray, rec: np.ndarray, y: np.ndarray, pred: np.ndarray
     return d, 1.0 / np.sqrt(info)
 
 
-def shifted(t: np.ndarray, rec: np.ndarray, x: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray]:
+def shifted(t: np.ndarray, rec: np.ndarray, x: np.ndarray, d: float,
+            splines: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(x(t - d), x'(t - d))`` (N, 6) each, each recording apart: one cubic spline per recording through its samples
     (``signals.delayed``'s), its value and slope at ``t - d`` clipped to the recording's span (slope 0 beyond it);
-    a recording of fewer than 4 rows as is (slope 0)."""
+    a recording of fewer than 4 rows as is (slope 0). ``splines``: a dict the splines are kept in across calls on the
+    same ``t``, ``rec`` and ``x``."""
     t, x = np.asarray(t, float), np.asarray(x, float)
     out, slope = x.copy(), np.zeros_like(x)
     for r in np.unique(rec):
         i = np.flatnonzero(rec == r)
         if len(i) < 4:
             continue
-        sp = CubicSpline(t[i], x[i], axis=0)
+        sp = splines.get(r) if splines is not None else None
+        if sp is None:
+            sp = CubicSpline(t[i], x[i], axis=0)
+            if splines is not None:
+                splines[r] = sp
         ts = t[i] - d
         inside = (ts >= t[i[0]]) & (ts <= t[i[-1]])
         ts = np.clip(ts, t[i[0]], t[i[-1]])
@@ -185,10 +192,11 @@ def exact_face(ctx, d0: float, shape: dict) -> FreeFace | None:
     return face
 
 
-def profile_delay(ctx, resid: np.ndarray, lo: float, hi: float, xatol: float = 1e-4) -> float | None:
-    """The delay in ``[lo, hi]`` minimising the weighted residual sum of squares of ``resid - (pred(t - d) - pred(t))``
-    after the free-load model's first-order columns (``free_refine``: offsets, load parameters, mounting turn), the
-    channels weighted by the floor: the exact profile over ``d`` (a bounded scalar search)."""
+def profile_delay(ctx, resid: np.ndarray, span: float, step: float, xatol: float = 1e-4) -> float | None:
+    """The delay in ``[-span, span]`` minimising the weighted residual sum of squares of ``resid - (pred(t - d) -
+    pred(t))`` after the free-load model's first-order columns (``free_refine``: offsets, load parameters, mounting
+    turn), the channels weighted by the floor: the exact profile over ``d``, on a grid of ``step`` (the profile of a
+    motion that repeats has several minima) and by a bounded scalar search within a step of the grid's best."""
     from scipy.optimize import minimize_scalar
 
     from .free_refine import _gram, _rhs, _sse_after, model_face
@@ -199,11 +207,14 @@ def profile_delay(ctx, resid: np.ndarray, lo: float, hi: float, xatol: float = 1
     GJ = _gram(J, J, w2)     # the model's normal matrix once; per trial delay only the right-hand side
 
     def sse(d: float) -> float:
-        rT = np.ascontiguousarray((resid - (shifted(ctx.t, ctx.rec, ctx.pred, d)[0] - ctx.pred)).T)
+        rT = np.ascontiguousarray((resid - (shifted(ctx.t, ctx.rec, ctx.pred, d, splines)[0] - ctx.pred)).T)
         rr = float(np.sum(w2 * np.einsum("cn,cn->c", rT, rT)))
         return _sse_after(rr, GJ, _rhs(J, rT, w2))
 
-    best = minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": xatol})
+    splines: dict = {}       # one spline per recording for every trial delay
+    grid = np.arange(-span, span + 0.5 * step, step)
+    d0 = float(grid[int(np.argmin([sse(float(d)) for d in grid]))])
+    best = minimize_scalar(sse, bounds=(d0 - step, d0 + step), method="bounded", options={"xatol": xatol})
     return float(best.x) if best.success and np.isfinite(best.x) else None
 
 
@@ -280,10 +291,10 @@ class ClockOffset(Effect):
     diagnosed_on = frozenset({"free"})
     free_explains = "motion"
     FREE_SHAPES = (("all", 1), ("force", 1))
-    #: the points (s) the exact face is linearised about on the grid (0: the first-order face, ``("all", 1)``); the
-    #: refinement profiles the delay within ``REFINE_HALF`` s of the best
-    DELAYS_S = (-0.16, -0.08, 0.08, 0.16, 0.25, 0.35, 0.5)
-    REFINE_HALF = 0.12
+    #: the exact delay's profile: over +-PROFILE_RANGE_S (drivers deliver readings up to 0.5 s late) in steps of
+    #: PROFILE_STEP_S, then a bounded search within a step of the grid's best
+    PROFILE_RANGE_S = 0.6
+    PROFILE_STEP_S = 0.04
     follows_stream_clock = True   # the readings re-sampled delay_s later on their own clock
 
     def free_require(self, ctx, shape, leg, where):
@@ -292,16 +303,12 @@ class ClockOffset(Effect):
                                   f"rows needed, got {ctx.n}", path=where, column="t")
 
     def free_shapes(self, ctx):
-        return (tuple({"channels": c, "order": o} for c, o in self.FREE_SHAPES)
-                + tuple({"channels": "all", "delay_s": d} for d in self.DELAYS_S))
+        return tuple({"channels": c, "order": o} for c, o in self.FREE_SHAPES)
 
     def free_refine(self, ctx, shape, resid):
-        # the exact delay by its profile about the grid's best point (0 for the first-order shape), the face then
-        # linearised about it: its parameter is the delay, ~0 away from the profile's minimum
-        if shape.get("channels") != "all" or int(shape.get("order", 1)) != 1:
-            return None
-        d0 = float(shape.get("delay_s", 0.0))
-        d = profile_delay(ctx, resid, d0 - self.REFINE_HALF, d0 + self.REFINE_HALF)
+        # the exact delay by its profile (whichever first-order shape was best), the face then linearised about it:
+        # its parameter is the delay, which the joint refit moves from the profile's minimum to second order only
+        d = profile_delay(ctx, resid, self.PROFILE_RANGE_S, self.PROFILE_STEP_S)
         return None if d is None else {"channels": "all", "delay_s": float(np.round(d, 6))}
 
     def free_refine_near(self, ctx, shape):
