@@ -309,8 +309,9 @@ class JointFit:
     G: np.ndarray | None = None  # the weighted normal matrix over [dx, betas] (cov = s2 G^+: the file `correct` reads)
 
     def wrench(self, steps: list[Candidate], i: int = 0) -> np.ndarray:
-        """The fitted wrench (N, 6) of the ``i``-th named effect."""
-        return steps[i].shaped_face.wrench(self.betas[i])
+        """The fitted wrench (N, 6) of the ``i``-th named effect (a face's fixed offset included)."""
+        face = steps[i].shaped_face
+        return face.wrench(self.betas[i]) + (0.0 if face.offset is None else face.offset)
 
 
 def joint_fit(design: Design, J: FreeFace, steps: list[Candidate], ctx: FreeLoadContext) -> JointFit:

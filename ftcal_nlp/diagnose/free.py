@@ -71,6 +71,7 @@ class FreeLegDiagnosis:
     param_names: tuple = ()               # the free-load fit's parameters (the Jacobian's columns)
     fit_params: tuple = ()                # ... and their values at the fit
     added: list = field(default_factory=list)   # per named effect its parameters when it was added
+    delay_blocks: dict = field(default_factory=dict)  # a named clock offset's delay per time block (``delay_change``)
 
     def to_json_dict(self) -> dict:
         """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
@@ -88,6 +89,7 @@ class FreeLegDiagnosis:
                 "correlates": [{"correlate": c.name, "explained": float(c.explained), "heldout_rms_after": lst(c.heldout_rms)}
                                for c in self.correlates],
                 "where": {k: v for k, v in self.where.items()}, "notes": list(self.notes),
+                **({"clock_offset_blocks": self.delay_blocks} if self.delay_blocks else {}),
                 **({"joint_refit": self.joint_refit_json()} if self.joint is not None else {})}
 
     def joint_refit_json(self) -> dict:
@@ -151,6 +153,7 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     added = [joint_fit(design, J, ch.steps[:i + 1], ctx).params[i] for i in range(len(ch.steps) - 1)]
     if jf is not None:   # the last effect's: the joint refit of them all
         added.append(jf.params[-1])
+    delay_blocks = delay_change(ctx, ch, jf, floor, notes) if jf is not None else {}
     ratio_after = excess_ratio(cur, floor)
     gap_after = floor_known and bool(np.max(ratio_after) > 1.0 + GAP_REL)
     gap_before = floor_known and bool(np.max(excess_ratio(base, floor)) > 1.0 + GAP_REL)
@@ -202,7 +205,37 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     design.release()   # the cached sums and every face tried (hundreds of MB on 10^5 samples) are not kept with the result
     return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
                             int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known, tuple(names),
-                            tuple(float(v) for v in fit.params), added)
+                            tuple(float(v) for v in fit.params), added, delay_blocks)
+
+
+def delay_change(ctx, ch: Chain, jf: JointFit, floor: np.ndarray, notes: list[str]) -> dict:
+    """Whether a named clock offset's delay changes over the recording (``clock_offset.delay_by_block``: the delay per
+    time block on the joint refit's residual with the delay's own wrench added back, tested for constancy); a change is
+    said in ``notes`` with the time of the largest jump (s from the start of its recording). ``{}`` without a named
+    one-delay clock offset."""
+    from ..effects.clock_offset import delay_by_block
+
+    i = next((k for k, st in enumerate(ch.steps) if st.effect.name == "clock_offset" and st.shape.get("channels") == "all"), None)
+    if i is None:
+        return {}
+    d = float(jf.betas[i][0])
+    out = delay_by_block(ctx.t, ctx.rec, jf.resid + jf.wrench(ch.steps, i), ctx.pred, 1.0 / floor, d, jf.s2)
+    start = {int(q): float(ctx.t[ctx.rec == q][0]) for q in np.unique(ctx.rec)}
+    for b in out["blocks"]:
+        q = int(b.pop("recording"))
+        b["recording"] = ctx.names[q]
+        b["t_start"] -= start[q]
+        b["t_end"] -= start[q]
+    jump = out.get("largest_jump")
+    if jump is not None:
+        q = int(jump["recording"])
+        jump["recording"], jump["t_s"] = ctx.names[q], jump["t_s"] - start[q]
+    if out["changes"] and jump is not None:
+        notes.append(f"{ctx.leg}: the clock offset changes over the recording: the delay per time block "
+                     + ", ".join(f"{b['delay_s']:.4g}" for b in out["blocks"]) + f" s (chi2 {out['chi2']:.1f} on "
+                     f"{out['dof']} dof, p {out['p']:.2g}); the largest jump, {jump['from_s']:.4g} -> {jump['to_s']:.4g} s "
+                     f"({jump['z']:.1f} se), at {jump['t_s']:.1f} s into {jump['recording']}")
+    return out
 
 
 def _undiagnosed(leg, ctx, floor, n_floor, notes) -> FreeLegDiagnosis:
@@ -289,6 +322,11 @@ def _statement(main: FreeLegDiagnosis, legs: dict) -> list[str]:
                        + ("excess then left)." if d.floor_known else "held-out sum of squares then left)."))
         if d.chain.stop:
             out.append(f"  The chain stopped: {d.chain.stop}.")
+        jump = d.delay_blocks.get("largest_jump") if d.delay_blocks.get("changes") else None
+        if jump is not None:
+            out.append(f"  The clock offset changes over the recording (per-block delays, chi2 {d.delay_blocks['chi2']:.1f} on "
+                       f"{d.delay_blocks['dof']} dof): the largest jump, {jump['from_s']:.4g} -> {jump['to_s']:.4g} s, at "
+                       f"{jump['t_s']:.1f} s into {jump['recording']}.")
         rem = d.where.get("remaining")
         if rem:
             out.append(f"  Left after the named effects: {', '.join(rem['components'])} above the floor"

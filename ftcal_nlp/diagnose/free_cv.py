@@ -21,10 +21,16 @@ the samples:
     SSE_bc = s_bc - 2 beta_f' v_bc + beta_f' G_bc beta_f      (block b in fold f, channel c)
 
 :class:`CVFit` forms the held-out residual of every sample only on demand (figures).
+
+A face may carry a fixed offset (``FreeFace.offset``, a wrench not scaled by its parameters: a nonlinear face
+linearised about its shape, e.g. clock_offset's exact delay): a design with such parts fits ``r - sum offsets``
+(``Design._for``: a design of that residual sharing the cached normal matrices, which do not depend on it; its own
+right-hand sides and residual sums), so held-out sums of squares stay comparable block by block across designs.
 """
 
 from __future__ import annotations
 
+import copy
 import weakref
 
 import numpy as np
@@ -201,6 +207,8 @@ class Design:
         self._keep: dict = {}   # parts (and bases) by id, so that an id is not reused while its sums are cached
         self._n = len(self.r)
         self._fits: weakref.WeakSet[CVFit] = weakref.WeakSet()   # the fits made, released with the design
+        self._shifted: dict = {}         # ids of the parts with a fixed offset -> (those parts, the design of r - offsets)
+        self._derived = False            # a design of r less some parts' offsets (``_for``): its residual is final
 
     @property
     def n(self) -> int:
@@ -293,9 +301,34 @@ class Design:
             self._vec[id(a)] = self._rhs(a)
         return self._vec[id(a)]
 
+    def _for(self, parts: list) -> "Design":
+        """The design whose residual is ``r`` less the fixed offsets of ``parts`` (``FreeFace.offset``: a face linearised
+        about its nonlinear shape); ``self`` when none has one. It shares this design's cached normal matrices (they do
+        not depend on the residual) and has its own right-hand sides and residual sums."""
+        offs = [p for p in parts if getattr(p, "offset", None) is not None]
+        if not offs or self._derived:
+            return self
+        key = tuple(sorted(id(p) for p in offs))
+        hit = self._shifted.get(key)
+        if hit is None:
+            d = copy.copy(self)      # the same blocks, folds, weights and pair caches (shared dicts)
+            d.r = self.r - sum(p.offset for p in offs)
+            d.rw = (d.r * d.w).reshape(-1)
+            d._rp = d.r if d._sorted else d.r[d._order]
+            rr = d._rp**2 * d.w2
+            d._s = np.stack([rr[sl].sum(axis=0) for sl in d._sl])
+            d._rrT = np.ascontiguousarray((d._rp * d.w2).T)
+            d._vec, d._shifted, d._derived = {}, {}, True
+            hit = self._shifted[key] = (offs, d)
+        return hit[1]
+
     def forget(self, part) -> None:
         """Drop the cached sums of ``part`` (a candidate that was not kept)."""
         i = id(part)
+        for key in [k for k in self._shifted if i in k]:
+            del self._shifted[key]
+        for _, d in self._shifted.values():   # its right-hand sides in the designs of r less offsets (an id is reused)
+            d._vec.pop(i, None)
         for key in [k for k in self._gram if i in k]:
             del self._gram[key]
         self._vec.pop(i, None)
@@ -314,6 +347,10 @@ class Design:
         self._vec.clear()
         self._perm.clear()
         self._keep.clear()
+        for _, d in self._shifted.values():   # the designs of r less offsets: their residual arrays too
+            d._vec.clear()
+            d.r = d.rw = d._rp = d._rrT = None
+        self._shifted.clear()
         for f in list(self._fits):
             f._release()
         # released: no method of the design runs again (its fits raise in CVFit._kept), so the arrays stay typed as arrays
@@ -373,6 +410,8 @@ class Design:
     def fit(self, parts) -> CVFit:
         """Blocked cross-validation of the design of ``parts`` (FreeFace list, or one (N, 6, k) array) (class docstring)."""
         parts = self._parts(parts)
+        if self._for(parts) is not self:
+            return self._for(parts).fit(parts)
         Gb, vbc, off, terms = self._assemble(parts)
         k = int(off[-1])
         vb = vbc.sum(axis=1)                                        # (B, k)
@@ -401,6 +440,8 @@ class Design:
         """(folds,) the weighted residual sum of squares of the design of ``parts`` fitted on each fold's training
         blocks (the other folds'), over those blocks: what a shape tuned per fold minimises."""
         parts = self._parts(parts)
+        if self._for(parts) is not self:
+            return self._for(parts).train_sse(parts)
         Gb, vbc, _, _ = self._assemble(parts)
         vb, sb = vbc.sum(axis=1), self._s.sum(axis=1)
         G, v, s = Gb.sum(axis=0), vb.sum(axis=0), float(sb.sum())
@@ -429,14 +470,15 @@ class Design:
             bs = np.flatnonzero(self.block_fold == f)
             if not len(bs):
                 continue
-            Gb, vbc, off, terms = self._assemble(pf)
+            dd = self._for(pf)     # the residual less the parts' fixed offsets, if any (the folds' faces have none)
+            Gb, vbc, off, terms = dd._assemble(pf)
             vb = vbc.sum(axis=1)
             b = solve(Gb.sum(axis=0) - Gb[bs].sum(axis=0), vb.sum(axis=0) - vb[bs].sum(axis=0))
             fold_beta[f] = b
             Bb = np.broadcast_to(b, (len(bs), len(b)))
-            sse_bc[bs] = self._s[bs] - 2 * vbc[bs] @ b + self._quadratic(terms, Bb, bs)
+            sse_bc[bs] = dd._s[bs] - 2 * vbc[bs] @ b + self._quadratic(terms, Bb, bs)
         sse_bc = np.clip(sse_bc, 0.0, None)
-        out = CVFit(self, whole._kept(), whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
+        out = CVFit(whole._design, whole._kept(), whole._off, fold_beta, whole.beta, whole.G, sse_bc.sum(axis=1),
                     sse_bc.sum(axis=0) / self.w2, whole.rss)
         out._fold_parts = fparts
         self._fits.add(out)

@@ -99,6 +99,9 @@ class FreeFace:
         self.channels = tuple(int(c) for c in channels)
         self._X = None if X is None else np.asarray(X, float)
         self._blocks = None
+        # a fixed part of the face's wrench (N, 6) not scaled by its parameters, or None: a nonlinear face linearised
+        # about its shape (clock_offset's exact delay); the diagnosis' designs fit ``r - offset`` (``free_cv.Design``)
+        self.offset: np.ndarray | None = None
         if blocks is not None:
             self._blocks = tuple((int(c), np.asarray(cols, int), np.asarray(B, float)) for c, cols, B in blocks)
             if self._X is not None or self.basis is not None:
