@@ -130,6 +130,7 @@ def test_urdf_leg_fresh_recording_corrected_to_the_noise(urdf):
     ("payload", ({"name": "temperature"},), "temperature"),                          # the lagged temperature's session mean
     ("payload", ({"name": "inertial_load"},), "inertial_load"),                      # the lever from robot.toml's position_m
     ("urdf", ({"name": "joint_limit_contact"},), "joint_limit_contact"),             # the joint and its URDF limits
+    ("payload", ({"name": "gain_crosstalk"},), "gain_crosstalk"),                    # the sensor matrix on the load's wrench
 ])
 def test_other_effects_correct_a_fresh_recording(kind, effects, name, tmp_path):
     rig = {**RIG, "effects": effects}
@@ -176,7 +177,7 @@ def _member(d, i=0):
 
 @pytest.mark.parametrize("edit,key", [
     (lambda d: _member(d).update(name="no_such_effect"), "meta.effect.legs.wrist.members[0].name"),
-    (lambda d: _member(d).update(name="gain_crosstalk"), "meta.effect.legs.wrist.members[0].name"),   # no free face
+    (lambda d: _member(d).update(name="casing_load"), "meta.effect.legs.wrist.members[0].name"),   # no free face
     (lambda d: _member(d, 1).update(beta=_member(d, 1)["beta"][:-1]), "meta.effect.legs.wrist.members[1].beta"),
     (lambda d: _member(d, 1).update(beta=["a"] * len(_member(d, 1)["labels"])), "meta.effect.legs.wrist.members[1].beta"),
     (lambda d: _member(d).update(shape="all"), "meta.effect.legs.wrist.members[0].shape"),

@@ -17,7 +17,7 @@ from ftcal_nlp.diagnose.validation import free_summarise as summarise
 from ftcal_nlp.effects import EFFECTS
 
 ROOT = Path(__file__).resolve().parent.parent
-NEW = ("clock_offset", "creep", "inertial_load", "joint_limit_contact", "temperature")
+NEW = ("clock_offset", "creep", "inertial_load", "joint_limit_contact", "temperature", "gain_crosstalk")
 
 
 def _toml(path):
@@ -26,14 +26,14 @@ def _toml(path):
     return tomllib.loads(Path(path).read_text())["validation"]
 
 
-def test_the_library_of_the_sweep_is_the_new_effects_and_offset_drift():
+def test_the_library_of_the_sweep_is_the_new_effects_offset_drift_and_the_gain_matrix():
     assert set(free_effects()) == {"offset_drift", *NEW}
     # every unit's off-face shapes are in the default plan
     assert set(shapes_of(free_effects())) == {s.name for n in free_effects() for s in EFFECTS[n].shapes}
 
 
-@pytest.mark.parametrize("name,n_runs,n_pairs", [("diagnose_validation_free.toml", 79, 25),
-                                                 ("diagnose_validation_free_quick.toml", 55, 7)])
+@pytest.mark.parametrize("name,n_runs,n_pairs", [("diagnose_validation_free.toml", 94, 36),
+                                                 ("diagnose_validation_free_quick.toml", 63, 11)])
 def test_the_problems_plan(name, n_runs, n_pairs):
     c, over = check_config(_toml(ROOT / "problems" / name))
     items, skipped = plan(c, over)

@@ -21,6 +21,9 @@ Without a floor (the data hold no still stretch, e.g. a list of single-row poses
 weights are the free-load fit's residual sd, there is no gap to test and no excess: a candidate is added when
 its paired z passes and it saves at least ``MIN_GAIN_NO_FLOOR`` of the current held-out sum of squares.
 
+An effect's shapes compete by held-out sum of squares, except a unit's nested shapes (``free_nested``: each holds the
+one before): a larger one is kept only when its paired block-wise z against the one kept reaches ``NESTED_Z``.
+
 A unit may refine its grid's best shape (``free_refine``: tuned on every sample). Its held-out score is then not
 that of the shape tuned on every sample (optimistic) but per fold (``REFINE_PER_FOLD``): each fold's shape is the
 best of the unit's ``free_refine_near`` shapes by the training blocks' residual sum of squares of the current design
@@ -58,6 +61,10 @@ MIN_EXCESS_SHARE = 0.25
 MIN_CHANNEL_SHARE = 0.6
 PARSIMONY = 0.85
 MIN_GAIN_NO_FLOOR = 0.05
+#: a unit whose shapes are nested (``free_nested``: each holds the one before, e.g. a sensor matrix's force block, then
+#: all of it) keeps a larger shape only when it beats the one kept by this paired block-wise z (more columns always
+#: fit the held-out blocks a little better by chance; the chain's own ``z_min`` for an effect)
+NESTED_Z = 3.0
 #: a face's refined shape (``free_refine``) is scored with each fold's shape tuned on the other folds' blocks alone
 REFINE_PER_FOLD = True
 
@@ -149,6 +156,7 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
         return Candidate(effect, {}, None, None, status="not applicable", note="no free-load face")
     best = None
     tried = 0
+    nested = bool(getattr(effect, "free_nested", False))
     for shape in shapes:
         key = (effect.name, repr(sorted(shape.items())))
         if key not in memo:
@@ -158,7 +166,7 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
             continue
         tried += 1
         cv = design.fit(X0 + [face])
-        if best is None or cv.sse < best[2].sse:
+        if best is None or (cv.sse < best[2].sse and (not nested or paired_gain(best[2], cv)[1] >= NESTED_Z)):
             best = (shape, face, cv)
     if best is None:
         return Candidate(effect, {}, None, None, status="not applicable", note="its face does not apply to these data")
@@ -185,13 +193,15 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
             pick = np.argmin(tsse, axis=0)                                 # each fold's shape
             cv2 = design.fit_per_fold(X0, [near[int(i)] for i in pick], whole)
             tried += 1
-            if cv2.sse < best[2].sse:
+            # the refined shape must fit every sample at least as well as the grid's best (what it minimises): else
+            # the search failed (a local minimum) and the per-fold score is not of the shape the chain would keep
+            if cv2.sse < best[2].sse and whole.rss <= best[2].rss * (1.0 + 1e-9):
                 best = (shape2 if face2 is not None else best[0], face2 if face2 is not None else best[1], cv2)
                 base_cv = whole
         elif face2 is not None:
             cv2 = design.fit(X0 + [face2])
             tried += 1
-            if cv2.sse < best[2].sse:
+            if cv2.sse < best[2].sse and cv2.rss <= best[2].rss * (1.0 + 1e-9):
                 best = (shape2, face2, cv2)
     shape, face, cv = best
     gain, z = paired_gain(cur, cv)

@@ -8,8 +8,9 @@ and every named effect's face, fitted together on every sample (weights ``1 / fl
 
 The file holds
 
-* the free-load calibration at ``x* + dx`` (one Gauss-Newton step: offsets, load parameters and tilts add, the mount
-  turns ``E = E* expm([dr]x)``), with the keys of ``calibration.json``; ``noise_sd`` is the diagnosis' noise floor
+* the free-load calibration at the joint refit (``diagnose/free.py`` ``relinearised``: two Gauss-Newton steps from
+  ``x*``, ``FreeLoadResult.moved``: offsets, load parameters and tilts add, the mount turns ``E = E* expm([dr]x)``),
+  with the keys of ``calibration.json``; ``noise_sd`` is the diagnosis' noise floor
   (held, still stretches), what is left of the readings once the effects are corrected;
 * ``meta.effect``: ``{"name": "a+b", "kind": "free_load", "legs": {X: {"members": [...], "reference": {...}}}}``, each
   member ``{"name", "shape", "labels", "beta", "parameters": {label: {"value", "se"}}}`` in chain order, and the
@@ -32,7 +33,6 @@ import numpy as np
 
 from ..effects.correction import KIND, Member, beta_names
 from ..effects.registry import EFFECTS
-from ..core.geometry import rotvec_to_rotation
 from .free_cv import null_directions, pinv
 from .free_model import context_for
 
@@ -52,32 +52,22 @@ def joint_covariance(jf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def refit_result(fit, leg_diag):
-    """The transducer's ``freeload.FreeLoadResult`` at the joint refit ``x* + dx`` (module docstring) with the joint
-    covariance's block of the free-load parameters and the noise floor as ``sigma``; and ``(C, undetermined, null)``
-    over ``[x, betas]``."""
+    """The transducer's ``freeload.FreeLoadResult`` at the joint refit (module docstring: the refit's point
+    ``leg_diag.refit_point`` moved by its ``dx``) with the joint covariance's block of the free-load parameters and the
+    noise floor as ``sigma``; and ``(C, undetermined, null)`` over ``[x, betas]``."""
     jf = leg_diag.joint
     C, und, null = joint_covariance(jf)
     P = len(fit.names)
-    dx = np.asarray(jf.dx, float)
-    p = len(fit.theta)
-    at = 6 + p
-    tilt = None
-    if fit.tilt is not None:
-        tilt, at = np.asarray(fit.tilt, float) + dx[at: at + 2], at + 2
-    rec_tilts = {}
-    for r, v in fit.recording_tilts.items():
-        rec_tilts[r], at = np.asarray(v, float) + dx[at: at + 2], at + 2
+    at = leg_diag.refit_point if leg_diag.refit_point is not None else fit
     se = np.where(und[:P], np.inf, np.sqrt(np.clip(np.diag(C)[:P], 0.0, None)))
     Nx = null[:P]
     Nx = Nx[:, np.abs(Nx).max(axis=0) > 1e-12] if Nx.size else Nx
     floor = np.asarray(leg_diag.floor, float) if leg_diag.floor_known else np.asarray(fit.sigma, float)
     names = [s.effect.name for s in leg_diag.chain.steps]
-    note = (f"{fit.leg}: refit jointly with {', '.join(names)} on every sample (one Gauss-Newton step from the "
-            "free-load fit; diagnose/chain.py joint_fit); se and covariance are the joint refit's, the descriptions "
+    note = (f"{fit.leg}: refit jointly with {', '.join(names)} on every sample (linearised around the free-load fit, "
+            "relinearised once: diagnose/free.py relinearised); se and covariance are the joint refit's, the descriptions "
             "of undetermined directions the free-load fit's, its determined combinations not recomputed (left out)")
-    out = replace(fit, offset=np.asarray(fit.offset, float) + dx[:6], theta=np.asarray(fit.theta, float) + dx[6: 6 + p],
-                  rotation=np.asarray(fit.rotation, float) @ rotvec_to_rotation(dx[P - 3:]), tilt=tilt,
-                  recording_tilts=rec_tilts, cov=C[:P, :P].copy(), se=se, null=Nx if Nx.shape[1] else None,
+    out = replace(at.moved(jf.dx), cov=C[:P, :P].copy(), se=se, null=Nx if Nx.shape[1] else None,
                   sigma=floor.copy(), determined=(), notes=[*fit.notes, note])
     return out, (C, und, null)
 

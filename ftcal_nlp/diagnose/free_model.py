@@ -85,7 +85,7 @@ def context_for(ds: Dataset, leg: str, fit) -> tuple[FreeLoadContext, list[str]]
     moving_q = {j: v for j, v in q.items() if np.ptp(v) > 1e-6}
     ctx = make_context(leg, cat("t"), cat("y"), pred, b @ fit.rotation, rec=cat("rec"), names=tuple(r.name for r in recs),
                        still=still, g_B=g_B, q=moving_q, joint_limits=joint_limits(load), quat=quat, temperature=temp,
-                       index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation)
+                       index=cat("index"), load=load, theta=fit.theta, rotation=fit.rotation, offset=fit.offset)
     pos = ds.robot.transducers[leg].position_m
     ctx.extra.update(b=b, K=K, **({} if pos is None else {"position_m": np.asarray(pos, float)}))  # inertial_load's O in B
     ctx.extra.update(a=a, tilt_block=cat("block"))         # b = a u(tilt of block), the tilts' columns

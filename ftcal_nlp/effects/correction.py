@@ -299,7 +299,7 @@ def context(p, fx: FreeEffects, t: np.ndarray, y: np.ndarray, pred: np.ndarray, 
     load, theta, limits, R, E = p.face_pose(q, len(t), fx.mount_rotation)
     g_ft = np.einsum("nji,nj->ni", R, g_B)
     ctx = make_context(fx.leg, t, y, pred, g_ft, g_B=g_B, q=q, joint_limits=limits, quat=quat, temperature=temperature,
-                       sigma=p.sigma, load=load, theta=theta, rotation=E, names=("recording",))
+                       sigma=p.sigma, load=load, theta=theta, rotation=E, offset=p.offset, names=("recording",))
     ref = fx.reference
     if "t_span_s" in ref:
         ctx.extra["t_span"] = tuple(float(v) for v in ref["t_span_s"])

@@ -240,11 +240,18 @@ class FreeLoadContext:
     load: Any = None                       # the loads.LinearLoad (inertia for inertial_load)
     theta: np.ndarray | None = None        # its fitted parameters
     rotation: np.ndarray | None = None     # (3, 3) fitted mounting rotation E
+    offset: np.ndarray | None = None       # (6,) the fitted offsets w_o: ``pred - offset`` is the load's own wrench
     extra: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
         return len(self.t)
+
+    @property
+    def load_wrench(self) -> np.ndarray | None:
+        """The load's own wrench in ft (N, 6), ``pred - offset`` (what a gain or crosstalk of the sensor multiplies);
+        None when the offsets are not known."""
+        return None if self.offset is None else self.pred - self.offset
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -319,7 +326,7 @@ class FreeLoadContext:
         m = np.asarray(mask, bool)
         out = {}
         for k, v in self.__dict__.items():
-            if isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == self.n and k not in ("sigma",):
+            if isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == self.n and k not in ("sigma", "offset", "theta", "rotation"):
                 out[k] = v[m]
             elif isinstance(v, dict) and k in ("q", "qd", "qdd"):
                 out[k] = {j: a[m] for j, a in v.items()}
@@ -451,8 +458,8 @@ def make_context(leg: str, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_ft:
                  rec: np.ndarray | None = None, names: tuple[str, ...] | None = None, still: np.ndarray | None = None,
                  g_B: np.ndarray | None = None, q: dict | None = None, joint_limits: dict | None = None,
                  quat: np.ndarray | None = None, temperature: np.ndarray | None = None, sigma: np.ndarray | None = None,
-                 index: np.ndarray | None = None, load=None, theta=None, rotation=None, min_hold: int = MIN_HOLD,
-                 still_rate: float | None = None) -> FreeLoadContext:
+                 index: np.ndarray | None = None, load=None, theta=None, rotation=None, offset=None,
+                 min_hold: int = MIN_HOLD, still_rate: float | None = None) -> FreeLoadContext:
     """A :class:`FreeLoadContext` from arrays (module docstring). ``still`` None: samples whose gravity in ft
     turns slower than ``still_rate`` rad/s (default 0.02) and whose joints move slower than it."""
     t = np.asarray(t, float)
@@ -483,7 +490,8 @@ def make_context(leg: str, t: np.ndarray, y: np.ndarray, pred: np.ndarray, g_ft:
         since_change=since, load_step=step, pred_rate=rate(pred, t, rec), g_rate=g_rate, omega=omega, q=q, qd=qd, qdd=qdd,
         joint_limits=dict(joint_limits or {}), quat=None if quat is None else np.asarray(quat, float), omega_B=omega_B,
         temperature=None if temperature is None else np.asarray(temperature, float),
-        sigma=None if sigma is None else np.asarray(sigma, float), load=load, theta=theta, rotation=rotation)
+        sigma=None if sigma is None else np.asarray(sigma, float), load=load, theta=theta, rotation=rotation,
+        offset=None if offset is None else np.asarray(offset, float))
 
 
 def session_time_basis(ctx: FreeLoadContext, degree: int) -> np.ndarray:

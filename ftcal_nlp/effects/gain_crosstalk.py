@@ -10,6 +10,20 @@ Model faces:
 * hanging, walking swing: a full E_k on the leg's weight, 9 per leg
 
 Correction: the standing face on each sample. Acts while hanging (offset shift).
+
+* free load (``free_faces.py``; issue 33): ``y_n = w_o + (I + E) w_n``, ``w_n = pred_n - w_o`` the load's own wrench
+  (:attr:`FreeLoadContext.load_wrench`), so the face adds ``E w_n``, linear in ``E``. Shapes: ``"force"`` (the 3x3
+  force block of ``E``, 9 parameters) and ``"full"`` (all 36: the torques read the force and themselves, the forces
+  the torques). The parameters are not ``E``'s entries but the named parts of ``estimate/freeload/sensor_matrix.py``
+  (``block_values``), each a fixed 6x6 direction ``M_j`` (``E = 0.01 sum_j beta_j M_j``, beta in %): per diagonal
+  block its ``scale`` (``I``), ``rotation`` (``[e_i]x``) and ``shear`` (symmetric, traceless: xx, yy, xy, xz, yz);
+  ``torque_from_force`` its ``skew`` and symmetric parts (% of a metre); ``force_from_torque`` its nine entries
+  (% per metre). What a free load cannot tell from its own parameters is then a whole parameter, not a share of
+  every entry: with a rigid payload the force block's ``scale`` is the load's mass, a ``rotation`` common to both
+  diagonal blocks the mounting rotation, ``torque_from_force.skew`` a shift of its CoM (the joint refit gives them
+  no se: undetermined), and the shear, the torque block's own scale and the rest come with se. The sensor's
+  correction matrix is ``C = (I + E)^-1 ~ I - E`` (``[free_load] sensor_matrix`` fits it exactly, with a ridge
+  towards the factory matrix: what to calibrate with once the diagnosis names this effect).
 """
 
 from __future__ import annotations
@@ -18,8 +32,68 @@ import casadi as ca
 import numpy as np
 
 from .faces import HangingLeg, ParamBlock, per_leg_face
+from .free_faces import WRENCH, FreeFace
 from .injection import EffectInjector, Magnitude
 from .unit import Effect
+
+_AXES = "xyz"
+_SHEAR = (("xx", 0, 0), ("yy", 1, 1), ("xy", 0, 1), ("xz", 0, 2), ("yz", 1, 2))
+_SYM = (("xx", 0, 0), ("yy", 1, 1), ("zz", 2, 2), ("xy", 0, 1), ("xz", 0, 2), ("yz", 1, 2))
+
+
+def _skew(i: int) -> np.ndarray:
+    """``[e_i]x`` (3, 3): its vee is the unit vector ``e_i`` (the parts' ``rotation`` / ``skew`` direction)."""
+    A = np.zeros((3, 3))
+    j, k = (i + 1) % 3, (i + 2) % 3
+    A[k, j], A[j, k] = 1.0, -1.0
+    return A
+
+
+def _sym(i: int, j: int, traceless: bool) -> np.ndarray:
+    S = np.zeros((3, 3))
+    S[i, j] = S[j, i] = 1.0
+    if traceless and i == j:        # xx and yy of a traceless shear: zz takes their negative
+        S[2, 2] = -1.0
+    return S
+
+
+def matrix_parts(block: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """``(names, M (k, 6, 6))``: the free face's parameter directions of ``block`` ("force" | "full"; module
+    docstring), ``E = 0.01 sum_j beta_j M_j``."""
+    names: list[str] = []
+    mats: list[np.ndarray] = []
+
+    def put(name: str, rows: slice, cols: slice, m3: np.ndarray, unit: str) -> None:
+        M = np.zeros((6, 6))
+        M[rows, cols] = m3
+        names.append(f"E.{name} [{unit}]")
+        mats.append(M)
+
+    F, T = slice(0, 3), slice(3, 6)
+    diag = (("force", F),) + ((("torque", T),) if block == "full" else ())
+    for what, sl in diag:
+        put(f"{what}.scale", sl, sl, np.eye(3), "%")
+        for i in range(3):
+            put(f"{what}.rotation.{_AXES[i]}", sl, sl, _skew(i), "%")
+        for nm, i, j in _SHEAR:
+            put(f"{what}.shear.{nm}", sl, sl, _sym(i, j, True), "%")
+    if block == "full":
+        for i in range(3):
+            put(f"torque_from_force.skew.{_AXES[i]}", T, F, _skew(i), "% m")
+        for nm, i, j in _SYM:
+            put(f"torque_from_force.sym.{nm}", T, F, _sym(i, j, False), "% m")
+        for i in range(3):
+            for j in range(3):
+                e = np.zeros((3, 3))
+                e[i, j] = 1.0
+                put(f"force_from_torque.{WRENCH[i]}_{WRENCH[3 + j]}", F, T, e, "%/m")
+    return tuple(names), np.stack(mats)
+
+
+def reading_matrix(beta: np.ndarray, block: str) -> np.ndarray:
+    """``I + E`` (6, 6) of the free face's parameters ``beta`` (%, :func:`matrix_parts` order)."""
+    _, M = matrix_parts(block)
+    return np.eye(6) + 0.01 * np.einsum("j,jab->ab", np.asarray(beta, float), M)
 
 
 class GainCrosstalkInjector(EffectInjector):
@@ -45,7 +119,11 @@ class GainCrosstalk(Effect):
     kind = "sensor"
     injector_cls = GainCrosstalkInjector
     applies_to = frozenset({"hexapod", "free"})   # it needs nothing of a hexapod
+    diagnosed_on = frozenset({"hexapod", "free"})  # standing, hanging and swing faces; the free face (module docstring)
     shifts_offsets = True
+    #: the free face's shapes: the force block of E, then all of it
+    FREE_BLOCKS = ("force", "full")
+    free_nested = True
 
     def __init__(self, full: bool = False):
         self.full = bool(full)
@@ -94,6 +172,23 @@ class GainCrosstalk(Effect):
         return per_leg_face(legs, make, tuple(f"E{a}{b}%" for a in "xyz" for b in "xyz"))
 
     swing_features = hanging_features  # a swing leg reads (I + E) on its weight's force
+
+    # ---- the free face (module docstring)
+    def free_shapes(self, ctx):
+        return tuple({"block": b} for b in self.FREE_BLOCKS) if ctx.offset is not None else ()
+
+    def free_face(self, ctx, shape):
+        w = ctx.load_wrench
+        if w is None:
+            return None
+        names, M = matrix_parts(str(shape["block"]))
+        W = 0.01 * w
+        blocks = []
+        for c in range(6):
+            cols = np.flatnonzero(np.any(M[:, c, :] != 0, axis=1))
+            if cols.size:
+                blocks.append((c, cols, W @ M[cols, c, :].T))        # column j on channel c: 0.01 (M_j w_n)_c
+        return FreeFace(None, names, shape, blocks=tuple(blocks))
 
 
 EFFECT = GainCrosstalk()

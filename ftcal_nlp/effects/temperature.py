@@ -24,8 +24,8 @@ Free face (``free_faces.py``): per channel ``(T_lag - Tbar)`` (and ``(T_lag - Tb
 ``T_lag = lowpass_lag(T)`` (each recording apart), ``Tbar`` the mean over the samples (on a new recording the
 calibration's, ``ctx.extra["temperature_mean_C"]``: then a recording held at one temperature is corrected too); parameters
 ``<c>.dT [N/degC]`` (and ``<c>.dT2 [N/degC^2]``; torques N*m); shapes: the degree (1, 2) and the
-thermal lag (0, 20, 60 s), chosen by held-out residual, then the lag refined by a bounded search
-(``free_refine``, ``free_refine.py``). None without a temperature.
+thermal lag (0, 20, 60 s), chosen by held-out residual, then the lag refined by a bounded search between the
+grid's neighbours of the best (``free_refine``, ``free_refine.py``; 240 s beyond the largest). None without a temperature.
 
 Correction: ``y - X beta`` (the free face on the recording's own temperature). A hexapod's
 ``correct`` has no temperature to read: readings unchanged (logged; ``Effect.correct``).
@@ -159,9 +159,17 @@ class Temperature(Effect):
         dT = Tl - ctx.extra.get("temperature_mean_C", Tl.mean())   # a new recording: the calibration's mean (free_reference)
         return np.stack([dT**j for j in range(1, degree + 1)], axis=1)
 
+    def refine_range(self, lag: float) -> tuple[float, float]:
+        """The lags :meth:`free_refine` searches for the grid's best ``lag``: between its neighbours on the grid
+        ``LAGS_S`` extended to ``4 x`` its largest (a search over the whole range found a far local minimum: a
+        lag of 240 s where the grid's best was 0 s and the truth 0 s, beside a named gain matrix)."""
+        grid = sorted(set(self.LAGS_S) | {4.0 * max(self.LAGS_S)})
+        i = int(np.argmin(np.abs(np.asarray(grid) - lag)))
+        return float(grid[max(i - 1, 0)]), float(grid[min(i + 1, len(grid) - 1)])
+
     def free_refine(self, ctx, shape, resid):
-        # The thermal lag by a bounded search (0 .. 4x the grid's largest) on the residual beside the free-load
-        # model's own columns (free_refine.py)
+        # The thermal lag by a bounded search between the grid's neighbours of its best lag (``refine_range``) on
+        # the residual beside the free-load model's own columns (free_refine.py)
         if ctx.temperature is None:
             return None
         d = int(shape["degree"])
@@ -170,7 +178,8 @@ class Temperature(Effect):
             # the lagged basis on each channel (channel-major columns): a per-channel face, no (N, 6, 6 d) array
             return FreeFace.per_channel(self._basis(ctx, max(lag, 0.0), d), tuple(f"T{j}" for j in range(1, d + 1)))
 
-        lag = refine_scalar(ctx, resid, columns, 0.0, 4.0 * max(self.LAGS_S), xatol=0.5)
+        lo, hi = self.refine_range(float(shape["lag_s"]))
+        lag = refine_scalar(ctx, resid, columns, lo, hi, xatol=0.5)
         return None if lag is None else {"degree": d, "lag_s": float(np.round(lag, 1))}
 
     #: per-fold tuning (``free_refine_near``): lags evenly over free_refine's range
@@ -180,8 +189,9 @@ class Temperature(Effect):
         # the lags free_refine searches among (its degree)
         if ctx.temperature is None:
             return ()
-        lags = np.round(np.linspace(0.0, 4.0 * max(self.LAGS_S), self.NEAR_POINTS), 1)
-        return tuple({"degree": int(shape["degree"]), "lag_s": float(lag)} for lag in lags)
+        lo, hi = self.refine_range(float(shape["lag_s"]))
+        lags = np.round(np.linspace(lo, hi, self.NEAR_POINTS), 1)
+        return tuple({"degree": int(shape["degree"]), "lag_s": float(lag)} for lag in dict.fromkeys(lags.tolist()))
 
 
 EFFECT = Temperature()

@@ -135,6 +135,9 @@ class Effect:
     # ---- the free-load face (``free_faces.py``: the contract); no free face by default
     #: the correlate its free-load residual lies along (None: ``explains``); "joint" means "joint:<name>"
     free_explains: ClassVar[str | None] = None
+    #: the free shapes are nested, each holding the one before: a larger one must beat the one kept by a paired z
+    #: (``diagnose/chain.py``, ``NESTED_Z``), not only by a smaller held-out sum of squares
+    free_nested: ClassVar[bool] = False
 
     def free_shapes(self, ctx) -> tuple[dict, ...]:
         """The grid of nonlinear shape parameters of the free face (``free_faces.py``); ``()``: none."""

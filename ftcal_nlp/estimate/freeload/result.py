@@ -14,13 +14,13 @@ the data leave undetermined and the combinations they do determine.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from ...core.geometry import quat_to_rotation, rotation_to_rotvec
+from ...core.geometry import quat_to_rotation, rotation_to_rotvec, rotvec_to_rotation
 from ...core.results import ResultsMixin, StackedResults, Summary, fmt_pm
 from .problem import gravity_frame, predict, tilt_gravity
 
@@ -68,6 +68,25 @@ class FreeLoadResult(ResultsMixin):
         tilt = np.zeros(0) if self.tilt is None else self.tilt
         vals = np.concatenate([self.offset, self.theta, tilt, *self.recording_tilts.values(), rotation_to_rotvec(self.rotation)])
         return pd.Series(vals, index=list(self.names), name="params")
+
+    def moved(self, dx: np.ndarray) -> "FreeLoadResult":
+        """This fit with its parameters moved by ``dx`` (over ``names``: the model Jacobian's columns,
+        ``diagnose/free_model.py``): offsets, load parameters and tilts add, the mount turns ``E = E* expm([dr]x)``
+        (one Gauss-Newton step of a refit linearised around this fit); covariance and notes unchanged."""
+        dx = np.asarray(dx, float)
+        if dx.shape != (len(self.names),):
+            raise ValueError(f"{self.leg}: a move of {len(self.names)} parameters expected, got shape {dx.shape}")
+        p = len(self.theta)
+        at = 6 + p
+        tilt = None
+        if self.tilt is not None:
+            tilt, at = np.asarray(self.tilt, float) + dx[at: at + 2], at + 2
+        rec_tilts = {}
+        for r, v in self.recording_tilts.items():
+            rec_tilts[r], at = np.asarray(v, float) + dx[at: at + 2], at + 2
+        return replace(self, offset=np.asarray(self.offset, float) + dx[:6], theta=np.asarray(self.theta, float) + dx[6: 6 + p],
+                       rotation=np.asarray(self.rotation, float) @ rotvec_to_rotation(dx[-3:]), tilt=tilt,
+                       recording_tilts=rec_tilts)
 
     def _bse_array(self) -> np.ndarray:
         return self.se
