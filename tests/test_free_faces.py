@@ -70,6 +70,12 @@ def test_body_rate_of_a_constant_turn():
 
 def test_effect_without_free_face_is_no_candidate():
     ctx = make_context("s", np.arange(10.0), np.zeros((10, 6)), np.zeros((10, 6)), np.tile([0, 0, -9.81], (10, 1)))
+    assert EFFECTS["casing_load"].free_shapes(ctx) == ()
+    # the sensor matrix's face multiplies the load's own wrench, pred - offset: no offsets known, no face
     assert EFFECTS["gain_crosstalk"].free_shapes(ctx) == ()
+    with_offset = make_context("s", np.arange(10.0), np.zeros((10, 6)), np.ones((10, 6)), np.tile([0, 0, -9.81], (10, 1)),
+                               offset=np.zeros(6))
+    assert EFFECTS["gain_crosstalk"].free_shapes(with_offset) == ({"block": "force"}, {"block": "full"})
+    assert EFFECTS["gain_crosstalk"].free_face(with_offset, {"block": "full"}).k == 36
     with pytest.raises(ValueError):
         FreeFace(np.zeros((10, 5, 1)), ("a",))

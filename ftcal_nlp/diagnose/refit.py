@@ -461,6 +461,12 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             eta = prob.eta(x)
             eta_cov = np.asarray(fit.cov, float)[prob.n_model :, prob.n_model :]   # held parameters: rows of zeros
             eta_und = ~np.isfinite(np.asarray(fit.effect_bse, float)) if len(fit.effect_bse) == len(eta) else None
+            if eta_und is not None and eta_und.any():
+                # e.g. a gain matrix per leg (54 entries) on the report's 100 poses: its held-out gap is then the poses'
+                # information, not a missing effect (at 300 poses the same matrix closes the standing kind to its floor)
+                notes.append(f"{int(eta_und.sum())} of the {len(eta_und)} parameters of {effect.name}'s standing face are not "
+                             f"determined by these {sv.P} poses (no finite se): the joint refit cannot pin them, and a gap "
+                             "it leaves on held-out poses may be that; more standing poses determine them (`plan`)")
             members = combined_members(effect, prob.actx, params)
             R_new, p_new, off_new = prob.transforms(x)
             new_legs = {}

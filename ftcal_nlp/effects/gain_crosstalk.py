@@ -147,15 +147,17 @@ class GainCrosstalk(Effect):
         return ParamBlock.bounded((f"g[{k}].{c} [%]" for k in ctx.legs for c in self._entries()), 10.0)
 
     def standing(self, eta, pose, ctx):
+        # the readings mapped back exactly, f_o + (I + E)^-1 (f - f_o): the sensor's matrix (the first-order
+        # f - E (f - f_o) left E^2 |f| ~ 0.02 N at 3 % on a leg's 25 N, half the floor, in every pose)
         out = []
         for k, w in enumerate(pose.w):
             f = w[0:3] - ctx.w_o[k][0:3]
             if self.full:
                 E = 0.01 * ca.reshape(eta[9 * k : 9 * k + 9], 3, 3).T        # stored row by row
-                out.append(ca.vertcat(w[0:3] - ca.mtimes(E, f), w[3:6]))
+                out.append(ca.vertcat(w[0:3] - f + ca.solve(ca.SX.eye(3) + E, f), w[3:6]))
             else:
                 g = 0.01 * eta[3 * k : 3 * k + 3]
-                out.append(ca.vertcat(w[0:3] - g * f, w[3:6]))
+                out.append(ca.vertcat(w[0:3] - f + f / (1.0 + g), w[3:6]))
         return out, None, None
 
     def hanging_features(self, legs):
