@@ -205,18 +205,35 @@ def _nuisance_update(l: HangingLeg, b: np.ndarray, n_rec: int, harmonics: int = 
     return replace(l, e=e, f=f, r=r, mg=float(mg_new))
 
 
-def relinearise(series: LegSeries, face_fn) -> tuple[LegSeries, np.ndarray, np.ndarray]:
+def com_harmonics(phi: np.ndarray, harmonics: int = COM_HARMONICS) -> np.ndarray:
+    """``h(phi)`` (N, 1 + 2 harmonics): ``1, cos phi, sin phi, cos 2 phi, ...`` (the CoM curve's correction basis)."""
+    h = [np.ones(len(phi))]
+    for m in range(1, harmonics + 1):
+        h += [np.cos(m * phi), np.sin(m * phi)]
+    return np.stack(h, axis=1)
+
+
+def moved_com(r: np.ndarray, phi: np.ndarray, d_r: np.ndarray) -> np.ndarray:
+    """The leg CoM ``r`` (..., 3) at shaft angles ``phi`` (...) moved by the joint hanging fit's correction ``d_r``
+    (1 + 2 harmonics, 3) of one leg: ``r - h(phi) d_r`` (:func:`_nuisance_update`'s move of the curve)."""
+    h = com_harmonics(np.ravel(phi), len(d_r) // 2)
+    return r - (h @ d_r).reshape(np.shape(r))
+
+
+def relinearise(series: LegSeries, face_fn) -> tuple[LegSeries, np.ndarray, np.ndarray, np.ndarray]:
     """Gauss-Newton on the hanging model with the effect's face: the series at the joint optimum.
 
     The calibrated hanging fit absorbed the effect (a warm-up of a few N reads as tilts of
     tens of degrees and a biased leg weight); one linear step from there leaves that
     nonlinearity in the leg weights, which the opposite-pair differences then carry into the
-    standing balance. Returns the moved series and the accumulated offset (K, 6) and leg
-    weight (K,) shifts."""
+    standing balance. Returns the moved series and the accumulated offset (K, 6), leg
+    weight (K,) and CoM curve (K, 1 + 2 harmonics, 3; :func:`moved_com`) shifts."""
     legs = list(series.legs)
     K = max(l.k for l in legs) + 1
     n_rec = int(max(l.rec.max() for l in legs)) + 1
     d_off, d_mg = np.zeros((K, 6)), np.zeros(K)
+    d_r = np.zeros((K, 1 + 2 * COM_HARMONICS, 3))
+    c0 = 7 + 3 * n_rec
     fl = np.where(series.floor > 0, series.floor, 1.0)
     # The steps are taken on every stride-th sample (the nonlinearity is in a few parameters, not in
     # the noise); the full series follows each step, and the held-out fit uses all of it
@@ -236,9 +253,10 @@ def relinearise(series: LegSeries, face_fn) -> tuple[LegSeries, np.ndarray, np.n
             legs[i] = _nuisance_update(legs[i], bl, n_rec)
             d_off[l.k] += bl[:6]
             d_mg[l.k] -= bl[6]
+            d_r[l.k] += bl[c0: c0 + d_r.shape[1] * 3].reshape(-1, 3)
         if step < GN_TOL:
             break
-    return replace(series, legs=legs), d_off, d_mg
+    return replace(series, legs=legs), d_off, d_mg, d_r
 
 
 def _every(l: HangingLeg, stride: int) -> HangingLeg:
@@ -293,18 +311,19 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     return A, b, parts, qn, n_tot
 
 
-def hanging_joint(series: LegSeries, face_fn, folds: int, before: np.ndarray | None = None) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, int]:
+def hanging_joint(series: LegSeries, face_fn, folds: int,
+                  before: np.ndarray | None = None) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, int, np.ndarray]:
     """Joint hanging regression (module docstring) with and without the effect's face.
 
     ``face_fn(legs) -> LinearFace`` (``Effect.hanging_features``) or None. With the face, the
     series is first moved to the joint optimum (:func:`relinearise`); the held-out residual is
     then that of the regression at the optimum. Returns the kind's refit, the effect's hanging
     parameters ``name -> (value, se)``, the offsets' shifts (K, 6), the leg weights' shifts (K,) N
-    (both from the joint fit with the effect, on all samples) and the per-leg number of
-    nuisance parameters. ``before``: the held-out RMS (6,) without the face, if known (it is the
+    (both from the joint fit with the effect, on all samples), the per-leg number of
+    nuisance parameters and the CoM curves' shifts (K, 1 + 2 harmonics, 3; :func:`moved_com`). ``before``: the held-out RMS (6,) without the face, if known (it is the
     same for every face).
     """
-    moved, d_off0, d_mg0 = relinearise(series, face_fn) if face_fn is not None else (series, 0.0, 0.0)
+    moved, d_off0, d_mg0, d_r0 = relinearise(series, face_fn) if face_fn is not None else (series, 0.0, 0.0, 0.0)
     legs0 = series.legs
     legs = moved.legs
     face = face_fn(legs) if face_fn is not None else None
@@ -352,10 +371,13 @@ def hanging_joint(series: LegSeries, face_fn, folds: int, before: np.ndarray | N
             params[f"hanging:{name}"] = (float(beta[c]), float(np.sqrt(cov[c, c] * ratio)))
     d_off = np.zeros((K, 6)) + d_off0
     d_mg = np.zeros(K) + d_mg0
+    d_r = np.zeros((K, 1 + 2 * COM_HARMONICS, 3)) + d_r0
+    c0 = 7 + 3 * (int(max(l.rec.max() for l in legs)) + 1)
     for l in legs:
         d_off[l.k] += beta[l.k * qn : l.k * qn + 6]
         d_mg[l.k] -= beta[l.k * qn + 6]   # the column is -a / m g: the model's derivative is +a / m g
-    return kind, params, d_off, d_mg, qn
+        d_r[l.k] += beta[l.k * qn + c0 : l.k * qn + c0 + d_r.shape[1] * 3].reshape(-1, 3)
+    return kind, params, d_off, d_mg, qn, d_r
 
 
 # ----------------------------------------------------------------------------- standing
@@ -373,12 +395,16 @@ def _hold_shared(prob: AugmentedProblem, effect: Effect, prior: Calibration, rob
         prob.lbx[j] = prob.ubx[j] = prob.x0[j] = v
 
 
-def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray) -> Calibration:
-    """``prior`` with the offsets and leg weights moved by the joint hanging fit."""
+def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray, d_r: np.ndarray | None = None) -> Calibration:
+    """``prior`` with the offsets, leg weights and (``d_r``, :func:`moved_com`) CoM curves moved by the joint hanging
+    fit."""
     legs = {}
     for k, leg in enumerate(prior.leg_names):
         l = prior.legs[leg]
-        legs[leg] = replace(l, offset=np.asarray(l.offset, float) + d_off[k], leg_weight_N=float(l.leg_weight_N + d_mg[k]))
+        kw = {}
+        if d_r is not None and np.any(d_r[k]) and len(l.com_phi) > 1:
+            kw["com_xyz"] = moved_com(np.asarray(l.com_xyz, float), np.asarray(l.com_phi, float), d_r[k])
+        legs[leg] = replace(l, offset=np.asarray(l.offset, float) + d_off[k], leg_weight_N=float(l.leg_weight_N + d_mg[k]), **kw)
     return replace(prior, legs=legs)
 
 
@@ -398,6 +424,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     notes: list[str] = []
     hang_values: dict = {}
     d_off, d_mg = np.zeros((len(legs), 6)), np.zeros(len(legs))
+    d_r = None
     cands = effect.joint_variants()
     effect = cands[0]
     if views.hanging is not None:
@@ -408,11 +435,14 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             if best_h is None or z < best_h[0]:
                 best_h = (z, v, res)
         assert best_h is not None, "joint_variants() is never empty (cands[0] above)"
-        _, effect, (kinds["hanging"], hp, d_off, d_mg, _) = best_h
+        _, effect, (kinds["hanging"], hp, d_off, d_mg, _, d_r) = best_h
         params.update(hp)
         hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}
-    prior_j = shifted_prior(prior, d_off, d_mg)
-    cal = shifted_prior(calibration, d_off, d_mg)
+    # the joint hanging fit's offsets, leg weights and CoM curves carry into the standing and swing kinds (an effect
+    # the calibrated hanging fit absorbed, e.g. a gain matrix on the leg's weight read as tilt, bent the CoM curve:
+    # a swing leg's torques then kept 2.6x their floor)
+    prior_j = shifted_prior(prior, d_off, d_mg, d_r)
+    cal = shifted_prior(calibration, d_off, d_mg, d_r)
     eta = eta_cov = eta_und = None
     members: tuple = ()
     R_new = off_new = None
@@ -420,6 +450,8 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     sv = views.standing
     if sv is not None:
         fidx = fold_indices(sv.P, folds, seed)
+        data_j = sv.data if d_r is None else replace(
+            sv.data, rcom=np.nan_to_num(np.stack([prior_j.legs[k].com(sv.data.phi[:, i]) for i, k in enumerate(legs)], axis=1)))
         base = AugmentedProblem(model, prior, robot, balance)
         x0 = base.x0 if x_start is None or len(x_start) != base.n_model else x_start
         cv0 = base.cross_validate(sv.data, sv.R_WB, fidx, x0)
@@ -433,7 +465,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             _hold_shared(prob, effect, prior_j, robot, hang_values)
             start = np.concatenate([xb, prob.x0[prob.n_model:]]) if m == model else prob.x0
             try:
-                cv = prob.cross_validate(sv.data, sv.R_WB, fidx, start)
+                cv = prob.cross_validate(data_j, sv.R_WB, fidx, start)
                 x, held1, Phi, r_in = cv.x, cv.held, cv.Phi, cv.r_in
             except SolverError as exc:
                 notes.append(f"joint standing refit with model {m!r} failed ({exc.status})")
@@ -462,11 +494,11 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             eta_cov = np.asarray(fit.cov, float)[prob.n_model :, prob.n_model :]   # held parameters: rows of zeros
             eta_und = ~np.isfinite(np.asarray(fit.effect_bse, float)) if len(fit.effect_bse) == len(eta) else None
             if eta_und is not None and eta_und.any():
-                # e.g. a gain matrix per leg (54 entries) on the report's 100 poses: its held-out gap is then the poses'
-                # information, not a missing effect (at 300 poses the same matrix closes the standing kind to its floor)
+                # e.g. a gain matrix per leg (54 entries) on the report's 100 poses (at 300 poses every entry has its se)
                 notes.append(f"{int(eta_und.sum())} of the {len(eta_und)} parameters of {effect.name}'s standing face are not "
-                             f"determined by these {sv.P} poses (no finite se): the joint refit cannot pin them, and a gap "
-                             "it leaves on held-out poses may be that; more standing poses determine them (`plan`)")
+                             f"determined by these {sv.P} poses (no finite se: their values are one of many that fit "
+                             "equally well; what the held-out poses test is the combinations they determine); more standing "
+                             "poses determine them (`plan`)")
             members = combined_members(effect, prob.actx, params)
             R_new, p_new, off_new = prob.transforms(x)
             new_legs = {}
@@ -481,7 +513,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             if balance != "exact":
                 notes.append("report balance: the joint calibration keeps the calibration's positions (its p' are relative to a moving CoM)")
     if views.swing is not None:
-        kinds["walking swing"] = _swing_joint(views.swing, effect, calibration, cal, legs, folds, hang_values)
+        kinds["walking swing"] = _swing_joint(views.swing, effect, calibration, cal, legs, folds, hang_values, d_r)
     worse = [k for k, v in kinds.items() if np.any(v.rms_after > WORSE_RATIO * np.maximum(v.rms_before, v.floor))]
     if worse:
         # the effect's face does not fit these recordings' shape (issue 13, item 4): say so rather
@@ -497,7 +529,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
 
 
 def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calibration, legs, folds: int,
-                 hanging: dict | None = None) -> KindRefit:
+                 hanging: dict | None = None, d_r: np.ndarray | None = None) -> KindRefit:
     """Swing residuals with the joint calibration (rotations, offsets, weights) plus the swing face.
 
     A swing face whose parameters are the hanging face's (same names: a per-leg casing load, drift
@@ -506,6 +538,12 @@ def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calib
     stack = lambda cal, key: np.array([np.asarray(getattr(cal.legs[k], key), float) for k in legs])
     after = recalibrate(series, stack(new, "rotation_to_body"), stack(new, "offset"), stack(old, "offset"),
                         stack(new, "leg_weight_N"))
+    if d_r is not None:   # the joint hanging fit's CoM curves: e = w - w_o - [f; r x f] with the moved r
+        moved = []
+        for l in after.legs:
+            r = moved_com(l.r, l.phi, d_r[l.k])
+            moved.append(replace(l, e=l.e + np.hstack([np.zeros_like(l.f), np.cross(l.r - r, l.f)]), r=r))
+        after = replace(after, legs=moved)
     face = effect.swing_features(after.legs)
     if face is not None and hanging and all(n in hanging for n in face.names):
         beta = np.array([hanging[n] for n in face.names])
