@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ftcal_nlp import CalibrationSettings, calibrate
+from ftcal_nlp import CalibrationSettings, HangingSettings, StandingSettings, calibrate
 from ftcal_nlp.core.calibration import Calibration
 from ftcal_nlp.correct import correct_recording
 from ftcal_nlp.core.data import WRENCH_COMPONENTS
@@ -200,3 +200,47 @@ def test_effect_reading_covariance_is_the_faces_jacobian_through_eta_cov():
     cal.meta["effect"]["parameters"] = {f"hanging:{legs[2]}.fz/h": {"value": 1.0, "se": 0.3}}
     C = effect_reading_cov(cal, w, phi, R, t)
     assert np.allclose(C[:, 2, 2, 2], (t / 3600.0 * 0.3) ** 2) and np.count_nonzero(C) == np.count_nonzero(t)
+
+
+def test_the_com_move_is_the_nuisance_steps():
+    """``moved_com`` moves a CoM curve as the joint hanging fit's steps move the series' CoM (``_nuisance_update``)."""
+    from dataclasses import replace
+
+    from ftcal_nlp.diagnose.refit import COM_HARMONICS, _nuisance_update, moved_com
+    from ftcal_nlp.effects.faces import HangingLeg
+
+    rng = np.random.default_rng(3)
+    n, n_h = 50, 1 + 2 * COM_HARMONICS
+    phi = rng.uniform(0, 2 * np.pi, n)
+    f = rng.normal(0, 3, (n, 3))
+    r = rng.normal(0, 0.05, (n, 3))
+    leg = HangingLeg("FL", 0, np.zeros((n, 6)), np.arange(n) * 0.01, phi, np.zeros(n), np.zeros(n, int), f, r,
+                     np.zeros((n, 3)), 5.0, 9.81, 0.0, np.array([0.0, 0.0, 1.0]))
+    leg = replace(leg, e=leg.e + leg.applied)     # any residual: the update moves it with the model
+    b = np.zeros(7 + 3 + 3 * n_h)
+    b_r = rng.normal(0, 0.01, (n_h, 3))
+    b[10:] = b_r.ravel()
+    moved = _nuisance_update(leg, b, 1)
+    np.testing.assert_allclose(moved.r, moved_com(r, phi, b_r), atol=1e-15)
+
+
+GAIN_POSES = {"n_poses": 300, "hanging_cycles": 2.0, "walk_cycles": 1.0, "seed": 1}
+
+
+def test_a_gain_matrix_per_leg_closes_every_kind_on_enough_poses():
+    """Issue 33 (the hexapod): a 3 % force matrix per leg, 300 standing poses (on the report's 100 most of its 54
+    entries have no se and the held-out fz stays ~2.6x its floor: ``docs/diagnosis.md``). Named, and the joint refit,
+    with the CoM curves its hanging fit moved carried into the other kinds, brings every kind within the issue's 1.5x
+    of its floor (measured 0.97-1.09x); every entry of the matrices has a finite se."""
+    sim = simulate(SimConfig.from_dict({**GAIN_POSES, "effects": [{"name": "gain_crosstalk", "scale": 0.03, "seed": 1}]}))
+    settings = CalibrationSettings(hanging=HangingSettings(compare_baseline=False),
+                                   standing=StandingSettings(model="full", compare_baseline=False))
+    run = calibrate(sim.dataset, settings)
+    d = run.diagnosis
+    assert d.effect == "gain_crosstalk", [e["name"] for e in d.effects_list()]
+    j = d.joint
+    for kind, k in j.kinds.items():
+        assert np.all(k.rms_after <= SHRINK_MAX * k.floor), (kind, k.rms_after / k.floor)
+        assert np.max(k.rms_before / k.floor) > 2.0, (kind, k.rms_before / k.floor)   # a gap on every kind first
+    ses = [s for n, (_, s) in j.parameters.items() if n.startswith("g[")]
+    assert len(ses) == 54 and np.all(np.isfinite(ses))
