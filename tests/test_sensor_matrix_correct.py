@@ -147,3 +147,23 @@ def test_mass_not_weighed_is_not_determined_not_a_crash(tmp_path, caplog):
     assert np.all(np.sqrt((e**2).mean(axis=0)) < 1.1 * noise), np.sqrt((e**2).mean(axis=0)) / noise
     assert holdout_main([str(cal), str(rec), "-o", str(tmp_path / "holdout"), "-q"]) in (0, 1)
     assert export.main([str(cal), "-o", str(tmp_path / "c"), "--name", "contact", "-q"]) == 0
+
+
+def test_the_covariance_file_carries_the_matrix(weighed):
+    """``calibration_cov.npz`` holds ``D``'s entries (``wrist.C.<row>.<col>``) beside the load's parameters: their
+    variances are the se of ``calibration.json``'s ``sensor_matrix_se``, their covariance with the mass is there (the
+    weighed mass pins the common scale, so the two are correlated, not independent), the identity matrix's fit has none."""
+    from ftcal_nlp.estimate.uncertainty import CalibrationCovariance
+
+    cal, _rec, _noise = weighed["force"]
+    cc = CalibrationCovariance.load(cal.parent / "calibration_cov.npz")
+    d_names = [f"wrist.C.{WRENCH[i]}.{WRENCH[j]}" for i in range(3) for j in range(3)]
+    assert all(n in cc.names for n in d_names)
+    se = np.asarray(json.loads(cal.read_text())["legs"]["wrist"]["sensor_matrix_se"], float)
+    at = {n: k for k, n in enumerate(cc.names)}
+    var = np.array([cc.cov[at[n], at[n]] for n in d_names])
+    np.testing.assert_allclose(np.sqrt(var), se[:3, :3].ravel(), rtol=1e-9)
+    mass = next(n for n in cc.names if n.endswith("mass_kg"))
+    assert any(abs(cc.cov[at[mass], at[n]]) > 0 for n in d_names)
+    cal0, _, _ = weighed["none"]
+    assert not any(".C." in n for n in CalibrationCovariance.load(cal0.parent / "calibration_cov.npz").names)

@@ -146,23 +146,56 @@ class CalibrationCovariance:
 def free_load_covariance(free_loads) -> CalibrationCovariance | None:
     """The covariance file's content for a free-load run (``freeload.FreeLoadResults``; None gives None): every
     transducer's parameters with their covariance on the determined subspace (independent blocks), the
-    undetermined ones (se inf) marked and the undetermined directions in ``null`` (module docstring)."""
+    undetermined ones (se inf) marked and the undetermined directions in ``null`` (module docstring); a transducer
+    whose sensor matrix was refitted adds ``D``'s entries (``{X}.C.<row>.<col>``) with their covariance with its
+    parameters (``sensor_matrix.SensorMatrixResult.joint_cov``)."""
     if free_loads is None:
         return None
-    parts = list(free_loads.legs.values())
-    sizes = [len(r.names) for r in parts]
-    P = sum(sizes)
+    blocks = [_free_block(r) for r in free_loads.legs.values()]
+    P = sum(len(b[0]) for b in blocks)
     cov = np.zeros((P, P))
-    nulls = [np.zeros((n, 0)) if r.null is None else np.asarray(r.null, float) for r, n in zip(parts, sizes)]
-    null = np.zeros((P, sum(N.shape[1] for N in nulls)))
+    null = np.zeros((P, sum(b[2].shape[1] for b in blocks)))
     i = j = 0
-    for r, n, N in zip(parts, sizes, nulls):
-        cov[i: i + n, i: i + n] = np.where(np.isfinite(r.cov), r.cov, 0.0)
+    for names, C, N, _ in blocks:
+        n = len(names)
+        cov[i: i + n, i: i + n] = C
         null[i: i + n, j: j + N.shape[1]] = N
         i, j = i + n, j + N.shape[1]
-    names = tuple(n for r in parts for n in r.names)
-    und = np.concatenate([np.isinf(np.asarray(r.se, float)) for r in parts]) if parts else np.zeros(0, bool)
+    names = tuple(n for b in blocks for n in b[0])
+    und = np.concatenate([b[3] for b in blocks]) if blocks else np.zeros(0, bool)
     return CalibrationCovariance(names, cov, und, None, null)
+
+
+def _free_block(r) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
+    """``(names, cov, null, undetermined)`` of one transducer's free-load fit ``r`` (with its matrix's entries)."""
+    names = tuple(r.names)
+    C = np.where(np.isfinite(r.cov), r.cov, 0.0)
+    N = np.zeros((len(names), 0)) if r.null is None else np.asarray(r.null, float)
+    und = np.isinf(np.asarray(r.se, float))
+    jc = getattr(r.sensor_matrix, "joint_cov", None)
+    if jc is None:
+        return names, C, N, und
+    jn, jcov, jnull, jse = jc
+    at = {n: k for k, n in enumerate(jn)}
+    extra = [n for n in jn if n not in set(names)]                    # D's entries
+    allnames = names + tuple(extra)
+    idx = np.array([at.get(n, -1) for n in allnames])
+    mine = idx >= 0
+    P = len(allnames)
+    out = np.zeros((P, P))
+    out[: len(names), : len(names)] = C
+    J = np.where(np.isfinite(jcov), jcov, 0.0)
+    rows = np.flatnonzero(mine)
+    ext = np.arange(len(names), P)
+    # D's rows and columns against every parameter the joint fit estimated (the rest of r's block as r has it)
+    out[np.ix_(ext, rows)] = J[np.ix_(idx[ext], idx[rows])]
+    out[np.ix_(rows, ext)] = J[np.ix_(idx[rows], idx[ext])]
+    Nn = np.zeros((P, max(N.shape[1], jnull.shape[1] if jnull.size else 0)))
+    Nn[: len(names), : N.shape[1]] = N
+    if jnull.size:
+        Nn[ext, : jnull.shape[1]] = jnull[idx[ext]]
+    und_all = np.concatenate([und, ~np.isfinite(np.asarray(jse, float)[idx[ext]])])
+    return allnames, out, Nn, und_all
 
 
 @dataclass(frozen=True)

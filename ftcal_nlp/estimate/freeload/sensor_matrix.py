@@ -56,6 +56,8 @@ gives the blocks' scale, rotation and shear with se, each marked determined or n
 ``sensor_matrix`` (6x6, ``C``), ``sensor_matrix_se`` (6x6; 0 where held at the factory value, by the mode or
 because the ridge choice kept the factory matrix (``inf``), null where undetermined), ``sensor_matrix_mode``, ``sensor_matrix_ridge`` (the weight kept), ``sensor_matrix_heldout``
 (the grid's held-out scores and per-axis RMS), ``sensor_matrix_combinations`` (:func:`named_combinations`).
+``calibration_cov.npz`` holds ``D``'s entries (``{X}.C.<row>.<col>``, ``C - I``) with their covariance with the
+load's parameters (``SensorMatrixResult.joint_cov``; ``estimate/uncertainty.py``).
 """
 
 from __future__ import annotations
@@ -514,6 +516,9 @@ class SensorMatrixResult:
     rms: np.ndarray
     weighed_kg: float | None = None
     notes: list[str] = field(default_factory=list)
+    #: the joint fit's ``(names, cov, null, se)`` over every parameter it estimated, ``D``'s entries (``{X}.C.<row>.<col>``)
+    #: last: what ``calibration_cov.npz`` carries of the matrix (None when the factory matrix was kept)
+    joint_cov: tuple | None = None
 
     def report(self) -> dict:
         """The keys of ``calibration.json`` (module docstring; null for inf by the writer)."""
@@ -602,7 +607,8 @@ def fit_sensor_matrix(ds, res, s):
         # the first fit's residual weights would move the load and mount by up to 2 se on real data)
         smr = SensorMatrixResult(opt.mode, np.eye(6), C_se, choice, combos, rms_factory, rms_factory, weighed, notes)
         return dataclasses.replace(res, notes=list(res.notes) + notes, sensor_matrix=smr)
-    smr = SensorMatrixResult(opt.mode, C, C_se, choice, combos, rms_factory, rms, weighed, notes)
+    smr = SensorMatrixResult(opt.mode, C, C_se, choice, combos, rms_factory, rms, weighed, notes,
+                             (tuple(names), cov.copy(), null.copy(), se.copy()))
     return _merged(res, st, data.groups, names, cov, se, null, undetermined, determined, rms, np.sqrt(1.0 / W), smr)
 
 
