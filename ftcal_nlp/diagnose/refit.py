@@ -401,10 +401,11 @@ def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray, d_r: 
     legs = {}
     for k, leg in enumerate(prior.leg_names):
         l = prior.legs[leg]
-        kw = {}
+        com = np.asarray(l.com_xyz, float)
         if d_r is not None and np.any(d_r[k]) and len(l.com_phi) > 1:
-            kw["com_xyz"] = moved_com(np.asarray(l.com_xyz, float), np.asarray(l.com_phi, float), d_r[k])
-        legs[leg] = replace(l, offset=np.asarray(l.offset, float) + d_off[k], leg_weight_N=float(l.leg_weight_N + d_mg[k]), **kw)
+            com = moved_com(com, np.asarray(l.com_phi, float), d_r[k])
+        legs[leg] = replace(l, offset=np.asarray(l.offset, float) + d_off[k], leg_weight_N=float(l.leg_weight_N + d_mg[k]),
+                            com_xyz=com)
     return replace(prior, legs=legs)
 
 
