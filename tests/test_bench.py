@@ -218,3 +218,25 @@ def test_bench_runs_end_to_end_at_a_tiny_size(tmp_path):
     assert np.all(np.isfinite(sc.wall_s))
     sp = res["speed"]["times"]
     assert {"load", "poses", "hanging", "model selection", "standing", "report"} <= set(sp.stage)
+    check_the_load_parts(res, tmp_path)
+
+
+def check_the_load_parts(res, out) -> None:
+    """The free-load parts of the tiny run ("loads", "load_speed"; once test_bench_loads.py's own second run of them with
+    the same settings): their sections, files, speed rows of every estimator, and ratios of the NLP on both loads."""
+    text = (out / "summary.md").read_text()
+    assert "### Free loads" in text and "### Free-load speed" in text
+    for name in ("accuracy_loads_params.csv.gz", "accuracy_loads_datasets.csv", "speed_loads.csv"):
+        assert (out / name).is_file(), name
+    t = res["load_speed"]["times"]
+    done = set(zip(t.problem, t.estimator))
+    assert res["load_speed"]["failures"] == {}
+    assert done == {("payload", "nlp"), ("payload", "ft_calib"), ("payload", "calib_force"), ("urdf_chain6", "nlp")}
+    assert np.all(t.wall_s > 0) and np.all(t.first_call_s > 0)
+    acc = res["loads"]
+    assert not any(c.endswith("_failure") for c in acc["info"].columns), acc["info"].filter(like="failure")
+    s = acc["summary"].set_index(["scenario", "estimator", "group"])
+    for key in [("payload_mount", "nlp", g) for g in ("offsets", "mass", "com", "mount_rotation")] + \
+               [("urdf_leg", "nlp", g) for g in ("offsets", "total_mass", "first_moments", "mount_rotation")]:
+        assert np.isfinite(s.loc[key, "ratio"]) and s.loc[key, "ratio"] > 0, key
+    assert not [k for k in s.index if k[0] == "urdf_leg" and k[1] != "nlp"]      # no peer models a URDF load

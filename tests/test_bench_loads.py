@@ -4,8 +4,6 @@ here what the bench computes from them, at a tiny size."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from ftcal_nlp.bench.accuracy_loads import LoadAccuracySettings, run_load_accuracy
@@ -42,27 +40,9 @@ def test_chain_urdf_has_six_joints_below_its_sensor() -> None:
     assert len(below) == 6 and all(tree.joints_between("ft", f"l{k}") for k in range(6))
 
 
-def test_bench_writes_the_load_parts(tmp_path) -> None:
-    from ftcal_nlp.bench.runner import run_bench, tiny_settings
-
-    s = replace(tiny_settings(), parts=("loads", "load_speed"))
-    res = run_bench(s, tmp_path, progress=False)
-    text = (tmp_path / "summary.md").read_text()
-    assert "### Free loads" in text and "### Free-load speed" in text
-    for name in ("accuracy_loads_params.csv.gz", "accuracy_loads_datasets.csv", "speed_loads.csv"):
-        assert (tmp_path / name).is_file(), name
-    t = res["load_speed"]["times"]
-    done = set(zip(t.problem, t.estimator))
-    assert res["load_speed"]["failures"] == {}
-    assert done == {("payload", "nlp"), ("payload", "ft_calib"), ("payload", "calib_force"), ("urdf_chain6", "nlp")}
-    assert np.all(t.wall_s > 0) and np.all(t.first_call_s > 0)
-    acc = res["loads"]
-    assert not any(c.endswith("_failure") for c in acc["info"].columns), acc["info"].filter(like="failure")
-    s = acc["summary"].set_index(["scenario", "estimator", "group"])
-    for key in [("payload_mount", "nlp", g) for g in ("offsets", "mass", "com", "mount_rotation")] + \
-               [("urdf_leg", "nlp", g) for g in ("offsets", "total_mass", "first_moments", "mount_rotation")]:
-        assert np.isfinite(s.loc[key, "ratio"]) and s.loc[key, "ratio"] > 0, key
-    assert not [k for k in s.index if k[0] == "urdf_leg" and k[1] != "nlp"]      # no peer models a URDF load
+# The bench's load parts ("loads", "load_speed") at the tiny size: checked on test_bench.py's tiny end-to-end run
+# (``test_bench_runs_end_to_end_at_a_tiny_size``, its ``check_the_load_parts``), which runs them with the same settings
+# among its parts; this file ran them a second time.
 
 
 def test_nlp_reaches_the_bound_and_matches_the_peers_where_their_model_holds() -> None:

@@ -12,8 +12,11 @@ The block (``meta.effect``, ``JointRefit.effect_block``) of a joint refit of sev
   drift's rate variance;
 * a single-effect file as older versions wrote it (no ``members``) applies as before (the units' formulas);
 * bad blocks give a ValueError naming the key;
-* end to end: a small simulated session with a casing load and an offset drift; the chain names both, and the
-  corrected walk with the chain's last joint refit is closer to the truth than with the first link's.
+* end to end (``test_hexchain.py::test_two_effects_are_both_named_with_parameters``, its
+  ``_check_the_chains_calibration_corrects_a_walk``): a small simulated session with a casing load and an offset drift;
+  the chain names both, and the corrected walk with the chain's last joint refit is closer to the truth than with the
+  first link's. It ran here on its own smaller session of the same two effects; test_hexchain.py's run of them (the
+  whole library) checks the same, with one calibrate() instead of two.
 """
 
 from __future__ import annotations
@@ -266,73 +269,3 @@ def test_bad_blocks_name_the_key(tiny, case):
     change, key = BAD[case]
     with pytest.raises(ValueError, match=rf"^my\.json: .*{re.escape(key)}"):
         correct_for_effect(_with(truth, _bad(block, change)), w, phi, R, t, source="my.json")
-
-
-# ----------------------------------------------------------------------------- end to end
-
-E2E = {"n_poses": 80, "hanging_cycles": 1.0, "walk_cycles": 0.5, "seed": 5}
-E2E_EFFECTS = [{"name": "offset_drift", "scale": 4.0, "seed": 5}, {"name": "casing_load", "scale": 1.5, "seed": 5}]
-BLOCKS = 10       # contiguous time blocks of the walk for the paired comparison
-Z_MIN = 4.0       # the chain's correction is closer to the truth by this many se of the block-wise differences
-
-
-def _errors(df, truth, legs):
-    """Per-foot (N, K, 3) and total (N, 3) force errors of a corrected walk against the simulator's truth."""
-    cols = [f"{k}_{c}" for k in legs for c in WRENCH[:3]]
-    foot = (df[cols].to_numpy() - truth[cols].to_numpy()[: len(df)]).reshape(len(df), len(legs), 3)
-    tc = [f"total_{c}" for c in WRENCH[:3]]
-    return foot, df[tc].to_numpy() - truth[tc].to_numpy()[: len(df)]
-
-
-def _paired_z(s0: np.ndarray, s1: np.ndarray) -> float:
-    """``mean(d) / se(d)`` of the block means ``d_b`` of ``s0 - s1`` (per-sample scores) over contiguous blocks."""
-    d = np.array([b.mean() for b in np.array_split(s0 - s1, BLOCKS)])
-    return float(d.mean() / (d.std(ddof=1) / np.sqrt(len(d))))
-
-
-def test_the_chains_calibration_corrects_a_walk_closer_to_the_truth(tmp_path):
-    """Two sensor-side effects injected (an offset drift, a casing load); the diagnosis (its candidates restricted to
-    the two, to keep this quick: naming among the whole library is ``test_hexchain.py``'s) names both, and
-    ``calibration_with_effect.json`` (the chain's last joint refit) corrects the walk closer to the truth than the
-    first link's joint calibration (one effect), per foot and in total: the squared force errors in units of the
-    readings' noise floor, compared block by block over the walk, fall by ``Z_MIN`` se at least."""
-    from dataclasses import replace
-
-    from ftcal_nlp.diagnose.validation import DEFAULTS, _settings
-    from ftcal_nlp.correct import correct_recording
-    from ftcal_nlp.pipeline import calibrate
-    from ftcal_nlp.run import effect_calibration, last_joint
-
-    sim = simulate(SimConfig.from_dict({**E2E, "effects": E2E_EFFECTS}))
-    st = _settings({**DEFAULTS, "folds": 5}, "exact")
-    run = calibrate(sim.dataset, replace(st, diagnose=replace(st.diagnose, effects=("offset_drift", "casing_load"))))
-    d = run.diagnosis
-    assert {e["name"] for e in d.effects_list()} == {"offset_drift", "casing_load"}, (d.effects_list(), d.chain)
-    assert last_joint(d) is d.chain.links[-1].joint and last_joint(d) is not d.joint
-    path = tmp_path / "calibration_with_effect.json"
-    effect_calibration(run).save(path)
-    cal = Calibration.load(path)
-    blk = cal.meta["effect"]
-    assert blk["name"] == d.chain.links[-1].joint.effect and {m["name"] for m in blk["members"]} == {"offset_drift", "casing_load"}
-    # the calibration's covariance file stands in where the error model is the calibration's; either way the note says
-    # which effects the joint refit had
-    assert run.uncertainty is not None
-    assert ("covariance_file" in cal.meta) == (cal.model == run.calibration.model)
-    assert all(n in cal.meta["covariance_note"] for n in ("offset_drift", "casing_load")), cal.meta["covariance_note"]
-    first = d.joint.calibration
-    assert first.meta["effect"]["name"] == d.effect and "members" not in first.meta["effect"]
-    rec, legs = sim.dataset.walking[0], cal.leg_names
-    floor = d.joint.kinds["hanging"].floor[:3]              # the readings' noise per force component
-    out_chain, out_first = correct_recording(cal, rec), correct_recording(first, rec)
-    assert np.all(np.isfinite(out_chain[[f"{k}_fx_se" for k in legs]].to_numpy()))
-    (f1, t1), (f0, t0) = _errors(out_chain, sim.walk_truth, legs), _errors(out_first, sim.walk_truth, legs)
-    foot = [((f / floor) ** 2).mean(axis=(1, 2)) for f in (f0, f1)]
-    total = [((t / (np.sqrt(len(legs)) * floor)) ** 2).mean(axis=1) for t in (t0, t1)]
-    z_foot, z_total = _paired_z(*foot), _paired_z(*total)
-    rms = lambda f: np.sqrt((f**2).reshape(len(f), -1, 3).mean(axis=(0, 1)))   # noqa: E731
-    assert z_foot >= Z_MIN and z_total >= Z_MIN, (z_foot, z_total, rms(f0), rms(f1), rms(t0), rms(t1))
-    # the report says what the file holds
-    from ftcal_nlp.report.diagnosis import diagnosis_section
-
-    caps = [t[0] for t in diagnosis_section(d, tmp_path).tables]
-    assert any("holds the chain's last joint refit" in c and all(n in c for n in ("offset_drift", "casing_load")) for c in caps), caps

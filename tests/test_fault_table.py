@@ -4,6 +4,7 @@ in ms) is one ``error:`` line with status 2 and nothing written; a sensor fault 
 in a recording to correct is a warning naming the leg and the rows, and those rows carry ``{leg}_fault``.
 The calibration given to ``correct`` is validated (finite, proper rotations, every leg)."""
 
+import copy
 import json
 import logging
 import re
@@ -203,25 +204,28 @@ def test_run_refuses_a_recording_mostly_held(tmp_path, capsys):
     assert re.search(r"standing\.parquet: leg ML .* reads 0 on every channel .*100 % of the recording; expected at most 50 %", line), line
 
 
-def test_run_leaves_clipped_rows_out_and_says_so(tmp_path, caplog):
+def test_run_leaves_clipped_rows_out_and_says_so(tmp_path, caplog, monkeypatch):
+    import ftcal_nlp.run as run_module
+
     broken_sample(require_sample(), tmp_path / "data", None)
     df = pd.read_parquet(tmp_path / "data" / "standing.parquet")
     _clipped(df)
     df.to_parquet(tmp_path / "data" / "standing.parquet", index=False)
+    # the command line's run, its result kept for the z-score check below (no second calibrate() of the same data)
+    made, real_run = [], run_module.run
+    monkeypatch.setattr(run_module, "run", lambda *a, **k: made.append(real_run(*a, **k)) or made[-1])
     with caplog.at_level(logging.WARNING):
         assert run_main([str(_config(tmp_path))]) == 0
+    assert len(made) == 1
     msg = r"standing\.parquet: leg FR columns FR_fz clipped at 20 on \d+ of 44400 samples \(1\d\.\d %.*left out of the calibration"
     assert len([r for r in caplog.records if re.search(msg, r.getMessage())]) == 1
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Notes" in report and re.search(r"sensor fault: .*leg FR columns FR_fz clipped at 20", report)
-    # the calibration from the remaining rows still recovers the truth (the run's z-score check)
+    # the calibration from the remaining rows (the run's own) still recovers the truth (the run's z-score check)
     from test_run import _check_z, _z_scores
     from ftcal_nlp.core.calibration import Calibration
-    from ftcal_nlp.config import load_config
-    from ftcal_nlp.pipeline import calibrate
-    from ftcal_nlp.core.data import read_dataset
 
-    run = calibrate(read_dataset(tmp_path / "data" / "dataset.toml"), load_config(_config(tmp_path)).settings)
+    run = made[0]
     _check_z(_z_scores(run, run.calibration, Calibration.load(require_sample() / "truth.json", g=9.81)))
 
 
@@ -260,17 +264,25 @@ def test_a_manifest_typo_with_a_simulate_table_is_not_simulated(tmp_path, capsys
     assert re.search(r"rec/dataset\.toml not found, but .*rec holds recordings", line), line
 
 
-def test_simulated_data_is_said_to_be_simulated(tmp_path, capsys):
+def test_simulated_data_is_said_to_be_simulated(tmp_path, capsys, monkeypatch):
     """The sample comes with its truth.json: the log, the report and calibration.json say the data are simulated."""
+    import ftcal_nlp.run as run_module
+
     broken_sample(require_sample(), tmp_path / "data", None)
     import shutil
 
     shutil.copy(require_sample() / "truth.json", tmp_path / "data" / "truth.json")
+    made, real_calibrate = [], run_module.calibrate
+    monkeypatch.setattr(run_module, "calibrate", lambda *a, **k: made.append(real_calibrate(*a, **k)) or made[-1])
     assert run_main([str(_config(tmp_path))]) == 0
     meta = json.loads((tmp_path / "out" / "calibration.json").read_text())["meta"]["data"]
     assert meta["simulated"] is True and "truth.json" in meta["origin"]
     assert "The dataset is simulated" in (tmp_path / "out" / "report.md").read_text()
     (tmp_path / "data" / "truth.json").unlink()
+    # the same readings without truth.json: calibrate() (which never sees truth.json) is the first run's, replayed; what
+    # says "simulated" (the run's data origin, the notes, the report) runs again
+    assert len(made) == 1
+    monkeypatch.setattr(run_module, "calibrate", lambda *a, **k: copy.copy(made[0]))
     assert run_main([str(_config(tmp_path)), "--force"]) == 0
     assert json.loads((tmp_path / "out" / "calibration.json").read_text())["meta"]["data"] == {"simulated": False}
 

@@ -141,7 +141,8 @@ def test_combined_standing_face_adds_the_corrections():
 SMALL = {"n_poses": 100, "hanging_cycles": 2.0, "walk_cycles": 1.0}
 
 
-def _diagnosis(seed: int, effects: list[tuple[str, float]], library: tuple[str, ...] | None = None):
+def _calibrated(seed: int, effects: list[tuple[str, float]], library: tuple[str, ...] | None = None):
+    """(sim, calibrate()'s result) of a SMALL session with ``effects`` injected, the diagnosis at 5 folds (exact balance)."""
     from ftcal_nlp.diagnose.validation import DEFAULTS, _settings
     from ftcal_nlp.pipeline import calibrate
     from ftcal_nlp.sim import SimConfig, simulate
@@ -151,11 +152,21 @@ def _diagnosis(seed: int, effects: list[tuple[str, float]], library: tuple[str, 
     settings = _settings({**DEFAULTS, "folds": 5}, "exact")
     if library is not None:   # the candidates a user names (DiagnoseSettings.effects): a smaller library costs less
         settings = replace(settings, diagnose=replace(settings.diagnose, effects=library))
-    return sim, calibrate(sim.dataset, settings).diagnosis
+    return sim, calibrate(sim.dataset, settings)
+
+
+def _diagnosis(seed: int, effects: list[tuple[str, float]], library: tuple[str, ...] | None = None):
+    sim, run = _calibrated(seed, effects, library)
+    return sim, run.diagnosis
 
 
 def test_two_effects_are_both_named_with_parameters(tmp_path):
-    sim, d = _diagnosis(5, [("offset_drift", 4.0), ("casing_load", 1.5)])
+    """An offset drift and a casing load: both named, each with parameters and se, the joint refit recovers the casing
+    load; and on the same run the chain's calibration corrects the walk closer to the truth than the first link's
+    (``_check_the_chains_calibration_corrects_a_walk``, once ``test_effect_correction_chain.py``'s own smaller run of
+    the same two effects with the candidates restricted to them: one calibrate() now checks both)."""
+    sim, run = _calibrated(5, [("offset_drift", 4.0), ("casing_load", 1.5)])
+    d = run.diagnosis
     js = json.loads(json.dumps(d.to_json_dict()))
     names = [e["name"] for e in js["effects"]]
     assert d.verdict == "effect" and set(names) == {"offset_drift", "casing_load"}, (names, js.get("chain"))
@@ -180,6 +191,65 @@ def test_two_effects_are_both_named_with_parameters(tmp_path):
 
     sec = diagnosis_section(d, tmp_path)
     assert any("in the order added" in t[0] for t in sec.tables)
+    _check_the_chains_calibration_corrects_a_walk(sim, run, [t[0] for t in sec.tables], tmp_path)
+
+
+BLOCKS = 10       # contiguous time blocks of the walk for the paired comparison
+CHAIN_Z_MIN = 4.0  # the chain's correction is closer to the truth by this many se of the block-wise differences
+WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+def _errors(df, truth, legs):
+    """Per-foot (N, K, 3) and total (N, 3) force errors of a corrected walk against the simulator's truth."""
+    cols = [f"{k}_{c}" for k in legs for c in WRENCH[:3]]
+    foot = (df[cols].to_numpy() - truth[cols].to_numpy()[: len(df)]).reshape(len(df), len(legs), 3)
+    tc = [f"total_{c}" for c in WRENCH[:3]]
+    return foot, df[tc].to_numpy() - truth[tc].to_numpy()[: len(df)]
+
+
+def _blocks_z(s0: np.ndarray, s1: np.ndarray) -> float:
+    """``mean(d) / se(d)`` of the block means ``d_b`` of ``s0 - s1`` (per-sample scores) over contiguous blocks."""
+    d = np.array([b.mean() for b in np.array_split(s0 - s1, BLOCKS)])
+    return float(d.mean() / (d.std(ddof=1) / np.sqrt(len(d))))
+
+
+def _check_the_chains_calibration_corrects_a_walk(sim, run, captions, tmp_path):
+    """``calibration_with_effect.json`` after the hexapod chain (issue 23, item 2; moved here from
+    ``test_effect_correction_chain.py``, whose end-to-end test ran a smaller session of the same two effects): the chain
+    names both, and the file (the chain's last joint refit) corrects the walk closer to the truth than the first link's
+    joint calibration (one effect), per foot and in total: the squared force errors in units of the readings' noise
+    floor, compared block by block over the walk, fall by ``CHAIN_Z_MIN`` se at least."""
+    from ftcal_nlp.core.calibration import Calibration
+    from ftcal_nlp.correct import correct_recording
+    from ftcal_nlp.run import effect_calibration, last_joint
+
+    d = run.diagnosis
+    assert {e["name"] for e in d.effects_list()} == {"offset_drift", "casing_load"}, (d.effects_list(), d.chain)
+    assert last_joint(d) is d.chain.links[-1].joint and last_joint(d) is not d.joint
+    path = tmp_path / "calibration_with_effect.json"
+    effect_calibration(run).save(path)
+    cal = Calibration.load(path)
+    blk = cal.meta["effect"]
+    assert blk["name"] == d.chain.links[-1].joint.effect and {m["name"] for m in blk["members"]} == {"offset_drift", "casing_load"}
+    # the calibration's covariance file stands in where the error model is the calibration's; either way the note says
+    # which effects the joint refit had
+    assert run.uncertainty is not None
+    assert ("covariance_file" in cal.meta) == (cal.model == run.calibration.model)
+    assert all(n in cal.meta["covariance_note"] for n in ("offset_drift", "casing_load")), cal.meta["covariance_note"]
+    first = d.joint.calibration
+    assert first.meta["effect"]["name"] == d.effect and "members" not in first.meta["effect"]
+    rec, legs = sim.dataset.walking[0], cal.leg_names
+    floor = d.joint.kinds["hanging"].floor[:3]              # the readings' noise per force component
+    out_chain, out_first = correct_recording(cal, rec), correct_recording(first, rec)
+    assert np.all(np.isfinite(out_chain[[f"{k}_fx_se" for k in legs]].to_numpy()))
+    (f1, t1), (f0, t0) = _errors(out_chain, sim.walk_truth, legs), _errors(out_first, sim.walk_truth, legs)
+    foot = [((f / floor) ** 2).mean(axis=(1, 2)) for f in (f0, f1)]
+    total = [((t / (np.sqrt(len(legs)) * floor)) ** 2).mean(axis=1) for t in (t0, t1)]
+    z_foot, z_total = _blocks_z(*foot), _blocks_z(*total)
+    rms = lambda f: np.sqrt((f**2).reshape(len(f), -1, 3).mean(axis=(0, 1)))   # noqa: E731
+    assert z_foot >= CHAIN_Z_MIN and z_total >= CHAIN_Z_MIN, (z_foot, z_total, rms(f0), rms(f1), rms(t0), rms(t1))
+    # the report says what the file holds
+    assert any("holds the chain's last joint refit" in c and all(n in c for n in ("offset_drift", "casing_load")) for c in captions), captions
 
 
 def test_a_single_effect_grows_no_second():

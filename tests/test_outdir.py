@@ -184,6 +184,11 @@ def test_a_run_failing_at_any_stage_leaves_the_earlier_result(stage, sample_resu
         run_mod.run(cfg, force=True)
     assert _tree(cfg.output_dir) == before
     _nothing_beside(cfg.output_dir)
+    if stage != "report":
+        # The run without the fault below starts from the same folder after every stage's failure (the earlier result
+        # byte for byte, nothing beside it: both asserted above) and runs the same code: it is run once, after the
+        # last stage's failure (the most written before it), not five times.
+        return
     # and the same run without the fault: the whole new result, nothing of the earlier one
     monkeypatch.undo()
     monkeypatch.setattr(run_mod, "calibrate", lambda *a, **k: copy.copy(res))

@@ -1,6 +1,7 @@
 """Standard errors of the ground wrenches (issue 15, item 1): Jacobian, sensor noise, coverage of the truth."""
 
 from dataclasses import replace
+from functools import lru_cache
 
 import numpy as np
 import pytest
@@ -24,13 +25,24 @@ def small_sim(seed: int, walk_cycles: float = 1.0):
     return simulate(SimConfig(seed=seed, n_poses=80, hanging_cycles=2.0, walk_cycles=walk_cycles))
 
 
+@lru_cache(maxsize=None)
+def _seed_run(seed: int):
+    """(sim, calibrate()'s result) of one seed, computed once per process."""
+    sim = small_sim(seed)
+    return sim, calibrate(sim.dataset, FAST)
+
+
+# Seed by seed: only the coverage test needs all of SEEDS, the others the first. pytest-xdist's load scheduling hands the
+# last modules out a few tests at a time, and this one was split between the two workers in both runs measured with
+# --durations=0 (the module fixture of all three calibrations made twice); a worker given only first-seed tests now makes one.
+@pytest.fixture(scope="module")
+def run0():
+    return _seed_run(SEEDS[0])
+
+
 @pytest.fixture(scope="module")
 def runs():
-    out = []
-    for seed in SEEDS:
-        sim = small_sim(seed)
-        out.append((sim, calibrate(sim.dataset, FAST)))
-    return out
+    return [_seed_run(seed) for seed in SEEDS]
 
 
 def _walk_arrays(rec, legs, n=None):
@@ -61,8 +73,8 @@ def _perturbed(cal, leg, j, h):
     return replace(cal, legs={**cal.legs, leg: l})
 
 
-def test_jacobian_matches_central_differences(runs):
-    sim, run = runs[0]
+def test_jacobian_matches_central_differences(run0):
+    sim, run = run0
     cal = run.calibration
     legs = cal.leg_names
     w, phi, R = _walk_arrays(sim.dataset.walking[0], legs, 200)
@@ -78,8 +90,8 @@ def test_jacobian_matches_central_differences(runs):
             np.testing.assert_allclose(J[..., NQ * i + j], d, atol=1e-6 * max(1.0, np.abs(d).max()), err_msg=f"{k} q[{j}]")
 
 
-def test_sensor_noise_recovers_the_simulated_noise(runs):
-    sim, run = runs[0]
+def test_sensor_noise_recovers_the_simulated_noise(run0):
+    sim, run = run0
     noise = estimate_sensor_noise(list(sim.dataset.standing), sim.dataset.robot)
     cfg = sim.config
     true_sd = np.array([cfg.noise_force_N] * 3 + [cfg.noise_torque_Nm] * 3)
@@ -123,8 +135,8 @@ def test_se_bands_cover_the_true_ground_wrenches(runs):
     assert 0.6 < z < 1.8
 
 
-def test_covariance_file_round_trip(runs, tmp_path):
-    _, run = runs[0]
+def test_covariance_file_round_trip(run0, tmp_path):
+    _, run = run0
     cc = run.uncertainty
     cc.save(tmp_path / "cov.npz")
     again = CalibrationCovariance.load(tmp_path / "cov.npz", cc.noise)
@@ -142,8 +154,8 @@ def test_covariance_file_round_trip(runs, tmp_path):
     assert no.cov[i, i] == 0 and no.cov[j, j] == cc.cov[j, j] > 0
 
 
-def test_undetermined_parameter_gives_infinite_se(runs):
-    sim, run = runs[0]
+def test_undetermined_parameter_gives_infinite_se(run0):
+    sim, run = run0
     cc = run.uncertainty
     und = np.array([n == "FL.w_o.fz" for n in cc.names])
     cc2 = CalibrationCovariance(cc.names, cc.cov, und, cc.noise)
