@@ -193,15 +193,13 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
             pick = np.argmin(tsse, axis=0)                                 # each fold's shape
             cv2 = design.fit_per_fold(X0, [near[int(i)] for i in pick], whole)
             tried += 1
-            # the refined shape must fit every sample at least as well as the grid's best (what it minimises): else
-            # the search failed (a local minimum) and the per-fold score is not of the shape the chain would keep
-            if cv2.sse < best[2].sse and whole.rss <= best[2].rss * (1.0 + 1e-9):
+            if cv2.sse < best[2].sse and _fits_as_well(whole, best[2]):
                 best = (shape2 if face2 is not None else best[0], face2 if face2 is not None else best[1], cv2)
                 base_cv = whole
         elif face2 is not None:
             cv2 = design.fit(X0 + [face2])
             tried += 1
-            if cv2.sse < best[2].sse and cv2.rss <= best[2].rss * (1.0 + 1e-9):
+            if cv2.sse < best[2].sse and _fits_as_well(cv2, best[2]):
                 best = (shape2, face2, cv2)
     shape, face, cv = best
     gain, z = paired_gain(cur, cv)
@@ -209,6 +207,12 @@ def score(design: Design, X0: list, cur: CVFit, ctx: FreeLoadContext, effect: Ef
     share = (cur.sse - cv.sse) / max(cur.sse - floor_sse, 1e-300) if floor_known else gain
     return Candidate(effect, dict(shape), face, cv, gain, z, float(share), _bic(design, cv, cur), shapes_tried=tried,
                      base=base_cv)
+
+
+def _fits_as_well(refined: CVFit, grid: CVFit) -> bool:
+    """Whether a refined shape's fit on every sample is at least as good as the grid's best (what the refinement
+    minimises; rounding aside): else the search failed and its per-fold score is not of the shape the chain keeps."""
+    return refined.rss <= grid.rss * (1.0 + 1e-9)
 
 
 def accepted(c: Candidate, cur: CVFit, design: Design, t: ChainThresholds, floor_known: bool = True,

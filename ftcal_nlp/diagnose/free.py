@@ -72,7 +72,7 @@ class FreeLegDiagnosis:
     fit_params: tuple = ()                # ... and their values at the fit
     added: list = field(default_factory=list)   # per named effect its parameters when it was added
     delay_blocks: dict = field(default_factory=dict)  # a named clock offset's delay per time block (``delay_change``)
-    refit_point: Any = None               # the free-load fit the joint refit is linearised around (``relinearised``)
+    refit: Any = None                     # the free-load fit at the joint refit (``relinearised``; None: no effect)
 
     def to_json_dict(self) -> dict:
         """This transducer's diagnosis for ``diagnosis.json`` (``free_loads.<transducer>``)."""
@@ -98,9 +98,9 @@ class FreeLegDiagnosis:
         se (null: undetermined by these data)."""
         if self.joint is None:
             raise ValueError(f"{self.leg}: no effect named, no joint refit")
+        assert self.refit is not None, "a joint refit comes with its free-load fit (relinearised)"
         x0 = np.asarray(self.fit_params, float)
-        x = (np.asarray(self.refit_point.moved(self.joint.dx).params, float) if self.refit_point is not None
-             else x0 + self.joint.dx)
+        x = np.asarray(self.refit.params, float)
         return {n: {"value": float(v), "change": float(v - v0), "se": float(e) if np.isfinite(e) else None}
                 for n, v0, v, e in zip(self.param_names, x0, x, self.joint.dx_se)}
 
@@ -150,8 +150,8 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     design = Design(ctx.y - ctx.pred, 1.0 / floor, block, fold)
     ch = run_chain(design, J, ctx, effects, floor, s.free_loads, floor_known)
     base, cur = ch.base_fit, ch.current
-    jf, at, ctx_at, steps_at = (relinearised(ds, leg, fit, ch.steps, ctx, design, J, floor) if ch.steps
-                                else (None, None, ctx, []))
+    jf, refit, ctx_at, steps_at = (relinearised(ds, leg, fit, ch.steps, ctx, design, J, floor) if ch.steps
+                                   else (None, None, ctx, []))
     # each effect's parameters as the chain added it (refit with those before it only): when later effects are
     # confounded with it, the joint refit splits what they share and says so by its se
     added = [joint_fit(design, J, ch.steps[:i + 1], ctx).params[i] for i in range(len(ch.steps) - 1)]
@@ -209,11 +209,12 @@ def diagnose_leg(ds: Dataset, leg: str, fit, effects: list[Effect], s: DiagnoseS
     design.release()   # the cached sums and every face tried (hundreds of MB on 10^5 samples) are not kept with the result
     return FreeLegDiagnosis(leg, verdict, floor, n_floor, base.rms(), cur.rms(), ch, jf, corr, where, ctx.n,
                             int(ctx.still.sum()), int(block.max()) + 1, notes, plot, floor_known, tuple(names),
-                            tuple(float(v) for v in fit.params), added, delay_blocks, at)
+                            tuple(float(v) for v in fit.params), added, delay_blocks, refit)
 
 
 def relinearised(ds: Dataset, leg: str, fit, steps: list, ctx, design: Design, J, floor: np.ndarray):
-    """``(joint refit, its point, context there, the steps with their faces there)``: the named effects refit together
+    """``(joint refit, the free-load fit it gives, the context and the steps' faces at its point)``: the named effects
+    refit together
     with the free-load model (``chain.joint_fit``), relinearised once. The first refit, linearised around the
     free-load fit ``x*``, gives ``x1 = x* + dx`` (``FreeLoadResult.moved``); the model, its Jacobian and the effects'
     faces (their shapes as named, with what each face took from the whole session, ``free_reference``, as it was)
@@ -239,7 +240,7 @@ def relinearised(ds: Dataset, leg: str, fit, steps: list, ctx, design: Design, J
     design1 = Design(ctx1.y - ctx1.pred, design.w, design.block, design.fold)
     jf = joint_fit(design1, J1, steps1, ctx1)
     design1.release()
-    return jf, at, ctx1, steps1
+    return jf, at.moved(jf.dx), ctx1, steps1
 
 
 def delay_change(ctx, steps: list, jf: JointFit, floor: np.ndarray, notes: list[str]) -> dict:

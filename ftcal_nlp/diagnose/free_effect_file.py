@@ -52,13 +52,12 @@ def joint_covariance(jf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def refit_result(fit, leg_diag):
-    """The transducer's ``freeload.FreeLoadResult`` at the joint refit (module docstring: the refit's point
-    ``leg_diag.refit_point`` moved by its ``dx``) with the joint covariance's block of the free-load parameters and the
-    noise floor as ``sigma``; and ``(C, undetermined, null)`` over ``[x, betas]``."""
+    """The transducer's ``freeload.FreeLoadResult`` at the joint refit (module docstring: ``leg_diag.refit``) with the
+    joint covariance's block of the free-load parameters and the noise floor as ``sigma``; and ``(C, undetermined,
+    null)`` over ``[x, betas]``."""
     jf = leg_diag.joint
     C, und, null = joint_covariance(jf)
     P = len(fit.names)
-    at = leg_diag.refit_point if leg_diag.refit_point is not None else fit
     se = np.where(und[:P], np.inf, np.sqrt(np.clip(np.diag(C)[:P], 0.0, None)))
     Nx = null[:P]
     Nx = Nx[:, np.abs(Nx).max(axis=0) > 1e-12] if Nx.size else Nx
@@ -67,7 +66,8 @@ def refit_result(fit, leg_diag):
     note = (f"{fit.leg}: refit jointly with {', '.join(names)} on every sample (linearised around the free-load fit, "
             "relinearised once: diagnose/free.py relinearised); se and covariance are the joint refit's, the descriptions "
             "of undetermined directions the free-load fit's, its determined combinations not recomputed (left out)")
-    out = replace(at.moved(jf.dx), cov=C[:P, :P].copy(), se=se, null=Nx if Nx.shape[1] else None,
+    assert leg_diag.refit is not None, "a joint refit comes with its free-load fit (diagnose/free.py relinearised)"
+    out = replace(leg_diag.refit, cov=C[:P, :P].copy(), se=se, null=Nx if Nx.shape[1] else None,
                   sigma=floor.copy(), determined=(), notes=[*fit.notes, note])
     return out, (C, und, null)
 

@@ -156,6 +156,14 @@ def combined_members(effect: Effect, actx: AugContext, params: dict) -> tuple:
 # ----------------------------------------------------------------------------- hanging
 
 
+def com_harmonics(phi: np.ndarray, harmonics: int = COM_HARMONICS) -> np.ndarray:
+    """``h(phi)`` (N, 1 + 2 harmonics): ``1, cos phi, sin phi, cos 2 phi, ...`` (the CoM curve's correction basis)."""
+    h = [np.ones(len(phi))]
+    for m in range(1, harmonics + 1):
+        h += [np.cos(m * phi), np.sin(m * phi)]
+    return np.stack(h, axis=1)
+
+
 def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS) -> tuple[np.ndarray, list[str]]:
     """``J_i`` (N, 6, q) of the module docstring for one leg, with labels."""
     N = len(l.t)
@@ -171,10 +179,7 @@ def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS) 
     for j in range(n_rec):
         cols.append(T * (l.rec == j)[:, None, None])
         names += [f"{l.leg}.tilt[{j}].{a}" for a in "xyz"]
-    h = [np.ones(N)]
-    for m in range(1, harmonics + 1):
-        h += [np.cos(m * l.phi), np.sin(m * l.phi)]
-    for j, hj in enumerate(h):
+    for j, hj in enumerate(com_harmonics(l.phi, harmonics).T):
         C = np.zeros((N, 6, 3))
         C[:, 3:, :] = Fx * hj[:, None, None]
         cols.append(C)
@@ -195,22 +200,11 @@ def _nuisance_update(l: HangingLeg, b: np.ndarray, n_rec: int, harmonics: int = 
         sel = l.rec == j
         if sel.any():
             f[sel] = f[sel] @ rotvec_to_rotation(-b[7 + 3 * j : 10 + 3 * j]).T
-    h = [np.ones(len(l.t))]
-    for m in range(1, harmonics + 1):
-        h += [np.cos(m * l.phi), np.sin(m * l.phi)]
     c0 = 7 + 3 * n_rec
-    r = l.r - sum(hj[:, None] * b[c0 + 3 * i : c0 + 3 * i + 3][None, :] for i, hj in enumerate(h))
+    r = moved_com(l.r, l.phi, b[c0: c0 + 3 * (1 + 2 * harmonics)].reshape(-1, 3))
     a_new = np.hstack([f, np.cross(r, f)])
     e = l.e - (a_new - l.applied) - b[:6][None, :]
     return replace(l, e=e, f=f, r=r, mg=float(mg_new))
-
-
-def com_harmonics(phi: np.ndarray, harmonics: int = COM_HARMONICS) -> np.ndarray:
-    """``h(phi)`` (N, 1 + 2 harmonics): ``1, cos phi, sin phi, cos 2 phi, ...`` (the CoM curve's correction basis)."""
-    h = [np.ones(len(phi))]
-    for m in range(1, harmonics + 1):
-        h += [np.cos(m * phi), np.sin(m * phi)]
-    return np.stack(h, axis=1)
 
 
 def moved_com(r: np.ndarray, phi: np.ndarray, d_r: np.ndarray) -> np.ndarray:

@@ -90,12 +90,6 @@ def matrix_parts(block: str) -> tuple[tuple[str, ...], np.ndarray]:
     return tuple(names), np.stack(mats)
 
 
-def reading_matrix(beta: np.ndarray, block: str) -> np.ndarray:
-    """``I + E`` (6, 6) of the free face's parameters ``beta`` (%, :func:`matrix_parts` order)."""
-    _, M = matrix_parts(block)
-    return np.eye(6) + 0.01 * np.einsum("j,jab->ab", np.asarray(beta, float), M)
-
-
 class GainCrosstalkInjector(EffectInjector):
     """``(I + E_k)`` on the applied force; entries of E_k ~ N(0, scale) (a fraction)."""
 
