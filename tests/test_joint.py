@@ -156,7 +156,7 @@ def test_joint_hanging_fit_recovers_leg_weights_under_a_warm_up():
     bias = w0 - sim.true_robot.weights_N
     best = None
     for v in OffsetDrift().joint_variants():
-        kind, _, _, d_mg, _, _ = hanging_joint(series, v.hanging_features, 5)
+        kind, _, _, d_mg, _, _, _ = hanging_joint(series, v.hanging_features, 5)
         z = float(np.sum((kind.rms_after / kind.floor) ** 2))
         if best is None or z < best[0]:
             best = (z, v, d_mg)

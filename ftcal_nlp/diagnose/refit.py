@@ -29,7 +29,15 @@ held-out residual of one joint model on every recording kind, beside its floor.
 * standing (eq. 8 with the balance of ``balance.py``): the selected error model
   plus the effect's standing face (``standing_fit.py``) refit on the poses with
   the offsets and leg weights of the joint hanging fit as its prior; the same
-  k-fold poses as the attribution. "Before" is the calibration model alone.
+  k-fold poses as the attribution. "Before" is the calibration model alone. Parameters the hanging face
+  estimated too (``Effect.standing_prior_from_hanging``: one sensor matrix read on the leg's weight and on the
+  ground's force) may enter with the hanging fit's information on the combinations its face says the hanging fixes
+  (``LinearFace.determined``) as a prior (``standing_fit.EtaPrior``); the standing fit is made with and without it
+  and the one whose held-out standing and swing residuals (floor units) are smaller is kept: a hanging estimate a few
+  se off along a direction its nuisance nearly takes can pull the poses, and without it few poses may leave the
+  rotations loose. An effect whose hanging face moves the offsets as they are (``Effect.joint_holds_offset_shift``)
+  has the forces of the standing offset shift held at zero: free, that constant force in B turns with a rotation
+  common to every transducer.
 * walking swing: a foot in the air predicted with the joint calibration (the
   standing fit's rotations, the joint offsets and weights; ``linear_fit.recalibrate``)
   plus the effect's swing face, time-block folds.
@@ -57,7 +65,8 @@ from ..effects.combined import Combined
 from ..effects.faces import AugContext, HangingLeg
 from ..effects.unit import Effect
 from .linear_fit import RIDGE, recalibrate, score_linear, time_folds
-from .standing_fit import AugmentedProblem
+from ..core.balance import K_DIAG
+from .standing_fit import AugmentedProblem, EtaPrior
 from .views import LegSeries, Views
 
 log = logging.getLogger(__name__)
@@ -305,8 +314,8 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     return A, b, parts, qn, n_tot
 
 
-def hanging_joint(series: LegSeries, face_fn, folds: int,
-                  before: np.ndarray | None = None) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, int, np.ndarray]:
+def hanging_joint(series: LegSeries, face_fn, folds: int, before: np.ndarray | None = None
+                  ) -> tuple[KindRefit, dict, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray | None]:
     """Joint hanging regression (module docstring) with and without the effect's face.
 
     ``face_fn(legs) -> LinearFace`` (``Effect.hanging_features``) or None. With the face, the
@@ -314,8 +323,11 @@ def hanging_joint(series: LegSeries, face_fn, folds: int,
     then that of the regression at the optimum. Returns the kind's refit, the effect's hanging
     parameters ``name -> (value, se)``, the offsets' shifts (K, 6), the leg weights' shifts (K,) N
     (both from the joint fit with the effect, on all samples), the per-leg number of
-    nuisance parameters and the CoM curves' shifts (K, 1 + 2 harmonics, 3; :func:`moved_com`). ``before``: the held-out RMS (6,) without the face, if known (it is the
-    same for every face).
+    nuisance parameters, the CoM curves' shifts (K, 1 + 2 harmonics, 3; :func:`moved_com`) and the information of the
+    effect's hanging parameters (in the order of ``params``, the nuisance marginalised: the Schur complement of the
+    normal equations, over the residual variance ratio; None without a face), what the standing fit takes as their
+    prior (``standing_fit.EtaPrior``). ``before``: the held-out RMS (6,) without the face, if known (it is the same for
+    every face).
     """
     moved, d_off0, d_mg0, d_r0 = relinearise(series, face_fn) if face_fn is not None else (series, 0.0, 0.0, 0.0)
     legs0 = series.legs
@@ -356,6 +368,7 @@ def hanging_joint(series: LegSeries, face_fn, folds: int,
     floor = np.sqrt(np.mean(np.square(series.floor[[l.k for l in legs]]), axis=0))
     kind = KindRefit(series.kind, before, np.sqrt(ss1 / n_all), floor, n_all, blocks)
     params = {}
+    info = None
     if face is not None:
         # floor-standardised regression: the parameters' covariance is (X^T X)^-1 up to the
         # residual variance ratio, which the held-out excess measures
@@ -363,6 +376,14 @@ def hanging_joint(series: LegSeries, face_fn, folds: int,
         for j, name in enumerate(face.names):
             c = K * qn + j
             params[f"hanging:{name}"] = (float(beta[c]), float(np.sqrt(cov[c, c] * ratio)))
+        # the face's information with the nuisance marginalised (no ridge on the face: what the hanging legs do not
+        # determine stays zero; the nuisance's own ridge only keeps its solve defined)
+        A_tot, nn = A1.sum(0), K * qn
+        A_nn = A_tot[:nn, :nn] + RIDGE * max(np.trace(A_tot) / n_tot, 1e-300) * np.eye(nn)
+        info = (A_tot[nn:, nn:] - A_tot[nn:, :nn] @ np.linalg.solve(A_nn, A_tot[:nn, nn:])) / ratio
+        if face.determined is not None:   # only what the face says the hanging fixes apart from the nuisance
+            Q = face.determined
+            info = Q @ (Q.T @ info @ Q) @ Q.T
     d_off = np.zeros((K, 6)) + d_off0
     d_mg = np.zeros(K) + d_mg0
     d_r = np.zeros((K, 1 + 2 * COM_HARMONICS, 3)) + d_r0
@@ -371,7 +392,7 @@ def hanging_joint(series: LegSeries, face_fn, folds: int,
         d_off[l.k] += beta[l.k * qn : l.k * qn + 6]
         d_mg[l.k] -= beta[l.k * qn + 6]   # the column is -a / m g: the model's derivative is +a / m g
         d_r[l.k] += beta[l.k * qn + c0 : l.k * qn + c0 + d_r.shape[1] * 3].reshape(-1, 3)
-    return kind, params, d_off, d_mg, qn, d_r
+    return kind, params, d_off, d_mg, qn, d_r, info
 
 
 # ----------------------------------------------------------------------------- standing
@@ -387,6 +408,40 @@ def _hold_shared(prob: AugmentedProblem, effect: Effect, prior: Calibration, rob
         j = prob.n_model + i
         v = float(np.clip(v, prob.lbx[j], prob.ubx[j]))
         prob.lbx[j] = prob.ubx[j] = prob.x0[j] = v
+
+
+def _hold_offset_shift(prob: AugmentedProblem) -> None:
+    """Hold the forces of the standing fit's offset shift ``dw_o`` at zero (``Effect.joint_holds_offset_shift``): the
+    joint hanging fit's offsets, fitted beside the effect's hanging face, already hold what it did while hanging.
+    Free, that constant force in B is one with a rotation common to every transducer (it turns ``sum_k R_k f_k = M g
+    z`` by a constant): on the shared sample with a gain matrix the joint rotations went 0.15-0.25 deg off together
+    and a swing leg's torques stayed 1.4-2.1x their floor; held, 1.0-1.06x."""
+    if prob.params is None:
+        return
+    for j, n in enumerate(prob.params.names):
+        if n.startswith(("dw_o.fx", "dw_o.fy", "dw_o.fz")):
+            i = prob.n_model + j
+            prob.lbx[i] = prob.ubx[i] = prob.x0[i] = 0.0
+
+
+def hanging_eta_prior(effect: Effect, prior: Calibration, robot, hanging: dict, info: np.ndarray | None,
+                      sv) -> EtaPrior | None:
+    """The joint hanging fit's estimate of the standing-face parameters it shares (``Effect.standing_prior_from_hanging``)
+    as the standing fit's prior (``standing_fit.EtaPrior``): its information ``info`` (order of ``hanging``) scaled by
+    the standing noise per K-weighted component, ``mean_i K_ii s_i^2`` with ``s`` the floor without its
+    cross-validation inflation (``views.py``)."""
+    if info is None or not hanging:
+        return None
+    ctx = AugContext.from_calibration(prior, tuple(robot.legs), robot.nominal_rotations())
+    names = list(hanging)
+    pairs = [(i, names.index(n)) for i, n in sorted(effect.standing_prior_from_hanging(ctx).items()) if n in hanging]
+    if not pairs:
+        return None
+    idx, hj = np.array([i for i, _ in pairs]), np.array([j for _, j in pairs])
+    infl = np.asarray(sv.floor_parts.get("cv_inflation", np.ones(6)), float)
+    s2 = np.asarray(sv.floor, float) ** 2 / np.where(infl > 0, infl, 1.0)
+    sigma2 = float(np.mean(K_DIAG * s2))
+    return EtaPrior(idx, np.array([hanging[names[j]] for j in hj]), sigma2 * info[np.ix_(hj, hj)])
 
 
 def shifted_prior(prior: Calibration, d_off: np.ndarray, d_mg: np.ndarray, d_r: np.ndarray | None = None) -> Calibration:
@@ -419,7 +474,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     notes: list[str] = []
     hang_values: dict = {}
     d_off, d_mg = np.zeros((len(legs), 6)), np.zeros(len(legs))
-    d_r = None
+    d_r = h_info = None
     cands = effect.joint_variants()
     effect = cands[0]
     if views.hanging is not None:
@@ -430,7 +485,7 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
             if best_h is None or z < best_h[0]:
                 best_h = (z, v, res)
         assert best_h is not None, "joint_variants() is never empty (cands[0] above)"
-        _, effect, (kinds["hanging"], hp, d_off, d_mg, _, d_r) = best_h
+        _, effect, (kinds["hanging"], hp, d_off, d_mg, _, d_r, h_info) = best_h
         params.update(hp)
         hang_values = {n[len("hanging:"):]: v for n, (v, _) in hp.items()}
     # the joint hanging fit's offsets, leg weights and CoM curves carry into the standing and swing kinds (an effect
@@ -438,89 +493,146 @@ def joint_refit(views: Views, effect: Effect, model: Any, prior: Calibration, ca
     # a swing leg's torques then kept 2.6x their floor)
     prior_j = shifted_prior(prior, d_off, d_mg, d_r)
     cal = shifted_prior(calibration, d_off, d_mg, d_r)
-    eta = eta_cov = eta_und = None
-    members: tuple = ()
-    R_new = off_new = None
-    best = None
     sv = views.standing
+    st: _StandingJoint | None = None
     if sv is not None:
-        fidx = fold_indices(sv.P, folds, seed)
-        data_j = sv.data if d_r is None else replace(
-            sv.data, rcom=np.nan_to_num(np.stack([prior_j.legs[k].com(sv.data.phi[:, i]) for i, k in enumerate(legs)], axis=1)))
-        base = AugmentedProblem(model, prior, robot, balance)
-        x0 = base.x0 if x_start is None or len(x_start) != base.n_model else x_start
-        cv0 = base.cross_validate(sv.data, sv.R_WB, fidx, x0)
-        xb, held0, base_dof = cv0.x, cv0.held, cv0.dof
-        # The error model is refit too: an effect the calibration did not know about can make model
-        # selection settle on a smaller model (a drift taken for translations), so the joint fit
-        # also tries the full model and keeps the one with the smaller held-out residual.
-        best = None
-        for m in dict.fromkeys([model, FULL_MODEL]):
-            prob = AugmentedProblem(m, prior_j, robot, balance, effect)
-            _hold_shared(prob, effect, prior_j, robot, hang_values)
-            start = np.concatenate([xb, prob.x0[prob.n_model:]]) if m == model else prob.x0
-            try:
-                cv = prob.cross_validate(data_j, sv.R_WB, fidx, start)
-                x, held1, Phi, r_in = cv.x, cv.held, cv.Phi, cv.r_in
-            except SolverError as exc:
-                notes.append(f"joint standing refit with model {m!r} failed ({exc.status})")
-                continue
-            z = float(((held1 / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum())
-            if best is None or z < best[0]:
-                best = (z, m, prob, x, held1, Phi, r_in)
-        if best is None:
-            notes.append("joint standing refit failed; the standing kind is left out")
-        else:
-            _, m_used, prob, x, held1, Phi, r_in = best
-            if m_used != model:
-                notes.append(f"with {effect.name} the standing error model {m_used!r} predicts held-out poses better than {model!r}")
-            fit = prob.result(x, Phi)
-            # The floor of the joint model: the same noise model refit to the joint fit's own
-            # in-sample residuals (an effect the calibration lacked inflates the calibration's floor)
-            floor = sv.floor
-            if sv.refloor is not None:
-                floor = sv.refloor(r_in, max(fit.rank - base_dof, 0))
-            # the blocks in the calibration's floor (the same for every joint refit, so two of them compare pose by pose)
-            blocks = ((held1 / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum(axis=1)
-            kinds["standing"] = KindRefit("standing", np.sqrt((held0**2).mean(0)), np.sqrt((held1**2).mean(0)), floor, sv.P, blocks)
-            for n, v, s in zip(fit.effect_params.index, fit.effect_params, fit.effect_bse):
-                params[n] = (float(v), float(s))
-            eta = prob.eta(x)
-            eta_cov = np.asarray(fit.cov, float)[prob.n_model :, prob.n_model :]   # held parameters: rows of zeros
-            eta_und = ~np.isfinite(np.asarray(fit.effect_bse, float)) if len(fit.effect_bse) == len(eta) else None
-            if eta_und is not None and eta_und.any():
-                # e.g. a gain matrix per leg (54 entries) on the report's 100 poses (at 300 poses every entry has its se)
-                notes.append(f"{int(eta_und.sum())} of the {len(eta_und)} parameters of {effect.name}'s standing face are not "
-                             f"determined by these {sv.P} poses (no finite se: their values are one of many that fit "
-                             "equally well; what the held-out poses test is the combinations they determine); more standing "
-                             "poses determine them (`plan`)")
-            members = combined_members(effect, prob.actx, params)
-            R_new, p_new, off_new = prob.transforms(x)
-            new_legs = {}
-            for k, leg in enumerate(legs):
-                kw = {"rotation_to_body": R_new[k]}
-                if prob.balance == "exact" and balance == "exact":
-                    kw["position_from_com_m"] = p_new[k]
-                if off_new is not None:
-                    kw["offset"] = off_new[k]
-                new_legs[leg] = replace(cal.legs[leg], **kw)
-            cal = replace(cal, legs=new_legs)
-            if balance != "exact":
-                notes.append("report balance: the joint calibration keeps the calibration's positions (its p' are relative to a moving CoM)")
+        eta_prior = hanging_eta_prior(effect, prior_j, robot, hang_values, h_info, sv)
+        cand_st = []
+        for ep in [None] + ([eta_prior] if eta_prior is not None else []):
+            c = _standing_joint(sv, effect, model, prior, prior_j, cal, robot, balance, hang_values, ep, d_r, folds, seed,
+                                x_start)
+            if c.kind is not None and views.swing is not None:
+                c = replace(c, swing=_swing_joint(views.swing, effect, calibration, c.cal, legs, folds, hang_values, d_r))
+            cand_st.append(c)
+        # With a prior (the hanging fit's estimate of the same matrix) or without, chosen by the held-out residual of
+        # the kinds it did not see fitted to it, standing and swing (floor units): a hanging estimate a few se off
+        # along a direction the hanging nuisance nearly takes pulls the standing poses (the shared sample: standing tx
+        # 1.06 -> 1.3x with it), while without it the poses may not fix the rotations (100 poses: swing ty 1.8x)
+        st = min((c for c in cand_st if c.kind is not None), key=lambda c: c.z, default=cand_st[0])
+        notes += list(st.notes)
+        if len(cand_st) > 1 and st.kind is not None:
+            other = [c for c in cand_st if c is not st and c.kind is not None]
+            zs = ", ".join(f"{'with' if c.prior else 'without'} it {c.z:.1f}" for c in [st, *other])
+            notes.append(f"the joint hanging fit's estimate of {effect.name}'s parameters it fixes "
+                         f"({'taken' if st.prior else 'not taken'} as the standing fit's prior: held-out standing + swing, "
+                         f"sum of squares over the floor, {zs})")
+        if st.kind is not None:
+            kinds["standing"] = st.kind
+            params.update(st.params)
+            cal = st.cal
     if views.swing is not None:
-        kinds["walking swing"] = _swing_joint(views.swing, effect, calibration, cal, legs, folds, hang_values, d_r)
+        kinds["walking swing"] = st.swing if st is not None and st.swing is not None else \
+            _swing_joint(views.swing, effect, calibration, cal, legs, folds, hang_values, d_r)
     worse = [k for k, v in kinds.items() if np.any(v.rms_after > WORSE_RATIO * np.maximum(v.rms_before, v.floor))]
     if worse:
         # the effect's face does not fit these recordings' shape (issue 13, item 4): say so rather
         # than hand `correct` a calibration that is worse there
         notes.append(f"the joint model predicts the {', '.join(worse)} recordings worse than the calibration alone: the "
                      f"effect's face does not follow the data there; correcting with calibration_with_effect.json is not advised")
-    cal = replace(cal, model=m_used if sv is not None and best is not None else cal.model)
-    out = JointRefit(effect.name, kinds, cal, params, eta, float(views.t_ref), tuple(notes), dict(effect.variant), eta_cov,
-                     members, eta_und)
+    cal = replace(cal, model=st.model if st is not None and st.kind is not None else cal.model)
+    out = JointRefit(effect.name, kinds, cal, params, st.eta if st else None, float(views.t_ref), tuple(notes), dict(effect.variant),
+                     st.eta_cov if st else None, st.members if st else (), st.eta_und if st else None)
     meta = dict(cal.meta)
     meta["effect"] = {**out.effect_block(), "R_nominal": np.asarray(robot.nominal_rotations(), float).tolist()}
     return replace(out, calibration=replace(cal, meta=meta))
+
+
+@dataclass(frozen=True)
+class _StandingJoint:
+    """One joint standing fit (``_standing_joint``) and the swing it predicts: the kind (None: the fit failed), the
+    calibration with its rotations, positions, offsets, the effect's standing parameters, and ``z`` the held-out sum of
+    squares over the floor of standing and swing (what chooses between fits)."""
+
+    kind: KindRefit | None
+    cal: Calibration
+    params: dict
+    eta: np.ndarray | None
+    eta_cov: np.ndarray | None
+    eta_und: np.ndarray | None
+    members: tuple
+    model: Any
+    notes: tuple
+    prior: bool
+    swing: KindRefit | None = None
+
+    @property
+    def z(self) -> float:
+        kinds = [k for k in (self.kind, self.swing) if k is not None]
+        return float(sum(np.sum((k.rms_after / np.where(k.floor > 0, k.floor, 1.0)) ** 2) for k in kinds))
+
+
+def _standing_joint(sv, effect: Effect, model: Any, prior: Calibration, prior_j: Calibration, cal: Calibration, robot,
+                    balance: str, hang_values: dict, eta_prior: EtaPrior | None, d_r: np.ndarray | None, folds: int,
+                    seed: int, x_start: np.ndarray | None) -> _StandingJoint:
+    """The standing poses refit with the effect (module docstring), from ``prior_j`` (the joint hanging fit's offsets,
+    weights and CoM curves ``d_r``; None: no joint hanging fit), with ``eta_prior`` or not; ``cal`` is the calibration
+    its rotations, positions and offsets replace values of."""
+    legs = tuple(robot.legs)
+    notes: list[str] = []
+    fidx = fold_indices(sv.P, folds, seed)
+    data_j = sv.data if d_r is None else replace(
+        sv.data, rcom=np.nan_to_num(np.stack([prior_j.legs[k].com(sv.data.phi[:, i]) for i, k in enumerate(legs)], axis=1)))
+    base = AugmentedProblem(model, prior, robot, balance)
+    x0 = base.x0 if x_start is None or len(x_start) != base.n_model else x_start
+    cv0 = base.cross_validate(sv.data, sv.R_WB, fidx, x0)
+    xb, held0, base_dof = cv0.x, cv0.held, cv0.dof
+    # The error model is refit too: an effect the calibration did not know about can make model
+    # selection settle on a smaller model (a drift taken for translations), so the joint fit
+    # also tries the full model and keeps the one with the smaller held-out residual.
+    best = None
+    for m in dict.fromkeys([model, FULL_MODEL]):
+        prob = AugmentedProblem(m, prior_j, robot, balance, effect, eta_prior=eta_prior)
+        _hold_shared(prob, effect, prior_j, robot, hang_values)
+        if d_r is not None and effect.joint_holds_offset_shift:
+            _hold_offset_shift(prob)
+        start = np.concatenate([xb, prob.x0[prob.n_model:]]) if m == model else prob.x0
+        try:
+            cv = prob.cross_validate(data_j, sv.R_WB, fidx, start)
+        except SolverError as exc:
+            notes.append(f"joint standing refit with model {m!r} failed ({exc.status})")
+            continue
+        z = float(((cv.held / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum())
+        if best is None or z < best[0]:
+            best = (z, m, prob, cv.x, cv.held, cv.Phi, cv.r_in)
+    if best is None:
+        notes.append("joint standing refit failed; the standing kind is left out")
+        return _StandingJoint(None, cal, {}, None, None, None, (), model, tuple(notes), eta_prior is not None)
+    _, m_used, prob, x, held1, Phi, r_in = best
+    if m_used != model:
+        notes.append(f"with {effect.name} the standing error model {m_used!r} predicts held-out poses better than {model!r}")
+    fit = prob.result(x, Phi)
+    # The floor of the joint model: the same noise model refit to the joint fit's own
+    # in-sample residuals (an effect the calibration lacked inflates the calibration's floor)
+    floor = sv.floor
+    if sv.refloor is not None:
+        floor = sv.refloor(r_in, max(fit.rank - base_dof, 0))
+    # the blocks in the calibration's floor (the same for every joint refit, so two of them compare pose by pose)
+    blocks = ((held1 / np.where(sv.floor > 0, sv.floor, 1.0)) ** 2).sum(axis=1)
+    kind = KindRefit("standing", np.sqrt((held0**2).mean(0)), np.sqrt((held1**2).mean(0)), floor, sv.P, blocks)
+    params = {n: (float(v), float(s)) for n, v, s in zip(fit.effect_params.index, fit.effect_params, fit.effect_bse)}
+    eta = prob.eta(x)
+    eta_cov = np.asarray(fit.cov, float)[prob.n_model :, prob.n_model :]   # held parameters: rows of zeros
+    eta_und = ~np.isfinite(np.asarray(fit.effect_bse, float)) if len(fit.effect_bse) == len(eta) else None
+    if eta_und is not None and eta_und.any():
+        # e.g. a gain matrix per leg (54 entries) on the report's 100 poses (at 300 poses every entry has its se)
+        notes.append(f"{int(eta_und.sum())} of the {len(eta_und)} parameters of {effect.name}'s standing face are not "
+                     f"determined by these {sv.P} poses{' and the hanging fit' if eta_prior is not None else ''} (no finite "
+                     "se: their values are one of many that fit equally well; what the held-out poses test is the "
+                     "combinations they determine); more standing poses determine them (`plan`)")
+    members = combined_members(effect, prob.actx, params)
+    R_new, p_new, off_new = prob.transforms(x)
+    new_legs = {}
+    for k, leg in enumerate(legs):
+        kw = {"rotation_to_body": R_new[k]}
+        if prob.balance == "exact" and balance == "exact":
+            kw["position_from_com_m"] = p_new[k]
+        if off_new is not None:
+            kw["offset"] = off_new[k]
+        new_legs[leg] = replace(cal.legs[leg], **kw)
+    if balance != "exact":
+        notes.append("report balance: the joint calibration keeps the calibration's positions (its p' are relative to a moving CoM)")
+    return _StandingJoint(kind, replace(cal, legs=new_legs), params, eta, eta_cov, eta_und, members, m_used, tuple(notes),
+                          eta_prior is not None)
 
 
 def _swing_joint(series: LegSeries, effect: Effect, old: Calibration, new: Calibration, legs, folds: int,

@@ -31,6 +31,16 @@ One compiled IPOPT solver (S a parameter, only the features the face uses)
 serves the full fit (omega = 1/P) and every cross-validation fold (omega = 0
 on the held-out poses), so no candidate is scored on poses it was fitted to.
 
+A prior on ``eta`` (``EtaPrior``): parameters the joint hanging fit also estimated (the same sensor matrix read
+on the leg's weight; ``Effect.standing_prior_from_hanging``) enter with that fit's information, so the two kinds
+are one fit of one parameter (Gaussian, linearised at the hanging optimum):
+
+    sum_p omega_p ||r_p||_K^2 + omega~ (eta_J - mu)^T I_K (eta_J - mu),   I_K = sigma_K^2 I_h
+
+``I_h`` the hanging information of ``eta_J`` (its undetermined directions zero), ``sigma_K^2`` the standing noise per
+K-weighted component (``mean_i K_ii s_i^2``) and ``omega~`` the mean weight of the poses fitted: the posterior of
+both kinds scaled as eq. 8. What neither kind determines stays undetermined (se inf).
+
 Effective degrees of freedom: the rank of the residual Jacobian on the tangent
 space of the constraints (columns scaled to unit norm, eigenvalues of the
 information matrix above ``REL_EIG_TOL`` of the largest, as in
@@ -71,11 +81,27 @@ def balance_residual_sx(R, p, w_o, c, z, zmap, rz, leg_weight_N, Mg: float, bala
     return residual(ca.vertcat(*parts), R, p, w_o, leg_weight_N, Mg, balance)
 
 
+@dataclass(frozen=True)
+class EtaPrior:
+    """What another kind's fit says of some of ``eta`` (module docstring): ``index`` (q,) into ``eta``, ``mu`` (q,)
+    its estimate there, ``info`` (q, q) its information scaled to the standing objective (``I_K``)."""
+
+    index: np.ndarray
+    mu: np.ndarray
+    info: np.ndarray
+
+    def root(self) -> np.ndarray:
+        """``U`` (q, r) with ``U U^T = info`` (its positive eigen-directions): the prior's residual rows ``U^T (eta - mu)``."""
+        lam, V = np.linalg.eigh((self.info + self.info.T) / 2)
+        keep = lam > REL_EIG_TOL * max(float(lam.max()), 1e-300)
+        return V[:, keep] * np.sqrt(lam[keep])
+
+
 class AugmentedProblem:
     """The selected error model plus ``effect`` (None: the model alone) on standing features."""
 
     def __init__(self, model, prior: Calibration, robot: Robot, balance: str, effect: Effect | None = None, *,
-                 ridge: float = 1e-10):
+                 ridge: float = 1e-10, eta_prior: EtaPrior | None = None):
         check_balance(balance)
         self.model = resolve(model)
         self.effect = effect
@@ -132,8 +158,14 @@ class AugmentedProblem:
         # Minimal change: along directions the poses do not determine (an offset shift against a
         # common tilt of the frames, a cable's torque against the CoM) stay nearest the reference.
         f = f + ridge * ca.sumsqr(X - x_ref)
+        self.eta_prior = eta_prior
+        w_prior = ca.MX.sym("w_prior")
+        if eta_prior is not None:
+            U = eta_prior.root()
+            d_eta = X[[self.n_model + int(i) for i in eta_prior.index]] - ca.DM(eta_prior.mu)
+            f = f + w_prior * ca.sumsqr(ca.mtimes(ca.DM(U.T), d_eta))
         g = ca.Function("g", [spec.x], [spec.g])(X[: self.n_model])
-        self._nlp = {"x": X, "p": ca.vertcat(ca.reshape(S, -1, 1), x_ref), "f": f, "g": g}
+        self._nlp = {"x": X, "p": ca.vertcat(ca.reshape(S, -1, 1), x_ref, w_prior), "f": f, "g": g}
         self.x0 = np.concatenate([np.asarray(spec.x0, float), block.x0 if block is not None else np.zeros(0)])
         self.lbx = np.concatenate([spec.lbx, block.lb if block is not None else np.zeros(0)])
         self.ubx = np.concatenate([spec.ubx, block.ub if block is not None else np.zeros(0)])
@@ -162,14 +194,15 @@ class AugmentedProblem:
         return self._solver
 
     def fit(self, Phi: np.ndarray, weights: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
-        """Minimise ``sum_p weights_p ||r_p||_K^2 + ridge ||x - x0||^2`` over the design rows ``Phi``
-        (P, n_used) from ``x0`` (the reference of the minimal-change ridge).
+        """Minimise ``sum_p weights_p ||r_p||_K^2 + ridge ||x - x0||^2`` (and the prior's term, module docstring)
+        over the design rows ``Phi`` (P, n_used) from ``x0`` (the reference of the minimal-change ridge).
 
         Raises :class:`~ftcal_nlp.core.solver.SolverError` when IPOPT does not report success.
         """
         x0 = self.x0 if x0 is None else x0
         S = (Phi * weights[:, None]).T @ Phi
-        p = np.concatenate([S.ravel(order="F"), x0])
+        w_prior = float(np.mean(weights[weights > 0])) if np.any(weights > 0) else 0.0   # EtaPrior: omega~
+        p = np.concatenate([S.ravel(order="F"), x0, [w_prior]])
         sol, _ = solve_checked(self.solver, f"the standing problem with {self.name!r} ({self.balance} balance)",
                                x0=x0, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
         return np.asarray(sol["x"]).ravel()
@@ -184,6 +217,11 @@ class AugmentedProblem:
         dM = np.asarray(self.dM_fn(x)).reshape(nu, 6, self.n)  # vec(M) is column-major: index i + 6 j
         J = np.einsum("pj,jin->pin", Phi, dM) * np.sqrt(K_DIAG)[None, :, None]
         J = J.reshape(-1, self.n)
+        if self.eta_prior is not None:   # the prior's rows U^T (eta_J - mu): its information joins the poses'
+            U = self.eta_prior.root()
+            Jp = np.zeros((U.shape[1], self.n))
+            Jp[:, self.n_model + np.asarray(self.eta_prior.index, int)] = U.T
+            J = np.vstack([J, Jp])
         eq = self.lbg == self.ubg
         if self._G is not None and eq.any():
             G = np.asarray(self._G(x[: self.n_model])).reshape(-1, self.n_model)[eq]
@@ -207,7 +245,12 @@ class AugmentedProblem:
         ident = identifiability(Jt.T @ Jt, REL_EIG_TOL)
         r = self.residuals(x, Phi)
         rss = float(((r**2) @ K_DIAG).sum())
-        sigma2 = rss / max(r.size - ident.rank, 1)
+        n_rows = r.size
+        if self.eta_prior is not None:
+            U = self.eta_prior.root()
+            rss += float(np.sum((U.T @ (self.eta(x)[np.asarray(self.eta_prior.index, int)] - self.eta_prior.mu)) ** 2))
+            n_rows += U.shape[1]
+        sigma2 = rss / max(n_rows - ident.rank, 1)
         cov = sigma2 * T @ ident.pinv() @ T.T
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         for v, _ in ident.undetermined_directions():

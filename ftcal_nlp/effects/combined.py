@@ -16,6 +16,7 @@ the next candidate are fitted together with the calibration. :class:`Combined` m
   (``standing_balance`` in turn);
 * hanging, walking swing: the members' linear faces side by side (:func:`~.faces.stack_faces`);
 * ``standing_from_hanging``: each member's, its indices moved to its place in ``eta``;
+  ``standing_prior_from_hanging`` the same, its names prefixed as the stacked hanging face's;
 * the joint refit's variants: the last member's ``joint_variants`` (the members before it come as the chain's
   joint refits chose them);
 * the correction for ``correct`` (:meth:`Combined.correct`, a block with ``members``: ``diagnose/refit.py``,
@@ -74,6 +75,11 @@ class Combined(Effect):
     @property
     def shifts_offsets(self) -> bool:   # type: ignore[override]
         return any(m.shifts_offsets for m in self.members)
+
+    @property
+    def joint_holds_offset_shift(self) -> bool:   # type: ignore[override]
+        # one shift for all: held only when every member that shifts offsets holds it
+        return self.shifts_offsets and all(m.joint_holds_offset_shift for m in self.members if m.shifts_offsets)
 
     @property
     def needs_report_balance(self) -> bool:   # type: ignore[override]
@@ -150,6 +156,13 @@ class Combined(Effect):
             mine = {n[len(m.name) + 1:]: v for n, v in hanging.items() if n.startswith(m.name + SEP)}
             for i, v in m.standing_from_hanging(mine, ctx).items():
                 out[sl.start + i] = v
+        return out
+
+    def standing_prior_from_hanging(self, ctx) -> dict:
+        out = {}
+        for m, sl in zip(self.members, self.split(ctx)):
+            for i, n in m.standing_prior_from_hanging(ctx).items():
+                out[sl.start + i] = f"{m.name}{SEP}{n}"
         return out
 
     # ---- linear faces

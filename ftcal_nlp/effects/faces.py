@@ -36,6 +36,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from scipy.linalg import block_diag
 
 from ..core.errors import DataFormatError
 from ..core.geometry import remove_yaw, rotation_to_rotvec
@@ -193,12 +194,16 @@ class LinearFace:
     """Features of a linear face: ``blocks[i]`` (N_i, 6, q) for ``legs[i]``; ``per_leg``: each
     leg has its own q parameters (m = K q), else the q parameters are shared (m = q). ``cols``: several
     faces stacked (:func:`stack_faces`): per block the indices (q,) of its columns in the parameter vector
-    (``len(names)`` parameters); None: the layout ``per_leg`` says."""
+    (``len(names)`` parameters); None: the layout ``per_leg`` says. ``determined`` (m, r): the combinations of the
+    parameters the kind fixes apart from the nuisance fitted beside it (columns over the face's parameters), what a
+    joint refit may carry to another kind (``refit.hanging_joint``'s information is projected on them); None: every
+    combination it has information on."""
 
     blocks: list
     names: tuple
     per_leg: bool
     cols: tuple | None = None
+    determined: np.ndarray | None = None
 
     def size(self, K: int) -> int:
         """The number of parameters with ``K`` legs."""
@@ -232,7 +237,10 @@ def stack_faces(faces: list[tuple[str, LinearFace]], legs: list[HangingLeg]) -> 
         off += f.size(K)
     for i in range(len(legs)):
         blocks.append(np.concatenate([f.blocks[i] for _, f in faces], axis=2))
-    return LinearFace(blocks, tuple(names), False, tuple(np.concatenate(c) for c in cols))
+    det = None
+    if any(f.determined is not None for _, f in faces):   # block-diagonal: a face without one keeps all of its own
+        det = block_diag(*[f.determined if f.determined is not None else np.eye(f.size(K)) for _, f in faces])
+    return LinearFace(blocks, tuple(names), False, tuple(np.concatenate(c) for c in cols), det)
 
 
 def per_leg_face(legs: list[HangingLeg], make, labels) -> LinearFace:

@@ -62,6 +62,10 @@ class Effect:
     #: the effect acts while hanging, so the hanging offsets absorbed part of it: the standing
     #: face gets a constant wrench in B (6 parameters) for the shifted offsets
     shifts_offsets: ClassVar[bool] = False
+    #: its hanging face moves the offsets in the joint hanging fit (``diagnose/refit.py``) as they are, so the joint
+    #: standing fit holds the forces of that constant wrench at zero (free, they turn with a rotation common to every
+    #: transducer: ``refit._hold_offset_shift``)
+    joint_holds_offset_shift: ClassVar[bool] = False
     #: with free transducer rotations the effect shows as a common tilt of the fitted frames
     #: (``faces.design_check``), which the diagnosis scores as the effect's design face
     design_face: ClassVar[bool] = False
@@ -119,6 +123,14 @@ class Effect:
         (index into ``standing_params`` -> value from ``hanging``, names as the hanging face's
         ``LinearFace.names``). A joint refit holds them at the hanging estimates: the hanging legs
         sweep every shaft angle and load direction, standing poses see only the sum in B."""
+        return {}
+
+    def standing_prior_from_hanging(self, ctx: AugContext) -> dict:
+        """Standing-face parameters the hanging face also estimates, where neither kind alone determines them all
+        (index into ``standing_params`` -> the hanging face's name). A joint refit fits them once on both kinds: the
+        hanging estimate with its information enters the standing fit as a prior (``standing_fit.EtaPrior``), not
+        held (``standing_from_hanging``): a sensor matrix read on the leg's weight in two hanging directions and on the
+        ground's force in the standing poses."""
         return {}
 
     def standing_balance(self, balance: str) -> str:
