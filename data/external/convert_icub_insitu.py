@@ -50,11 +50,25 @@ Frames, signs, units
   authors' 13.07-65.64 s). F/T rows with a stamp not above the previous one are dropped (counted); rows outside a
   joint stream's span are dropped.
 
-Sanity check (``--check``; measured on dumperLeftLegNoIMU, window 13.07-65.64 s, quasi-static rows = joint speed
-< 2 deg/s on every right-leg joint; linear LS ``F = o + m g_ft``, ``T = o_T + c x (m g_ft)``):
+Sanity check (``--check``: linear LS ``F = o + m g g_ft`` of the forces; "still" = every right-leg joint slower
+than 2 deg/s; the 48 signed axis permutations of the URDF's nominal wrench against the still rows; a scan of a lag
+between the F/T and joint streams), measured on dumperLeftLegNoIMU (2026-12-02):
 
-* r_leg (thigh, below it 4.732 kg in the URDF): see ``CHECK_NUMBERS`` below (filled from the run).
-* r_foot (below it 0.382 kg in the URDF).
+| sensor, window | rows / still | mass all / still [kg] (URDF) | force offset, still [N] | force rms still x y z [N] | best convention (force rms; torque rms) | lag scan |
+|---|---|---|---|---|---|---|
+| r_leg, 17-62 s (swing) | 4458 / 890 | 4.614 / 4.792 (4.732) | 3.4 -29.5 -81.1 | 1.80 4.36 0.82 | identity (1.80 4.38 0.74 N; 0.374 0.184 0.054 N*m); next: fy negated, fy 8.06 N | 5.548 N at 0 s, least 5.538 at +0.10 s |
+| r_foot, 17-62 s | 4458 / 885 | 0.309 / 0.307 (0.382) | 291.8 -78.6 38.6 | 0.19 0.28 0.19 | identity (0.58 0.29 0.22 N; 5 6 4 mN*m) | none (0.537 N flat) |
+| r_leg, 13.07-65.64 s (authors') | 5209 / 979 | 4.471 / 4.514 | 4.8 -31.4 -82.0 | 5.89 4.83 3.95 | identity (5.82 4.57 4.44 N) | 7.639 N at 0, least 7.631 at +0.10 s |
+| r_foot, 13.07-65.64 s | 5208 / 970 | 0.226 / 0.248 | 291.6 -78.6 38.2 | 0.64 0.94 3.27 | not identity (contact corrupts it) | none |
+
+So frames and signs are as the URDF says (identity best; the weight along gravity: positive mass within 1-5 % of the
+URDF's 4.73 kg for the thigh), no lag between the streams worth a sample (<= 0.1 s, 0.2 % of the rms), but: (1) the
+authors' window includes the right foot on the ground at both ends (foot sensor fz deviates by up to 40 N, sd 20-50 N,
+before ~16.5 s and after ~62.2 s): use ``--window 17,62`` for a free leg; (2) the thigh sensor's force error is large
+(fx, fy rms 1.8-4.4 N on still rows against a noise of ~0.7-1.3 N), pose-dependent (fx residual +15 N at 17-21 s,
+-6 N at 25-57 s: REAL_DATA.md); (3) the foot sensor reads 17-20 % less mass than the URDF's foot (0.31 vs 0.38 kg),
+with a 292 N fx offset. Timestamps: F/T 100 Hz (dt 10.0-10.8 ms, none out of order), joints 100 Hz (dt 7-15 ms),
+30 % of the joint rows repeat the previous positions.
 
 Usage::
 
@@ -239,6 +253,40 @@ def gravity_in_ft(tree, link: str, q: dict, g_B: np.ndarray) -> np.ndarray:
     return np.einsum("nji,nj->ni", R, g_B)
 
 
+def urdf_wrench(tree, link: str, q: dict, g_B: np.ndarray, G: float = 9.81) -> np.ndarray:
+    """(N, 6) the URDF's nominal gravity wrench of every link below ``link``, in ``link``'s frame about its origin
+    (section 1's sign: the weight points along gravity)."""
+    n = len(g_B)
+    Rs, ps = tree.pose(tree.root, link, q, n)
+    W = np.zeros((n, 6))
+    for lk in tree.below(link):
+        b = tree.bodies.get(lk)
+        if b is None:
+            continue
+        Rl, pl = tree.pose(tree.root, lk, q, n)
+        c = pl + Rl @ b.com_m - ps                       # CoM relative to the sensor origin, in B
+        f = b.mass_kg * G * g_B
+        W[:, :3] += np.einsum("nji,nj->ni", Rs, f)
+        W[:, 3:] += np.einsum("nji,nj->ni", Rs, np.cross(c, f))
+    return W
+
+
+def conventions(W: np.ndarray, P: np.ndarray) -> list:
+    """The 48 signed permutations ``M`` of the axes, each applied to the URDF's wrench ``P`` (forces and torques
+    alike), scored by the per-axis RMS of ``W - mean - (M P - mean)``: best first."""
+    import itertools
+
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for sg in itertools.product((1, -1), repeat=3):
+            M = np.zeros((3, 3))
+            M[range(3), perm] = sg
+            e = [(W[:, k] - W[:, k].mean(0)) - (P[:, k] @ M.T - (P[:, k] @ M.T).mean(0)) for k in (slice(0, 3), slice(3, 6))]
+            rf, rt = (np.sqrt((x**2).mean(0)) for x in e)
+            out.append((rf.sum() + 10 * rt.sum(), perm, sg, rf, rt))
+    return sorted(out, key=lambda r: r[0])
+
+
 def static_fit(W: np.ndarray, gft: np.ndarray, G: float = 9.81) -> dict:
     """LS ``F = o + m G g_ft``, ``T = o_T + c x (m G g_ft)`` (c the CoM in ft): mass, offsets, CoM, rms per axis."""
     n = len(W)
@@ -296,6 +344,10 @@ def check(rows: dict, urdf_out: Path, still_deg_s: float = 2.0) -> None:
         best.append((np.sqrt((f["rms_f"] ** 2).mean()), d))
     r0 = next(r for r, d in best if abs(d) < 1e-9)
     rb, db = min(best)
+    conv = conventions(W[still], urdf_wrench(tree, rows["link"], {k: v[still] for k, v in q.items()}, g[still]))
+    for k, (_, perm, sg, rf, rt) in enumerate(conv[:3]):
+        print(f"convention #{k + 1} (axes {perm}, signs {sg}; still rows, URDF load): force rms "
+              f"{np.array2string(rf, precision=2)} N, torque rms {np.array2string(rt, precision=3)} N*m")
     print(f"lag scan (joints evaluated at t - d, all rows): force rms {r0:.3f} N at d = 0, least {rb:.3f} N at "
           f"d = {db:+.2f} s")
 
@@ -366,17 +418,7 @@ def selftest(workdir: Path | None = None) -> dict:
     q = {f"{s}_{n}": np.interp(tf, tj, np.deg2rad(qdeg[s][:, k])) for s in PARTS for k, n in enumerate(LEG_JOINTS)}
     Rl, _ = tree.pose(tree.root, "l_sole", q, len(tf))
     gB = Rl @ np.array([0.0, 0.0, -1.0])
-    Rs, ps = tree.pose(tree.root, "r_hip_3", q, len(tf))
-    W = np.zeros((len(tf), 6))
-    for link in tree.below("r_hip_3"):
-        b = tree.bodies.get(link)
-        if b is None:
-            continue
-        Rl_, pl = tree.pose(tree.root, link, q, len(tf))
-        c = pl + Rl_ @ b.com_m - ps                       # CoM relative to the sensor origin, in B
-        f = b.mass_kg * 9.81 * gB
-        W[:, :3] += np.einsum("nji,nj->ni", Rs, f)
-        W[:, 3:] += np.einsum("nji,nj->ni", Rs, np.cross(c, f))
+    W = urdf_wrench(tree, "r_hip_3", q, gB)
     off = np.array([5.0, -30.0, -80.0, 1.0, -0.5, 0.2])
     W += off + 1e-3 * rng.standard_normal(W.shape)
     p = src / "right_leg" / "analog:o"

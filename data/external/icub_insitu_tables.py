@@ -15,7 +15,10 @@ first part, its second part). Prints, with the package's defaults (nothing tuned
    held-out RMS before / after against the noise floor;
 3. their Table III (Andrade Chavez et al. 2016) both ways: calibrated on A, per-axis RMS error on B's quasi-static
    samples (``sensor_matrix.validate_across_sessions``: B's own offset, A's load, tilt and mount), the matrix's in %
-   of the factory matrix's (factory = 100 %).
+   of the factory matrix's (factory = 100 %);
+4. with ``--write-calibration DIR``: A's and B's ``"none"`` fits as ``DIR/{A,B}/calibration.json`` (+ covariance), as
+   ``run`` would write them, so that the tool's own command for a later session runs on them:
+   ``python -m ftcal_nlp holdout DIR/A/calibration.json B/<leg>.csv -o OUT``.
 """
 from __future__ import annotations
 
@@ -108,6 +111,25 @@ def diagnosis(ds, res) -> dict:
     return out
 
 
+def write_calibration(ds, res, out: Path) -> None:
+    """``calibration.json`` and its covariance file of a free-load fit, as ``python -m ftcal_nlp run`` writes them (the
+    run itself stops at its plausibility check on these data)."""
+    import dataclasses
+
+    from ftcal_nlp.estimate.freeload import free_load_calibration
+    from ftcal_nlp.run import COVARIANCE_FILE, free_load_covariance
+
+    out.mkdir(parents=True, exist_ok=True)
+    cal = free_load_calibration(res, ds.robot, ds.hanging)
+    cov = free_load_covariance(res)
+    meta = {**cal.meta, "config": "data/external/icub_insitu_tables.py (API; run stops at the plausibility check)"}
+    if cov is not None:
+        meta["covariance_file"] = COVARIANCE_FILE
+        cov.save(out / COVARIANCE_FILE)
+    dataclasses.replace(cal, meta=meta).save(out / "calibration.json")
+    print(f"wrote {out / 'calibration.json'}")
+
+
 def table3(fa: dict, dsB, s, label: str) -> dict:
     out = {}
     print(f"\n## Table III, {label} (per-axis RMS on the other part's quasi-static samples; factory = 100 %)\n")
@@ -130,6 +152,7 @@ def main(argv=None) -> int:
     ap.add_argument("B", type=Path)
     ap.add_argument("--json", type=Path)
     ap.add_argument("--no-diagnosis", action="store_true")
+    ap.add_argument("--write-calibration", type=Path, help="write A's and B's calibration.json here (for holdout)")
     a = ap.parse_args(argv)
     ds = {k: read_dataset(p / "dataset.toml") for k, p in (("full", a.full), ("A", a.A), ("B", a.B))}
     out: dict = {}
@@ -146,6 +169,9 @@ def main(argv=None) -> int:
     out["fits_B"] = {m: describe(m, fb[m]) for m in MODES}
     out["table3_A_to_B"] = table3(fa, ds["B"], s, "calibrated on A, evaluated on B")
     out["table3_B_to_A"] = table3(fb, ds["A"], s, "calibrated on B, evaluated on A")
+    if a.write_calibration:
+        write_calibration(ds["A"], fa["none"], a.write_calibration / "A")
+        write_calibration(ds["B"], fb["none"], a.write_calibration / "B")
     if a.json:
         a.json.write_text(json.dumps(out, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
     return 0
