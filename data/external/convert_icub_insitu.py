@@ -32,7 +32,10 @@ What is written (OUT/)
 ``robot.toml`` (``legs = [<leg>]``, ``[transducers.<leg>] link``; no ``load_mass_kg``: the URDF's 4.73 kg is a
 model value, not a weighing), ``dataset.toml`` (one ``hanging`` recording, ``free = [<leg>]``), ``<leg>.csv`` with
 ``t``, ``<leg>_fx..tz`` (the readings as logged: no taring, no sign change), ``q_<joint>`` for the 12 leg joints
-(rad; linearly interpolated from each joint stream's own stamps to the F/T stamps), ``gx, gy, gz``.
+(rad; linearly interpolated from each joint stream's own stamps to the F/T stamps), ``gx, gy, gz`` (or, with
+``--orientation quat``, ``qw..qz``: B's orientation in the level sole frame, the same gravity; the tool may then fit a
+world tilt). The other URDF joints (torso, arms, head) get no column: the tool holds them at 0 with a warning; none
+moves the sensor or its load.
 
 Frames, signs, units
 --------------------
@@ -73,7 +76,7 @@ with a 292 N fx offset. Timestamps: F/T 100 Hz (dt 10.0-10.8 ms, none out of ord
 Usage::
 
     python data/external/convert_icub_insitu.py SRC_FOLDER URDF OUT [--sensor r_leg_ft_sensor|r_foot_ft_sensor]
-        [--window 13.07,65.64] [--check]
+        [--window 13.07,65.64] [--contact l_sole] [--orientation gravity|quat] [--check]
     python data/external/convert_icub_insitu.py --selftest     # synthetic dumper logs, < 2 s
 
 SRC_FOLDER is the dump folder (the one holding ``icub/`` and ``params.m``) or its ``icub/`` subfolder.
@@ -183,12 +186,12 @@ def assemble(streams, tree, contact: str, window) -> dict:
     for side, (tj, qr, _) in streams["joints"].items():
         for k, n in enumerate(LEG_JOINTS):
             q[f"{side}_{n}"] = np.interp(t, tj, qr[:, k])
-    R, _ = tree.pose(tree.root, contact, q, len(t))
+    R, _ = tree.pose(tree.root, contact, q, len(t))   # R_B^{sole}: sole vectors -> B vectors
     g = R @ np.array([0.0, 0.0, -1.0])   # gravity (down) in B: the contact sole level, its z up
-    return {"t": t, "W": W, "q": q, "g": g}
+    return {"t": t, "W": W, "q": q, "g": g, "R_WB": np.swapaxes(R, 1, 2)}   # W = the level sole frame
 
 
-def write_dataset(out: Path, rows: dict, urdf: Path, sensor: str, leg: str, meta: str) -> float:
+def write_dataset(out: Path, rows: dict, urdf: Path, sensor: str, leg: str, meta: str, orientation: str = "gravity") -> float:
     """The section-5 dataset in ``out``; returns the URDF mass below the sensor link (kg)."""
     erg = _ergocub()
     out.mkdir(parents=True, exist_ok=True)
@@ -199,8 +202,15 @@ def write_dataset(out: Path, rows: dict, urdf: Path, sensor: str, leg: str, meta
         cols[f"{leg}_{c}"] = rows["W"][:, k]
     for n, v in rows["q"].items():
         cols[f"q_{n}"] = v
-    for k, c in enumerate("gxyz"[1:]):
-        cols[f"g{c}"] = rows["g"][:, k]
+    if orientation == "quat":   # B's orientation in the level sole frame: the tool may then fit a world tilt
+        from ftcal_nlp.core.geometry import rotation_to_quat
+
+        Q = rotation_to_quat(rows["R_WB"])
+        for k, c in enumerate(("qw", "qx", "qy", "qz")):
+            cols[c] = Q[:, k]
+    else:
+        for k, c in enumerate("xyz"):
+            cols[f"g{c}"] = rows["g"][:, k]
     hdr = list(cols)
     np.savetxt(out / f"{leg}.csv", np.column_stack([cols[h] for h in hdr]), delimiter=",", header=",".join(hdr),
                comments="", fmt=["%.6f"] + ["%.9g"] * (len(hdr) - 1))
@@ -224,7 +234,7 @@ def _load_tree(path):
 
 
 def convert(src: Path, urdf: Path, out: Path, sensor: str = "r_leg_ft_sensor", window=DEFAULT_WINDOW,
-            contact: str = "l_sole") -> dict:
+            contact: str = "l_sole", orientation: str = "gravity") -> dict:
     if sensor not in SENSOR_PORT:
         raise KeyError(f"sensor {sensor!r}: one of {sorted(SENSOR_PORT)}")
     part, leg = SENSOR_PORT[sensor]
@@ -240,7 +250,7 @@ def convert(src: Path, urdf: Path, out: Path, sensor: str = "r_leg_ft_sensor", w
             f"t = YARP stamp - t0, t0 = {st['t0']:.6f} (earliest first stamp of any stream)\n"
             f"window: {window[0]:g}..{window[1]:g} s; rows {len(rows['t'])}; F/T rows dropped for non-increasing "
             f"stamps {st['dropped_ft']}; joint rows dropped {', '.join(f'{k}: {v[2]}' for k, v in st['joints'].items())}\n")
-    m = write_dataset(out, rows, urdf, sensor, leg, meta)
+    m = write_dataset(out, rows, urdf, sensor, leg, meta, orientation)
     print(f"wrote {out}: {len(rows['t'])} rows ({rows['t'][0]:.3f}..{rows['t'][-1]:.3f} s), load mass in URDF {m:.3f} kg; "
           f"t0 {st['t0']:.6f}; dropped F/T {st['dropped_ft']}")
     rows.update(leg=leg, link=f"{leg}_ft_frame", urdf_mass=m, t0=st["t0"], streams=st, contact=contact)
@@ -450,6 +460,12 @@ def selftest(workdir: Path | None = None) -> dict:
 
     ds = read_dataset(out / "dataset.toml")
     assert ds.robot.legs == ("r_leg",) or list(ds.robot.legs) == ["r_leg"]
+    convert(src.parent, urdf, tmp / "out_quat", "r_leg_ft_sensor", window=(2.0, 18.0), orientation="quat")
+    from ftcal_nlp.core.geometry import quat_to_rotation
+
+    dq = pd.read_csv(tmp / "out_quat" / "r_leg.csv")
+    R_WB = quat_to_rotation(dq[["qw", "qx", "qy", "qz"]].to_numpy())
+    assert np.allclose(np.einsum("nji,j->ni", R_WB, [0.0, 0.0, -1.0]), g, atol=1e-7), "quat and gravity columns agree"
     print(f"selftest ok: {len(df)} rows, mass {fit['mass']:.4f} kg, offsets {np.array2string(fit['offset_f'], precision=3)}")
     return {"rows": len(df), "fit": fit}
 
@@ -460,6 +476,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sensor", default="r_leg_ft_sensor", choices=sorted(SENSOR_PORT))
     ap.add_argument("--window", default=",".join(f"{v:g}" for v in DEFAULT_WINDOW), help="t0,t1 in s (the t column)")
     ap.add_argument("--contact", default="l_sole", help="the stance foot's sole frame, taken as level")
+    ap.add_argument("--orientation", choices=("gravity", "quat"), default="gravity",
+                    help="gx,gy,gz (default) or qw..qz: B's orientation in the level sole frame (lets the tool fit a tilt)")
     ap.add_argument("--check", action="store_true", help="static LS fit, still rows and a lag scan")
     ap.add_argument("--selftest", action="store_true")
     a = ap.parse_args(argv)
@@ -470,7 +488,7 @@ def main(argv=None) -> int:
         ap.error("SRC_FOLDER URDF OUT expected")
     src, urdf, out = (Path(v) for v in a.args)
     w = tuple(float(v) for v in a.window.split(","))
-    rows = convert(src, urdf, out, a.sensor, w, a.contact)
+    rows = convert(src, urdf, out, a.sensor, w, a.contact, a.orientation)
     if a.check:
         check(rows, out / "robot.urdf")
     return 0
