@@ -68,8 +68,8 @@ So frames and signs are as the URDF says (identity best; the weight along gravit
 URDF's 4.73 kg for the thigh), no lag between the streams worth a sample (<= 0.1 s, 0.2 % of the rms), but: (1) the
 authors' window includes the right foot on the ground at both ends (foot sensor fz deviates by up to 40 N, sd 20-50 N,
 before ~16.5 s and after ~62.2 s): use ``--window 17,62`` for a free leg; (2) the thigh sensor's force error is large
-(fx, fy rms 1.8-4.4 N on still rows against a noise of ~0.7-1.3 N), pose-dependent (fx residual +15 N at 17-21 s,
--6 N at 25-57 s: REAL_DATA.md); (3) the foot sensor reads 17-20 % less mass than the URDF's foot (0.31 vs 0.38 kg),
+(fx, fy rms 1.8-4.4 N on still rows against a noise of ~0.7-1.3 N), pose-dependent (swing window: fx residual +17 N at 17-22 s and 59-62 s,
+-3.7 N at 25-58 s with two joints at their limits: REAL_DATA.md); (3) the foot sensor reads 17-20 % less mass than the URDF's foot (0.31 vs 0.38 kg),
 with a 292 N fx offset. Timestamps: F/T 100 Hz (dt 10.0-10.8 ms, none out of order), joints 100 Hz (dt 7-15 ms),
 30 % of the joint rows repeat the previous positions.
 
