@@ -20,7 +20,7 @@ Input layout (yarpdatadumper, one folder per port, ``data.log`` one line per sam
   ``r_foot_ft_sensor`` (``left_*`` likewise).
 * ``icub/<part>/stateExt:o/data.log``: ``counter stamp (q) [ok] (dq) [ok] ...``: the first parenthesised group is
   the joint positions in DEGREES; legs in the order hip_pitch, hip_roll, hip_yaw, knee, ankle_pitch, ankle_roll.
-  The torso (yaw, roll, pitch on the robot's port) is not read: it is not between the root and a foot.
+  The torso is not read (its port's joint order not checked here): it is not between the root and a foot.
 * ``params.m`` of the folder: ``contactFrameName='l_sole'``, ``rData=[13.07,65.64]`` (the authors' interval in s
   from the start of the logs); the robot stands on its LEFT foot, the right leg swings in the air.
 
@@ -48,7 +48,7 @@ Frames, signs, units
   convention, so no sign change. Checked: the force fitted along ``g_ft`` has a POSITIVE mass (below).
 * SI units: degrees -> rad; forces N, torques N*m as logged.
 * Time: ``t`` = YARP stamp - t0, t0 = the earliest first stamp of any stream of the folder (for this folder the
-  head's stateExt, 1457614036.667532; written in OUT/README.md). One clock for every stream and sensor, no shift
+  head's stateExt, 1457614036.659765; written in OUT/README.md). One clock for every stream and sensor, no shift
   between streams: a lag stays in the data for the tool to find. ``--window`` is in this ``t`` (default the
   authors' 13.07-65.64 s). F/T rows with a stamp not above the previous one are dropped (counted); rows outside a
   joint stream's span are dropped.
@@ -66,8 +66,9 @@ between the F/T and joint streams), measured on dumperLeftLegNoIMU (2026-12-02):
 
 So frames and signs are as the URDF says (identity best; the weight along gravity: positive mass within 1-5 % of the
 URDF's 4.73 kg for the thigh), no lag between the streams worth a sample (<= 0.1 s, 0.2 % of the rms), but: (1) the
-authors' window includes the right foot on the ground at both ends (foot sensor fz deviates by up to 40 N, sd 20-50 N,
-before ~16.5 s and after ~62.2 s): use ``--window 17,62`` for a free leg; (2) the thigh sensor's force error is large
+authors' window includes the right foot on or near the ground at both ends (foot sensor fz 41 N, sd 0.1-0.2 N, while
+the foot hangs; 3-37 N with sd up to 51 N before ~14.5 s, unsettled until ~16.8 s, 21-36 N after ~62.2 s): use
+``--window 17,62`` for a free leg; (2) the thigh sensor's force error is large
 (fx, fy rms 1.8-4.4 N on still rows against a noise of ~0.7-1.3 N), pose-dependent (swing window: fx residual +17 N at 17-22 s and 59-62 s,
 -3.7 N at 25-58 s with two joints at their limits: REAL_DATA.md); (3) the foot sensor reads 17-20 % less mass than the URDF's foot (0.31 vs 0.38 kg),
 with a 292 N fx offset. Timestamps: F/T 100 Hz (dt 10.0-10.8 ms, none out of order), joints 100 Hz (dt 7-15 ms),
