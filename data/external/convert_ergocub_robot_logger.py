@@ -209,7 +209,7 @@ def as_time_major(a: np.ndarray, n_t: int) -> np.ndarray:
 def convert(log: dict, urdf_in: str, out: str, ft_key: str, sensor: str, leg: str, grav) -> None:
     os.makedirs(out, exist_ok=True)
     new_link = f"{leg}_ft_frame"
-    info = insert_sensor_link(urdf_in, os.path.join(out, "robot.urdf"), sensor, new_link)
+    insert_sensor_link(urdf_in, os.path.join(out, "robot.urdf"), sensor, new_link)
     fts = log["FTs"]
     if ft_key not in fts:
         alt = [k for k in fts if k.startswith(ft_key) or ft_key.startswith(k)]
