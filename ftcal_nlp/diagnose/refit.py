@@ -174,26 +174,36 @@ def com_harmonics(phi: np.ndarray, harmonics: int = COM_HARMONICS) -> np.ndarray
 
 
 def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS) -> tuple[np.ndarray, list[str]]:
-    """``J_i`` (N, 6, q) of the module docstring for one leg, with labels."""
+    """``J_i`` (N, 6, q) of the module docstring for one leg, with labels (a view of :func:`_nuisance_t`)."""
+    names = [f"{l.leg}.w_o.{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")] + [f"{l.leg}.mg"]
+    names += [f"{l.leg}.tilt[{j}].{a}" for j in range(n_rec) for a in "xyz"]
+    names += [f"{l.leg}.r[{j}].{a}" for j in range(1 + 2 * harmonics) for a in "xyz"]
+    return _nuisance_t(l, n_rec, harmonics).transpose(2, 0, 1), names
+
+
+def _nuisance_t(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS, extra: np.ndarray | None = None) -> np.ndarray:
+    """``J_i`` channels first, (6, q, N) with the samples contiguous (then ``extra`` (N, 6, m), a face's columns):
+    filled in place, since the joint refit forms it for every leg at every Gauss-Newton step and its per-fold
+    products are then batched BLAS on views (no copy of the (N, 6, q) array per fold)."""
     N = len(l.t)
-    Fx = skew(l.f)                                       # (N, 3, 3) [f]x
-    cols, names = [], []
-    I = np.zeros((N, 6, 6))
-    I[:, np.arange(6), np.arange(6)] = 1.0
-    cols.append(I)
-    names += [f"{l.leg}.w_o.{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")]
-    cols.append((-l.applied / l.mg)[:, :, None])
-    names.append(f"{l.leg}.mg")
-    T = np.concatenate([Fx, np.einsum("nij,njk->nik", skew(l.r), Fx)], axis=1)   # (N, 6, 3)
+    Ft = skew(l.f).transpose(1, 2, 0)                                   # (3, 3, N) [f]x
+    rFt = np.einsum("nij,njk->ikn", skew(l.r), skew(l.f))               # (3, 3, N) [r]x [f]x
+    H = com_harmonics(l.phi, harmonics).T
+    qn = 7 + 3 * n_rec + 3 * len(H)
+    J = np.zeros((6, qn + (0 if extra is None else extra.shape[2]), N))
+    J[np.arange(6), np.arange(6), :] = 1.0
+    J[:, 6, :] = (-l.applied / l.mg).T
     for j in range(n_rec):
-        cols.append(T * (l.rec == j)[:, None, None])
-        names += [f"{l.leg}.tilt[{j}].{a}" for a in "xyz"]
-    for j, hj in enumerate(com_harmonics(l.phi, harmonics).T):
-        C = np.zeros((N, 6, 3))
-        C[:, 3:, :] = Fx * hj[:, None, None]
-        cols.append(C)
-        names += [f"{l.leg}.r[{j}].{a}" for a in "xyz"]
-    return np.concatenate(cols, axis=2), names
+        m = l.rec == j
+        c = 7 + 3 * j
+        J[:3, c : c + 3, :] = Ft * m
+        J[3:, c : c + 3, :] = rFt * m
+    c0 = 7 + 3 * n_rec
+    for j, hj in enumerate(H):
+        J[3:, c0 + 3 * j : c0 + 3 * j + 3, :] = Ft * hj
+    if extra is not None:
+        J[:, qn:, :] = extra.transpose(1, 2, 0)
+    return J
 
 
 def _nuisance_update(l: HangingLeg, b: np.ndarray, n_rec: int, harmonics: int = COM_HARMONICS) -> HangingLeg:
@@ -277,8 +287,7 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     held-out sums need, ``qn`` nuisance columns per leg and ``n`` in all."""
     K = max(l.k for l in legs) + 1
     n_rec = int(max(l.rec.max() for l in legs)) + 1
-    J = [hanging_nuisance(l, n_rec) for l in legs]
-    qn = J[0][0].shape[2]
+    qn = 7 + 3 * n_rec + 3 * (1 + 2 * COM_HARMONICS)
     q = face.blocks[0].shape[2] if face is not None else 0
     m_eff = face.size(K) if face is not None else 0
     n_tot = K * qn + m_eff
@@ -286,10 +295,10 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     b = np.zeros((folds, n_tot))
     parts = []
     for i, l in enumerate(legs):
-        X = J[i][0]
+        use_face = with_effect and face is not None
+        Xt = _nuisance_t(l, n_rec, extra=face.blocks[i] if use_face else None)     # (6, q, N)
         cols = list(range(l.k * qn, (l.k + 1) * qn))
-        if with_effect and face is not None:
-            X = np.concatenate([X, face.blocks[i]], axis=2)
+        if use_face:
             if face.cols is not None:   # stacked faces (``LinearFace.cols``)
                 cols += list(K * qn + face.index(i, l.k))
             else:
@@ -297,17 +306,22 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
                 cols += list(range(off, off + q))
         idx = np.asarray(cols)
         s = fl[l.k]
-        Xs, ys = X / s[None, :, None], l.e / s[None, :]
+        yt = np.ascontiguousarray(l.e.T)                                            # (6, N)
         Af = np.zeros((folds, 6, len(idx), len(idx)))
         bf = np.zeros((folds, 6, len(idx)))
         yy = np.zeros((folds, 6))
-        for f in range(folds):
-            sel = fidx[i] == f
-            if sel.any():
-                Xt = np.ascontiguousarray(Xs[sel].transpose(1, 2, 0))          # (6, q, n): batched BLAS products
-                Af[f] = Xt @ Xt.transpose(0, 2, 1)
-                bf[f] = (Xt @ ys[sel].T[:, :, None])[..., 0]
-                yy[f] = (ys[sel] ** 2).sum(axis=0)
+        # each run of samples of one fold (a fold is a time block of every recording) is a view
+        fi = np.asarray(fidx[i])
+        cut = np.r_[0, np.flatnonzero(np.diff(fi) != 0) + 1, len(fi)]
+        for lo, hi in zip(cut[:-1], cut[1:]):
+            f, Xf = fi[lo], Xt[:, :, lo:hi]
+            Af[f] += Xf @ Xf.transpose(0, 2, 1)
+            bf[f] += (Xf @ yt[:, lo:hi, None])[..., 0]
+            yy[f] += (yt[:, lo:hi] ** 2).sum(axis=1)
+        # floor-standardised per channel afterwards (the products are linear in each channel's scale)
+        Af /= (s**2)[None, :, None, None]
+        bf /= (s**2)[None, :, None]
+        yy /= (s**2)[None, :]
         A[:, idx[:, None], idx[None, :]] += Af.sum(axis=1)
         b[:, idx] += bf.sum(axis=1)
         parts.append((idx, Af, bf, yy, s))
