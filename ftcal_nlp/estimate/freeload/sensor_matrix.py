@@ -74,6 +74,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -462,6 +463,11 @@ def _generators(mode: str) -> list[tuple[str, np.ndarray]]:
     return out
 
 
+def _r_factor(M: np.ndarray) -> np.ndarray:
+    """The triangular factor ``R`` of ``M = Q R`` (``min(rows, cols)`` rows)."""
+    return cast(np.ndarray, np.linalg.qr(M, mode="r"))
+
+
 def gauge(pr: Problem, st: State, W: np.ndarray) -> tuple[np.ndarray | None, tuple[str, ...]]:
     """The exact symmetries of the model at ``st`` and the ``D`` steps that keep them at the factory value: ``(B,
     held)``, ``B`` (n_D, n_D - k) an orthonormal basis of the steps orthogonal to the held symmetries' directions
@@ -500,11 +506,11 @@ def gauge(pr: Problem, st: State, W: np.ndarray) -> tuple[np.ndarray | None, tup
         _e, J = _jacobian(pr, st, slice(a, a + _CHUNK))
         Jw = J * sw[None, :, None]
         block = np.concatenate([Jw[:, :, :at].reshape(-1, at), (Jw[:, :, at:] @ U.T).reshape(-1, m)], axis=1)
-        Rf = np.linalg.qr(np.concatenate([Rf, block]), mode="r")
+        Rf = _r_factor(np.concatenate([Rf, block]))
     mrow = _mass_row(pr)
     if mrow is not None:   # the weighed mass: one more observation of the load's parameters
         extra = np.concatenate([mrow[0][:at] / mrow[1], np.zeros(m)])[None, :]
-        Rf = np.linalg.qr(np.concatenate([Rf, extra]), mode="r")
+        Rf = _r_factor(np.concatenate([Rf, extra]))
     Ro, Ry = Rf[:, :at], Rf[:, at:]
     cs = np.linalg.norm(Ro, axis=0)
     cs = np.where(cs > 0, cs, 1.0)
@@ -732,7 +738,12 @@ def fit_sensor_matrix(ds, res, s):
     e = residual(pr, first)
     W = 1.0 / np.maximum(np.minimum((e**2).sum(axis=0) / max(n - P / 6.0, 1.0), 1.0 / W), 1e-300)
     choice = choose_ridge(pr, first, W, opt.ridge, opt.folds, opt.prior_weight, start)
-    st = solve(pr, first, W, choice.chosen, opt.prior_weight, start)
+    # the weight's fit from the fit without ridge and from the factory fit, the lower objective (one ridge): where the
+    # load has undetermined directions only the tiny ridge moves, the factory fit's start keeps them at its values
+    A0, _g0 = _system(pr, start, W)
+    ridge = _ridge(pr, A0, choice.chosen, opt.prior_weight)
+    ends = [solve(pr, p0, W, choice.chosen, opt.prior_weight, start, ridge) for p0 in (first, start)]
+    st = min(ends, key=lambda q: _objective(pr, q, W, ridge, start, choice.chosen))
     e = residual(pr, st)
     rms = np.sqrt((e**2).mean(axis=0))
     rms_factory = np.sqrt((residual(pr, start) ** 2).mean(axis=0))
