@@ -569,7 +569,8 @@ def choose_ridge(pr: Problem, start: State, W: np.ndarray, grid: tuple[float, ..
     ridge (the tiny ridge's information at ``centre``). One Gauss-Newton step from ``start`` (the fit on every sample
     without ridge) was not enough: ``start`` has seen the held-out block, and where a model error pulls ``C`` far
     from the factory matrix one step barely leaves it, so the held-out score rewarded the collapse (the iCub thigh,
-    part A: 178 against 784 for the factory matrix, C's force gains 0.04 0.61 0.80; converged 113 against 85).
+    part A: 178 against 784 for the factory matrix, C's force gains 0.04 0.61 0.80; converged: ridge 0 106, 10 75,
+    the factory matrix 84).
     ``start`` is kept for the signature (the grid's path starts at the factory matrix: a weight whose minimum only
     ``start`` reaches is scored at the path's, the higher, training objective: a bias to the factory matrix)."""
     folds = folds_of(len(pr.y), k)
