@@ -15,49 +15,25 @@ mass holds nothing (the scale is then fitted: ``test_sensor_matrix.py::test_weig
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 
 import numpy as np
 import pytest
 
-from ftcal_nlp.core.data import read_dataset
 from ftcal_nlp.core.settings import FreeLoadSettings
 from ftcal_nlp.estimate.freeload import fit_free_loads
 from ftcal_nlp.estimate.freeload import sensor_matrix as smx
 from ftcal_nlp.estimate.freeload.estimate import free_load_data
-from ftcal_nlp.sim.free import PayloadConfig, simulate_free, write_free_load
 
-WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+from test_sensor_matrix import dataset as _dataset, gain
+
 Z = 4.0          # tolerance in sd of the noise-limited mass
 EXACT = 1e-12    # "exactly": rounding
-_cache: dict = {}
-
-
-def gain(seed: int, scale: float = 0.02, full: bool = False) -> np.ndarray:
-    rng = np.random.default_rng(seed + 100)
-    A = np.eye(6)
-    A[:3, :3] += scale * rng.normal(size=(3, 3))
-    if full:
-        A[3:, 3:] += scale * rng.normal(size=(3, 3))
-    return A
 
 
 def dataset(tmp_path_factory, seed: int, A: np.ndarray, weigh: bool = False):
-    key = (seed, A.tobytes(), weigh)
-    if key not in _cache:
-        cfg = PayloadConfig(seed=seed, n_orientations=10, hold_s=4.0)
-        sim = simulate_free(cfg)
-        leg = cfg.transducer
-        cols = [f"{leg}_{c}" for c in WRENCH]
-        frame = sim.frame.copy()
-        frame[cols] = frame[cols].to_numpy() @ A.T
-        robot = json.loads(json.dumps(sim.robot))
-        if weigh:
-            robot["transducers"][leg]["load_mass_kg"] = sim.truth["mass_kg"]
-        folder = tmp_path_factory.mktemp(f"gauge{seed}")
-        _cache[key] = (read_dataset(write_free_load(dataclasses.replace(sim, frame=frame, robot=robot), folder)), sim, leg)
-    return _cache[key]
+    """``test_sensor_matrix.dataset``'s payload (10 orientations held 4 s) read through ``A``."""
+    return _dataset(tmp_path_factory, "payload", seed, A, weigh)
 
 
 def combos(sm) -> dict[str, dict]:
