@@ -51,6 +51,7 @@ mocap bias under free rotations and translations) adds no rank.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -90,6 +91,7 @@ class EtaPrior:
     mu: np.ndarray
     info: np.ndarray
 
+    @cached_property
     def root(self) -> np.ndarray:
         """``U`` (q, r) with ``U U^T = info`` (its positive eigen-directions): the prior's residual rows ``U^T (eta - mu)``."""
         lam, V = np.linalg.eigh((self.info + self.info.T) / 2)
@@ -161,7 +163,7 @@ class AugmentedProblem:
         self.eta_prior = eta_prior
         w_prior = ca.MX.sym("w_prior")
         if eta_prior is not None:
-            U = eta_prior.root()
+            U = eta_prior.root
             d_eta = X[[self.n_model + int(i) for i in eta_prior.index]] - ca.DM(eta_prior.mu)
             f = f + w_prior * ca.sumsqr(ca.mtimes(ca.DM(U.T), d_eta))
         g = ca.Function("g", [spec.x], [spec.g])(X[: self.n_model])
@@ -218,7 +220,7 @@ class AugmentedProblem:
         J = np.einsum("pj,jin->pin", Phi, dM) * np.sqrt(K_DIAG)[None, :, None]
         J = J.reshape(-1, self.n)
         if self.eta_prior is not None:   # the prior's rows U^T (eta_J - mu): its information joins the poses'
-            U = self.eta_prior.root()
+            U = self.eta_prior.root
             Jp = np.zeros((U.shape[1], self.n))
             Jp[:, self.n_model + np.asarray(self.eta_prior.index, int)] = U.T
             J = np.vstack([J, Jp])
@@ -247,7 +249,7 @@ class AugmentedProblem:
         rss = float(((r**2) @ K_DIAG).sum())
         n_rows = r.size
         if self.eta_prior is not None:
-            U = self.eta_prior.root()
+            U = self.eta_prior.root
             rss += float(np.sum((U.T @ (self.eta(x)[np.asarray(self.eta_prior.index, int)] - self.eta_prior.mu)) ** 2))
             n_rows += U.shape[1]
         sigma2 = rss / max(n_rows - ident.rank, 1)
