@@ -173,16 +173,10 @@ def com_harmonics(phi: np.ndarray, harmonics: int = COM_HARMONICS) -> np.ndarray
     return np.stack(h, axis=1)
 
 
-def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS) -> tuple[np.ndarray, list[str]]:
-    """``J_i`` (N, 6, q) of the module docstring for one leg, with labels (a view of :func:`_nuisance_t`)."""
-    names = [f"{l.leg}.w_o.{c}" for c in ("fx", "fy", "fz", "tx", "ty", "tz")] + [f"{l.leg}.mg"]
-    names += [f"{l.leg}.tilt[{j}].{a}" for j in range(n_rec) for a in "xyz"]
-    names += [f"{l.leg}.r[{j}].{a}" for j in range(1 + 2 * harmonics) for a in "xyz"]
-    return _nuisance_t(l, n_rec, harmonics).transpose(2, 0, 1), names
-
-
-def _nuisance_t(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS, extra: np.ndarray | None = None) -> np.ndarray:
-    """``J_i`` channels first, (6, q, N) with the samples contiguous (then ``extra`` (N, 6, m), a face's columns):
+def hanging_nuisance(l: HangingLeg, n_rec: int, harmonics: int = COM_HARMONICS, extra: np.ndarray | None = None
+                     ) -> np.ndarray:
+    """``J_i`` of the module docstring for one leg, channels first (columns: offsets, weight, each recording's tilt,
+    the CoM curve's harmonics), (6, q, N) with the samples contiguous (then ``extra`` (N, 6, m), a face's columns):
     filled in place, since the joint refit forms it for every leg at every Gauss-Newton step and its per-fold
     products are then batched BLAS on views (no copy of the (N, 6, q) array per fold)."""
     N = len(l.t)
@@ -296,7 +290,7 @@ def _normal_equations(legs, face, fidx, folds: int, fl: np.ndarray, with_effect:
     parts = []
     for i, l in enumerate(legs):
         use_face = with_effect and face is not None
-        Xt = _nuisance_t(l, n_rec, extra=face.blocks[i] if use_face else None)     # (6, q, N)
+        Xt = hanging_nuisance(l, n_rec, extra=face.blocks[i] if use_face else None)     # (6, q, N)
         cols = list(range(l.k * qn, (l.k + 1) * qn))
         if use_face:
             if face.cols is not None:   # stacked faces (``LinearFace.cols``)

@@ -566,23 +566,21 @@ class RidgeChoice:
                 "heldout_rms": self.rms.tolist(), "chosen": num(self.chosen)}
 
 
-def choose_ridge(pr: Problem, start: State, W: np.ndarray, grid: tuple[float, ...], k: int, prior_weight: float,
-                 centre: State | None = None) -> RidgeChoice:
+def choose_ridge(pr: Problem, centre: State, W: np.ndarray, grid: tuple[float, ...], k: int,
+                 prior_weight: float) -> RidgeChoice:
     """Held-out score of every weight of ``grid`` over ``k`` contiguous folds; the one-se choice (module docstring).
     Each fold's fits are the converged minima (:func:`solve`) on the fold's training samples, down the grid from
     ``centre`` (the factory matrix's fit), each weight's fit started from the previous (larger) one's, with the same
-    ridge (the tiny ridge's information at ``centre``). One Gauss-Newton step from ``start`` (the fit on every sample
-    without ridge) was not enough: ``start`` has seen the held-out block, and where a model error pulls ``C`` far
+    ridge (the tiny ridge's information at ``centre``). One Gauss-Newton step from the fit on every sample
+    without ridge was not enough: that fit has seen the held-out block, and where a model error pulls ``C`` far
     from the factory matrix one step barely leaves it, so the held-out score rewarded the collapse (the iCub thigh,
     part A: 178 against 784 for the factory matrix, C's force gains 0.04 0.61 0.80; converged: ridge 0 106, 10 75,
-    the factory matrix 84).
-    ``start`` is kept for the signature (the grid's path starts at the factory matrix: a weight whose minimum only
-    ``start`` reaches is scored at the path's, the higher, training objective: a bias to the factory matrix)."""
+    the factory matrix 84). The path starts at the factory matrix: a weight whose minimum only the fit without ridge
+    reaches is scored at the path's, the higher, training objective (a bias to the factory matrix)."""
     folds = folds_of(len(pr.y), k)
     L = len(grid)
     scores = np.zeros((L, len(folds)))
     sq = np.zeros((L, 6))
-    centre = start if centre is None else centre
     at_centre = centre.copy(np.zeros(len(pr.pairs)))
     down = np.argsort(grid, kind="stable")[::-1]
     for f, held in enumerate(folds):
@@ -743,7 +741,7 @@ def fit_sensor_matrix(ds, res, s):
     first = solve(pr, start, W, 0.0, opt.prior_weight)
     e = residual(pr, first)
     W = 1.0 / np.maximum(np.minimum((e**2).sum(axis=0) / max(n - P / 6.0, 1.0), 1.0 / W), 1e-300)
-    choice = choose_ridge(pr, first, W, opt.ridge, opt.folds, opt.prior_weight, start)
+    choice = choose_ridge(pr, start, W, opt.ridge, opt.folds, opt.prior_weight)
     # the weight's fit from the fit without ridge and from the factory fit, the lower objective (one ridge): where the
     # load has undetermined directions only the tiny ridge moves, the factory fit's start keeps them at its values
     A0, _g0 = _system(pr, start, W)
